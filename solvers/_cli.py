@@ -1,0 +1,93 @@
+"""Shared command-line plumbing: one-line errors with exit code 2, atomic CSV
+writes, and parsing of station lists. No physics here."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+
+import numpy as np
+
+__all__ = ["CliError", "OneLineParser", "parse_floats", "parse_stations", "write_csv_atomic"]
+
+
+class CliError(Exception):
+    """A user error to report as one line on stderr, exit status 2."""
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse that reports bad arguments as a single line and exits 2."""
+
+    def error(self, message: str):  # noqa: D401 - argparse API
+        sys.stderr.write(f"{self.prog}: error: {message}\n")
+        raise SystemExit(2)
+
+
+def fail(prog: str, message: str) -> None:
+    """Print ``prog: error: message`` on one line and exit 2."""
+    sys.stderr.write(f"{prog}: error: {' '.join(str(message).split())}\n")
+    raise SystemExit(2)
+
+
+def parse_floats(text: str, name: str) -> list[float]:
+    """Parse ``"0.1,0.5"`` into floats, naming the option on failure."""
+    out = []
+    for part in text.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        try:
+            v = float(part)
+        except ValueError:
+            raise CliError(f"{name}: expected comma-separated numbers, got {part!r}") from None
+        if not np.isfinite(v):
+            raise CliError(f"{name}: expected finite numbers, got {part!r}")
+        out.append(v)
+    if not out:
+        raise CliError(f"{name}: expected at least one number")
+    return out
+
+
+def parse_stations(text: str | None, x_range_m: tuple[float, float]) -> list[float]:
+    """Stations as ``"110,230"`` or a range ``"start:stop:step"`` (stop included).
+
+    Raises:
+        CliError: on malformed text or stations outside the profile.
+    """
+    if not text:
+        return []
+    if ":" in text:
+        parts = text.split(":")
+        if len(parts) != 3:
+            raise CliError(f"--stations: expected start:stop:step, got {text!r}")
+        start, stop, step = parse_floats(",".join(parts), "--stations")
+        if step <= 0 or stop < start:
+            raise CliError(f"--stations: need step > 0 and stop >= start, got {text!r}")
+        n = int(np.floor((stop - start) / step + 1e-9)) + 1
+        stations = [start + i * step for i in range(n)]
+    else:
+        stations = parse_floats(text, "--stations")
+    lo, hi = x_range_m
+    bad = [s for s in stations if not (lo <= s <= hi)]
+    if bad:
+        raise CliError(f"--stations: station(s) {', '.join(f'{b:g}' for b in bad)} m lie outside "
+                       f"the profile x range [{lo:g}, {hi:g}] m")
+    return stations
+
+
+def write_csv_atomic(df, path: str) -> None:
+    """Write a pandas DataFrame to ``path`` via a temporary file and rename, so
+    that a crash never leaves a half-written file."""
+    directory = os.path.dirname(os.path.abspath(path))
+    os.makedirs(directory, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".csv", dir=directory)
+    try:
+        with os.fdopen(fd, "w", newline="") as fh:
+            df.to_csv(fh, index=False)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
