@@ -1,0 +1,155 @@
+"""Contact laws: block-wall corners, fragment-fragment corners, bonded joints.
+
+All forces are per metre of thickness (N/m); a contact of length l_c = s/2
+(see ``_params``) turns the joint stiffness kn (Pa/m) into a spring kn l_c.
+
+Constitutive law (paper eqs. 1-2, UDEC joint model):
+    normal:  F_n = kn l_c delta            (delta = penetration >= 0; the
+             incremental form dF_n = -kn l_c du_n summed from first touch)
+    shear:   F_s <- F_s - ks l_c du_s,      du_s = v_t dt (incremental spring)
+    limits:  |F_s| <= c l_c + F_n tan(phi) (Mohr-Coulomb), F_n >= -t l_c.
+The wall has c = t = 0. Smooth variant (``smooth=True``): F_n = kn l_c w
+softplus(delta / w) and |F_s| clipped by F_max tanh(F_s / F_max), so that the
+force is C-infinity in positions and parameters. Sources: Itasca UDEC theory
+(joint constitutive model, contact length), Cundall & Hart (1992).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from solvers.dem._geometry import Joints, cross2, rotate
+
+__all__ = ["joint_forces", "pair_forces", "penetration_force", "wall_forces"]
+
+_TINY = 1e-30
+
+
+def penetration_force(delta, k_c, width, smooth: bool):
+    """Normal force for penetration ``delta`` (m): k_c max(delta, 0), or its
+    softplus smoothing k_c w log(1 + exp(delta / w))."""
+    if smooth:
+        return k_c * width * jnp.logaddexp(0.0, delta / width)
+    return k_c * jnp.maximum(delta, 0.0)
+
+
+def _clip_shear(fs_trial, f_max, smooth: bool):
+    if smooth:
+        safe = jnp.where(f_max > _TINY, f_max, 1.0)
+        return jnp.where(f_max > _TINY, safe * jnp.tanh(fs_trial / safe), 0.0)
+    return jnp.clip(fs_trial, -f_max, f_max)
+
+
+def wall_forces(p, vp, fs_old, seg, kn_c, ks_c, dt, width, smooth: bool):
+    """Corner-to-wall contact forces.
+
+    Args:
+        p: (..., 2) corner positions, m. vp: (..., 2) corner velocities, m/s.
+        fs_old: (...) shear force carried from the last step, N/m, along the
+            segment tangent.
+        seg: (xa, za, tx, tz, tan_phi) of the segment below each corner.
+        kn_c, ks_c: contact springs kn l_c, ks l_c, N/m per m.
+        dt: time step, s. width: softplus width, m.
+
+    Returns:
+        force (..., 2) on the corner, N/m; new shear force (...); penetration (...) m.
+    """
+    xa, za, tx, tz, tan_phi = seg
+    nx, nz = -tz, tx  # upward unit normal
+    delta = -(nx * (p[..., 0] - xa) + nz * (p[..., 1] - za))
+    fn = penetration_force(delta, kn_c, width, smooth)
+    vt = vp[..., 0] * tx + vp[..., 1] * tz
+    touching = (fn > 0.0) if smooth else (delta > 0.0)
+    fs_trial = jnp.where(touching, fs_old - ks_c * vt * dt, 0.0)
+    fs = _clip_shear(fs_trial, fn * tan_phi, smooth)
+    force = jnp.stack([fn * nx + fs * tx, fn * nz + fs * tz], axis=-1)
+    return force, fs, delta
+
+
+def pair_forces(pos, cs, sn, vel, omega, r_corner, nbr, bonded, active, h, kn_c,
+                tan_phi, eps, width, smooth: bool):
+    """Corner-to-face contacts between fragments (squares of half side h).
+
+    Each fragment i tests its 4 corners against the K fragments ``nbr[i]``.
+    A corner inside square j (local coordinates |q|_inf < h) is pushed out
+    through the nearest face with F_n = kn l_c delta, delta = h - |q|_inf.
+    Friction is regularised Coulomb, F_t = -tan(phi) F_n tanh(v_t / eps)
+    (no shear-spring history for these transient contacts: a documented
+    simplification). The reaction -F acts on j at the same point, so linear
+    momentum is conserved exactly.
+
+    Args:
+        pos (N,2), cs/sn (N,) cos/sin of rotation, vel (N,2), omega (N,),
+        r_corner (N,4,2) world lever arms of the corners, nbr (N,K) int,
+        bonded (N,N) bool (intact joint: no corner contact), active (N,) bool.
+
+    Returns:
+        force (N,2) and torque (N,) on every fragment.
+    """
+    n_frag, k_nb = nbr.shape
+    p = pos[:, None, None, :] + r_corner[:, None, :, :]            # (N,1,4,2)
+    cj, sj = cs[nbr][:, :, None], sn[nbr][:, :, None]                # (N,K,1)
+    d = p - pos[nbr][:, :, None, :]                                  # (N,K,4,2)
+    q = rotate(d, cj, -sj)                                           # into j's frame
+    ax, az = jnp.abs(q[..., 0]), jnp.abs(q[..., 1])
+    use_x = ax >= az
+    delta = h - jnp.maximum(ax, az)
+    n_loc = jnp.stack([jnp.where(use_x, jnp.sign(q[..., 0]), 0.0),
+                       jnp.where(use_x, 0.0, jnp.sign(q[..., 1]))], axis=-1)
+    n_w = rotate(n_loc, cj, sj)
+    ok = (~bonded[jnp.arange(n_frag)[:, None], nbr] & active[:, None] & active[nbr]
+          & (nbr != jnp.arange(n_frag)[:, None]))[:, :, None]
+    ok = ok & (delta > (-20.0 * width if smooth else 0.0))
+    fn = jnp.where(ok, penetration_force(delta, kn_c, width, smooth), 0.0)
+    # relative velocity of the corner w.r.t. the material point of j
+    v_i = vel[:, None, None, :] + omega[:, None, None, None] * jnp.stack(
+        [-r_corner[..., 1], r_corner[..., 0]], axis=-1)[:, None]
+    v_j = vel[nbr][:, :, None, :] + omega[nbr][:, :, None, None] * jnp.stack(
+        [-d[..., 1], d[..., 0]], axis=-1)
+    t_w = jnp.stack([-n_w[..., 1], n_w[..., 0]], axis=-1)
+    vt = jnp.sum((v_i - v_j) * t_w, axis=-1)
+    ft = -tan_phi * fn * jnp.tanh(vt / eps)
+    f = fn[..., None] * n_w + ft[..., None] * t_w                     # on i, (N,K,4,2)
+    f_i = jnp.sum(f, axis=(1, 2))
+    t_i = jnp.sum(cross2(r_corner[:, None], f), axis=(1, 2))
+    f_j = jax.ops.segment_sum(-jnp.sum(f, axis=2).reshape(-1, 2), nbr.reshape(-1),
+                              num_segments=n_frag)
+    t_j = jax.ops.segment_sum(cross2(d, -f).sum(axis=2).reshape(-1), nbr.reshape(-1),
+                              num_segments=n_frag)
+    return f_i + f_j, t_i + t_j
+
+
+def joint_forces(pos, cs, sn, joints: Joints, intact, h, kn_c, ks_c, c_c, t_c, tan_phi):
+    """Bonded joints: linear springs at the two end points of each shared face.
+
+    With Delta = x_b(point) - x_a(point) (world) and the joint normal n rotating
+    with fragment a: F_on_a = kn l_c (Delta.n) n + ks l_c (Delta.t) t, F_on_b =
+    -F_on_a (for an elastic bond the incremental form of eq. 1 sums to this).
+    A joint breaks for good (c = t = 0 afterwards) when at either point the
+    compressive normal force F_c = -kn l_c Delta.n falls below -t l_c or the
+    shear exceeds c l_c + max(F_c, 0) tan(phi) (eq. 2).
+
+    Returns:
+        force (N,2), torque (N,), new intact flags (J,).
+    """
+    n_frag = pos.shape[0]
+    a, b = joints.a, joints.b
+    ra = rotate(jnp.asarray(joints.qa) * h, cs[a][:, None], sn[a][:, None])   # (J,2,2)
+    rb = rotate(jnp.asarray(joints.qb) * h, cs[b][:, None], sn[b][:, None])
+    delta = (pos[b][:, None] + rb) - (pos[a][:, None] + ra)
+    n_w = rotate(jnp.asarray(joints.normal), cs[a], sn[a])[:, None, :]        # (J,1,2)
+    t_w = jnp.stack([-n_w[..., 1], n_w[..., 0]], axis=-1)
+    un = jnp.sum(delta * n_w, axis=-1)
+    us = jnp.sum(delta * t_w, axis=-1)
+    f_comp = -kn_c * un
+    f_shear = ks_c * us
+    fail = (f_comp < -t_c) | (jnp.abs(f_shear) > c_c + jnp.maximum(f_comp, 0.0) * tan_phi)
+    intact_new = intact & ~jnp.any(fail, axis=-1)
+    w = intact_new[:, None, None].astype(pos.dtype)
+    f_a = w * (kn_c * un[..., None] * n_w + f_shear[..., None] * t_w)        # (J,2,2)
+    force = (jax.ops.segment_sum(f_a.sum(1), a, num_segments=n_frag)
+             - jax.ops.segment_sum(f_a.sum(1), b, num_segments=n_frag))
+    torque = (jax.ops.segment_sum(cross2(ra, f_a).sum(1), a, num_segments=n_frag)
+              + jax.ops.segment_sum(cross2(rb, -f_a).sum(1), b, num_segments=n_frag))
+    return force, torque, intact_new

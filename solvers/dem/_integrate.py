@@ -1,0 +1,392 @@
+"""State, pure step and the bounded rollout of one (possibly fragmented) block.
+
+Integration is UDEC's central-difference scheme (Itasca UDEC theory, "motion
+of rigid blocks"; Cundall & Hart 1992): velocities live at half steps,
+
+    v(t + dt/2) = v(t - dt/2) + (F(t) + F_d(t)) / m dt,
+    x(t + dt)   = x(t) + v(t + dt/2) dt,
+
+and the same for the rotation with the torque and I = m s^2 / 6. It is
+second order for position-dependent forces. The local damping (paper eq. 3,
+alpha = pi D) acts per degree of freedom (x, z, rotation):
+
+    F_d,i = -alpha |F_i| sign(v_i),
+
+where F_i is the whole unbalanced force including gravity (Cundall's classic
+form, used by Itasca's codes: ``damp_gravity = 1``) or the contact force only
+(``damp_gravity = 0``). In the classic form a block in free flight with
+alpha = 0.9 falls at 0.1 g and rises against 1.9 g.
+
+Loop: ``lax.while_loop`` over chunks of ``Options.chunk`` steps (a
+``fori_loop``), ending when every fragment has stopped or left the profile, or
+after ``Options.max_steps``. We use a bounded while loop rather than a scan of
+max_steps because blocks stop at very different times (a scan would pay for
+max_steps every time); the price is no reverse-mode AD, which NOTES.md shows is
+useless past ~0.5 s of contact anyway (finite differences with common random
+numbers are the calibration route). Under ``vmap`` the loop runs until the
+slowest lane ends; finished lanes are frozen by the ``status`` mask, so a
+block's result does not depend on its batch.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from solvers.dem._contact import joint_forces, pair_forces, wall_forces
+from solvers.dem._geometry import (
+    SegmentTable,
+    corner_offsets,
+    cross2,
+    fragment_layout,
+    joints_of,
+    rotate,
+    segment_lookup,
+    segment_table,
+)
+from solvers.dem._params import (
+    EXITED,
+    MAX_STEPS,
+    NONFINITE,
+    RUNNING,
+    STOPPED,
+    Block,
+    Options,
+    Params,
+    stable_dt,
+)
+from solvers.profile import ground_z
+from solvers.stations import StationRecord, empty_record, record_passage
+
+__all__ = ["Consts", "Pose", "Result", "State", "init", "result", "simulate",
+           "simulate_batch", "step", "trajectory"]
+
+
+class Pose(NamedTuple):
+    """Explicit initial conditions of the N fragments (bypasses the random release).
+
+    pos (N,2) m, theta (N,) rad, vel (N,2) m/s, omega (N,) rad/s.
+    """
+
+    pos: jax.Array
+    theta: jax.Array
+    vel: jax.Array
+    omega: jax.Array
+
+
+class Consts(NamedTuple):
+    """Per-block constants computed once by ``init``."""
+
+    dt: jax.Array
+    mass: jax.Array          # kg/m, per fragment
+    inertia: jax.Array       # kg m2/m, per fragment
+    half: jax.Array          # half side h, m
+    alpha: jax.Array         # (N,)
+    kn_c: jax.Array          # kn l_c, N/m per m
+    ks_c: jax.Array
+    width: jax.Array         # softplus width, m
+    seg: SegmentTable
+    x_end: jax.Array
+    x_release: jax.Array
+    ground_at_stations: jax.Array  # (S,)
+
+
+class State(NamedTuple):
+    """Dynamic state of one block's fragments (N fragments, J joints, S stations).
+
+    pos (N,2) float64 m at t; theta (N,) rad; vel (N,2) and omega (N,) at
+    t - dt/2; fs (N,4) wall shear force per corner (N/m); intact (J,) joints;
+    slow_s (N,) time spent below the stop speed; exited (N,) left the profile
+    end; rec StationRecord with (N,S) fields; n_steps, status scalars.
+    """
+
+    pos: jax.Array
+    theta: jax.Array
+    vel: jax.Array
+    omega: jax.Array
+    fs: jax.Array
+    intact: jax.Array
+    slow_s: jax.Array
+    exited: jax.Array
+    rec: StationRecord
+    n_steps: jax.Array
+    status: jax.Array
+
+
+class Result(NamedTuple):
+    """Outcome for one block; per-fragment fields have shape (N,).
+
+    stop_x_m, stop_z_m: final centre position, m. runout_m: stop_x_m minus the
+    release abscissa (horizontal travel), m. stopped: came to rest (flagged
+    False if it left the profile or ran out of steps). exited: passed the
+    profile end. status: block status (see ``STATUS_NAMES``). n_steps, time_s,
+    dt_s: steps run, simulated time, time step. joints_broken: fraction of
+    joints broken. stations: StationRecord with (N,S) fields.
+    """
+
+    stop_x_m: jax.Array
+    stop_z_m: jax.Array
+    runout_m: jax.Array
+    stopped: jax.Array
+    exited: jax.Array
+    status: jax.Array
+    n_steps: jax.Array
+    time_s: jax.Array
+    dt_s: jax.Array
+    joints_broken: jax.Array
+    stations: StationRecord
+
+
+def _consts(params: Params, block: Block) -> Consts:
+    n = block.n_side
+    s = block.size_m / n
+    mass = params.rho * s * s
+    l_c = 0.5 * s
+    kn_c = params.kn * params.stiffness_scale * l_c
+    ks_c = params.ks * params.stiffness_scale * l_c
+    width = params.smooth_width * mass * params.gravity / (2.0 * kn_c)
+    return Consts(
+        dt=stable_dt(params, block), mass=mass, inertia=mass * s * s / 6.0, half=0.5 * s,
+        alpha=block.alpha, kn_c=kn_c, ks_c=ks_c, width=width,
+        seg=segment_table(params.profile), x_end=params.profile.x_m[-1],
+        x_release=block.release_x_m,
+        ground_at_stations=ground_z(params.profile, block.stations_x_m))
+
+
+def _release(params: Params, block: Block, key: jax.Array) -> Pose:
+    """Random release at the cliff edge: orientation U(0, pi/2), downslope offset
+    U(0, jitter), horizontal speed U(0, speed); fragments laid out rigidly."""
+    n = block.n_side
+    k_theta, k_x, k_v = jax.random.split(key, 3)
+    theta0 = jax.random.uniform(k_theta, (), minval=0.0, maxval=0.5 * math.pi)
+    jitter = params.release_jitter_m * jax.random.uniform(k_x, ())
+    v0 = params.release_speed_m_s * jax.random.uniform(k_v, ())
+    big_r = block.size_m / math.sqrt(2.0)
+    x0 = block.release_x_m + big_r + jitter
+    z0 = ground_z(params.profile, block.release_x_m) + big_r + params.release_gap_m
+    off = jnp.asarray(fragment_layout(n)) * (block.size_m / n)
+    pos = jnp.stack([x0, z0]) + rotate(off, jnp.cos(theta0), jnp.sin(theta0))
+    zeros = jnp.zeros((n * n,))
+    return Pose(pos, zeros + theta0, jnp.stack([zeros + v0, zeros], axis=-1), zeros)
+
+
+def _forces(st: State, params: Params, c: Consts, nbr, options: Options, n_side: int):
+    """Contact forces (N,2), torques (N,), new wall shear, new joint flags, corners."""
+    cs, sn = jnp.cos(st.theta), jnp.sin(st.theta)
+    r = rotate(corner_offsets(c.half)[None], cs[:, None], sn[:, None])      # (N,4,2)
+    p = st.pos[:, None, :] + r
+    vp = st.vel[:, None, :] + st.omega[:, None, None] * jnp.stack([-r[..., 1], r[..., 0]], -1)
+    if options.segment_search == "all":
+        seg = _lookup_all(c.seg, p, params)
+    else:
+        seg = segment_lookup(c.seg, p[..., 0])
+    fw, fs, _ = wall_forces(p, vp, st.fs, seg, c.kn_c, c.ks_c, c.dt, c.width, options.smooth)
+    force = fw.sum(axis=1)
+    torque = cross2(r, fw).sum(axis=1)
+    intact = st.intact
+    if n_side > 1:
+        joints = joints_of(n_side)
+        tan_j = jnp.tan(jnp.deg2rad(params.phi_joint_deg))
+        l_c = c.half
+        fj, tj, intact = joint_forces(st.pos, cs, sn, joints, st.intact, c.half, c.kn_c,
+                                      c.ks_c, params.c_joint_pa * l_c,
+                                      params.t_joint_pa * l_c, tan_j)
+        n_frag = n_side * n_side
+        bonded = (jnp.zeros((n_frag, n_frag), bool).at[joints.a, joints.b].set(intact)
+                  .at[joints.b, joints.a].set(intact))
+        fp, tp = pair_forces(st.pos, cs, sn, st.vel, st.omega, r, nbr, bonded, ~st.exited,
+                             c.half, c.kn_c, tan_j, params.sign_eps_m_s * 10.0, c.width,
+                             options.smooth)
+        force = force + fj + fp
+        torque = torque + tj + tp
+    return force, torque, fs, intact, p
+
+
+def _lookup_all(table: SegmentTable, p, params: Params):
+    """Brute-force variant: every corner tests every segment (for benchmarks)."""
+    x_b = jnp.concatenate([table.x_inner, params.profile.x_m[-1:]])
+    px, pz = p[..., 0][..., None], p[..., 1][..., None]
+    inside = (px >= jnp.concatenate([params.profile.x_m[:1] - 1e9, table.x_inner])) \
+        & (px < jnp.concatenate([x_b[:-1], x_b[-1:] + 1e9]))
+    dist = -table.tz * (px - table.xa) + table.tx * (pz - table.za)
+    best = jnp.argmax(jnp.where(inside, -jnp.abs(dist), -jnp.inf), axis=-1)
+    onehot = best[..., None] == jnp.arange(table.xa.shape[0])
+    return tuple(jnp.sum(jnp.where(onehot, f, 0.0), axis=-1)
+                 for f in (table.xa, table.za, table.tx, table.tz, table.tan_phi))
+
+
+def _neighbours(st: State, k: int) -> jax.Array:
+    d = st.pos[:, None, :] - st.pos[None, :, :]
+    d2 = jnp.sum(d * d, axis=-1)
+    n = st.pos.shape[0]
+    d2 = jnp.where(jnp.eye(n, dtype=bool) | st.exited[None, :], jnp.inf, d2)
+    return lax.top_k(-d2, k)[1]
+
+
+def init(params: Params, block: Block, key: jax.Array, options: Options = Options(),
+         pose: Pose | None = None) -> tuple[Consts, State]:
+    """Initial constants and state. ``pose`` overrides the random release.
+
+    The first half-step velocity is v(-dt/2) = v(0) - a(0) dt/2 with a(0) the
+    undamped acceleration, which keeps the scheme second order from t = 0.
+    """
+    n = block.n_side
+    c = _consts(params, block)
+    pose = _release(params, block, key) if pose is None else pose
+    n_frag, n_joint = n * n, len(joints_of(n).a)
+    st = State(pos=jnp.asarray(pose.pos, jnp.float64), theta=jnp.asarray(pose.theta),
+               vel=jnp.asarray(pose.vel), omega=jnp.asarray(pose.omega),
+               fs=jnp.zeros((n_frag, 4)), intact=jnp.ones((n_joint,), bool),
+               slow_s=jnp.zeros((n_frag,)), exited=jnp.zeros((n_frag,), bool),
+               rec=jax.tree.map(lambda a: jnp.broadcast_to(a, (n_frag,) + a.shape),
+                                empty_record(block.stations_x_m.shape[0])),
+               n_steps=jnp.asarray(0, jnp.int32), status=jnp.asarray(RUNNING, jnp.int32))
+    nbr = _neighbours(st, min(options.n_neighbors, n_frag - 1)) if n > 1 else None
+    force, torque, _, _, _ = _forces(st, params, c, nbr, options, n)
+    acc = force / c.mass + jnp.array([0.0, -1.0]) * params.gravity
+    st = st._replace(vel=st.vel - 0.5 * c.dt * acc,
+                     omega=st.omega - 0.5 * c.dt * torque / c.inertia)
+    return c, st
+
+
+def step(st: State, params: Params, c: Consts, nbr, options: Options, n_side: int) -> State:
+    """One central-difference step (pure). Frozen once ``status`` != RUNNING."""
+    force, torque, fs, intact, corners = _forces(st, params, c, nbr, options, n_side)
+    g = jnp.array([0.0, -1.0]) * (c.mass * params.gravity)
+    f_unbal = force + g
+    f_base = force + params.damp_gravity * g
+    if options.smooth:
+        def sgn(v):
+            return jnp.tanh(v / params.sign_eps_m_s)
+    else:
+        sgn = jnp.sign
+    alpha = c.alpha
+    f_damp = -alpha[:, None] * jnp.abs(f_base) * sgn(st.vel)
+    t_damp = -alpha * jnp.abs(torque) * sgn(st.omega)
+    vel = st.vel + (f_unbal + f_damp) * (c.dt / c.mass)
+    omega = st.omega + (torque + t_damp) * (c.dt / c.inertia)
+    pos = st.pos + vel * c.dt
+    theta = st.theta + omega * c.dt
+
+    running = st.status == RUNNING
+    move = running & ~st.exited
+    pos = jnp.where(move[:, None], pos, st.pos)
+    theta = jnp.where(move, theta, st.theta)
+    vel = jnp.where(move[:, None], vel, st.vel)
+    omega = jnp.where(move, omega, st.omega)
+    fs = jnp.where(move[:, None], fs, st.fs)
+    intact = jnp.where(running, intact, st.intact)
+
+    rec = st.rec  # stations are recorded by _step_with_stations
+    exited = st.exited | (pos[:, 0] > c.x_end)
+    radius = c.half * math.sqrt(2.0)
+    speed2 = jnp.sum(vel * vel, axis=-1) + (omega * radius) ** 2
+    slow_s = jnp.where(speed2 < params.stop_speed_m_s ** 2, st.slow_s + c.dt, 0.0)
+    slow_s = jnp.where(move, slow_s, st.slow_s)
+    finished = jnp.all((slow_s >= params.stop_hold_s) | exited)
+    bad = ~jnp.all(jnp.isfinite(pos))
+    n_steps = st.n_steps + running.astype(jnp.int32)
+    new_status = jnp.where(bad, NONFINITE,
+                           jnp.where(finished, jnp.where(jnp.any(exited), EXITED, STOPPED),
+                                     jnp.where(n_steps >= options.max_steps, MAX_STEPS,
+                                               RUNNING)))
+    status = jnp.where(running, new_status, st.status).astype(jnp.int32)
+    return State(pos, theta, vel, omega, fs, intact, slow_s, exited, rec, n_steps, status)
+
+
+def _stations(old: State, new: State, c: Consts, block: Block, corners) -> StationRecord:
+    xs = block.stations_x_m
+    crossed = (old.pos[:, 0:1] < xs) & (new.pos[:, 0:1] >= xs)
+    e_kj = 0.5e-3 * (c.mass * jnp.sum(new.vel ** 2, -1) + c.inertia * new.omega ** 2)
+    speed = jnp.sqrt(jnp.sum(new.vel ** 2, -1))
+    low = jnp.min(corners[..., 1], axis=1)
+    height = low[:, None] - c.ground_at_stations
+    return record_passage(old.rec, crossed, jnp.broadcast_to(e_kj[:, None], crossed.shape),
+                          jnp.broadcast_to(speed[:, None], crossed.shape), height)
+
+
+def _step_with_stations(st, params, c, nbr, options, block):
+    n = block.n_side
+    new = step(st, params, c, nbr, options, n)
+    if block.stations_x_m.shape[0] > 0:
+        cs, sn = jnp.cos(new.theta), jnp.sin(new.theta)
+        corners = new.pos[:, None, :] + rotate(corner_offsets(c.half)[None], cs[:, None],
+                                               sn[:, None])
+        new = new._replace(rec=_stations(st, new, c, block, corners))
+    return new
+
+
+def result(st: State, c: Consts) -> Result:
+    stopped = ~st.exited & ((st.status == STOPPED) | (st.status == EXITED))
+    broken = (1.0 - jnp.mean(st.intact.astype(jnp.float64))) if st.intact.shape[0] else \
+        jnp.asarray(0.0)
+    return Result(stop_x_m=st.pos[:, 0], stop_z_m=st.pos[:, 1],
+                  runout_m=st.pos[:, 0] - c.x_release, stopped=stopped, exited=st.exited,
+                  status=st.status, n_steps=st.n_steps, time_s=st.n_steps * c.dt, dt_s=c.dt,
+                  joints_broken=broken, stations=st.rec)
+
+
+def simulate(params: Params, block: Block, key: jax.Array, options: Options = Options(),
+             pose: Pose | None = None) -> Result:
+    """Roll one block (or one fragmented block) out until rest (pure; vmap it).
+
+    Args:
+        params: physics and numerics (``Params``).
+        block: size, per-fragment alpha, release point, stations (``Block``).
+        key: PRNG key of the random release (orientation, offset, speed).
+        options: static options (``Options``), hashable.
+        pose: explicit initial conditions instead of the random release.
+
+    Returns:
+        ``Result`` with per-fragment stop positions, runouts and flags.
+    """
+    n = block.n_side
+    n_frag = n * n
+    c, st = init(params, block, key, options, pose)
+    k_nb = min(options.n_neighbors, n_frag - 1)
+
+    def body(s):
+        nbr = _neighbours(s, k_nb) if n > 1 else None
+        return lax.fori_loop(0, options.chunk,
+                             lambda _, x: _step_with_stations(x, params, c, nbr, options, block),
+                             s)
+
+    st = lax.while_loop(lambda s: s.status == RUNNING, body, st)
+    return result(st, c)
+
+
+def simulate_batch(params: Params, block: Block, keys: jax.Array,
+                   options: Options = Options()) -> Result:
+    """``jit(vmap(simulate))`` over a batch of keys (one block per key)."""
+    return _simulate_batch(params, block, keys, options)
+
+
+def _simulate_batch_impl(params, block, keys, options):
+    return jax.vmap(lambda k: simulate(params, block, k, options))(keys)
+
+
+_simulate_batch = jax.jit(_simulate_batch_impl, static_argnames=("options",))
+
+
+def trajectory(params: Params, block: Block, key: jax.Array, n_saves: int, every: int,
+               options: Options = Options(), pose: Pose | None = None):
+    """Fixed-length rollout saving the state every ``every`` steps (lax.scan).
+
+    For tests and figures. Returns (Consts, stacked States of leading size n_saves).
+    """
+    n = block.n_side
+    c, st = init(params, block, key, options, pose)
+    k_nb = min(options.n_neighbors, n * n - 1)
+
+    def outer(s, _):
+        nbr = _neighbours(s, k_nb) if n > 1 else None
+        s = lax.fori_loop(0, every,
+                          lambda _, x: _step_with_stations(x, params, c, nbr, options, block), s)
+        return s, s
+
+    _, hist = lax.scan(outer, st, None, length=n_saves)
+    return c, hist
