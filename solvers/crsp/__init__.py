@@ -1,0 +1,48 @@
+"""CRSP: the Colorado Rockfall Simulation Program's lumped-mass impact model in JAX.
+
+``simulate(params, block, key, profile=...)`` runs ONE block; ``jax.vmap`` or
+``run_blocks`` run thousands. See ``_model`` for the event loop, ``_impact`` for
+the impact law, ``_flight`` for the closed-form next impact and ``_contact`` for
+the rolling phase. ``python -m solvers.crsp --help`` for the command line.
+"""
+
+import solvers  # noqa: F401  (enables float64)
+from solvers.crsp._batch import block_keys, run_blocks, simulate_batch
+from solvers.crsp._impact import ImpactOut, crsp_impact, roughness_tilt
+from solvers.crsp._model import (
+    CONTACT,
+    FLIGHT,
+    LEFT_PROFILE,
+    MAX_EVENTS,
+    STOPPED,
+    Block,
+    Params,
+    Result,
+    Settings,
+    State,
+    make_block,
+    params_from_profile,
+    simulate,
+)
+
+__all__ = [
+    "CONTACT",
+    "FLIGHT",
+    "LEFT_PROFILE",
+    "MAX_EVENTS",
+    "STOPPED",
+    "Block",
+    "ImpactOut",
+    "Params",
+    "Result",
+    "Settings",
+    "State",
+    "block_keys",
+    "crsp_impact",
+    "make_block",
+    "params_from_profile",
+    "roughness_tilt",
+    "run_blocks",
+    "simulate",
+    "simulate_batch",
+]
