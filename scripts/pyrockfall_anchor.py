@@ -41,7 +41,7 @@ Set-up, mapped onto our conventions (solvers.crsp):
   A rock counts as not stopped when it ends faster than ``--stop-speed`` m/s
   (iteration bound hit, or PyRockfall dropped it when it found no next
   impact) or outside the profile's x range (flew off an end onto PyRockfall's
-  floor).
+  floor) or more than one radius below the ground (passed through the slope).
 * Timing: wall time of PyRockfall's preprocess + process + postprocess (what
   ``Analysis.run`` calls: sampling, the event loop, and packing of the stored
   trajectories); imports and object set-up are not timed.
@@ -93,6 +93,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="PyRockfall Analysis.maxIter (its own default, 1000, is too few: a "
                         "rock sliding in 0.01 s steps needs ~1100 on Postignano). The loop "
                         "ends when all rocks are done; memory grows with the iterations run")
+    p.add_argument("--mem-limit-gb", type=float, default=5.0,
+                   help="refuse to start if the worst-case trajectory storage "
+                        "(~128 B x N x max-iter) exceeds this, GB")
     p.add_argument("--stop-speed", type=float, default=1e-3,
                    help="final speed above which a rock counts as not stopped, m/s")
     p.add_argument("--verbose", action="store_true",
@@ -109,10 +112,18 @@ def parse_args(argv=None) -> argparse.Namespace:
         (math.isfinite(a.vx), "--vx must be finite"),
         (a.max_iter > 0, "--max-iter must be positive"),
         (a.stop_speed > 0, "--stop-speed must be positive"),
+        (a.mem_limit_gb > 0, "--mem-limit-gb must be positive"),
     ]
     for ok, msg in checks:
         if not ok:
             fail(msg)
+    # PyRockfall stores 8 float64 per rock per iteration, and its postprocess
+    # stacks the lists into arrays (a second copy): ~128 B per rock-iteration.
+    worst_gb = 128.0 * a.n * a.max_iter / 1e9
+    if worst_gb > a.mem_limit_gb:
+        fail(f"--n {a.n} with --max-iter {a.max_iter} may need up to {worst_gb:.1f} GB of "
+             f"trajectory storage (> --mem-limit-gb {a.mem_limit_gb:g}); lower --max-iter "
+             f"or --n, or raise --mem-limit-gb")
     return a
 
 
@@ -215,7 +226,11 @@ def main(argv=None) -> int:
     speed = np.hypot(velocity[0], velocity[1])
     moving = ~(speed <= args.stop_speed)  # NaN counts as moving
     off_profile = (x_end < xs[0] - 1e-6) | (x_end > xs[-1] + 1e-6) | ~np.isfinite(x_end)
-    not_stopped = moving | off_profile
+    # rocks that ended well below the ground passed through the slope (seen with
+    # large roughness tilts): not a stop either
+    z_ground = np.interp(x_end, xs, zs)
+    tunnelled = ~off_profile & (position[1] < z_ground - args.radius_m)
+    not_stopped = moving | off_profile | tunnelled
     runout = x_end - x0
 
     out = {
@@ -237,6 +252,7 @@ def main(argv=None) -> int:
             f"{PROG}: iterations={n_iter} max_iter={args.max_iter} "
             f"moving_at_end={int(np.count_nonzero(moving))} "
             f"off_profile={int(np.count_nonzero(off_profile))} "
+            f"below_ground={int(np.count_nonzero(tunnelled))} "
             f"tilt_max_deg={tilt_max_deg:.2f} mass_kg={mass:.1f} "
             f"runout_p10/p50/p90_m={np.nanpercentile(runout, 10):.2f}/"
             f"{np.nanpercentile(runout, 50):.2f}/{np.nanpercentile(runout, 90):.2f} "

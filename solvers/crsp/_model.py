@@ -251,17 +251,28 @@ def _segment_geometry(profile: Profile, seg):
 
 def init(params: Params, block: Block, key: jax.Array, profile: Profile,
          n_stations: int) -> State:
-    """Initial state: the block at the release point, in flight (``key``: release key)."""
+    """Initial state at the release point (``key``: release key).
+
+    The block starts in flight, or in ground contact when it is released on the
+    ground (height 0) with a velocity that does not leave the slope (normal
+    component below the rolling threshold)."""
     del block
     u = jax.random.uniform(key, dtype=jnp.float64)
     x0 = params.release_x_m + u * params.release_x_spread_m
     x0 = jnp.clip(x0, profile.x_m[0], profile.x_m[-1])
     z0 = ground_z(profile, x0) + params.release_height_m
     zero = jnp.zeros((), jnp.float64)
+    seg = segment_index(profile, x0)
+    *_, beta = _segment_geometry(profile, seg)
+    vx0, vz0 = zero + params.release_vx_m_s, zero + params.release_vz_m_s
+    # released on the ground without leaving it: start rolling along the segment
+    on_ground = (params.release_height_m <= 0.0) & (
+        -vx0 * jnp.sin(beta) + vz0 * jnp.cos(beta) < params.rolling_threshold_m_s)
+    u0 = vx0 * jnp.cos(beta) + vz0 * jnp.sin(beta)
     return State(
-        x_m=x0, z_m=z0, vx_m_s=zero + params.release_vx_m_s,
-        vz_m_s=zero + params.release_vz_m_s, spin_rad_s=zero,
-        seg=segment_index(profile, x0), mode=jnp.asarray(FLIGHT, jnp.int32),
+        x_m=x0, z_m=z0, vx_m_s=jnp.where(on_ground, u0 * jnp.cos(beta), vx0),
+        vz_m_s=jnp.where(on_ground, u0 * jnp.sin(beta), vz0), spin_rad_s=zero,
+        seg=seg, mode=jnp.where(on_ground, CONTACT, FLIGHT).astype(jnp.int32),
         n_events=jnp.asarray(0, jnp.int32), n_impacts=jnp.asarray(0, jnp.int32),
         pending=jnp.asarray(False), stations=empty_record(n_stations),
     )

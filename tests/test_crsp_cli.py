@@ -1,0 +1,47 @@
+"""CRSP command line: output file, summary, and one-line errors with exit 2."""
+
+import os
+import subprocess
+import sys
+
+import pandas as pd
+import pytest
+
+CMD = [sys.executable, "-m", "solvers.crsp", "--no-progress"]
+PROFILE = "data/postignano_profile.csv"
+
+
+def _run(*args):
+    return subprocess.run(CMD + list(args), capture_output=True, text=True)
+
+
+def test_cli_writes_one_row_per_block(tmp_path):
+    out = tmp_path / "runouts.csv"
+    r = _run("--profile", PROFILE, "--n-blocks", "64", "--radius-m", "0.5", "--Kn", "0.41",
+             "--Kt", "0.87", "--roughness-m", "2.0", "--seed", "0", "--out", str(out),
+             "--stations", "110,230")
+    assert r.returncode == 0, r.stderr
+    df = pd.read_csv(out)
+    assert len(df) == 64
+    for col in ("runout_m", "stop_x_m", "stop_z_m", "stopped", "passed_110m", "energy_kJ_230m"):
+        assert col in df.columns
+    assert "median" in r.stdout and "blocks/s" in r.stdout
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--profile", "missing.csv"], "missing.csv: file not found"),
+    (["--profile", PROFILE, "--n-blocks", "0"], "--n-blocks must be positive"),
+    (["--profile", PROFILE, "--radius-m", "-1"], "--radius-m"),
+    (["--profile", PROFILE, "--Kn", "1.4"], "restitution"),
+    (["--profile", PROFILE, "--stations", "400"], "outside the profile"),
+    (["--profile", PROFILE, "--stations", "a,b"], "--stations"),
+    (["--profile", PROFILE, "--release-x-m", "300"], "--release-x-m"),
+    (["--profile", PROFILE, "--bogus"], "unrecognized arguments"),
+])
+def test_cli_bad_arguments_one_line_exit_2(tmp_path, args, needle):
+    out = tmp_path / "o.csv"
+    r = _run(*args, "--out", str(out))
+    assert r.returncode == 2
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and needle in lines[0], r.stderr
+    assert not os.path.exists(out)
