@@ -88,7 +88,8 @@ def main(argv: list[str] | None = None) -> int:
         lo, hi = profile.x_range_m
         release_x = lo if args.release_x_m is None else args.release_x_m
         if not (lo <= release_x < hi):
-            raise CliError(f"--release-x-m {release_x:g} lies outside the profile [{lo:g}, {hi:g}) m")
+            raise CliError(f"--release-x-m {release_x:g} lies outside the profile "
+                           f"[{lo:g}, {hi:g}) m")
         block = crsp.make_block(args.radius_m, args.shape, args.density_kg_m3)
     except (ProfileError, CliError, ValueError) as exc:
         fail(prog, str(exc))

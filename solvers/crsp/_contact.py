@@ -61,7 +61,8 @@ class ContactMove(NamedTuple):
 
 def contact_move(
     u_m_s: jax.Array,
-    slope_rad: jax.Array,
+    slope_cos: jax.Array,
+    slope_sin: jax.Array,
     mu: jax.Array,
     dist_fwd_m: jax.Array,
     dist_back_m: jax.Array,
@@ -73,7 +74,7 @@ def contact_move(
 
     Args:
         u_m_s: signed speed along the tangent (+ towards +x), m/s.
-        slope_rad: segment angle beta, rad.
+        slope_cos, slope_sin: cos and sin of the segment angle beta.
         mu: rolling-resistance coefficient tan(phi_r).
         dist_fwd_m: slope distance to the segment's +x end, m (>= 0).
         dist_back_m: slope distance to the segment's -x end, m (>= 0).
@@ -85,7 +86,7 @@ def contact_move(
     Returns:
         ``ContactMove``.
     """
-    cb, sb = jnp.cos(slope_rad), jnp.sin(slope_rad)
+    cb, sb = slope_cos, slope_sin
     g_t = -g_m_s2 * sb  # gravity along +t
     resist = mu * g_m_s2 * cb
     at_rest = u_m_s == 0.0

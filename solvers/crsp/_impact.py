@@ -88,6 +88,8 @@ def crsp_impact(
     Kt: jax.Array,
     radius_m: jax.Array,
     inertia_ratio: jax.Array,
+    slope_cos: jax.Array | None = None,
+    slope_sin: jax.Array | None = None,
 ) -> ImpactOut:
     """One CRSP impact of a rotating rock on a roughness-tilted facet.
 
@@ -122,11 +124,13 @@ def crsp_impact(
         Kn, Kt: normal and tangential restitution coefficients (Rn, Rt).
         radius_m: rock radius r, m.
         inertia_ratio: k = I / (m r^2): 0.4 sphere, 0.5 cylinder or disc.
+        slope_cos, slope_sin: optional precomputed cos/sin of ``slope_rad``.
 
     Returns:
         ``ImpactOut`` with the rebound velocity, spin and facet angle.
     """
-    ct, st = jnp.cos(slope_rad), jnp.sin(slope_rad)
+    ct = jnp.cos(slope_rad) if slope_cos is None else slope_cos
+    st = jnp.sin(slope_rad) if slope_sin is None else slope_sin
     vt_mean = vx_m_s * ct + vz_m_s * st
     side = jnp.where(vt_mean >= 0.0, 1.0, -1.0)
     facet = jnp.clip(slope_rad + side * tilt_rad, -_MAX_FACET_RAD, _MAX_FACET_RAD)

@@ -23,7 +23,8 @@ reverse-differentiated (calibration uses common-random-number objectives; see
 ``calib``).
 
 Randomness: ``key`` is split into a release key (release jitter) and an event
-key; the i-th event draws its roughness from ``fold_in(event_key, i)``. A block's
+key; the i-th event draws its roughness from a counter-based hash of the event
+key's words and i (``solvers._rng``; threefry per event dominated run time). A block's
 history depends only on its own key, whatever the batch it runs in.
 """
 
@@ -37,6 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from solvers._rng import key_words, uniform_from_counter
 from solvers.crsp._contact import contact_move
 from solvers.crsp._flight import next_impact
 from solvers.crsp._impact import crsp_impact, roughness_tilt
@@ -249,6 +251,34 @@ def _segment_geometry(profile: Profile, seg):
     return xa, xb, za, zb, beta
 
 
+class SegmentTable(NamedTuple):
+    """Per-segment constants, computed once per block outside the event loop
+    (transcendentals inside the loop dominated its cost on CPU). Shapes (S,)."""
+
+    beta: jax.Array
+    cos: jax.Array
+    sin: jax.Array
+    mu: jax.Array
+    theta_max: jax.Array
+    Kn: jax.Array
+    Kt: jax.Array
+
+
+def segment_table(profile: Profile, params: Params, block: Block) -> SegmentTable:
+    """Angles, their cos/sin, rolling resistance tan(phi_r) and the roughness
+    angle ``theta_max = arctan(S / R)`` (see ``_impact.roughness_tilt``) per segment."""
+    dx = jnp.diff(profile.x_m)
+    dz = jnp.diff(profile.z_m)
+    beta = jnp.arctan2(dz, dx)
+    zone = profile.zone_id
+    return SegmentTable(
+        beta=beta, cos=jnp.cos(beta), sin=jnp.sin(beta),
+        mu=jnp.tan(jnp.deg2rad(params.rolling_friction_deg[zone])),
+        theta_max=roughness_tilt(1.0, params.roughness_m[zone], block.radius_m),
+        Kn=params.Kn[zone], Kt=params.Kt[zone],
+    )
+
+
 def init(params: Params, block: Block, key: jax.Array, profile: Profile,
          n_stations: int) -> State:
     """Initial state at the release point (``key``: release key).
@@ -279,7 +309,8 @@ def init(params: Params, block: Block, key: jax.Array, profile: Profile,
 
 
 def _flight_event(state: State, params: Params, block: Block, key, profile: Profile,
-                  stations_x_m, stations_z_m, settings: Settings) -> State:
+                  table: SegmentTable, stations_x_m, stations_z_m,
+                  settings: Settings) -> State:
     g = settings.g_m_s2
     x, z, vx, vz = state.x_m, state.z_m, state.vx_m_s, state.vz_m_s
     fh = next_impact(profile, state.seg, x, z, vx, vz, g, settings.window)
@@ -306,13 +337,12 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
 
     # impact on the hit segment (used only if fh.hit)
     seg = fh.seg
-    xa, xb, za, zb, beta = _segment_geometry(profile, seg)
-    zone = profile.zone_id[seg]
-    u = jax.random.uniform(jax.random.fold_in(key, state.n_events), dtype=jnp.float64)
-    tilt = roughness_tilt(u, params.roughness_m[zone], r)
-    imp = crsp_impact(vx, vz1, state.spin_rad_s, beta, tilt, params.Kn[zone],
-                      params.Kt[zone], r, k)
-    cb, sb = jnp.cos(beta), jnp.sin(beta)
+    xa, xb = profile.x_m[seg], profile.x_m[seg + 1]
+    za, zb = profile.z_m[seg], profile.z_m[seg + 1]
+    beta, cb, sb = table.beta[seg], table.cos[seg], table.sin[seg]
+    tilt = uniform_from_counter(key, state.n_events) * table.theta_max[seg]
+    imp = crsp_impact(vx, vz1, state.spin_rad_s, beta, tilt, table.Kn[seg], table.Kt[seg],
+                      r, k, slope_cos=cb, slope_sin=sb)
     vn_mean = -imp.vx_m_s * sb + imp.vz_m_s * cb
     roll = jnp.abs(vn_mean) < params.rolling_threshold_m_s
     into_slope = vn_mean <= -params.rolling_threshold_m_s
@@ -338,18 +368,17 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
 
 
 def _contact_event(state: State, params: Params, block: Block, profile: Profile,
-                   stations_x_m, settings: Settings) -> State:
+                   table: SegmentTable, stations_x_m, settings: Settings) -> State:
     g = settings.g_m_s2
     n_seg = profile.x_m.shape[0] - 1
     seg = state.seg
-    xa, xb, za, zb, beta = _segment_geometry(profile, seg)
-    cb, sb = jnp.cos(beta), jnp.sin(beta)
-    zone = profile.zone_id[seg]
-    mu = jnp.tan(jnp.deg2rad(params.rolling_friction_deg[zone]))
+    xa, xb = profile.x_m[seg], profile.x_m[seg + 1]
+    za, zb = profile.z_m[seg], profile.z_m[seg + 1]
+    beta, cb, sb, mu = table.beta[seg], table.cos[seg], table.sin[seg], table.mu[seg]
     x = state.x_m
     u = state.vx_m_s * cb + state.vz_m_s * sb
-    rough = params.roughness_m[zone] > 0.0
-    mv = contact_move(u, beta, mu, jnp.maximum((xb - x) / cb, 0.0),
+    rough = table.theta_max[seg] > 0.0
+    mv = contact_move(u, cb, sb, mu, jnp.maximum((xb - x) / cb, 0.0),
                       jnp.maximum((x - xa) / cb, 0.0), block.inertia_ratio, g,
                       dist_kick_m=jnp.where(rough, block.radius_m, jnp.inf))
     x1 = jnp.clip(x + mv.dist_m * cb, xa, xb)
@@ -368,10 +397,10 @@ def _contact_event(state: State, params: Params, block: Block, profile: Profile,
     nxt = seg + step
     off_end = (nxt < 0) | (nxt >= n_seg)
     nxt_c = jnp.clip(nxt, 0, n_seg - 1)
-    _, _, _, _, beta2 = _segment_geometry(profile, nxt_c)
+    beta2, c2, s2 = table.beta[nxt_c], table.cos[nxt_c], table.sin[nxt_c]
     convex = jnp.where(step > 0, beta2 < beta, beta2 > beta)
     u_end = mv.u_end_m_s
-    u2 = u_end * jnp.cos(beta2 - beta)
+    u2 = u_end * (c2 * cb + s2 * sb)  # u cos(beta2 - beta)
 
     at_end = mv.at_end
     mode = jnp.where(mv.stopped, STOPPED,
@@ -379,8 +408,8 @@ def _contact_event(state: State, params: Params, block: Block, profile: Profile,
                                jnp.where((at_end & convex) | mv.kicked, FLIGHT,
                                          CONTACT))).astype(jnp.int32)
     switch = at_end & ~off_end
-    vx_new = jnp.where(switch & ~convex, u2 * jnp.cos(beta2), u_end * cb)
-    vz_new = jnp.where(switch & ~convex, u2 * jnp.sin(beta2), u_end * sb)
+    vx_new = jnp.where(switch & ~convex, u2 * c2, u_end * cb)
+    vz_new = jnp.where(switch & ~convex, u2 * s2, u_end * sb)
     speed_along = jnp.where(switch & ~convex, u2, u_end)
     stopped = mode == STOPPED
     return State(
@@ -399,10 +428,14 @@ def _contact_event(state: State, params: Params, block: Block, profile: Profile,
 
 
 def step(state: State, params: Params, block: Block, key: jax.Array, profile: Profile,
-         stations_x_m: jax.Array, stations_z_m: jax.Array, settings: Settings) -> State:
-    """One event: a flight to the next impact, or a contact move (pure)."""
-    fl = _flight_event(state, params, block, key, profile, stations_x_m, stations_z_m, settings)
-    co = _contact_event(state, params, block, profile, stations_x_m, settings)
+         table: SegmentTable, stations_x_m: jax.Array, stations_z_m: jax.Array,
+         settings: Settings) -> State:
+    """One event: a flight to the next impact, or a contact move (pure).
+
+    ``key`` is the event key's two uint32 words (``solvers._rng.key_words``)."""
+    fl = _flight_event(state, params, block, key, profile, table, stations_x_m, stations_z_m,
+                       settings)
+    co = _contact_event(state, params, block, profile, table, stations_x_m, settings)
     in_flight = state.mode == FLIGHT
     return jax.tree_util.tree_map(lambda a, b: jnp.where(in_flight, a, b), fl, co)
 
@@ -439,7 +472,8 @@ def simulate(
     def cond(s: State):
         return ((s.mode == FLIGHT) | (s.mode == CONTACT)) & (s.n_events < settings.max_events)
 
-    body = functools.partial(step, params=params, block=block, key=event_key, profile=profile,
+    body = functools.partial(step, params=params, block=block, key=key_words(event_key),
+                             profile=profile, table=segment_table(profile, params, block),
                              stations_x_m=stations_x_m, stations_z_m=stations_z_m,
                              settings=settings)
     final = jax.lax.while_loop(cond, lambda s: body(s), state0)
