@@ -72,8 +72,8 @@ def pair_forces(pos, cs, sn, vel, omega, r_corner, nbr, bonded, active, h, kn_c,
     """Corner-to-face contacts between fragments (squares of half side h).
 
     Each fragment i tests its 4 corners against the K fragments ``nbr[i]``.
-    A corner inside square j (local coordinates |q|_inf < h) is pushed out
-    through the nearest face with F_n = kn l_c delta, delta = h - |q|_inf.
+    j's face that faces i's centre gives the normal n; a corner of i within
+    that face's extent and behind it by delta > 0 gets F_n = kn l_c delta.
     Friction is regularised Coulomb, F_t = -tan(phi) F_n tanh(v_t / eps)
     (no shear-spring history for these transient contacts: a documented
     simplification). The reaction -F acts on j at the same point, so linear
@@ -92,15 +92,20 @@ def pair_forces(pos, cs, sn, vel, omega, r_corner, nbr, bonded, active, h, kn_c,
     cj, sj = cs[nbr][:, :, None], sn[nbr][:, :, None]                # (N,K,1)
     d = p - pos[nbr][:, :, None, :]                                  # (N,K,4,2)
     q = rotate(d, cj, -sj)                                           # into j's frame
+    # The face of j that is pushed through is the one facing i's centre
+    # (chosen per pair, not per corner): a per-corner "nearest face" rule fails
+    # for aligned face-to-face overlaps, whose corners sit on j's corners.
+    c_rel = rotate(pos[:, None, :] - pos[nbr], cj[..., 0], -sj[..., 0])      # (N,K,2)
+    use_x = (jnp.abs(c_rel[..., 0]) >= jnp.abs(c_rel[..., 1]))[..., None]    # (N,K,1)
     ax, az = jnp.abs(q[..., 0]), jnp.abs(q[..., 1])
-    use_x = ax >= az
-    delta = h - jnp.maximum(ax, az)
-    n_loc = jnp.stack([jnp.where(use_x, jnp.sign(q[..., 0]), 0.0),
-                       jnp.where(use_x, 0.0, jnp.sign(q[..., 1]))], axis=-1)
+    delta = jnp.where(use_x, h - ax, h - az)
+    within = jnp.where(use_x, az, ax) <= h
+    sgn = jnp.where(use_x, jnp.sign(c_rel[..., 0:1]), jnp.sign(c_rel[..., 1:2]))
+    n_loc = jnp.stack([jnp.where(use_x, sgn, 0.0), jnp.where(use_x, 0.0, sgn)], axis=-1)
     n_w = rotate(n_loc, cj, sj)
     ok = (~bonded[jnp.arange(n_frag)[:, None], nbr] & active[:, None] & active[nbr]
           & (nbr != jnp.arange(n_frag)[:, None]))[:, :, None]
-    ok = ok & (delta > (-20.0 * width if smooth else 0.0))
+    ok = ok & within & (delta > (-20.0 * width if smooth else 0.0))
     fn = jnp.where(ok, penetration_force(delta, kn_c, width, smooth), 0.0)
     # relative velocity of the corner w.r.t. the material point of j
     v_i = vel[:, None, None, :] + omega[:, None, None, None] * jnp.stack(
