@@ -211,3 +211,21 @@ def test_paper_fig3_setting_runouts_in_observed_band():
     print("Fig. 3 medians (m):", medians)
     assert all(110.0 <= m <= 220.0 for m in medians), medians
     assert medians[0] < medians[1] < medians[2], medians
+
+
+def test_pooled_scheduler_matches_plain_vmap():
+    prof = load_profile(POSTIGNANO)
+    params = crsp.params_from_profile(prof)
+    block = crsp.make_block(0.5)
+    stations = jnp.array([60.0, 111.0])
+    n = 50
+    plain = crsp.simulate_batch(params, block, crsp.block_keys(jax.random.key(9), 0, n), prof,
+                                stations)
+    pooled = crsp.simulate_pooled(params, block, jax.random.key(9), prof, stations,
+                                  n_blocks=n, pool=8)
+    for a, b in zip(jax.tree_util.tree_leaves(plain), jax.tree_util.tree_leaves(pooled)):
+        a, b = np.asarray(a), np.asarray(b)
+        if np.issubdtype(a.dtype, np.floating):
+            np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9)
+        else:
+            np.testing.assert_array_equal(a, b)

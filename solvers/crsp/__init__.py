@@ -7,7 +7,7 @@ the rolling phase. ``python -m solvers.crsp --help`` for the command line.
 """
 
 import solvers  # noqa: F401  (enables float64)
-from solvers.crsp._batch import block_keys, run_blocks, simulate_batch
+from solvers.crsp._batch import block_keys, run_blocks, simulate_batch, simulate_pooled
 from solvers.crsp._impact import ImpactOut, crsp_impact, roughness_tilt
 from solvers.crsp._model import (
     CONTACT,
@@ -45,4 +45,5 @@ __all__ = [
     "run_blocks",
     "simulate",
     "simulate_batch",
+    "simulate_pooled",
 ]

@@ -2,6 +2,12 @@
 
 Block i of a run with key K always uses ``fold_in(K, i)``, so results do not
 depend on the chunk size or on how many blocks run together.
+
+``simulate_batch`` is plain ``vmap(simulate)``: its while_loop runs until the
+slowest block of the batch is done (about 3x the mean event count on
+Postignano). ``simulate_pooled`` keeps a fixed pool of lanes busy instead: every
+``refill_every`` events, lanes whose block has finished write its result and
+take the next block, so the cost follows the mean event count.
 """
 
 from __future__ import annotations
@@ -12,10 +18,24 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from solvers.crsp._model import Block, Params, Result, Settings, simulate
-from solvers.profile import Profile
+from solvers._rng import key_words
+from solvers.crsp._model import (
+    CONTACT,
+    FLIGHT,
+    MAX_EVENTS,
+    STOPPED,
+    Block,
+    Params,
+    Result,
+    Settings,
+    init,
+    segment_table,
+    simulate,
+    step,
+)
+from solvers.profile import Profile, ground_z
 
-__all__ = ["block_keys", "run_blocks", "simulate_batch"]
+__all__ = ["block_keys", "run_blocks", "simulate_batch", "simulate_pooled"]
 
 
 def block_keys(key: jax.Array, start: int, count: int) -> jax.Array:
@@ -33,6 +53,87 @@ def simulate_batch(params: Params, block: Block, keys: jax.Array, profile: Profi
     return jax.vmap(fn, in_axes=(None, None, 0))(params, block, keys)
 
 
+def _moving(s) -> jax.Array:
+    return (s.mode == FLIGHT) | (s.mode == CONTACT)
+
+
+@functools.partial(jax.jit, static_argnames=("n_blocks", "pool", "settings", "refill_every"))
+def simulate_pooled(params: Params, block: Block, key: jax.Array, profile: Profile,
+                    stations_x_m: jax.Array, n_blocks: int, pool: int = 1024,
+                    settings: Settings = Settings(), refill_every: int = 8,
+                    offset: jax.Array | int = 0) -> Result:
+    """Blocks ``offset .. offset + n_blocks - 1`` of the run keyed ``key``, on a
+    pool of lanes.
+
+    Each block i follows exactly the event sequence of ``simulate`` with key
+    ``fold_in(key, i)``; only the scheduling differs.
+
+    Returns:
+        ``Result`` with leading dimension ``n_blocks``.
+    """
+    stations_x_m = jnp.asarray(stations_x_m, jnp.float64)
+    stations_z_m = ground_z(profile, stations_x_m)
+    n_st = stations_x_m.shape[0]
+    table = segment_table(profile, params, block)
+    max_events = settings.max_events
+
+    def lane_init(i):
+        gi = (i + offset).astype(jnp.uint32)
+        release_key, event_key = jax.random.split(jax.random.fold_in(key, gi))
+        s = init(params, block, release_key, profile, n_st)
+        return s, key_words(event_key)
+
+    def lane_step(s, words):
+        new = step(s, params, block, words, profile, table, stations_x_m, stations_z_m,
+                   settings)
+        go = _moving(s) & (s.n_events < max_events)
+        return jax.tree_util.tree_map(lambda a, c: jnp.where(go, a, c), new, s)
+
+    def finalize(s, x0):
+        moving = _moving(s)
+        return Result(
+            runout_m=s.x_m - x0, stop_x_m=s.x_m, stop_z_m=s.z_m, stopped=s.mode == STOPPED,
+            status=jnp.where(moving, MAX_EVENTS, s.mode).astype(jnp.int32),
+            n_events=s.n_events, n_impacts=s.n_impacts, release_x_m=x0, stations=s.stations)
+
+    lane = jnp.arange(pool)
+    states, words = jax.vmap(lane_init)(lane)
+    x0 = states.x_m
+    active = lane < n_blocks
+    proto = jax.eval_shape(finalize, jax.tree_util.tree_map(lambda a: a[0], states), x0[0])
+    out = jax.tree_util.tree_map(lambda a: jnp.zeros((n_blocks,) + a.shape, a.dtype), proto)
+
+    def cond(carry):
+        return jnp.any(carry[4])
+
+    def body(carry):
+        states, words, x0, idx, active, nxt, out = carry
+        states = jax.lax.fori_loop(0, refill_every,
+                                   lambda _, s: jax.vmap(lane_step)(s, words), states)
+        done = active & ~(_moving(states) & (states.n_events < max_events))
+        res = jax.vmap(finalize)(states, x0)
+        target = jnp.where(done, idx, n_blocks)  # out of bounds: dropped
+        out = jax.tree_util.tree_map(lambda o, r: o.at[target].set(r, mode="drop"), out, res)
+        new_idx = nxt + jnp.cumsum(done) - 1
+        refill = done & (new_idx < n_blocks)
+        ns, nw = jax.vmap(lane_init)(jnp.where(refill, new_idx, 0))
+
+        def pick(a, c):
+            m = refill.reshape(refill.shape + (1,) * (a.ndim - 1))
+            return jnp.where(m, a, c)
+
+        states = jax.tree_util.tree_map(pick, ns, states)
+        words = pick(nw, words)
+        x0 = jnp.where(refill, ns.x_m, x0)
+        idx = jnp.where(refill, new_idx, idx)
+        active = (active & ~done) | refill
+        nxt = nxt + jnp.sum(done)
+        return states, words, x0, idx, active, nxt, out
+
+    carry = (states, words, x0, lane, active, jnp.asarray(pool), out)
+    return jax.lax.while_loop(cond, body, carry)[-1]
+
+
 def run_blocks(
     params: Params,
     block: Block,
@@ -41,8 +142,9 @@ def run_blocks(
     profile: Profile,
     stations_x_m=None,
     settings: Settings = Settings(),
-    chunk_size: int = 16384,
+    chunk_size: int = 65536,
     progress=None,
+    pool: int = 1024,
 ) -> Result:
     """Simulate ``n_blocks`` blocks in chunks and return NumPy arrays.
 
@@ -53,6 +155,7 @@ def run_blocks(
         stations_x_m: analysis abscissae, m, or None.
         chunk_size: blocks per compiled call (memory grows linearly with it).
         progress: optional callable ``progress(n_done)`` called after each chunk.
+        pool: lanes of ``simulate_pooled`` (at most the chunk size).
 
     Returns:
         ``Result`` whose leaves are NumPy arrays with leading dimension n_blocks.
@@ -62,11 +165,12 @@ def run_blocks(
     st = jnp.zeros((0,), jnp.float64) if stations_x_m is None else jnp.asarray(
         stations_x_m, jnp.float64)
     chunk = min(chunk_size, n_blocks)
+    lanes = min(pool, chunk)
     parts = []
     for start in range(0, n_blocks, chunk):
         count = min(chunk, n_blocks - start)
-        keys = block_keys(key, start, chunk)  # padded: one compiled shape
-        res = simulate_batch(params, block, keys, profile, st, settings)
+        res = simulate_pooled(params, block, key, profile, st, n_blocks=chunk, pool=lanes,
+                              settings=settings, offset=start)
         parts.append(jax.tree_util.tree_map(lambda a, c=count: np.asarray(a)[:c], res))
         if progress is not None:
             progress(count)
