@@ -1,0 +1,126 @@
+"""Reproduce the paper's DEM findings (issue 3, items 1-4) and print a table.
+
+    python scripts/dem_reproduce.py --out figures/ [--n-blocks 64] [--quick]
+
+1. single blocks L = 0.2, 0.9, 1.8 m with Table 1 alphas 0.90, 0.43, 0.30;
+2. the same blocks with one alpha (0.43) for all sizes;
+3. the 1.8 m block in 4, 16, 64 fragments, alpha per fragment from 0.40*L**-0.5;
+4. final fragment positions on the profile (like the paper's Figs. 5 and 6), PNG;
+plus the damping-mode difference and the stiffness-scaling check.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+
+import jax
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from solvers.dem import Options, make_block, make_params, stable_dt  # noqa: E402
+from solvers.dem._integrate import simulate_batch  # noqa: E402
+from solvers.profile import load_profile  # noqa: E402
+
+
+def run(params, block, n, seed, max_time_s):
+    dt = float(stable_dt(params, block))
+    keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.key(seed), i))(np.arange(n))
+    t0 = time.perf_counter()
+    res = jax.block_until_ready(simulate_batch(params, block, keys,
+                                               Options(max_steps=int(max_time_s / dt))))
+    return res, time.perf_counter() - t0
+
+
+def summary(res):
+    r = np.asarray(res.runout_m).ravel()
+    return (f"median {np.median(r):6.1f}  p10-p90 {np.percentile(r, 10):5.0f}-"
+            f"{np.percentile(r, 90):4.0f}  min-max {r.min():5.0f}-{r.max():4.0f}  "
+            f"stopped {int(np.sum(res.stopped))}/{r.size}")
+
+
+def figure(profile, res, title, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(9, 4))
+    ax.plot(np.asarray(profile.x_m), np.asarray(profile.z_m), "k-", lw=1)
+    x, z = np.asarray(res.stop_x_m).ravel(), np.asarray(res.stop_z_m).ravel()
+    ax.plot(x, z, "s", ms=3, color="tab:red", label="final fragment centres")
+    for xv, name in ((8.0, "cliff foot"), (110.0, "slope break")):
+        ax.axvline(xv, color="0.7", lw=0.5)
+        ax.text(xv, float(np.max(profile.z_m)), name, fontsize=7, rotation=90, va="top")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("z (m)")
+    ax.set_title(title, fontsize=9)
+    ax.set_aspect("equal")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--n-blocks", type=int, default=64)
+    ap.add_argument("--stiffness-scale", type=float, default=0.01)
+    ap.add_argument("--max-time-s", type=float, default=200.0)
+    ap.add_argument("--fragment-seeds", type=int, default=2)
+    ap.add_argument("--skip-full-stiffness", action="store_true")
+    args = ap.parse_args()
+    os.makedirs(args.out, exist_ok=True)
+    prof = load_profile("data/postignano_profile.csv")
+    p = make_params(prof, stiffness_scale=args.stiffness_scale)
+    n = args.n_blocks
+    print(f"kn = ks = 50 GPa/m x {args.stiffness_scale}; damping = unbalanced (UDEC); "
+          f"{n} blocks per row; runout = x_stop - x_release (m); observed band 110-220 m")
+    print("1. Table 1 alphas")
+    for L, a in ((0.2, 0.90), (0.9, 0.43), (1.8, 0.30)):
+        res, w = run(p, make_block(L, alpha=a), n, 0, args.max_time_s)
+        print(f"   L={L:3.1f} alpha={a:.2f}: {summary(res)}  ({w:.0f} s)", flush=True)
+    print("2. one alpha (0.43) for all sizes")
+    for L in (0.2, 0.9, 1.8):
+        res, w = run(p, make_block(L, alpha=0.43), n, 0, args.max_time_s)
+        print(f"   L={L:3.1f} alpha=0.43: {summary(res)}  ({w:.0f} s)", flush=True)
+    print("3. L=1.8 m in fragments, alpha = 0.40*L**-0.5 per fragment "
+          "(paper: 16 -> 110-160 m, 64 -> 40-110 m)")
+    for nf in (4, 16, 64):
+        blk = make_block(1.8, n_fragments=nf)
+        seeds = args.fragment_seeds if nf < 64 else 1
+        res, w = run(p, blk, seeds, 0, args.max_time_s)
+        br = float(np.mean(res.joints_broken))
+        print(f"   {nf:2d} fragments (alpha {float(blk.alpha[0]):.2f}, {seeds} run(s)): "
+              f"{summary(res)}  broken joints {br:.0%}  ({w:.0f} s)", flush=True)
+        if nf in (16, 64):
+            figure(prof, res, f"L = 1.8 m block in {nf} fragments: final positions "
+                   f"(cf. paper Fig. {5 if nf == 16 else 6})",
+                   os.path.join(args.out, f"dem_fragments_{nf}.png"))
+    print("damping mode, L=0.9 alpha=0.43")
+    for mode in ("unbalanced", "contact"):
+        pm = make_params(prof, stiffness_scale=args.stiffness_scale, damping=mode)
+        res, w = run(pm, make_block(0.9, alpha=0.43), n, 0, args.max_time_s)
+        print(f"   {mode:10s}: {summary(res)}", flush=True)
+    if not args.skip_full_stiffness:
+        print("stiffness scaling check, L=0.9 alpha=0.43 (same keys)")
+        meds = {}
+        for s in (1.0, 0.1, args.stiffness_scale):
+            ps = make_params(prof, stiffness_scale=s)
+            blk = make_block(0.9, alpha=0.43)
+            res, w = run(ps, blk, n, 0, args.max_time_s)
+            r = np.asarray(res.runout_m).ravel()
+            meds[s] = r
+            print(f"   scale {s:g}: dt {float(stable_dt(ps, blk)):.2e} s  mean {r.mean():6.1f} "
+                  f"(se {r.std(ddof=1) / math.sqrt(r.size):.1f})  {summary(res)}  wall {w:.0f} s",
+                  flush=True)
+        d = meds[1.0].mean() - meds[args.stiffness_scale].mean()
+        se = math.sqrt(meds[1.0].var(ddof=1) / n + meds[args.stiffness_scale].var(ddof=1) / n)
+        print(f"   mean difference full - scaled: {d:+.1f} m = {d / se:+.2f} standard errors")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,114 @@
+"""DEM benchmark figures (called by ``python -m solvers.bench``).
+
+Block-steps per second = sum over blocks of the steps each block ran, divided
+by the wall time of the second (compiled) call. Runs use kn = ks = 50 GPa/m
+scaled by ``stiffness_scale`` (0.01 unless stated; see the scaling check in
+scripts/dem_reproduce.py).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import jax
+import numpy as np
+
+from solvers.dem._integrate import simulate_batch
+from solvers.dem._params import Options, make_block, make_params, stable_dt
+from solvers.profile import load_profile, make_profile
+
+__all__ = ["run_benchmarks"]
+
+PROFILE_CSV = "data/postignano_profile.csv"
+
+
+def _timed(params, block, keys, options):
+    jax.block_until_ready(simulate_batch(params, block, keys, options))  # compile + run
+    t0 = time.perf_counter()
+    res = jax.block_until_ready(simulate_batch(params, block, keys, options))
+    return res, time.perf_counter() - t0
+
+
+def _refined(profile, n_seg):
+    """The same polyline resampled into ~n_seg segments (for the search benchmark)."""
+    x = np.asarray(profile.x_m)
+    xs = np.unique(np.concatenate([x, np.linspace(x[0], x[-1], n_seg + 1)]))
+    zs = np.interp(xs, x, np.asarray(profile.z_m))
+    zone = profile.segment_zone_names()
+    seg_zone = [zone[min(np.searchsorted(x, xi, side="right") - 1, len(zone) - 1)]
+                for xi in xs[:-1]]
+    mats = {z: {c: float(getattr(profile, c)[i]) for c in
+                ("Kn", "Kt", "roughness_m", "rolling_friction_deg", "phi_deg")}
+            for i, z in enumerate(profile.zone_names)}
+    return make_profile(xs, zs, seg_zone, mats)
+
+
+def run_benchmarks(quick: bool = False) -> dict:
+    """DEM figures of issue 3. ``quick`` shrinks batch sizes (for CI smoke runs).
+
+    Returns:
+        dict of name -> {figure: value}, all plain Python numbers.
+    """
+    profile = load_profile(PROFILE_CSV)
+    out: dict = {}
+    scale = 0.01
+    params = make_params(profile, stiffness_scale=scale)
+    block = make_block(0.9, alpha=0.43)
+    dt = float(stable_dt(params, block))
+    n_blocks = 100 if quick else 1000
+    opts = Options(max_steps=int(math.ceil(120.0 / dt)))
+    keys = jax.random.split(jax.random.key(0), n_blocks)
+    res, wall = _timed(params, block, keys, opts)
+    steps = int(np.sum(res.n_steps))
+    out["single_0.9m_to_rest"] = {
+        "n_blocks": n_blocks, "stiffness_scale": scale, "dt_s": dt, "wall_s": wall,
+        "block_steps": steps, "block_steps_per_s": steps / wall,
+        "lane_steps_per_s": n_blocks * int(np.max(res.n_steps)) / wall,
+        "stopped": int(np.sum(res.stopped)), "median_runout_m": float(np.median(res.runout_m))}
+
+    # full paper stiffness: throughput and time-to-rest for a smaller batch
+    p_full = make_params(profile)
+    dt_full = float(stable_dt(p_full, block))
+    nb = 32 if quick else 128
+    res, wall = _timed(p_full, block, keys[:nb],
+                       Options(max_steps=int(math.ceil(120.0 / dt_full))))
+    steps = int(np.sum(res.n_steps))
+    out["single_0.9m_full_stiffness"] = {
+        "n_blocks": nb, "stiffness_scale": 1.0, "dt_s": dt_full, "wall_s": wall,
+        "block_steps_per_s": steps / wall, "projected_1000_blocks_s": wall * 1000 / nb,
+        "median_runout_m": float(np.median(res.runout_m))}
+
+    # local vs brute-force segment search on an 80-segment version of the profile
+    fine = _refined(profile, 80)
+    p_fine = make_params(fine, stiffness_scale=scale)
+    nb = 64 if quick else 256
+    for mode in ("all", "local"):
+        o = Options(max_steps=5000 if quick else 20000, segment_search=mode)
+        res, wall = _timed(p_fine, block, keys[:nb], o)
+        out[f"segment_search_{mode}_80seg"] = {
+            "n_blocks": nb, "wall_s": wall,
+            "block_steps_per_s": float(np.sum(res.n_steps)) / wall}
+
+    # one 1.8 m block in 64 (quick: 16) fragments to rest
+    nf = 16 if quick else 64
+    fblock = make_block(1.8, n_fragments=nf)
+    dt_f = float(stable_dt(params, fblock))
+    t0 = time.perf_counter()
+    res = jax.block_until_ready(simulate_batch(
+        params, fblock, keys[:1], Options(max_steps=int(math.ceil(150.0 / dt_f)))))
+    wall = time.perf_counter() - t0
+    out[f"fragments_{nf}_to_rest"] = {
+        "n_fragments": nf, "stiffness_scale": scale, "dt_s": dt_f,
+        "wall_s_incl_compile": wall, "steps": int(res.n_steps[0]),
+        "fragment_steps_per_s": nf * int(res.n_steps[0]) / wall,
+        "status": int(res.status[0]), "simulated_s": float(res.time_s[0]),
+        "runout_min_m": float(np.min(res.runout_m)), "runout_max_m": float(np.max(res.runout_m))}
+    return out
+
+
+if __name__ == "__main__":
+    import json
+    import sys
+
+    print(json.dumps(run_benchmarks(quick="--quick" in sys.argv), indent=1))
