@@ -10,7 +10,14 @@ import tempfile
 
 import numpy as np
 
-__all__ = ["CliError", "OneLineParser", "parse_floats", "parse_stations", "write_csv_atomic"]
+__all__ = [
+    "CliError",
+    "OneLineParser",
+    "fail",
+    "parse_floats",
+    "parse_stations",
+    "write_csv_atomic",
+]
 
 
 class CliError(Exception):

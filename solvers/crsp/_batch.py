@@ -22,13 +22,12 @@ from solvers._rng import key_words
 from solvers.crsp._model import (
     CONTACT,
     FLIGHT,
-    MAX_EVENTS,
-    STOPPED,
     Block,
     Params,
     Result,
     Settings,
     init,
+    result_from_state,
     segment_table,
     simulate,
     step,
@@ -89,12 +88,7 @@ def simulate_pooled(params: Params, block: Block, key: jax.Array, profile: Profi
         go = _moving(s) & (s.n_events < max_events)
         return jax.tree_util.tree_map(lambda a, c: jnp.where(go, a, c), new, s)
 
-    def finalize(s, x0):
-        moving = _moving(s)
-        return Result(
-            runout_m=s.x_m - x0, stop_x_m=s.x_m, stop_z_m=s.z_m, stopped=s.mode == STOPPED,
-            status=jnp.where(moving, MAX_EVENTS, s.mode).astype(jnp.int32),
-            n_events=s.n_events, n_impacts=s.n_impacts, release_x_m=x0, stations=s.stations)
+    finalize = result_from_state
 
     lane = jnp.arange(pool)
     states, words = jax.vmap(lane_init)(lane)

@@ -58,6 +58,7 @@ __all__ = [
     "State",
     "make_block",
     "params_from_profile",
+    "result_from_state",
     "simulate",
 ]
 
@@ -477,16 +478,21 @@ def simulate(
                              stations_x_m=stations_x_m, stations_z_m=stations_z_m,
                              settings=settings)
     final = jax.lax.while_loop(cond, lambda s: body(s), state0)
+    return result_from_state(final, state0.x_m)
+
+
+def result_from_state(final: State, release_x_m: jax.Array) -> Result:
+    """The ``Result`` of a block whose loop has ended in state ``final``; a block
+    still moving (event budget spent) gets status ``MAX_EVENTS``."""
     moving = (final.mode == FLIGHT) | (final.mode == CONTACT)
-    status = jnp.where(moving, MAX_EVENTS, final.mode).astype(jnp.int32)
     return Result(
-        runout_m=final.x_m - state0.x_m,
+        runout_m=final.x_m - release_x_m,
         stop_x_m=final.x_m,
         stop_z_m=final.z_m,
         stopped=final.mode == STOPPED,
-        status=status,
+        status=jnp.where(moving, MAX_EVENTS, final.mode).astype(jnp.int32),
         n_events=final.n_events,
         n_impacts=final.n_impacts,
-        release_x_m=state0.x_m,
+        release_x_m=release_x_m,
         stations=final.stations,
     )
