@@ -229,3 +229,21 @@ def test_pooled_scheduler_matches_plain_vmap():
             np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9)
         else:
             np.testing.assert_array_equal(a, b)
+
+
+def test_tasks_match_separate_pooled_runs_with_common_random_numbers():
+    """simulate_tasks = one simulate_pooled per (params, block) task, same keys."""
+    prof = load_profile(POSTIGNANO)
+    sets = [crsp.params_from_profile(prof, Kn=kn, Kt=kt, roughness_m=s)
+            for kn, kt, s in [(0.3, 0.8, 1.0), (0.45, 0.9, 2.5), (0.41, 0.87, 2.0)]]
+    blocks = [crsp.make_block(r) for r in (0.1, 1.0, 0.5)]
+    stack = lambda xs: jax.tree_util.tree_map(lambda *a: jnp.stack(a), *xs)  # noqa: E731
+    stations = jnp.array([111.0])
+    n = 20
+    both = crsp.simulate_tasks(stack(sets), stack(blocks), jax.random.key(4), prof, stations,
+                               n_per_task=n, pool=16)
+    for t in range(3):
+        one = crsp.simulate_pooled(sets[t], blocks[t], jax.random.key(4), prof, stations,
+                                   n_blocks=n, pool=8)
+        np.testing.assert_allclose(both.runout_m[t], one.runout_m, rtol=1e-9, atol=1e-9)
+        np.testing.assert_array_equal(both.status[t], one.status)

@@ -7,7 +7,13 @@ the rolling phase. ``python -m solvers.crsp --help`` for the command line.
 """
 
 import solvers  # noqa: F401  (enables float64)
-from solvers.crsp._batch import block_keys, run_blocks, simulate_batch, simulate_pooled
+from solvers.crsp._batch import (
+    block_keys,
+    run_blocks,
+    simulate_batch,
+    simulate_pooled,
+    simulate_tasks,
+)
 from solvers.crsp._impact import ImpactOut, crsp_impact, roughness_tilt
 from solvers.crsp._model import (
     CONTACT,
@@ -46,4 +52,5 @@ __all__ = [
     "simulate",
     "simulate_batch",
     "simulate_pooled",
+    "simulate_tasks",
 ]

@@ -34,7 +34,7 @@ from solvers.crsp._model import (
 )
 from solvers.profile import Profile, ground_z
 
-__all__ = ["block_keys", "run_blocks", "simulate_batch", "simulate_pooled"]
+__all__ = ["block_keys", "run_blocks", "simulate_batch", "simulate_pooled", "simulate_tasks"]
 
 
 def block_keys(key: jax.Array, start: int, count: int) -> jax.Array:
@@ -70,46 +70,89 @@ def simulate_pooled(params: Params, block: Block, key: jax.Array, profile: Profi
     Returns:
         ``Result`` with leading dimension ``n_blocks``.
     """
+    one = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], (params, block))
+    res = _pooled(one[0], one[1], key, profile, stations_x_m, n_blocks, pool, settings,
+                  refill_every, offset)
+    return jax.tree_util.tree_map(lambda a: a[0], res)
+
+
+@functools.partial(jax.jit, static_argnames=("n_per_task", "pool", "settings",
+                                             "refill_every"))
+def simulate_tasks(params: Params, block: Block, key: jax.Array, profile: Profile,
+                   stations_x_m: jax.Array, n_per_task: int, pool: int = 1024,
+                   settings: Settings = Settings(), refill_every: int = 8) -> Result:
+    """Many (parameter set, block) tasks in one pool, with common random numbers.
+
+    ``params`` and ``block`` carry a leading task axis T (every leaf). Block j of
+    every task uses the key ``fold_in(key, j)`` (j = 0 .. n_per_task - 1), so the
+    tasks share their random numbers: differences between tasks come from the
+    parameters, not from the draws (common random numbers, as calibration by
+    finite differences needs). Task t with ``params[t]`` gives exactly what
+    ``simulate_pooled(params[t], block[t], key, ..., n_blocks=n_per_task)`` gives.
+
+    Returns:
+        ``Result`` with leading dimensions (T, n_per_task).
+    """
+    return _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, settings,
+                   refill_every, 0)
+
+
+def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, settings,
+            refill_every, offset):
+    """Pool of lanes over T tasks x ``n_per_task`` blocks (traced, not jitted).
+
+    Work item i is block ``j = i % n_per_task`` of task ``t = i // n_per_task``;
+    every ``refill_every`` events the lanes whose block finished write its result
+    and take the next item, so the cost follows the mean event count.
+    """
+    n_tasks = jax.tree_util.tree_leaves(params)[0].shape[0]
+    n_items = n_tasks * n_per_task
     stations_x_m = jnp.asarray(stations_x_m, jnp.float64)
     stations_z_m = ground_z(profile, stations_x_m)
     n_st = stations_x_m.shape[0]
-    table = segment_table(profile, params, block)
+    tables = jax.vmap(segment_table, in_axes=(None, 0, 0))(profile, params, block)
     max_events = settings.max_events
 
+    def task_of(t):
+        return jax.tree_util.tree_map(lambda a: a[t], (params, block, tables))
+
     def lane_init(i):
-        gi = (i + offset).astype(jnp.uint32)
+        t, j = i // n_per_task, i % n_per_task
+        p, b, _ = task_of(t)
+        gi = (j + offset).astype(jnp.uint32)
         release_key, event_key = jax.random.split(jax.random.fold_in(key, gi))
-        s = init(params, block, release_key, profile, n_st)
+        s = init(p, b, release_key, profile, n_st)
         return s, key_words(event_key)
 
-    def lane_step(s, words):
-        new = step(s, params, block, words, profile, table, stations_x_m, stations_z_m,
-                   settings)
+    def lane_step(s, words, t):
+        p, b, table = task_of(t)
+        new = step(s, p, b, words, profile, table, stations_x_m, stations_z_m, settings)
         go = _moving(s) & (s.n_events < max_events)
         return jax.tree_util.tree_map(lambda a, c: jnp.where(go, a, c), new, s)
 
     finalize = result_from_state
 
     lane = jnp.arange(pool)
-    states, words = jax.vmap(lane_init)(lane)
+    states, words = jax.vmap(lane_init)(jnp.minimum(lane, n_items - 1))
     x0 = states.x_m
-    active = lane < n_blocks
+    active = lane < n_items
     proto = jax.eval_shape(finalize, jax.tree_util.tree_map(lambda a: a[0], states), x0[0])
-    out = jax.tree_util.tree_map(lambda a: jnp.zeros((n_blocks,) + a.shape, a.dtype), proto)
+    out = jax.tree_util.tree_map(lambda a: jnp.zeros((n_items,) + a.shape, a.dtype), proto)
 
     def cond(carry):
         return jnp.any(carry[4])
 
     def body(carry):
         states, words, x0, idx, active, nxt, out = carry
-        states = jax.lax.fori_loop(0, refill_every,
-                                   lambda _, s: jax.vmap(lane_step)(s, words), states)
+        task = idx // n_per_task
+        states = jax.lax.fori_loop(
+            0, refill_every, lambda _, s: jax.vmap(lane_step)(s, words, task), states)
         done = active & ~(_moving(states) & (states.n_events < max_events))
         res = jax.vmap(finalize)(states, x0)
-        target = jnp.where(done, idx, n_blocks)  # out of bounds: dropped
+        target = jnp.where(done, idx, n_items)  # out of bounds: dropped
         out = jax.tree_util.tree_map(lambda o, r: o.at[target].set(r, mode="drop"), out, res)
         new_idx = nxt + jnp.cumsum(done) - 1
-        refill = done & (new_idx < n_blocks)
+        refill = done & (new_idx < n_items)
         ns, nw = jax.vmap(lane_init)(jnp.where(refill, new_idx, 0))
 
         def pick(a, c):
@@ -124,8 +167,11 @@ def simulate_pooled(params: Params, block: Block, key: jax.Array, profile: Profi
         nxt = nxt + jnp.sum(done)
         return states, words, x0, idx, active, nxt, out
 
-    carry = (states, words, x0, lane, active, jnp.asarray(pool), out)
-    return jax.lax.while_loop(cond, body, carry)[-1]
+    carry = (states, words, x0, jnp.minimum(lane, n_items - 1), active,
+             jnp.asarray(pool), out)
+    out = jax.lax.while_loop(cond, body, carry)[-1]
+    return jax.tree_util.tree_map(
+        lambda a: a.reshape((n_tasks, n_per_task) + a.shape[1:]), out)
 
 
 def run_blocks(
