@@ -1,0 +1,16 @@
+"""Calibration, hazard and discrepancy analysis on top of the solvers.
+
+Modules (one concept each):
+
+* ``observations``: the observed-runout table (load, validate) and the block-size
+  mapping shared by every model.
+* ``likelihood``: the observation model (simulated runout distribution vs an
+  observed point or interval).
+* ``crsp_fit`` / ``dem_fit``: the objective of each solver, evaluated with common
+  random numbers.
+* ``gradient``: the smoothed-gradient estimator and the optax loop.
+* ``emulator`` / ``bayes``: the smooth emulator and the NumPyro posterior.
+* ``fit``: the command ``python -m calib.fit``.
+"""
+
+import solvers  # noqa: F401  (enables float64)
