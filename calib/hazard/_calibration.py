@@ -1,0 +1,265 @@
+"""Reading ``results/calibration.json`` and drawing parameter sets from it.
+
+The file is written by ``python -m calib.fit`` (schema ``rockfall-calibration/1``):
+
+* ``crsp``: ``Kn``, ``Kt``, ``roughness_m`` with ``map``/``mean``/``q05``/``q95``
+  and ``posterior_csv`` (columns ``Kn,Kt,roughness_m``; null after a
+  gradient-only fit);
+* ``dem``: ``alpha_law`` (``form`` "power" with ``a``, ``b``: alpha = a L^-b, L
+  the square side in m; or ``form`` "constant" with ``alpha``) and
+  ``posterior_csv`` (columns ``a,b`` or ``alpha``; may be null);
+* ``block_size_mapping``: a block of average diameter D is a CRSP sphere of
+  radius D/2 and a DEM square of side D.
+
+``posterior_csv`` is relative to the folder of the json file; ``profile_csv``
+is relative to the working directory (as ``calib.fit`` writes it, run from the
+repository root) or, failing that, to the json's folder.
+
+Every error is a ``CalibrationError`` whose message names the file and, where
+it applies, the row (file line) and the column.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["SCHEMA", "Calibration", "CalibrationError", "Draws", "draw_parameters",
+           "load_calibration"]
+
+SCHEMA = "rockfall-calibration/1"
+
+# name -> (lower, upper, lower bound inclusive) for every calibrated scalar
+_CRSP_RANGES = {"Kn": (0.0, 1.0, False), "Kt": (0.0, 1.0, False),
+                "roughness_m": (0.0, math.inf, True)}
+_DEM_RANGES = {"a": (0.0, math.inf, False), "b": (-math.inf, math.inf, True),
+               "alpha": (0.0, 1.0, True)}
+_DEM_COLUMNS = {"power": ("a", "b"), "constant": ("alpha",)}
+
+
+class CalibrationError(ValueError):
+    """A calibration file (or its posterior CSV) that cannot be used."""
+
+
+class Calibration(NamedTuple):
+    """What the hazard run needs from one model's calibration.
+
+    Attributes:
+        path: the json file.
+        model: "crsp" or "dem".
+        profile_csv: resolved path of the slope profile.
+        names: parameter names (CRSP: Kn, Kt, roughness_m; DEM: a, b or alpha).
+        point: (P,) the point estimate (``map``) of each parameter.
+        posterior: (R, P) posterior sample, or None (gradient-only fit).
+        posterior_csv: its resolved path, or None.
+        alpha_form: DEM only: "power" or "constant" ("" for CRSP).
+    """
+
+    path: str
+    model: str
+    profile_csv: str
+    names: tuple[str, ...]
+    point: np.ndarray
+    posterior: np.ndarray | None
+    posterior_csv: str | None
+    alpha_form: str
+
+
+class Draws(NamedTuple):
+    """Parameter sets to simulate.
+
+    Attributes:
+        values: (D, P) one row per draw, columns ``names``.
+        names: parameter names.
+        rows: (D,) posterior CSV data row (1-based) of each draw, or -1 for the
+            point estimate.
+        source: "posterior", "point estimate" or "point estimate (no posterior
+            sample: replicate runs)".
+    """
+
+    values: np.ndarray
+    names: tuple[str, ...]
+    rows: np.ndarray
+    source: str
+
+
+def _number(path: str, where: str, value, lo: float, hi: float, lo_incl: bool) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise CalibrationError(f"{path}: {where}: expected a number, got {value!r}")
+    v = float(value)
+    ok_lo = v >= lo if lo_incl else v > lo
+    if not (math.isfinite(v) and ok_lo and v <= hi):
+        bracket = "[" if lo_incl else "("
+        raise CalibrationError(f"{path}: {where}: {v:g} outside {bracket}{lo:g}, {hi:g}]")
+    return v
+
+
+def _section(path: str, doc: dict, key: str) -> dict:
+    sec = doc.get(key)
+    if not isinstance(sec, dict):
+        raise CalibrationError(f"{path}: key {key!r}: expected an object")
+    return sec
+
+
+def _summary_value(path: str, sec: dict, prefix: str, name: str, rng) -> float:
+    entry = sec.get(name)
+    if not isinstance(entry, dict) or "map" not in entry:
+        raise CalibrationError(f"{path}: key {prefix}.{name}: expected an object with 'map'")
+    return _number(path, f"{prefix}.{name}.map", entry["map"], *rng)
+
+
+def _resolve(path: str, rel: str, json_dir: str, what: str, prefer_cwd: bool) -> str:
+    if not isinstance(rel, str) or not rel:
+        raise CalibrationError(f"{path}: key {what!r}: expected a file name")
+    if os.path.isabs(rel):
+        candidates = [rel]
+    elif prefer_cwd:
+        candidates = [rel, os.path.join(json_dir, rel)]
+    else:
+        candidates = [os.path.join(json_dir, rel)]
+    for c in candidates:
+        if os.path.isfile(c):
+            return c
+    raise CalibrationError(f"{path}: key {what!r}: file {candidates[0]} not found")
+
+
+def _read_posterior(csv_path: str, names: tuple[str, ...], ranges: dict) -> np.ndarray:
+    try:
+        with open(csv_path, newline="") as fh:
+            reader = csv.DictReader(fh)
+            header = reader.fieldnames or []
+            missing = [n for n in names if n not in header]
+            if missing:
+                raise CalibrationError(f"{csv_path}: line 1: missing column(s) "
+                                       f"{', '.join(missing)}")
+            rows = []
+            for i, row in enumerate(reader):
+                line = i + 2
+                vals = []
+                for n in names:
+                    text = (row.get(n) or "").strip()
+                    try:
+                        v = float(text)
+                    except ValueError:
+                        raise CalibrationError(f"{csv_path}: line {line}, column {n}: expected "
+                                               f"a number, got {text!r}") from None
+                    lo, hi, incl = ranges[n]
+                    ok_lo = v >= lo if incl else v > lo
+                    if not (math.isfinite(v) and ok_lo and v <= hi):
+                        raise CalibrationError(f"{csv_path}: line {line}, column {n}: value "
+                                               f"{v:g} out of range")
+                    vals.append(v)
+                rows.append(vals)
+    except OSError as exc:
+        raise CalibrationError(f"{csv_path}: cannot read ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        raise CalibrationError(f"{csv_path}: not a text CSV file") from None
+    if not rows:
+        raise CalibrationError(f"{csv_path}: no data rows")
+    return np.asarray(rows, dtype=np.float64)
+
+
+def load_calibration(path: str, model: str | None = None) -> Calibration:
+    """Read and validate a calibration file for one model.
+
+    Args:
+        path: ``calibration.json``.
+        model: "crsp", "dem", or None for the first of those present.
+
+    Returns:
+        ``Calibration``.
+
+    Raises:
+        CalibrationError: missing or malformed file, section or value.
+    """
+    try:
+        with open(path) as fh:
+            text = fh.read()
+    except FileNotFoundError:
+        raise CalibrationError(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CalibrationError(f"{path}: cannot read ({getattr(exc, 'strerror', None) or exc})"
+                               ) from None
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise CalibrationError(f"{path}: line {exc.lineno}, column {exc.colno}: invalid JSON "
+                               f"({exc.msg})") from None
+    if not isinstance(doc, dict):
+        raise CalibrationError(f"{path}: expected a JSON object at the top level")
+    if doc.get("schema") != SCHEMA:
+        raise CalibrationError(f"{path}: key 'schema': expected {SCHEMA!r}, got "
+                               f"{doc.get('schema')!r}")
+    if model is None:
+        model = next((m for m in ("crsp", "dem") if m in doc and doc[m] is not None), None)
+        if model is None:
+            raise CalibrationError(f"{path}: neither a 'crsp' nor a 'dem' section")
+    if model not in ("crsp", "dem"):
+        raise CalibrationError(f"model: expected crsp or dem, got {model!r}")
+    if doc.get(model) is None:
+        present = ", ".join(m for m in ("crsp", "dem") if doc.get(m)) or "nothing"
+        raise CalibrationError(f"{path}: no {model!r} section (this file calibrates "
+                               f"{present})")
+    json_dir = os.path.dirname(os.path.abspath(path))
+    profile_csv = _resolve(path, doc.get("profile_csv"), json_dir, "profile_csv", True)
+    sec = _section(path, doc, model)
+    if model == "crsp":
+        names = ("Kn", "Kt", "roughness_m")
+        ranges = _CRSP_RANGES
+        point = [_summary_value(path, sec, "crsp", n, ranges[n]) for n in names]
+        form = ""
+    else:
+        law = sec.get("alpha_law")
+        if not isinstance(law, dict):
+            raise CalibrationError(f"{path}: key 'dem.alpha_law': expected an object")
+        form = law.get("form")
+        if form not in _DEM_COLUMNS:
+            raise CalibrationError(f"{path}: key 'dem.alpha_law.form': expected 'power' or "
+                                   f"'constant', got {form!r}")
+        names = _DEM_COLUMNS[form]
+        ranges = _DEM_RANGES
+        point = [_summary_value(path, law, "dem.alpha_law", n, ranges[n]) for n in names]
+    post_rel = sec.get("posterior_csv")
+    if post_rel is None:
+        posterior, post_path = None, None
+    else:
+        post_path = _resolve(path, post_rel, json_dir, f"{model}.posterior_csv", False)
+        posterior = _read_posterior(post_path, names, ranges)
+    return Calibration(path=path, model=model, profile_csv=profile_csv, names=names,
+                       point=np.asarray(point, dtype=np.float64), posterior=posterior,
+                       posterior_csv=post_path, alpha_form=form)
+
+
+def draw_parameters(cal: Calibration, n_posterior: int, seed: int) -> Draws:
+    """The parameter sets of a hazard run.
+
+    ``n_posterior == 1``: the point estimate (``map``). Otherwise ``n_posterior``
+    distinct rows of the posterior sample, chosen without replacement by a NumPy
+    generator seeded with ``seed`` (the same seed gives the same rows) and kept
+    in file order. Without a posterior sample (gradient-only fit) every draw is
+    the point estimate: the draws are then replicate runs with independent
+    random numbers, and their spread is Monte Carlo noise only.
+
+    Raises:
+        CalibrationError: more draws asked for than the posterior has rows.
+    """
+    if n_posterior < 1:
+        raise CalibrationError(f"--n-posterior: expected a positive count, got {n_posterior}")
+    if n_posterior == 1:
+        return Draws(cal.point[None, :], cal.names, np.array([-1]), "point estimate")
+    if cal.posterior is None:
+        return Draws(np.repeat(cal.point[None, :], n_posterior, axis=0), cal.names,
+                     np.full(n_posterior, -1),
+                     "point estimate (no posterior sample: replicate runs)")
+    n_rows = cal.posterior.shape[0]
+    if n_posterior > n_rows:
+        raise CalibrationError(f"--n-posterior {n_posterior}: {cal.posterior_csv} has only "
+                               f"{n_rows} rows")
+    rng = np.random.default_rng(seed)
+    rows = np.sort(rng.choice(n_rows, size=n_posterior, replace=False))
+    return Draws(cal.posterior[rows], cal.names, rows + 1, "posterior")

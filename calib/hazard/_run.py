@@ -1,0 +1,222 @@
+"""The Monte Carlo loop: posterior draws x block sizes x blocks, in chunks.
+
+``run_hazard`` turns a ``Calibration`` and its ``Draws`` into a ``HazardCounts``:
+per-draw counts at each station (so that posterior bands can be formed) and
+histograms pooled over draws (the posterior predictive distribution of energy,
+velocity and bounce height of the blocks that reach a station).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from calib.hazard._calibration import Calibration, CalibrationError, Draws
+from calib.hazard._sharding import run_units
+from calib.hazard._stats import BINS, hist_quantile
+from calib.hazard._units import crsp_chunk, dem_chunk, draw_key
+from solvers import crsp, dem
+from solvers.profile import Profile
+
+__all__ = ["DemOptions", "HazardCounts", "dem_alpha", "run_hazard"]
+
+
+@dataclasses.dataclass(frozen=True)
+class DemOptions:
+    """DEM numerics of a hazard run.
+
+    Attributes:
+        stiffness_scale: multiplies kn = ks = 50 GPa/m (see ``solvers.dem.Params``;
+            0.01 is the DEM benchmark's value, whose effect on runout is checked
+            by ``scripts/dem_reproduce.py``).
+        max_time_s: simulated-time bound per block, s; blocks still moving are
+            counted as unfinished.
+    """
+
+    stiffness_scale: float = 0.01
+    max_time_s: float = 120.0
+
+
+@dataclasses.dataclass
+class HazardCounts:
+    """Everything the tables need (NumPy arrays; D draws, T sizes, S stations).
+
+    Attributes:
+        model: "crsp" or "dem".
+        sizes_m: (T,) block sizes (average diameter), m.
+        stations_x_m: (S,) stations, m.
+        release_x_m: release abscissa, m (stations at or above it are not
+            "reached": blocks start there).
+        n_blocks: blocks per draw and size.
+        draws: the ``Draws``.
+        exceed, reach, e30, e300: (D, T, S) counts per draw.
+        n_unfinished: (D, T) blocks still moving at the budget.
+        hist: quantity -> (T, S, B) counts pooled over draws.
+        energy_p95_per_draw_kJ: (D, T, S) E p95 of each draw's passers.
+    """
+
+    model: str
+    sizes_m: np.ndarray
+    stations_x_m: np.ndarray
+    release_x_m: float
+    n_blocks: int
+    draws: Draws
+    exceed: np.ndarray
+    reach: np.ndarray
+    e30: np.ndarray
+    e300: np.ndarray
+    n_unfinished: np.ndarray
+    hist: dict
+    energy_p95_per_draw_kJ: np.ndarray
+
+
+def dem_alpha(cal: Calibration, values: np.ndarray, size_m: float) -> float:
+    """Local damping of a square of side ``size_m`` for one draw:
+    alpha = a L^-b (form "power") or alpha (form "constant")."""
+    p = dict(zip(cal.names, values, strict=True))
+    if cal.alpha_form == "power":
+        return float(p["a"] * size_m ** (-p["b"]))
+    return float(p["alpha"])
+
+
+def _check_dem_alphas(cal: Calibration, draws: Draws, sizes_m) -> None:
+    for values, row in zip(draws.values, draws.rows, strict=True):
+        for s in sizes_m:
+            a = dem_alpha(cal, values, s)
+            if not (math.isfinite(a) and 0.0 <= a < 1.0):
+                where = (f"{cal.posterior_csv}: line {row + 1}" if row > 0
+                         else f"{cal.path}: dem.alpha_law (map)")
+                raise CalibrationError(f"{where}: alpha = {a:g} for block size {s:g} m, "
+                                       "outside [0, 1)")
+
+
+def _chunks(n_blocks: int, max_chunk: int) -> tuple[int, list[int]]:
+    """Equal chunk size and the chunk offsets covering ``n_blocks``."""
+    n_chunks = -(-n_blocks // max_chunk)
+    size = -(-n_blocks // n_chunks)
+    return size, [i * size for i in range(n_chunks)]
+
+
+def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, stations_x_m,
+               n_blocks: int, seed: int, *, chunk_blocks: int = 16384, pool: int = 1024,
+               settings: crsp.Settings = crsp.Settings(), dem_options: DemOptions = DemOptions(),
+               progress: Callable[[int], None] | None = None, devices=None) -> HazardCounts:
+    """Simulate ``n_blocks`` blocks per draw and size; reduce at the stations.
+
+    Args:
+        cal: the calibration (model and parameter names).
+        draws: parameter sets (``draw_parameters``).
+        profile: the slope (materials from its materials file; the calibrated
+            CRSP parameters override Kn, Kt, roughness in every zone).
+        sizes_m: (T,) block sizes (average diameter), m: CRSP sphere radius
+            D/2, DEM square side D.
+        stations_x_m: (S,) stations, m.
+        n_blocks: blocks per draw and size.
+        seed: random seed (see ``_units`` for the key of each block).
+        chunk_blocks: most blocks per size in one work unit (memory bound).
+        pool: CRSP lanes per unit.
+        settings: CRSP settings.
+        dem_options: DEM numerics.
+        progress: called with the number of blocks finished after each unit.
+        devices: JAX devices (default all).
+
+    Returns:
+        ``HazardCounts``.
+    """
+    sizes_m = np.asarray(sizes_m, dtype=np.float64)
+    stations = np.asarray(stations_x_m, dtype=np.float64)
+    n_draws, n_sizes, n_st = len(draws.values), len(sizes_m), len(stations)
+    chunk, offsets = _chunks(n_blocks, chunk_blocks)
+    release_x = float(profile.x_m[0])
+    shape = (n_draws, n_sizes, n_st)
+    acc = {k: np.zeros(shape, np.int64) for k in ("exceed", "reach", "e30", "e300")}
+    n_unfinished = np.zeros((n_draws, n_sizes), np.int64)
+    hist = {q: np.zeros((n_sizes, n_st, b.n), np.int64) for q, b in BINS.items()}
+    e_bins = BINS["energy_kJ"]
+    draw_hist = {}
+    draw_left = {}
+    e95 = np.full(shape, np.nan)
+    st_dev = jnp.asarray(stations)
+
+    def on_result(tag, out):
+        d, t_sl = tag
+        for k in acc:
+            acc[k][d, t_sl] += getattr(out, k)
+        n_unfinished[d, t_sl] += out.n_unfinished
+        for q in hist:
+            hist[q][t_sl] += getattr(out, f"hist_{q}")
+        dh = draw_hist.setdefault(d, np.zeros((n_sizes, n_st, e_bins.n), np.int64))
+        dh[t_sl] += out.hist_energy_kJ
+        draw_left[d] = draw_left.get(d, n_sizes * n_blocks) - int(out.n_blocks) * (
+            t_sl.stop - t_sl.start)
+        if draw_left[d] == 0:
+            e95[d] = hist_quantile(draw_hist.pop(d), 0.95, e_bins)
+        if progress is not None:
+            progress(int(out.n_blocks) * (t_sl.stop - t_sl.start))
+
+    if cal.model == "crsp":
+        units = _crsp_units(draws, profile, sizes_m, st_dev, n_blocks, seed, chunk, offsets,
+                            pool, settings)
+    else:
+        _check_dem_alphas(cal, draws, sizes_m)
+        units = _dem_units(cal, draws, profile, sizes_m, stations, n_blocks, seed, chunk,
+                           offsets, dem_options)
+    run_units(units, on_result, devices=devices)
+    return HazardCounts(model=cal.model, sizes_m=sizes_m, stations_x_m=stations,
+                        release_x_m=release_x, n_blocks=n_blocks, draws=draws,
+                        n_unfinished=n_unfinished, hist=hist, energy_p95_per_draw_kJ=e95,
+                        **acc)
+
+
+def _stack(trees):
+    return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *trees)
+
+
+def _crsp_units(draws, profile, sizes_m, stations, n_blocks, seed, chunk, offsets, pool,
+                settings):
+    n_sizes = len(sizes_m)
+    blocks = _stack([crsp.make_block(0.5 * s) for s in sizes_m])
+    fn = functools.partial(crsp_chunk, n_chunk=chunk, pool=min(pool, n_sizes * chunk),
+                           settings=settings)
+    for d, values in enumerate(draws.values):
+        kn, kt, rough = (float(v) for v in values)
+        p = crsp.params_from_profile(profile, Kn=kn, Kt=kt, roughness_m=rough)
+        params = _stack([p] * n_sizes)
+        key = draw_key(seed, d)
+        for off in offsets:
+            n_valid = min(chunk, n_blocks - off)
+
+            def make_args(params=params, key=key, off=off, n_valid=n_valid):
+                return (params, blocks, key, profile, stations, jnp.asarray(off, jnp.int32),
+                        jnp.asarray(n_valid, jnp.int32))
+
+            yield (d, slice(0, n_sizes)), make_args, fn
+
+
+def _dem_units(cal, draws, profile, sizes_m, stations, n_blocks, seed, chunk, offsets,
+               options: DemOptions):
+    params = dem.make_params(profile, stiffness_scale=options.stiffness_scale)
+    release = float(profile.x_m[0])
+    # one static step bound for every size (one compilation): the smallest dt
+    dts = [float(dem.stable_dt(params, dem.make_block(s, alpha=0.0))) for s in sizes_m]
+    max_steps = int(math.ceil(options.max_time_s / min(dts)))
+    fn = functools.partial(dem_chunk, n_chunk=chunk, options=dem.Options(max_steps=max_steps))
+    for d, values in enumerate(draws.values):
+        key = draw_key(seed, d)
+        for t, s in enumerate(sizes_m):
+            block = dem.make_block(float(s), alpha=dem_alpha(cal, values, float(s)),
+                                   release_x_m=release, stations=stations)
+            for off in offsets:
+                n_valid = min(chunk, n_blocks - off)
+
+                def make_args(block=block, key=key, off=off, n_valid=n_valid):
+                    return (params, block, key, jnp.asarray(off, jnp.int32),
+                            jnp.asarray(n_valid, jnp.int32))
+
+                yield (d, slice(t, t + 1)), make_args, fn

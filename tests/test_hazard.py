@@ -1,0 +1,230 @@
+"""Hazard Monte Carlo (issue 5): exceedance step for a deterministic setting,
+monotone bounded curves, reach vs per-block output, 1/sqrt(N) bands, chunking
+invariance, histogram quantiles, intensity classes and matrix."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import numpy as np
+import pytest
+from test_hazard_fixtures import write_calibration
+
+from calib.hazard import (
+    BINS,
+    draw_parameters,
+    exceedance_table,
+    hazard_level,
+    hazard_table,
+    hist_quantile,
+    intensity_class,
+    load_calibration,
+    probability_class,
+    run_hazard,
+)
+from calib.hazard._units import draw_key
+from solvers import crsp, load_profile
+
+G = 9.81
+
+
+def _run(cal_path, n_posterior, n_blocks, sizes, stations, seed=0, **kw):
+    cal = load_calibration(cal_path, "crsp")
+    profile = load_profile(cal.profile_csv)
+    draws = draw_parameters(cal, n_posterior, seed)
+    counts = run_hazard(cal, draws, profile, sizes, np.asarray(stations, float), n_blocks,
+                        seed, **kw)
+    return cal, profile, counts
+
+
+# ------------------------------------------------------------- deterministic step
+
+def test_exceedance_is_a_step_at_the_analytic_runout(tmp_path):
+    """Roughness 0 and no release spread: CRSP is deterministic. A sphere
+    released on the ground at 1 m/s rolls down a 25 deg incline (rolling
+    resistance 20 deg: it accelerates), keeps u cos(25 deg) at the concave break
+    and decelerates on the flat:
+        (1 + k) du/dt = g sin(b) - tan(phi) g cos(b)   (k = 2/5),
+    so x_stop = 20 + u2^2 (1 + k) / (2 g tan(phi)). Every block stops there, so
+    P(runout > x) is 1 before and 0 after, in every draw."""
+    beta, phi, k = math.radians(25.0), math.radians(20.0), 0.4
+    (tmp_path / "ramp_profile.csv").write_text(
+        f"x_m,z_m,zone\n0,{20 * math.tan(beta):.12f},ramp\n20,0,flat\n60,0,\n")
+    (tmp_path / "ramp_materials.csv").write_text(
+        "zone,Kn,Kt,roughness_m,rolling_friction_deg,phi_deg\n"
+        "ramp,0.4,0.8,0,20,30\nflat,0.4,0.8,0,20,30\n")
+    path = write_calibration(tmp_path, crsp=(0.4, 0.8, 0.0),
+                             profile=str(tmp_path / "ramp_profile.csv"))
+    u0 = math.cos(beta)  # release velocity (1, 0) m/s projected on the incline
+    a1 = G * (math.sin(beta) - math.tan(phi) * math.cos(beta)) / (1 + k)
+    u1 = math.sqrt(u0**2 + 2 * a1 * 20.0 / math.cos(beta))
+    u2 = u1 * math.cos(beta)
+    x_stop = 20.0 + u2**2 * (1 + k) / (2 * G * math.tan(phi))
+    stations = np.round(np.arange(21.0, 28.01, 0.25), 2)
+    _, _, c = _run(path, 3, 16, [0.5, 1.0], stations)
+    exc = exceedance_table(c)
+    expected = (exc.x_m < x_stop).astype(float)
+    for col in ("p_exceed_mean", "p_exceed_q05", "p_exceed_q50", "p_exceed_q95"):
+        np.testing.assert_array_equal(exc[col].to_numpy(), expected.to_numpy(), err_msg=col)
+    assert 0 < (exc.x_m < x_stop).sum() < len(exc)  # the step lies inside the stations
+
+
+# ---------------------------------------------------- shared small Postignano run
+
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("cal")
+    path = write_calibration(folder)
+    stations = np.arange(0.0, 301.0, 10.0)
+    cal, profile, c = _run(path, 1, 400, [0.5, 2.0], stations, seed=3)
+    return cal, profile, c
+
+
+def test_exceedance_non_increasing_and_in_unit_interval(small_run):
+    _, _, c = small_run
+    exc = exceedance_table(c)
+    for _, g in exc.groupby("block_size_m"):
+        for col in ("p_exceed_mean", "p_exceed_q05", "p_exceed_q50", "p_exceed_q95"):
+            v = g.sort_values("x_m")[col].to_numpy()
+            assert np.all((v >= 0) & (v <= 1)), col
+            assert np.all(np.diff(v) <= 0), col
+    # not trivially flat: every block starts beyond 0 and none leaves a 300 m profile here
+    assert exc.p_exceed_mean.max() == 1.0 and exc.p_exceed_mean.min() == 0.0
+
+
+def test_reach_and_exceedance_equal_per_block_fractions(small_run):
+    """Recompute from the per-block output of the plain batch runner
+    (``crsp.run_blocks``, same keys: block j of draw 0 uses fold_in(K_0, j))."""
+    cal, profile, c = small_run
+    table = hazard_table(c, profile)
+    stations = c.stations_x_m
+    kn, kt, rough = cal.point
+    params = crsp.params_from_profile(profile, Kn=kn, Kt=kt, roughness_m=rough)
+    for t, size in enumerate(c.sizes_m):
+        res = crsp.run_blocks(params, crsp.make_block(size / 2), draw_key(3, 0), c.n_blocks,
+                              profile, stations_x_m=stations)
+        rows = table[table.block_size_m == size].sort_values("x_m")
+        beyond = (res.stop_x_m[:, None] > stations[None, :]).mean(axis=0)
+        passed = res.stations.passed.mean(axis=0)
+        np.testing.assert_array_equal(rows.p_exceed_mean.to_numpy(), beyond)
+        down = stations > 0.0
+        np.testing.assert_array_equal(rows.reach_prob_mean.to_numpy()[down], passed[down])
+        assert np.all(np.isnan(rows.reach_prob_mean.to_numpy()[~down]))
+        # reach >= exceedance: a block beyond x has passed x; the excess is the
+        # blocks that passed x and came back upslope (a few % at most here)
+        gap = passed[down] - beyond[down]
+        assert np.all(gap >= 0) and gap.max() <= 0.05
+        e = res.stations.energy_kJ
+        with np.errstate(invalid="ignore"):
+            p30 = np.nansum(e > 30, axis=0) / np.maximum(res.stations.passed.sum(axis=0), 1)
+        has = res.stations.passed.sum(axis=0) > 0
+        np.testing.assert_allclose(rows.p_E_gt_30kJ_given_reach.to_numpy()[has & down],
+                                   p30[has & down], rtol=0, atol=1e-12)
+        # design energy from the histogram vs the exact sample quantile (the
+        # smallest value with F >= q, NumPy's "inverted_cdf"): within one bin
+        for s in np.flatnonzero(has & down):
+            exact = np.quantile(e[res.stations.passed[:, s], s], 0.95, method="inverted_cdf")
+            got = rows.energy_p95_kJ.to_numpy()[s]
+            assert abs(math.log10(got / exact)) <= 1 / BINS["energy_kJ"].per_decade + 1e-12, (
+                s, got, exact)
+
+
+# ---------------------------------------------------------------- 1/sqrt(N) bands
+
+def test_bands_shrink_as_one_over_sqrt_n(tmp_path):
+    """No posterior sample: every draw is the point estimate with its own random
+    numbers, so the spread over draws is Monte Carlo noise only, sd =
+    sqrt(p (1 - p) / N). With M = 64 draws the sample sd has a relative standard
+    error of about 1 / sqrt(2 (M - 1)) = 9 %; we allow 4 of them (36 %) on each
+    sd and 4 x sqrt(2) x 9 % on the ratio of the two sds (expected 1/2)."""
+    path = write_calibration(tmp_path)
+    stations = np.arange(100.0, 131.0, 2.0)
+    m = 64
+    sds, widths = {}, {}
+    for n in (50, 200):
+        # chunks of 50 blocks: N = 200 runs as 4 chunks, one compilation for both
+        _, _, c = _run(path, m, n, [2.0], stations, seed=11, chunk_blocks=50)
+        p = c.exceed[:, 0, :] / n                         # (M, S)
+        pbar = p.mean(axis=0)
+        s = int(np.argmin(np.abs(pbar - 0.5)))
+        assert 0.2 < pbar[s] < 0.8
+        sd = p[:, s].std(ddof=1)
+        expected = math.sqrt(pbar[s] * (1 - pbar[s]) / n)
+        assert abs(sd / expected - 1) < 4 / math.sqrt(2 * (m - 1)), (n, sd, expected)
+        sds[n] = sd
+        exc = exceedance_table(c)
+        row = exc[np.isclose(exc.x_m, stations[s])].iloc[0]
+        widths[n] = row.p_exceed_q95 - row.p_exceed_q05
+    ratio = sds[200] / sds[50]
+    assert abs(ratio - 0.5) < 0.5 * 4 * math.sqrt(2) / math.sqrt(2 * (m - 1))
+    assert widths[200] < widths[50]
+
+
+# ------------------------------------------------------------- reproducibility
+
+def test_counts_do_not_depend_on_chunking_or_pool(tmp_path):
+    path = write_calibration(tmp_path)
+    st = np.arange(0.0, 301.0, 25.0)
+    _, _, a = _run(path, 2, 20, [0.5, 1.0], st, chunk_blocks=7, pool=16)
+    _, _, b = _run(path, 2, 20, [0.5, 1.0], st, chunk_blocks=1000, pool=64)
+    for k in ("exceed", "reach", "e30", "e300", "n_unfinished"):
+        np.testing.assert_array_equal(getattr(a, k), getattr(b, k), err_msg=k)
+    for q in a.hist:
+        np.testing.assert_array_equal(a.hist[q], b.hist[q], err_msg=q)
+
+
+def test_draws_are_seeded_rows_of_the_posterior(tmp_path):
+    rows = np.column_stack([np.linspace(0.3, 0.5, 30), np.full(30, 0.85), np.full(30, 2.0)])
+    path = write_calibration(tmp_path, crsp_posterior=rows)
+    cal = load_calibration(path)
+    a, b = draw_parameters(cal, 10, 0), draw_parameters(cal, 10, 0)
+    np.testing.assert_array_equal(a.values, b.values)
+    assert len(set(a.rows)) == 10 and a.source == "posterior"
+    np.testing.assert_allclose(a.values, rows[a.rows - 1], atol=1e-6)
+    one = draw_parameters(cal, 1, 0)
+    np.testing.assert_array_equal(one.values, [[0.41, 0.87, 2.0]])
+
+
+# ------------------------------------------------------------- quantiles, classes
+
+def test_hist_quantile_matches_percentile_within_one_bin():
+    rng = np.random.default_rng(0)
+    bins = BINS["energy_kJ"]
+    v = rng.lognormal(mean=3.0, sigma=1.5, size=20000)
+    counts = np.bincount(np.asarray(bins.index(jax.numpy.asarray(v))), minlength=bins.n)
+    for q in (0.05, 0.5, 0.95, 0.99):
+        got = hist_quantile(counts, q, bins)
+        exact = np.quantile(v, q, method="inverted_cdf")
+        assert abs(math.log10(got / exact)) <= 1 / bins.per_decade + 1e-12, (q, got, exact)
+    with_zeros = counts.copy()
+    with_zeros[0] += 3 * counts.sum()  # 75 % zeros (e.g. rolling blocks' bounce height)
+    assert hist_quantile(with_zeros, 0.5, bins) == 0.0
+    assert np.isnan(hist_quantile(np.zeros(bins.n, int), 0.5, bins))
+
+
+def test_intensity_classes_and_matrix():
+    assert [intensity_class(e) for e in (0.0, 29.9, 30.0, 300.0, 300.1)] == [
+        "weak", "weak", "medium", "medium", "strong"]
+    assert intensity_class(float("nan")) == ""
+    assert [probability_class(f) for f in (2.0, 1 / 30, 1 / 31, 1 / 100, 1 / 299, 1 / 301,
+                                           0.0)] == ["high", "high", "medium", "medium",
+                                                     "low", "very low", ""]
+    # strong blocks every 50 yr: red; weak every 10 yr only: blue; rare: residual
+    assert hazard_level(1 / 50, 1 / 50, 1 / 50) == "red"
+    assert hazard_level(1 / 10, 0.0, 0.0) == "blue"
+    assert hazard_level(1 / 50, 1 / 200, 0.0) == "blue"
+    assert hazard_level(1 / 200, 0.0, 0.0) == "yellow"
+    assert hazard_level(1 / 1000, 1 / 1000, 1 / 1000) == "residual"
+    assert hazard_level(0.0, 0.0, 0.0) == "white"
+
+
+def test_release_rate_gives_frequencies(small_run):
+    _, profile, c = small_run
+    t = hazard_table(c, profile, release_rate_per_year=0.5)
+    down = t[t.x_m > 0]
+    np.testing.assert_allclose(down.freq_reach_per_yr, 0.5 * down.reach_prob_mean)
+    assert np.all(down.freq_E_gt_300kJ_per_yr <= down.freq_E_gt_30kJ_per_yr)
+    assert np.all(down.freq_E_gt_30kJ_per_yr <= down.freq_reach_per_yr)
+    assert set(down.hazard_level) <= {"white", "residual", "yellow", "blue", "red"}
+    assert "hazard_level" not in hazard_table(c, profile).columns
