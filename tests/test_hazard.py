@@ -163,11 +163,10 @@ def test_bands_shrink_as_one_over_sqrt_n(tmp_path):
 
 # ------------------------------------------------------------- reproducibility
 
-def test_counts_do_not_depend_on_chunking_or_pool(tmp_path):
-    path = write_calibration(tmp_path)
-    st = np.arange(0.0, 301.0, 25.0)
-    _, _, a = _run(path, 2, 20, [0.5, 1.0], st, chunk_blocks=7, pool=16)
-    _, _, b = _run(path, 2, 20, [0.5, 1.0], st, chunk_blocks=1000, pool=64)
+def test_counts_do_not_depend_on_chunking_or_pool(small_run):
+    cal, profile, a = small_run  # one chunk of 400 blocks, 800 lanes
+    b = run_hazard(cal, a.draws, profile, a.sizes_m, a.stations_x_m, a.n_blocks, 3,
+                   chunk_blocks=150, pool=64)  # 3 chunks of 134, the last one padded
     for k in ("exceed", "reach", "e30", "e300", "n_unfinished"):
         np.testing.assert_array_equal(getattr(a, k), getattr(b, k), err_msg=k)
     for q in a.hist:

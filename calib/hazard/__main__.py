@@ -195,8 +195,10 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as exc:
         fail(prog, f"cannot write to {args.out}: {exc.strerror or exc}")
     print(text)
-    print(f"{total:,} blocks in {wall:.1f} s ({total / wall:,.0f} blocks/s incl. compile); "
-          f"wrote {', '.join(os.path.basename(w) for w in written)} to {args.out}")
+    import jax
+
+    print(f"{total:,} blocks in {wall:.1f} s ({total / wall:,.0f} blocks/s incl. compile) on "
+          f"{len(jax.devices())} device(s); wrote {', '.join(os.path.basename(w) for w in written)} to {args.out}")
     return 0
 
 
