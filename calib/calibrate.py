@@ -1,0 +1,256 @@
+"""Calibrate one forward model against observations: gradient fit, Bayesian fit, check.
+
+Stages (each timed; ``Budget`` sets the sizes, ``QUICK`` / ``DEFAULT`` the presets):
+
+1. Bayesian (``method`` includes "bayes"):
+   a. design: simulate the runout distribution at ``n_design`` points of the
+      prior box (CRSP: scrambled Sobol in theta; DEM: a grid in alpha per size)
+      with common random numbers, ``n_blocks_design`` blocks per point and size;
+   b. emulator: GPs of the runout quantiles (``calib.emulator``); CRSP adds a
+      second design of ``n_design2`` points drawn from a pilot posterior, so the
+      emulator is accurate where the posterior lives (sequential design, as in
+      history matching: Vernon et al. 2010);
+   c. hold-out check of the emulator; its predictive variance is inflated by
+      max(1, z_rms^2) so held-out errors have unit RMS in predictive sd;
+   d. NUTS (``calib.bayes``).
+2. Gradient (``method`` includes "gradient"): Adam on the smoothed CRN
+   objective of the SIMULATOR itself (``calib.gradient``) from several starts:
+   J(theta) = -sum_i log p(y_i | theta), the negative log-likelihood of
+   ``calib.likelihood`` with ``n_blocks_grad`` blocks per size.
+3. Check: the point estimate is re-simulated with fresh random numbers
+   (``n_check`` blocks per size) and every observation gets its fit quality:
+   simulated 5/50/95 % runouts, its PIT value P(R <= y) and log-likelihood.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy.special import ndtr
+
+from calib.bayes import Posterior, run_nuts
+from calib.emulator import fit_emulator, holdout_error
+from calib.gradient import GradientFit, fit_gradient
+from calib.likelihood import log_likelihood
+from calib.observations import Observations
+
+__all__ = ["Budget", "ModelFit", "calibrate", "fit_quality", "presets"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Budget:
+    """Sizes of every stage (blocks are per parameter point and block size)."""
+
+    n_design: int = 96
+    n_design2: int = 64
+    n_blocks_design: int = 256
+    n_levels: int = 10
+    nuts_warmup: int = 500
+    nuts_samples: int = 1000
+    nuts_chains: int = 4
+    grad_starts: int = 3
+    grad_steps: int = 40
+    grad_k: int = 3
+    n_blocks_grad: int = 256
+    n_check: int = 2000
+
+
+def presets(model: str, quick: bool) -> Budget:
+    """Stage sizes per model (``--quick`` for tests; the default for real use)."""
+    if model == "crsp":
+        if quick:
+            return Budget(n_design=48, n_design2=32, n_blocks_design=128, nuts_warmup=300,
+                          nuts_samples=500, nuts_chains=2, grad_starts=2, grad_steps=12,
+                          grad_k=2, n_blocks_grad=128, n_check=128)
+        return Budget()
+    if model == "dem":
+        if quick:
+            return Budget(n_design=8, n_design2=0, n_blocks_design=4, nuts_warmup=300,
+                          nuts_samples=300, nuts_chains=2, grad_starts=1, grad_steps=4,
+                          grad_k=1, n_blocks_grad=4, n_check=4)
+        return Budget(n_design=16, n_design2=0, n_blocks_design=12, grad_starts=2,
+                      grad_steps=10, grad_k=2, n_blocks_grad=8, n_check=16)
+    raise ValueError(f"unknown model {model!r}")
+
+
+@dataclasses.dataclass
+class ModelFit:
+    """Everything one model's calibration produced."""
+
+    names: tuple[str, ...]
+    estimate: np.ndarray
+    estimate_source: str
+    posterior: Posterior | None
+    gradient: GradientFit | None
+    emulator_check: dict | None
+    quality: list[dict]
+    check_runouts: np.ndarray
+    timings_s: dict
+    budget: Budget
+
+
+def _obs_arrays(obs: Observations):
+    f = lambda a: jnp.asarray(np.nan_to_num(a, nan=0.0))  # noqa: E731
+    return (f(obs.runout_m), f(obs.runout_sd_m), f(obs.runout_min_m), f(obs.runout_max_m),
+            jnp.asarray(obs.is_interval))
+
+
+def _loglik_of_runouts(obs: Observations):
+    """runouts (T, S, n) -> pointwise log-likelihood (T, n_obs) (jitted)."""
+    y, sd, lo, hi, is_int = _obs_arrays(obs)
+    idx = jnp.asarray(obs.size_index)
+
+    @jax.jit
+    def f(runouts):
+        return jax.vmap(lambda r: log_likelihood(r[idx], y, sd, lo, hi, is_int))(runouts)
+
+    return f
+
+
+def _emulated_loglik(obs: Observations, emu, forward, inflation: float):
+    """theta (d,) -> pointwise log-likelihood (n_obs,) from the emulator."""
+    y, sd, lo, hi, is_int = _obs_arrays(obs)
+    idx = jnp.asarray(obs.size_index)
+
+    def f(theta):
+        mean, var = emu.predict(forward.emulator_inputs(theta))
+        return log_likelihood(mean[idx], y, sd, lo, hi, is_int, inflation * var[idx])
+
+    return f
+
+
+def fit_quality(obs: Observations, runouts: np.ndarray) -> list[dict]:
+    """Per-observation fit: simulated 5/50/95 % runouts, PIT and log-likelihood.
+
+    Args:
+        runouts: (S, n) runouts per distinct size (``obs.sizes_m``), m.
+
+    PIT = P(R + e <= y), e ~ N(0, sd^2), for a point (the predictive CDF of the
+    OBSERVED value, tolerance included) (about uniform on [0, 1] if the model is right;
+    below 0.05 or above 0.95 means the observation lies outside the simulated
+    90 % band) and P(a <= R <= b) for an interval.
+    """
+    ll = np.asarray(_loglik_of_runouts(obs)(jnp.asarray(runouts)[None]))[0]
+    out = []
+    for i in range(obs.n_obs):
+        r = runouts[obs.size_index[i]]
+        q05, q50, q95 = np.quantile(r, [0.05, 0.5, 0.95])
+        row = {"row": i + 1, "block_size_m": float(obs.block_size_m[i]),
+               "sim_q05_m": float(q05), "sim_median_m": float(q50), "sim_q95_m": float(q95),
+               "loglik": float(ll[i])}
+        if obs.is_interval[i]:
+            a, b = obs.runout_min_m[i], obs.runout_max_m[i]
+            row.update(observed_min_m=float(a), observed_max_m=float(b),
+                       p_in_interval=float(np.mean((r >= a) & (r <= b))))
+        else:
+            y, sd = obs.runout_m[i], obs.runout_sd_m[i]
+            pit = float(np.mean(ndtr((y - r) / sd)))
+            row.update(observed_m=float(y), observed_sd_m=float(obs.runout_sd_m[i]), pit=pit,
+                       in_90_band=bool(0.05 <= pit <= 0.95))
+        out.append(row)
+    return out
+
+
+def _pilot_draws(pointwise_loglik, box, n: int, key: jax.Array) -> np.ndarray:
+    """n draws from a pilot posterior: sampling-importance-resampling of 4096
+    scrambled-Sobol points of the box weighted by the emulated likelihood
+    (Rubin 1988), jittered by 2 % of the box so that repeats differ."""
+    from scipy.stats import qmc
+
+    seed = int(jax.random.randint(key, (), 0, 2**31 - 1))
+    pts = box.from_unit(qmc.Sobol(box.dim, scramble=True, seed=seed).random_base2(12))
+    ll = np.asarray(jax.jit(jax.vmap(pointwise_loglik))(jnp.asarray(pts))).sum(1)
+    w = np.exp(ll - ll.max())
+    w /= w.sum()
+    rng = np.random.default_rng(seed)
+    pick = pts[rng.choice(len(pts), n, p=w)]
+    pick = pick + 0.02 * (box.hi - box.lo) * rng.standard_normal(pick.shape)
+    return np.clip(pick, box.lo, box.hi)
+
+
+def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ...],
+              budget: Budget, progress: Callable[[str, int, int], None] | None = None
+              ) -> ModelFit:
+    """Run the stages of the module docstring for one forward model.
+
+    Args:
+        forward: ``CrspForward`` or ``DemForward`` built on ``obs.sizes_m``.
+        obs: observations.
+        key: PRNG key of the fit (common random numbers, directions, NUTS, check).
+        methods: subset of ("gradient", "bayes").
+        budget: stage sizes.
+        progress: optional callable(stage, done, total).
+    """
+    k_design, k_grad, k_nuts, k_pilot, k_check = jax.random.split(key, 5)
+    tick = progress or (lambda *a: None)
+    timings, posterior, gfit, emu_check = {}, None, None, None
+    loglik_runs = _loglik_of_runouts(obs)
+    box = forward.box
+
+    if "bayes" in methods:
+        t0 = time.perf_counter()
+        tick("design", 0, 1)
+        x, r = forward.design(budget.n_design, seed=int(jax.random.randint(k_design, (), 0,
+                                                                              2**31 - 1)))
+        tick("design", 1, 1)
+        timings["design_s"] = time.perf_counter() - t0
+        ibox = forward.input_box
+        if budget.n_design2 > 0:
+            t0 = time.perf_counter()
+            emu = fit_emulator(x, r, ibox.lo, ibox.hi, budget.n_levels)
+            x2 = _pilot_draws(_emulated_loglik(obs, emu, forward, 1.0), box,
+                              budget.n_design2, k_pilot)
+            tick("design2", 0, 1)
+            r2 = forward.runouts(x2)
+            tick("design2", 1, 1)
+            x, r = np.concatenate([x, x2]), np.concatenate([r, r2])
+            timings["design2_s"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        emu_check = holdout_error(x, r, ibox.lo, ibox.hi, budget.n_levels)
+        inflation = max(1.0, emu_check["z_rms"] ** 2)
+        emu_check["variance_inflation"] = inflation
+        emu_check["n_design"] = int(x.shape[0])
+        emu_check["n_blocks_per_point"] = int(r.shape[-1])
+        emu = fit_emulator(x, r, ibox.lo, ibox.hi, budget.n_levels)
+        timings["emulator_s"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        tick("nuts", 0, 1)
+        posterior = run_nuts(_emulated_loglik(obs, emu, forward, inflation), box, k_nuts,
+                             budget.nuts_warmup, budget.nuts_samples, budget.nuts_chains)
+        tick("nuts", 1, 1)
+        timings["nuts_s"] = time.perf_counter() - t0
+
+    if "gradient" in methods:
+        t0 = time.perf_counter()
+        grad_forward = dataclasses.replace(forward, n_blocks=budget.n_blocks_grad, key=k_grad)
+
+        def objective(theta):
+            return -np.asarray(loglik_runs(jnp.asarray(grad_forward.runouts(theta)))).sum(1)
+
+        from scipy.stats import qmc
+
+        starts = [0.5 * (box.lo + box.hi)]
+        if budget.grad_starts > 1:
+            z = qmc.Halton(box.dim, scramble=True, seed=1).random(budget.grad_starts - 1)
+            starts += list(box.from_unit(0.15 + 0.7 * z))
+        gfit = fit_gradient(objective, box, np.array(starts), k_grad, n_steps=budget.grad_steps,
+                            k=budget.grad_k,
+                            progress=lambda i: tick("gradient", i + 1, budget.grad_steps))
+        timings["gradient_s"] = time.perf_counter() - t0
+
+    if gfit is not None:
+        estimate, source = gfit.theta, "gradient"
+    else:
+        estimate, source = posterior.map, "posterior_mode"
+    t0 = time.perf_counter()
+    check_forward = dataclasses.replace(forward, n_blocks=budget.n_check, key=k_check)
+    check = check_forward.runouts(estimate[None])[0]
+    quality = fit_quality(obs, check)
+    timings["check_s"] = time.perf_counter() - t0
+    return ModelFit(tuple(box.names), np.asarray(estimate), source, posterior, gfit, emu_check,
+                    quality, check, timings, budget)

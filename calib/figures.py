@@ -1,0 +1,98 @@
+"""Figures of a calibration (matplotlib, Agg backend; each returns a Figure).
+
+* ``runout_vs_size``: observed runouts (points with +-1 sd, or intervals)
+  against block size, with each model's simulated median and 5-95 % band at
+  the point estimate.
+* ``alpha_law``: the fitted damping law alpha(L) with its 90 % posterior band,
+  against the paper's Table 1.
+* ``pairs``: posterior pair plot (scatter below the diagonal, histograms on it).
+"""
+
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from calib.observations import Observations  # noqa: E402
+
+__all__ = ["TABLE1", "alpha_law", "pairs", "runout_vs_size"]
+
+#: Paper, Table 1: square side L (m) -> local damping alpha.
+TABLE1 = {0.2: 0.90, 0.9: 0.43, 1.8: 0.30}
+
+_COLORS = {"crsp": "tab:blue", "dem": "tab:red"}
+
+
+def runout_vs_size(obs: Observations, predictive: dict) -> plt.Figure:
+    """predictive: model -> (sizes_m (S,), runouts (S, n)) at the point estimate."""
+    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    for model, (sizes, runs) in predictive.items():
+        q05, q50, q95 = np.quantile(runs, [0.05, 0.5, 0.95], axis=1)
+        c = _COLORS.get(model, "k")
+        ax.fill_between(sizes, q05, q95, color=c, alpha=0.2, label=f"{model.upper()} 5-95 %")
+        ax.plot(sizes, q50, "o-", color=c, label=f"{model.upper()} median")
+    pts = ~obs.is_interval
+    ax.errorbar(obs.block_size_m[pts], obs.runout_m[pts], yerr=obs.runout_sd_m[pts], fmt="ks",
+                capsize=4, label="observed (±1 sd)")
+    if obs.is_interval.any():
+        iv = obs.is_interval
+        ax.vlines(obs.block_size_m[iv], obs.runout_min_m[iv], obs.runout_max_m[iv], colors="k",
+                  lw=3, label="observed interval")
+    ax.set_xlabel("block size (average diameter), m")
+    ax.set_ylabel("runout (horizontal travel), m")
+    ax.set_title("Observed vs simulated runout at the calibrated parameters")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def alpha_law(sizes_m: np.ndarray, alpha_map: np.ndarray, alpha_samples: np.ndarray | None,
+              form: str) -> plt.Figure:
+    """alpha_samples: (n_draws, len(sizes_m)) or None."""
+    fig, ax = plt.subplots(figsize=(5.5, 4.0))
+    if alpha_samples is not None:
+        lo, hi = np.quantile(alpha_samples, [0.05, 0.95], axis=0)
+        ax.fill_between(sizes_m, lo, hi, color="tab:red", alpha=0.2, label="90 % posterior")
+    ax.plot(sizes_m, alpha_map, "-", color="tab:red", label=f"fitted ({form} law)")
+    ax.plot(list(TABLE1), list(TABLE1.values()), "ks", label="paper, Table 1")
+    ax.plot(sizes_m, 0.40 * sizes_m**-0.5, "k:", lw=1, label="0.40 L^-0.5")
+    ax.set_xlabel("square side L, m")
+    ax.set_ylabel("local damping alpha")
+    ax.set_ylim(0, 1)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def pairs(samples: np.ndarray, names: tuple[str, ...], truth=None, title: str = ""
+          ) -> plt.Figure:
+    """Pair plot of posterior draws (n, d)."""
+    d = samples.shape[1]
+    fig, axes = plt.subplots(d, d, figsize=(2.3 * d + 0.5, 2.3 * d + 0.5), squeeze=False)
+    for i in range(d):
+        for j in range(d):
+            ax = axes[i, j]
+            if j > i:
+                ax.axis("off")
+                continue
+            if i == j:
+                ax.hist(samples[:, i], bins=30, color="tab:gray")
+                if truth is not None:
+                    ax.axvline(truth[i], color="k", ls="--")
+            else:
+                ax.plot(samples[:, j], samples[:, i], ".", ms=1.5, alpha=0.3, color="tab:blue")
+                if truth is not None:
+                    ax.plot(truth[j], truth[i], "k+", ms=10)
+            if i == d - 1:
+                ax.set_xlabel(names[j])
+            if j == 0 and i > 0:
+                ax.set_ylabel(names[i])
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,340 @@
+"""``python -m calib.fit DATA.csv``: calibrate CRSP (Kn, Kt, S) and the DEM damping law.
+
+Reads observed runouts (``calib.observations``) and a slope profile, fits each
+model by gradient (optax on a smoothed common-random-number objective of the
+simulator) and by Bayesian inference (NumPyro NUTS on a Gaussian-process
+emulator of the simulator), checks the fit by re-simulation, and writes into
+``--out`` (atomically: everything is computed first, each file is written to a
+temporary name and renamed, so a failure leaves no half-written file):
+
+* ``calibration.json``: point estimates and 90 % intervals, the damping law and
+  alpha at L = 0.2, 0.9, 1.8 m, per-observation fit quality, diagnostics,
+  emulator checks, stage timings, seed and package versions;
+* ``crsp_posterior.csv``, ``dem_posterior.csv``: posterior draws;
+* ``runout_vs_size.png``, ``alpha_law.png``, ``crsp_pairs.png``, ``dem_pairs.png``.
+
+The likelihood (``calib.likelihood``): each observed row is one draw from the
+simulated runout distribution of blocks of its size, seen with a Gaussian
+tolerance (points) or known to lie in an interval.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.metadata as md
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+
+import jax
+import numpy as np
+
+from solvers._cli import CliError, OneLineParser, fail
+
+__all__ = ["main"]
+
+PROG = "python -m calib.fit"
+ALPHA_AT_L = (0.2, 0.9, 1.8)
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = OneLineParser(
+        prog=PROG,
+        description=__doc__.split("\n\n")[0] + " Writes calibration.json, posterior CSVs and "
+        "figures; prints a summary table.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="Example: python -m calib.fit data/postignano.csv --quick --out results/\n"
+               "Observation CSV columns: block_size_m, runout_m, runout_sd_m (a point with a "
+               "tolerance) or runout_min_m, runout_max_m (an interval), source.")
+    p.add_argument("data", help="observed runouts CSV (see data/README.md for the schema)")
+    p.add_argument("--profile", default=None,
+                   help="slope profile CSV (default: <data stem>_profile.csv next to DATA)")
+    p.add_argument("--model", choices=["crsp", "dem", "both"], default="both",
+                   help="which solver to calibrate (default: both)")
+    p.add_argument("--method", choices=["gradient", "bayes", "both"], default="both",
+                   help="gradient (optax, point estimate), bayes (NumPyro NUTS on an "
+                        "emulator, posterior) or both (default)")
+    p.add_argument("--alpha-law", choices=["power", "constant"], default="power",
+                   help="DEM damping law: power alpha = a L^-b (default) or constant alpha")
+    p.add_argument("--out", default="results", help="output folder (default: results/)")
+    p.add_argument("--seed", type=int, default=0, help="PRNG seed (default 0)")
+    p.add_argument("--quick", action="store_true",
+                   help="small budgets (about a minute; for tests and a first look)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    return p
+
+
+def _default_profile(data: str) -> str:
+    stem, _ = os.path.splitext(data)
+    return stem + "_profile.csv"
+
+
+def _check_reach(obs, profile, profile_path: str) -> None:
+    """Every observed runout must lie on the profile (x0 .. x_end)."""
+    x0, x1 = float(profile.x_m[0]), float(profile.x_m[-1])
+    length = x1 - x0
+    for i in range(obs.n_obs):
+        col, val = (("runout_min_m", obs.runout_min_m[i]) if obs.is_interval[i]
+                    else ("runout_m", obs.runout_m[i]))
+        if val > length:
+            raise CliError(f"{obs.path}: line {i + 2}, column {col!r}: runout {val:g} m lies "
+                           f"beyond the end of the profile {profile_path} (it covers "
+                           f"{length:g} m from the release at x = {x0:g} m); the blocks can "
+                           f"never reach it")
+
+
+def _versions() -> dict:
+    out = {"python": platform.python_version()}
+    for pkg in ("rockfall-calib", "jax", "jaxlib", "numpy", "scipy", "optax", "numpyro",
+                "pandas", "matplotlib"):
+        try:
+            out[pkg] = md.version(pkg)
+        except md.PackageNotFoundError:
+            out[pkg] = None
+    return out
+
+
+def _stats(values: np.ndarray | None, point: float) -> dict:
+    if values is None:
+        return {"map": float(point), "mean": None, "q05": None, "q95": None}
+    return {"map": float(point), "mean": float(np.mean(values)),
+            "q05": float(np.quantile(values, 0.05)), "q95": float(np.quantile(values, 0.95))}
+
+
+class _Progress:
+    """One tqdm bar per stage (stderr)."""
+
+    def __init__(self, enabled: bool, label: str):
+        self.enabled, self.label, self.bar, self.stage = enabled, label, None, None
+        self.t0 = time.perf_counter()
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if not self.enabled:
+            return
+        from tqdm import tqdm
+
+        if stage != self.stage:
+            if self.bar is not None:
+                self.bar.close()
+            self.stage = stage
+            self.bar = tqdm(total=total, desc=f"{self.label}: {stage}", file=sys.stderr,
+                            leave=False)
+        self.bar.n = done
+        self.bar.refresh()
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _model_section(name, fit, forward, law_form=None) -> dict:
+    post = fit.posterior
+    sec = {"parameters": list(fit.names), "estimate_source": fit.estimate_source,
+           "fit_quality": fit.quality, "timings_s": fit.timings_s,
+           "budget": {k: v for k, v in vars(fit.budget).items()},
+           "n_blocks_check": int(fit.check_runouts.shape[-1]),
+           "common_random_numbers": True,
+           "prior": {n: [float(lo), float(hi)] for n, lo, hi in
+                     zip(fit.names, forward.box.lo, forward.box.hi)}}
+    stats = {n: _stats(None if post is None else post.samples[:, i], fit.estimate[i])
+             for i, n in enumerate(fit.names)}
+    if fit.gradient is not None:
+        g = fit.gradient
+        sec["gradient"] = {
+            "estimate": dict(zip(fit.names, map(float, g.theta))),
+            "starts_final": [dict(zip(fit.names, map(float, t))) for t in g.theta_starts],
+            "objective_final": [float(v) for v in g.objective_final],
+            "objective_history": [[float(v) for v in row] for row in g.history]}
+    if post is not None:
+        sec["bayes"] = {
+            "summary": post.summary(), "ok": post.ok, "problems": post.problems,
+            "divergences": post.divergences, "accept_prob": post.accept_prob,
+            "n_draws": int(post.samples.shape[0]), "emulator": fit.emulator_check}
+        sec["posterior_csv"] = f"{name}_posterior.csv"
+    else:
+        sec["posterior_csv"] = None
+    if law_form is None:
+        sec.update(stats)
+    else:
+        sec["alpha_law"] = {"form": law_form,
+                            "expression": "a*L**-b" if law_form == "power" else "alpha",
+                            **stats}
+    return sec
+
+
+def _run(args) -> int:
+    from calib.calibrate import calibrate, presets
+    from calib.forward import CrspForward, DemForward, alpha_of
+    from calib.observations import ObservationError, load_observations
+    from solvers.profile import ProfileError, load_profile
+
+    t_start = time.perf_counter()
+    profile_path = args.profile or _default_profile(args.data)
+    try:
+        obs = load_observations(args.data)
+    except ObservationError as e:
+        raise CliError(str(e)) from None
+    if not os.path.isfile(profile_path):
+        raise CliError(f"{profile_path}: no such profile file (give --profile)")
+    try:
+        profile = load_profile(profile_path)
+    except ProfileError as e:
+        raise CliError(str(e)) from None
+    _check_reach(obs, profile, profile_path)
+    if os.path.exists(args.out) and not os.path.isdir(args.out):
+        raise CliError(f"--out {args.out}: exists and is not a folder")
+
+    models = ["crsp", "dem"] if args.model == "both" else [args.model]
+    methods = ("gradient", "bayes") if args.method == "both" else (args.method,)
+    key = jax.random.key(args.seed)
+    result = {"schema": "rockfall-calibration/1",
+              "command": " ".join([PROG] + sys.argv[1:]),
+              "data_csv": args.data, "profile_csv": profile_path, "seed": args.seed,
+              "quick": bool(args.quick), "methods": list(methods), "versions": _versions(),
+              "block_size_mapping": {"crsp_radius_m": "block_size_m / 2",
+                                     "dem_side_m": "block_size_m"},
+              "likelihood": "point: (1/n) sum_j N(y; r_j, sd^2 + v_j); interval: (1/n) sum_j "
+                            "[Phi((b-r_j)/w_j) - Phi((a-r_j)/w_j)] (calib/likelihood.py)",
+              "n_observations": obs.n_obs, "fit_quality": {}, "timings_s": {}}
+    files, figs, predictive = {}, {}, {}
+    from calib import figures
+
+    for m_i, model in enumerate(models):
+        budget = presets(model, args.quick)
+        mkey = jax.random.fold_in(key, m_i)
+        if model == "crsp":
+            forward = CrspForward(profile, obs.sizes_m, budget.n_blocks_design,
+                                  jax.random.fold_in(mkey, 1))
+        else:
+            forward = DemForward(profile, obs.sizes_m, budget.n_blocks_design,
+                                 jax.random.fold_in(mkey, 1), form=args.alpha_law)
+        bar = _Progress(not args.no_progress, model.upper())
+        fit = calibrate(forward, obs, jax.random.fold_in(mkey, 2), methods, budget, bar)
+        bar.close()
+        t0 = time.perf_counter()
+        sec = _model_section(model, fit, forward, args.alpha_law if model == "dem" else None)
+        post = fit.posterior
+        if post is not None:
+            header = ",".join(fit.names)
+            body = "\n".join(",".join(f"{v:.8g}" for v in row) for row in post.samples)
+            files[f"{model}_posterior.csv"] = header + "\n" + body + "\n"
+            figs[f"{model}_pairs.png"] = figures.pairs(
+                post.samples, fit.names, title=f"{model.upper()} posterior "
+                f"({post.samples.shape[0]} draws{'' if post.ok else ', DIAGNOSTICS FAILED'})")
+        # predictive over a grid of sizes at the estimate (figure)
+        if model == "crsp":
+            grid = np.unique(np.concatenate([np.geomspace(0.2, 2.0, 6), obs.sizes_m]))
+            pf = CrspForward(profile, grid, budget.n_check, jax.random.fold_in(mkey, 3))
+        else:
+            grid = np.unique(np.concatenate([[0.2, 0.9, 2.0] if args.quick else
+                                             [0.2, 0.5, 0.9, 1.4, 2.0], obs.sizes_m]))
+            pf = DemForward(profile, grid, budget.n_check, jax.random.fold_in(mkey, 3),
+                            form=args.alpha_law)
+        predictive[model] = (grid, pf.runouts(fit.estimate[None])[0])
+        if model == "dem":
+            ls = np.asarray(ALPHA_AT_L)
+            at = np.asarray(alpha_of(args.alpha_law, fit.estimate, ls))
+            samp = None if post is None else np.asarray(alpha_of(args.alpha_law, post.samples,
+                                                                 ls))
+            table1 = dict(zip(ALPHA_AT_L, (0.90, 0.43, 0.30)))
+            sec["alpha_at_L"] = {
+                f"{L:g}": {**_stats(None if samp is None else samp[:, i], at[i]),
+                           "table1": table1[L]} for i, L in enumerate(ls)}
+            lgrid = np.linspace(0.15, 2.2, 60)
+            figs["alpha_law.png"] = figures.alpha_law(
+                lgrid, np.asarray(alpha_of(args.alpha_law, fit.estimate, lgrid)),
+                None if post is None else np.asarray(alpha_of(args.alpha_law, post.samples,
+                                                              lgrid)), args.alpha_law)
+        fit.timings_s["predictive_s"] = time.perf_counter() - t0
+        result[model] = sec
+        result["fit_quality"][model] = fit.quality
+        result["timings_s"][model] = fit.timings_s
+    figs["runout_vs_size.png"] = figures.runout_vs_size(obs, predictive)
+    result["timings_s"]["total_s"] = time.perf_counter() - t_start
+    files["calibration.json"] = json.dumps(result, indent=1, allow_nan=False) + "\n"
+    _write_all(args.out, files, figs)
+    _print_summary(result, models, args.out)
+    return 0
+
+
+def _write_all(out: str, files: dict, figs: dict) -> None:
+    """Write every output to a temporary name in ``out``, then rename them all."""
+    os.makedirs(out, exist_ok=True)
+    tmp = []
+    try:
+        for name, text in files.items():
+            fd, path = tempfile.mkstemp(prefix=f".{name}.", dir=out)
+            with os.fdopen(fd, "w") as f:
+                f.write(text)
+            tmp.append((path, name))
+        for name, fig in figs.items():
+            fd, path = tempfile.mkstemp(prefix=f".{name}.", suffix=".png", dir=out)
+            os.close(fd)
+            fig.savefig(path, dpi=120)
+            tmp.append((path, name))
+    except BaseException:
+        for path, _ in tmp:
+            os.unlink(path)
+        raise
+    for path, name in tmp:
+        os.replace(path, os.path.join(out, name))
+
+
+def _fmt(v, nd=3):
+    return "-" if v is None else f"{v:.{nd}f}"
+
+
+def _print_summary(result: dict, models, out: str) -> None:
+    print(f"{'model':5} {'parameter':12} {'estimate':>9} {'mean':>8} {'90% interval':>19}")
+    for model in models:
+        sec = result[model]
+        params = sec["alpha_law"] if model == "dem" else sec
+        for name in sec["parameters"]:
+            s = params[name]
+            iv = "-" if s["q05"] is None else f"[{s['q05']:.3f}, {s['q95']:.3f}]"
+            print(f"{model:5} {name:12} {s['map']:9.3f} {_fmt(s['mean']):>8} {iv:>19}")
+        if model == "dem":
+            for L, s in sec["alpha_at_L"].items():
+                iv = "-" if s["q05"] is None else f"[{s['q05']:.3f}, {s['q95']:.3f}]"
+                print(f"{model:5} {'alpha(' + L + ')':12} {s['map']:9.3f} {_fmt(s['mean']):>8} "
+                      f"{iv:>19}   Table 1: {s['table1']:.2f}")
+    print(f"\n{'model':5} {'size m':>6} {'observed m':>14} {'sim median':>10} "
+          f"{'sim 5-95 %':>15} {'PIT':>5}")
+    for model in models:
+        for q in result["fit_quality"][model]:
+            o = (f"{q['observed_m']:.0f} ± {q['observed_sd_m']:.0f}" if "observed_m" in q
+                 else f"[{q['observed_min_m']:.0f}, {q['observed_max_m']:.0f}]")
+            pit = q.get("pit", q.get("p_in_interval"))
+            flag = "" if q.get("in_90_band", True) else "  outside 90% band"
+            print(f"{model:5} {q['block_size_m']:6.2f} {o:>14} {q['sim_median_m']:10.1f} "
+                  f"{q['sim_q05_m']:6.1f}-{q['sim_q95_m']:<6.1f} {pit:5.2f}{flag}")
+    for model in models:
+        b = result[model].get("bayes")
+        if b is not None and not b["ok"]:
+            print(f"\n!!! {model.upper()} POSTERIOR DIAGNOSTICS FAILED: "
+                  f"{'; '.join(b['problems'])}. Treat its intervals as unreliable.",
+                  file=sys.stderr)
+    tim = result["timings_s"]
+    parts = []
+    for model in models:
+        parts.append(model + ": " + ", ".join(f"{k[:-2]} {v:.0f} s" for k, v in tim[model].items()))
+    print("\nstage times: " + "; ".join(parts) + f"; total {tim['total_s']:.0f} s")
+    print(f"wrote {os.path.join(out, 'calibration.json')} and figures in {out}/")
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        return _run(args)
+    except CliError as e:
+        fail(PROG, str(e))
+    except KeyboardInterrupt:
+        fail(PROG, "interrupted; nothing written")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

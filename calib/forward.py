@@ -1,0 +1,268 @@
+"""Forward models: a batch of parameter vectors -> simulated runouts per block size.
+
+Both run every parameter vector with COMMON RANDOM NUMBERS: block j of every
+size and every parameter vector uses the key ``fold_in(key, j)``, so the
+runouts are a deterministic function of theta for a fixed key, and differences
+between parameter vectors come from the parameters, not from the draws. That
+makes finite differences and emulator designs far less noisy (Glasserman &
+Yao 1992, "Some guidelines and guarantees for common random numbers").
+
+* ``CrspForward``: theta = (Kn, Kt, roughness_m), one set for the whole slope;
+  sphere radius d / 2 (``calib.observations``). One lane pool runs all
+  (theta, size) tasks (``solvers.crsp.simulate_tasks``).
+* ``DemForward``: theta = the damping law's parameters; a block of size d is a
+  single square of side L = d with alpha(L). The DEM runout of one size depends
+  on theta only through alpha(L), so the emulator design runs each size on a
+  grid of alpha values (``runouts_at_alpha``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import solvers.crsp as crsp
+from calib.observations import crsp_radius_m, dem_side_m
+from calib.priors import CRSP_BOX, DEM_BOXES, Box
+from solvers.profile import Profile
+
+__all__ = ["ALPHA_MAX", "CrspForward", "DemForward", "alpha_of"]
+
+ALPHA_MAX = 0.95
+
+
+def alpha_of(form: str, theta, size_m):
+    """alpha(L) of a law: power ``a L^-b`` or constant ``alpha``; clipped to [0, 0.95].
+
+    Args:
+        form: "power" or "constant".
+        theta: (..., n_params) law parameters.
+        size_m: (S,) square sides L, m.
+
+    Returns:
+        (..., S) alpha per size.
+    """
+    theta = jnp.asarray(theta)
+    size_m = jnp.asarray(size_m)
+    if form == "power":
+        a, b = theta[..., 0:1], theta[..., 1:2]
+        alpha = a * size_m ** (-b)
+    elif form == "constant":
+        alpha = theta[..., 0:1] * jnp.ones_like(size_m)
+    else:
+        raise ValueError(f"unknown alpha law form {form!r}; expected 'power' or 'constant'")
+    return jnp.clip(alpha, 0.0, ALPHA_MAX)
+
+
+@jax.jit
+def _crsp_params(base: crsp.Params, theta: jax.Array) -> crsp.Params:
+    n_t, n_z = theta.shape[0], base.Kn.shape[0]
+    zone = lambda v: jnp.broadcast_to(v[:, None], (n_t, n_z))  # noqa: E731
+    p = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (n_t,) + a.shape), base)
+    return p._replace(Kn=zone(theta[:, 0]), Kt=zone(theta[:, 1]),
+                      roughness_m=zone(theta[:, 2]))
+
+
+@functools.partial(jax.jit, static_argnames=("options",))
+def _dem_lanes(params, blocks, keys, options):
+    """DEM ``simulate`` vmapped over (block, key) lanes; one cache for every forward."""
+    from solvers.dem import simulate
+
+    return jax.vmap(lambda b, k: simulate(params, b, k, options))(blocks, keys)
+
+
+def _stack(trees):
+    return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *trees)
+
+
+@dataclasses.dataclass
+class CrspForward:
+    """CRSP runouts for parameter vectors theta = (Kn, Kt, roughness_m).
+
+    Attributes:
+        profile: slope (its materials give the fixed parameters, e.g. rolling friction).
+        sizes_m: (S,) average block diameters d, m.
+        n_blocks: blocks per (theta, size).
+        key: PRNG key shared by all thetas (common random numbers).
+        pool: lanes of the scheduler.
+        task_chunk: (theta, size) tasks per compiled call.
+    """
+
+    profile: Profile
+    sizes_m: np.ndarray
+    n_blocks: int
+    key: jax.Array
+    pool: int = 2048
+    task_chunk: int = 32
+    box: Box = CRSP_BOX
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.box.names
+
+    def params(self, theta) -> crsp.Params:
+        """Per-task CRSP parameters (T, ...) from theta (T, 3), one set for all zones."""
+        return _crsp_params(crsp.params_from_profile(self.profile),
+                            jnp.asarray(theta, jnp.float64))
+
+    def runouts(self, theta) -> np.ndarray:
+        """Runouts (T, S, n_blocks), m, for theta (T, 3).
+
+        Tasks (theta, size) run in chunks of ``task_chunk`` (the last one padded by
+        repeating a task), so every call with the same ``n_blocks`` reuses one
+        compiled program.
+        """
+        theta = np.atleast_2d(np.asarray(theta, float))
+        n_t, n_s = theta.shape[0], len(self.sizes_m)
+        rep = np.repeat(theta, n_s, axis=0)  # task = (t, s)
+        radius = np.tile(crsp_radius_m(self.sizes_m), n_t)
+        n_tasks = rep.shape[0]
+        chunk = self.task_chunk
+        pad = (-n_tasks) % chunk
+        rep = np.concatenate([rep, np.repeat(rep[-1:], pad, axis=0)])
+        radius = np.concatenate([radius, np.repeat(radius[-1:], pad)])
+        out = []
+        for c0 in range(0, rep.shape[0], chunk):
+            params = self.params(rep[c0:c0 + chunk])
+            blocks = _stack([crsp.make_block(float(r)) for r in radius[c0:c0 + chunk]])
+            res = crsp.simulate_tasks(params, blocks, self.key, self.profile,
+                                      jnp.zeros((0,), jnp.float64), n_per_task=self.n_blocks,
+                                      pool=min(self.pool, chunk * self.n_blocks))
+            out.append(np.asarray(res.runout_m))
+        return np.concatenate(out)[:n_tasks].reshape(n_t, n_s, self.n_blocks)
+
+    def design(self, n_design: int, seed: int):
+        """Scrambled-Sobol design over the prior box.
+
+        Returns:
+            (X, runouts): X (n_design, 3) theta; runouts (n_design, S, n_blocks).
+        """
+        from scipy.stats import qmc
+
+        z = qmc.Sobol(self.box.dim, scramble=True, seed=seed).random_base2(
+            int(np.ceil(np.log2(n_design))))[:n_design]
+        x = self.box.from_unit(z)
+        return x, self.runouts(x)
+
+    def emulator_inputs(self, theta):
+        """Emulator input of each size for theta (3,): theta itself -> (S, 3)."""
+        return jnp.broadcast_to(jnp.asarray(theta), (len(self.sizes_m), self.box.dim))
+
+    @property
+    def input_box(self) -> Box:
+        return self.box
+
+
+@dataclasses.dataclass
+class DemForward:
+    """DEM runouts of single square blocks for the damping law alpha(L).
+
+    Attributes:
+        profile: slope.
+        sizes_m: (S,) average block diameters d (square side L = d), m.
+        n_blocks: blocks per (alpha, size); few, the DEM is expensive.
+        key: PRNG key shared by all (common random numbers).
+        form: "power" or "constant".
+        stiffness_scale: kn, ks multiplier (0.01: the DEM's documented check found
+            runouts unchanged within Monte Carlo noise; dt 10x larger).
+        max_time_s: simulated-time bound per block.
+        lane_batch: blocks per compiled call (the last call is padded), so every
+            call reuses one compiled program.
+        min_size_m: the step bound is max_time_s / dt of this size (the smallest
+            block's dt), fixed so that forwards on other sizes share the program.
+    """
+
+    profile: Profile
+    sizes_m: np.ndarray
+    n_blocks: int
+    key: jax.Array
+    form: str = "power"
+    stiffness_scale: float = 0.01
+    max_time_s: float = 150.0
+    lane_batch: int = 32
+    min_size_m: float = 0.2
+
+    def __post_init__(self):
+        from solvers.dem import make_params
+
+        if self.form not in DEM_BOXES:
+            raise ValueError(f"unknown alpha law form {self.form!r}; expected one of "
+                             f"{', '.join(DEM_BOXES)}")
+        self._params = make_params(self.profile, stiffness_scale=self.stiffness_scale)
+        self._fn = None
+
+    @property
+    def box(self) -> Box:
+        return DEM_BOXES[self.form]
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.box.names
+
+    @property
+    def input_box(self) -> Box:
+        return Box(("alpha",), (0.0,), (ALPHA_MAX,))
+
+    def _compiled(self):
+        if self._fn is None:
+            from solvers.dem import Options, make_block, stable_dt
+
+            small = min(self.min_size_m, float(np.min(dem_side_m(self.sizes_m))))
+            dt_min = float(stable_dt(self._params, make_block(small, alpha=0.5)))
+            options = Options(max_steps=int(math.ceil(self.max_time_s / dt_min)))
+            self._fn = functools.partial(_dem_lanes, self._params, options=options)
+        return self._fn
+
+    def runouts_at_alpha(self, alpha) -> np.ndarray:
+        """Runouts (T, S, n_blocks), m, for per-size damping alpha (T, S)."""
+        from solvers.dem import make_block
+
+        alpha = np.asarray(alpha, float)
+        n_t, n_s = alpha.shape
+        proto = [make_block(float(L), alpha=0.5, release_x_m=float(self.profile.x_m[0]))
+                 for L in dem_side_m(self.sizes_m)]
+        lanes, keys = [], []
+        for t in range(n_t):
+            for s in range(n_s):
+                for j in range(self.n_blocks):
+                    lanes.append(proto[s]._replace(alpha=jnp.full((1,), alpha[t, s])))
+                    keys.append(j)
+        n_lanes = len(lanes)
+        pad = (-n_lanes) % self.lane_batch
+        lanes += [lanes[-1]] * pad
+        keys += [keys[-1]] * pad
+        fn = self._compiled()
+        out = []
+        for c0 in range(0, len(lanes), self.lane_batch):
+            blocks = _stack(lanes[c0:c0 + self.lane_batch])
+            k = jax.vmap(lambda j: jax.random.fold_in(self.key, j))(
+                jnp.asarray(keys[c0:c0 + self.lane_batch], jnp.uint32))
+            out.append(np.asarray(fn(blocks, k).runout_m))
+        return np.concatenate(out)[:n_lanes].reshape(n_t, n_s, self.n_blocks)
+
+    def alphas(self, theta) -> np.ndarray:
+        """alpha per size (T, S) for theta (T, n_params)."""
+        return np.asarray(alpha_of(self.form, np.atleast_2d(theta), dem_side_m(self.sizes_m)))
+
+    def runouts(self, theta) -> np.ndarray:
+        """Runouts (T, S, n_blocks), m, for law parameters theta (T, n_params)."""
+        return self.runouts_at_alpha(self.alphas(theta))
+
+    def design(self, n_design: int, seed: int):
+        """alpha grid (same for every size; seed unused, the grid is deterministic).
+
+        Returns:
+            (X, runouts): X (n_design, 1) alpha; runouts (n_design, S, n_blocks).
+        """
+        del seed
+        a = np.linspace(0.02, ALPHA_MAX, n_design)
+        return a[:, None], self.runouts_at_alpha(np.repeat(a[:, None], len(self.sizes_m), 1))
+
+    def emulator_inputs(self, theta):
+        """Emulator input of each size: its alpha(L) -> (S, 1)."""
+        return alpha_of(self.form, jnp.asarray(theta), dem_side_m(self.sizes_m))[:, None]

@@ -1,0 +1,186 @@
+"""Observed runouts: the table every fit reads, and the block-size mapping.
+
+Schema (CSV, one row per observation; ``data/README.md``)::
+
+    block_size_m, runout_m, runout_sd_m, runout_min_m, runout_max_m, source
+
+* ``block_size_m``: average block diameter d, m (the paper's wording, Sect. 4.1).
+* A row is either a POINT (``runout_m`` with tolerance ``runout_sd_m`` > 0) or an
+  INTERVAL (``runout_min_m`` <= ``runout_max_m``; the runout was seen to lie in
+  it). A row that gives both uses the interval.
+* ``source``: free text (where the number comes from); optional column.
+
+Block-size mapping, used everywhere (CRSP, DEM, hazard, discrepancy):
+
+* CRSP sphere radius r = d / 2.
+* DEM square side L = d. The paper's UDEC squares were meant to match the CRSP
+  masses, but its Table 1 sides (0.2, 0.9, 1.8 m) do not follow from its radii
+  (``data/README.md``); we take the square side equal to the average diameter,
+  which reproduces Table 1's L for d = 0.2 and 1.8 m within 10 %.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+
+import numpy as np
+import pandas as pd
+
+__all__ = ["ObservationError", "Observations", "crsp_radius_m", "dem_side_m",
+           "load_observations"]
+
+REQUIRED = ("block_size_m",)
+OPTIONAL = ("runout_m", "runout_sd_m", "runout_min_m", "runout_max_m", "source")
+
+
+class ObservationError(ValueError):
+    """Bad observation file; the message names file, row and column."""
+
+
+def crsp_radius_m(block_size_m):
+    """CRSP sphere radius for an average block diameter d: r = d / 2."""
+    return 0.5 * np.asarray(block_size_m, dtype=float)
+
+
+def dem_side_m(block_size_m):
+    """DEM square side for an average block diameter d: L = d (see module docstring)."""
+    return np.asarray(block_size_m, dtype=float)
+
+
+@dataclasses.dataclass(frozen=True)
+class Observations:
+    """Validated observations (NumPy arrays of length n_obs).
+
+    Attributes:
+        block_size_m: average diameter d, m.
+        runout_m, runout_sd_m: point value and tolerance, m (NaN for intervals).
+        runout_min_m, runout_max_m: interval ends, m (NaN for points).
+        is_interval: True where the row is an interval.
+        source: provenance text per row.
+        path: file the rows came from.
+    """
+
+    block_size_m: np.ndarray
+    runout_m: np.ndarray
+    runout_sd_m: np.ndarray
+    runout_min_m: np.ndarray
+    runout_max_m: np.ndarray
+    is_interval: np.ndarray
+    source: tuple[str, ...]
+    path: str = "<memory>"
+
+    @property
+    def n_obs(self) -> int:
+        return int(self.block_size_m.shape[0])
+
+    @property
+    def sizes_m(self) -> np.ndarray:
+        """Distinct block sizes, ascending (the solvers run once per size)."""
+        return np.unique(self.block_size_m)
+
+    @property
+    def size_index(self) -> np.ndarray:
+        """Index of each row's size in ``sizes_m``."""
+        return np.searchsorted(self.sizes_m, self.block_size_m)
+
+    @property
+    def centre_m(self) -> np.ndarray:
+        """The point value, or the interval's mid-point, m (for plots and residuals)."""
+        mid = 0.5 * (self.runout_min_m + self.runout_max_m)
+        return np.where(self.is_interval, mid, self.runout_m)
+
+    @staticmethod
+    def points(block_size_m, runout_m, runout_sd_m, source=None) -> Observations:
+        """Point observations from arrays (synthetic data, tests)."""
+        d = np.asarray(block_size_m, float)
+        n = d.shape[0]
+        nan = np.full(n, np.nan)
+        return Observations(d, np.asarray(runout_m, float) * np.ones(n),
+                            np.asarray(runout_sd_m, float) * np.ones(n), nan, nan.copy(),
+                            np.zeros(n, bool), tuple(source or ("synthetic",) * n))
+
+
+def _number(df: pd.DataFrame, col: str, path: str) -> np.ndarray:
+    """Column as floats; a non-number names its file line and column."""
+    out = np.full(len(df), np.nan)
+    if col not in df.columns:
+        return out
+    for i, v in enumerate(df[col].tolist()):
+        if v is None or (isinstance(v, float) and math.isnan(v)) or str(v).strip() == "":
+            continue
+        try:
+            out[i] = float(v)
+        except ValueError:
+            raise ObservationError(f"{path}: line {i + 2}, column {col!r}: expected a number, "
+                                   f"got {v!r}") from None
+    return out
+
+
+def load_observations(path: str | os.PathLike) -> Observations:
+    """Read and validate an observation CSV.
+
+    Raises:
+        ObservationError: missing file, empty table, missing column, non-numeric,
+            non-finite or non-positive sizes, a row that is neither a point with a
+            positive tolerance nor an interval, or an interval with min > max.
+            The message names the file, line (header = line 1) and column.
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise ObservationError(f"{path}: no such file")
+    try:
+        df = pd.read_csv(path, dtype=str, keep_default_na=False, comment="#")
+    except pd.errors.EmptyDataError:
+        raise ObservationError(f"{path}: empty file (expected a header "
+                               f"'block_size_m,runout_m,runout_sd_m,...')") from None
+    except (pd.errors.ParserError, UnicodeDecodeError) as e:
+        raise ObservationError(f"{path}: not a readable CSV ({e})") from None
+    df.columns = [c.strip() for c in df.columns]
+    for col in REQUIRED:
+        if col not in df.columns:
+            raise ObservationError(f"{path}: line 1: missing column {col!r} (columns: "
+                                   f"{', '.join(df.columns)})")
+    if not ({"runout_m", "runout_sd_m"} <= set(df.columns)
+            or {"runout_min_m", "runout_max_m"} <= set(df.columns)):
+        raise ObservationError(f"{path}: line 1: expected columns 'runout_m' and "
+                               f"'runout_sd_m', or 'runout_min_m' and 'runout_max_m'")
+    if len(df) == 0:
+        raise ObservationError(f"{path}: no observation rows after the header")
+    d = _number(df, "block_size_m", path)
+    y = _number(df, "runout_m", path)
+    sd = _number(df, "runout_sd_m", path)
+    lo = _number(df, "runout_min_m", path)
+    hi = _number(df, "runout_max_m", path)
+    for i in range(len(df)):
+        line = i + 2
+        if not (np.isfinite(d[i]) and d[i] > 0):
+            raise ObservationError(f"{path}: line {line}, column 'block_size_m': expected a "
+                                   f"positive size in metres, got {df['block_size_m'][i]!r}")
+        has_lo, has_hi = np.isfinite(lo[i]), np.isfinite(hi[i])
+        if has_lo != has_hi:
+            col = "runout_max_m" if has_lo else "runout_min_m"
+            raise ObservationError(f"{path}: line {line}, column {col!r}: an interval needs "
+                                   f"both runout_min_m and runout_max_m")
+        if has_lo:
+            if lo[i] < 0:
+                raise ObservationError(f"{path}: line {line}, column 'runout_min_m': expected "
+                                       f"a runout >= 0 m, got {lo[i]:g}")
+            if lo[i] > hi[i]:
+                raise ObservationError(f"{path}: line {line}, column 'runout_min_m': interval "
+                                       f"min {lo[i]:g} > max {hi[i]:g}")
+            continue
+        if not np.isfinite(y[i]):
+            raise ObservationError(f"{path}: line {line}, column 'runout_m': expected a runout "
+                                   f"in metres (or an interval runout_min_m/runout_max_m)")
+        if y[i] < 0:
+            raise ObservationError(f"{path}: line {line}, column 'runout_m': expected a runout "
+                                   f">= 0 m, got {y[i]:g}")
+        if not (np.isfinite(sd[i]) and sd[i] > 0):
+            raise ObservationError(f"{path}: line {line}, column 'runout_sd_m': expected a "
+                                   f"positive tolerance in metres for a point observation")
+    is_int = np.isfinite(lo)
+    src = tuple(df["source"].tolist()) if "source" in df.columns else ("",) * len(df)
+    return Observations(d, np.where(is_int, np.nan, y), np.where(is_int, np.nan, sd),
+                        lo, hi, is_int, src, path)

@@ -1,0 +1,78 @@
+"""Prior ranges of the calibrated parameters, with their sources.
+
+All priors are uniform on a box: the published ranges are ranges, not
+distributions, and a uniform box makes the posterior's shape come from the data
+alone. The gradient fit searches the same box.
+
+CRSP (restitution coefficients are velocity ratios, dimensionless):
+
+* Kn in [0.15, 0.60]. CRSP's parameter tables (Jones et al. 2000, CRSP 4.0
+  manual, as reproduced in a Colorado DRMS mine-permit report, "Table 4: CRSP3
+  Parameter Ranges for Representative Site Conditions") give normal
+  coefficients 0.28-0.37 for colluvium, talus and sandstone faces; NOTES.md
+  recalls 0.37-0.42 for smooth hard surfaces (unverified). The paper uses 0.41.
+  The box doubles the width around 0.28-0.42 (assumption).
+* Kt in [0.60, 0.98]. Same sources: tangential 0.78-0.87 (0.87-0.92 for smooth
+  hard surfaces, recalled); the paper uses 0.87. Widened below to 0.60 so that
+  soft ground is admitted (assumption); 1.0 (no tangential loss) excluded.
+* roughness_m S in [0.25, 4.0] m. The paper: "2 m, which is typical for talus
+  and firm soil slopes (Jones et al., 2000)". The box spans smooth rock
+  (S ~ 0.3 m) to very blocky talus (assumption; CRSP's surface roughness is the
+  relief within one rock radius of the surface).
+
+DEM damping law:
+
+* power law alpha(L) = a L^-b (L in m): a in [0.05, 0.95] (alpha of a 1 m
+  block; local damping lies in [0, 1), Cundall's default 0.8; Table 1 gives
+  0.30-0.90), b in [0.0, 1.5] (b = 0 is constant damping; Table 1 follows
+  b ~ 0.5). Evaluated alphas are clipped to [0, 0.95] (assumption).
+* constant alpha in [0.02, 0.95].
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+__all__ = ["Box", "CRSP_BOX", "DEM_BOXES"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Box:
+    """Named parameters with lower and upper bounds (a uniform prior)."""
+
+    names: tuple[str, ...]
+    lower: tuple[float, ...]
+    upper: tuple[float, ...]
+
+    @property
+    def dim(self) -> int:
+        return len(self.names)
+
+    @property
+    def lo(self) -> np.ndarray:
+        return np.asarray(self.lower, float)
+
+    @property
+    def hi(self) -> np.ndarray:
+        return np.asarray(self.upper, float)
+
+    def to_unit(self, theta):
+        """theta -> [0, 1]^d."""
+        return (theta - self.lo) / (self.hi - self.lo)
+
+    def from_unit(self, z):
+        """[0, 1]^d -> theta."""
+        return self.lo + z * (self.hi - self.lo)
+
+    def contains(self, theta) -> bool:
+        t = np.asarray(theta, float)
+        return bool(np.all((t >= self.lo) & (t <= self.hi)))
+
+
+CRSP_BOX = Box(("Kn", "Kt", "roughness_m"), (0.15, 0.60, 0.25), (0.60, 0.98, 4.0))
+DEM_BOXES = {
+    "power": Box(("a", "b"), (0.05, 0.0), (0.95, 1.5)),
+    "constant": Box(("alpha",), (0.02,), (0.95,)),
+}
