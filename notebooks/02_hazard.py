@@ -61,8 +61,8 @@ OUT = os.environ.get("HAZARD_NOTEBOOK_OUT", "results/hazard_notebook")
 os.makedirs(OUT, exist_ok=True)
 
 SIZES_M = [0.2, 0.5, 1.0, 2.0]          # average block diameters, m (the observed range)
-N_POSTERIOR = 3 if SMALL else 40        # posterior draws
-N_BLOCKS = 150 if SMALL else 5000       # blocks per draw and size
+N_POSTERIOR = 2 if SMALL else 40        # posterior draws
+N_BLOCKS = 100 if SMALL else 5000       # blocks per draw and size
 ROAD_X_M = 230.0                        # data/README.md (assumed position of the road)
 STATIONS_M = np.union1d(np.arange(0.0, 301.0, 20.0 if SMALL else 5.0), [ROAD_X_M])
 SEED = 0

@@ -227,3 +227,28 @@ def test_release_rate_gives_frequencies(small_run):
     assert np.all(down.freq_E_gt_30kJ_per_yr <= down.freq_reach_per_yr)
     assert set(down.hazard_level) <= {"white", "residual", "yellow", "blue", "red"}
     assert "hazard_level" not in hazard_table(c, profile).columns
+
+
+# ------------------------------------------------------------------ memory bound
+
+@pytest.mark.slow
+def test_one_million_blocks_per_size_run_in_bounded_memory(tmp_path):
+    """1e6 CRSP blocks of one size through the command line. Kept in memory
+    whole, the per-block results alone would take 1e6 x 61 stations x 25 bytes
+    = 1.5 GB; chunked, the peak resident size stays near the JAX baseline."""
+    import resource
+    import subprocess
+    import sys
+
+    path = write_calibration(tmp_path)
+    r = subprocess.run([sys.executable, "-m", "calib.hazard", path, "--n-posterior", "1",
+                        "--n-blocks", "1000000", "--block-sizes", "2.0", "--no-progress",
+                        "--out", str(tmp_path / "out")], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    peak_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
+    print(r.stdout, f"peak RSS {peak_mb:.0f} MB")
+    import pandas as pd
+
+    t = pd.read_csv(tmp_path / "out" / "hazard_table.csv")
+    assert (t.n_blocks_per_draw == 1_000_000).all()
+    assert peak_mb < 1500, peak_mb

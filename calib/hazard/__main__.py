@@ -197,8 +197,9 @@ def main(argv: list[str] | None = None) -> int:
     print(text)
     import jax
 
+    names = ", ".join(os.path.basename(w) for w in written)
     print(f"{total:,} blocks in {wall:.1f} s ({total / wall:,.0f} blocks/s incl. compile) on "
-          f"{len(jax.devices())} device(s); wrote {', '.join(os.path.basename(w) for w in written)} to {args.out}")
+          f"{len(jax.devices())} device(s); wrote {names} to {args.out}")
     return 0
 
 

@@ -58,7 +58,8 @@ def plot_exceedance(exc: pd.DataFrame, profile: Profile, road_x_m: float, path: 
     floor = 1e-6
     for i, (size, g) in enumerate(exc.groupby("block_size_m", sort=True)):
         color = f"C{i}"
-        ax1.plot(g.x_m, np.maximum(g.p_exceed_mean, floor), color=color,
+        # zero (no simulated block beyond x) is not drawn on the log axis
+        ax1.plot(g.x_m, np.where(g.p_exceed_mean > 0, g.p_exceed_mean, np.nan), color=color,
                  label=f"D = {size:g} m")
         ax1.fill_between(g.x_m, np.maximum(g.p_exceed_q05, floor),
                          np.maximum(g.p_exceed_q95, floor), color=color, alpha=0.25, lw=0)
@@ -66,7 +67,7 @@ def plot_exceedance(exc: pd.DataFrame, profile: Profile, road_x_m: float, path: 
     ax1.set_yscale("log")
     ax1.set_ylim(floor, 1.5)
     ax1.set_xlabel("x (m)")
-    ax1.set_ylabel("P(runout beyond x)")
+    ax1.set_ylabel("P(runout beyond x)\n(band floored at 1e-6)")
     ax1.legend(fontsize=7, title="mean, 5-95 % band", title_fontsize=7)
     ax1.grid(alpha=0.3, which="both")
     fig.tight_layout()

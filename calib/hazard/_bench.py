@@ -1,0 +1,102 @@
+"""Hazard pipeline throughput vs the bare CRSP solver:
+``python -m calib.hazard._bench [--n 16384] [--draws 2]``.
+
+Both runs use the same work: 4 block sizes (0.2, 0.5, 1, 2 m) x ``n`` blocks as
+tasks of one CRSP lane pool (1024 lanes), Kn 0.41, Kt 0.87, roughness 2 m, 61
+stations every 5 m on the Postignano profile.
+
+* solver: ``solvers.crsp.simulate_tasks`` returning per-block results;
+* pipeline: ``calib.hazard.run_hazard`` with ``draws`` draws of the point
+  estimate (chunks of ``n`` blocks per size: the same compiled pool plus the
+  on-device reduction, device dispatch and host accumulation).
+
+Each is timed after a warm-up call with the same shapes (compile excluded);
+the load average is printed next to the figures, because other processes share
+the CPU. A benchmark, not a test: it asserts nothing.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from calib.hazard._calibration import draw_parameters, load_calibration
+from calib.hazard._run import run_hazard
+from solvers import crsp, load_profile
+from solvers._cli import OneLineParser
+
+PROFILE = os.path.abspath("data/postignano_profile.csv")
+SIZES_M = (0.2, 0.5, 1.0, 2.0)
+
+
+def _calibration_file(folder: str) -> str:
+    import json
+
+    point = {"map": 0.0, "mean": 0.0, "q05": 0.0, "q95": 0.0}
+    doc = {"schema": "rockfall-calibration/1", "profile_csv": PROFILE,
+           "crsp": {"Kn": dict(point, map=0.41), "Kt": dict(point, map=0.87),
+                    "roughness_m": dict(point, map=2.0), "posterior_csv": None}}
+    path = os.path.join(folder, "calibration.json")
+    with open(path, "w") as fh:
+        json.dump(doc, fh)
+    return path
+
+
+def main(argv=None) -> int:
+    p = OneLineParser(prog="python -m calib.hazard._bench", description=__doc__.split("\n\n")[0])
+    p.add_argument("--n", type=int, default=16384, help="blocks per size and draw")
+    p.add_argument("--draws", type=int, default=2, help="draws in the pipeline run")
+    args = p.parse_args(argv)
+    profile = load_profile(PROFILE)
+    stations = np.arange(0.0, 301.0, 5.0)
+    params = crsp.params_from_profile(profile, Kn=0.41, Kt=0.87, roughness_m=2.0)
+    stack = lambda xs: jax.tree_util.tree_map(lambda *a: jnp.stack(a), *xs)  # noqa: E731
+    ps = stack([params] * len(SIZES_M))
+    bs = stack([crsp.make_block(0.5 * s) for s in SIZES_M])
+    st = jnp.asarray(stations)
+
+    def solver(key):
+        return jax.block_until_ready(crsp.simulate_tasks(ps, bs, key, profile, st,
+                                                         n_per_task=args.n, pool=1024))
+
+    print(f"load before: {os.getloadavg()[0]:.2f}", flush=True)
+    solver(jax.random.key(1))
+    t0 = time.perf_counter()
+    res = solver(jax.random.key(2))
+    t_solver = time.perf_counter() - t0
+    n_solver = len(SIZES_M) * args.n
+    mean_events = float(np.mean(res.n_events))
+    print(f"solver (simulate_tasks, per-block output): {n_solver} blocks in {t_solver:.1f} s = "
+          f"{n_solver / t_solver:,.0f} blocks/s; mean events/block {mean_events:.0f}; "
+          f"load {os.getloadavg()[0]:.2f}", flush=True)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        cal = load_calibration(_calibration_file(tmp), "crsp")
+
+    def pipeline(n_draws, seed):
+        draws = draw_parameters(cal, n_draws, seed)
+        return run_hazard(cal, draws, profile, SIZES_M, stations, args.n, seed,
+                          chunk_blocks=args.n)
+
+    pipeline(1, 1)
+    t0 = time.perf_counter()
+    pipeline(args.draws, 2)
+    t_pipe = time.perf_counter() - t0
+    n_pipe = args.draws * len(SIZES_M) * args.n
+    rate = n_pipe / t_pipe
+    print(f"pipeline (run_hazard, {args.draws} draws): {n_pipe} blocks in {t_pipe:.1f} s = "
+          f"{rate:,.0f} blocks/s ({rate / (n_solver / t_solver):.2f} x the solver's rate); "
+          f"load {os.getloadavg()[0]:.2f}", flush=True)
+    print(f"projected default CRSP run (100 draws x 4 sizes x 2e4 = 8e6 blocks): "
+          f"{8e6 / rate / 60:.0f} min at this rate (target < 5 min)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
