@@ -215,6 +215,63 @@ def test_no_fragment_inside_ground():
     assert np.all(clearance > 0.225 * math.cos(math.radians(40)) - 0.225 * 0.1 - tol)
 
 
+def test_pair_list_two_corners_equal_four_and_knn():
+    """The pair-list contact tests only the two corners of the edge facing the
+    other square; for overlaps shallower than 0.4 h this equals testing all four
+    corners, which equals the earlier K-nearest scheme with K = N - 1."""
+    from solvers.dem._contact import pair_forces, pair_list_forces
+    from solvers.dem._geometry import corner_offsets, rotate
+    rng = np.random.default_rng(0)
+    h = 0.1125
+    unit = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1.0]]) * h
+
+    def depth(pa, ta, pb, tb):
+        def rot(t):
+            return np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
+        q = (pa + unit @ rot(ta).T - pb) @ rot(tb)
+        inside = np.all(np.abs(q) < h, 1)
+        return float(np.max(np.where(inside, h - np.abs(q).max(1), 0.0)))
+
+    n_checked = 0
+    for _ in range(300):
+        th = rng.uniform(0, 2 * np.pi, 2)
+        ang = rng.uniform(0, 2 * np.pi)
+        pos = np.array([[0.0, 0.0], [np.cos(ang), np.sin(ang)]]) * rng.uniform(0.15, 0.32)
+        if max(depth(pos[0], th[0], pos[1], th[1]), depth(pos[1], th[1], pos[0], th[0])) > 0.4 * h:
+            continue
+        n_checked += 1
+        vel, om = rng.normal(0, 1, (2, 2)), rng.normal(0, 1, 2)
+        cs, sn = jnp.cos(th), jnp.sin(th)
+        args = (jnp.asarray(pos), cs, sn, jnp.asarray(vel), jnp.asarray(om), jnp.array([0]),
+                jnp.array([1]), jnp.ones(1, bool), h, 5e6, 0.577, 1e-2, 1e-4, False)
+        f2, t2 = pair_list_forces(*args)
+        f4, t4 = pair_list_forces(*args, all_corners=True)
+        r = rotate(corner_offsets(h)[None], cs[:, None], sn[:, None])
+        fk, tk = pair_forces(jnp.asarray(pos), cs, sn, jnp.asarray(vel), jnp.asarray(om), r,
+                             jnp.array([[1], [0]]), jnp.zeros((2, 2), bool), jnp.ones(2, bool),
+                             h, 5e6, 0.577, 1e-2, 1e-4, False)
+        np.testing.assert_allclose(f2, f4, rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(t2, t4, rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(f4, fk, rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(t4, tk, rtol=1e-12, atol=1e-9)
+        assert np.all(np.abs(np.asarray(f2).sum(0)) < 1e-6)  # action = reaction
+    assert n_checked > 150
+
+
+def test_adaptive_pair_prefix_same_result():
+    """The chunk-level switch (short pair prefix, joints skipped once broken)
+    gives the forces of the full pair list: same final state."""
+    prof = load_profile(PROFILE_CSV)
+    params = make_params(prof, stiffness_scale=0.01)
+    block = make_block(1.8, n_fragments=4)
+    n = int(6.0 / float(stable_dt(params, block)))
+    out = [jax.jit(lambda k, o=o: simulate(params, block, k, o))(jax.random.key(5))
+           for o in (Options(max_steps=n), Options(max_steps=n, adaptive=False))]
+    np.testing.assert_allclose(np.asarray(out[0].stop_x_m), np.asarray(out[1].stop_x_m),
+                               rtol=0, atol=1e-9)
+    assert float(out[0].joints_broken) > 0  # joints did break on the way
+
+
 # ---------------------------------------------------------------- batching, keys
 
 def _small():

@@ -35,9 +35,10 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 
-from solvers.dem._contact import joint_forces, pair_forces, wall_forces
+from solvers.dem._contact import joint_forces, pair_forces, pair_list_forces, wall_forces
 from solvers.dem._geometry import (
     SegmentTable,
     corner_offsets,
@@ -192,15 +193,29 @@ def _forces(st: State, params: Params, c: Consts, nbr, options: Options, n_side:
         joints = joints_of(n_side)
         tan_j = jnp.tan(jnp.deg2rad(params.phi_joint_deg))
         l_c = c.half
-        fj, tj, intact = joint_forces(st.pos, cs, sn, joints, st.intact, c.half, c.kn_c,
-                                      c.ks_c, params.c_joint_pa * l_c,
-                                      params.t_joint_pa * l_c, tan_j)
-        n_frag = n_side * n_side
-        bonded = (jnp.zeros((n_frag, n_frag), bool).at[joints.a, joints.b].set(intact)
-                  .at[joints.b, joints.a].set(intact))
-        fp, tp = pair_forces(st.pos, cs, sn, st.vel, st.omega, r, nbr, bonded, ~st.exited,
-                             c.half, c.kn_c, tan_j, params.sign_eps_m_s * 10.0, c.width,
-                             options.smooth)
+        with_joints = options.pair_search == "knn" or len(nbr) < 4 or nbr[3]
+        if with_joints:
+            fj, tj, intact = joint_forces(st.pos, cs, sn, joints, st.intact, c.half, c.kn_c,
+                                          c.ks_c, params.c_joint_pa * l_c,
+                                          params.t_joint_pa * l_c, tan_j)
+        else:  # every joint already broken (chunk-level switch in ``simulate``)
+            fj, tj = jnp.zeros_like(force), jnp.zeros_like(torque)
+        if options.pair_search == "knn":
+            n_frag = n_side * n_side
+            bonded = (jnp.zeros((n_frag, n_frag), bool).at[joints.a, joints.b].set(intact)
+                      .at[joints.b, joints.a].set(intact))
+            fp, tp = pair_forces(st.pos, cs, sn, st.vel, st.omega, r, nbr, bonded,
+                                 ~st.exited, c.half, c.kn_c, tan_j,
+                                 params.sign_eps_m_s * 10.0, c.width, options.smooth)
+        elif nbr[0].shape[0] == 0:  # no pair near enough to touch in this chunk
+            fp, tp = jnp.zeros_like(force), jnp.zeros_like(torque)
+        else:
+            pi, pj, jid = nbr[:3]
+            free = jnp.concatenate([~intact, jnp.ones((1,), bool)])[jid]
+            ok = free & ~st.exited[pi] & ~st.exited[pj]
+            fp, tp = pair_list_forces(st.pos, cs, sn, st.vel, st.omega, pi, pj, ok, c.half,
+                                      c.kn_c, tan_j, params.sign_eps_m_s * 10.0, c.width,
+                                      options.smooth)
         force = force + fj + fp
         torque = torque + tj + tp
     return force, torque, fs, intact, p
@@ -219,12 +234,74 @@ def _lookup_all(table: SegmentTable, p, params: Params):
                  for f in (table.xa, table.za, table.tx, table.tz, table.tan_phi))
 
 
-def _neighbours(st: State, k: int) -> jax.Array:
+def _neighbours(st: State, k: int, options: Options = Options()):
+    """Candidate contacts, rebuilt once per chunk of steps.
+
+    "list" (default): the P = k N / 2 closest unordered pairs (i < j) of
+    fragment centres, with each pair's joint index (J if none), as
+    (pi, pj, jid). "knn": the (N, k) indices of the k nearest fragments of
+    each fragment (the earlier scheme, kept for benchmarks).
+    """
     d = st.pos[:, None, :] - st.pos[None, :, :]
     d2 = jnp.sum(d * d, axis=-1)
     n = st.pos.shape[0]
-    d2 = jnp.where(jnp.eye(n, dtype=bool) | st.exited[None, :], jnp.inf, d2)
-    return lax.top_k(-d2, k)[1]
+    if options.pair_search == "knn":
+        d2 = jnp.where(jnp.eye(n, dtype=bool) | st.exited[None, :], jnp.inf, d2)
+        return lax.top_k(-d2, k)[1]
+    iu, ju = np.triu_indices(n, 1)
+    n_pairs = min(len(iu), (k * n) // 2)
+    d2p = jnp.where(st.exited[iu] | st.exited[ju], jnp.inf, d2[iu, ju])
+    neg, sel = lax.top_k(-d2p, n_pairs)
+    joints = joints_of(math.isqrt(n))
+    jid_table = np.full((n, n), len(joints.a), np.int32)
+    jid_table[joints.a, joints.b] = np.arange(len(joints.a))
+    jid_table[joints.b, joints.a] = np.arange(len(joints.a))
+    pi, pj = jnp.asarray(iu)[sel], jnp.asarray(ju)[sel]
+    return pi, pj, jnp.asarray(jid_table[iu, ju])[sel], -neg
+
+
+def _pair_tiers(n_pairs: int) -> list[int]:
+    """Static pair-list lengths a chunk may use (0, P/8, P/2, P)."""
+    return sorted({0, n_pairs // 8, n_pairs // 2, n_pairs})
+
+
+def _chunk(s: State, params, c: Consts, options: Options, block: Block, k_nb: int) -> State:
+    """Run ``options.chunk`` steps with one candidate-pair list.
+
+    With ``options.adaptive`` (list search only) the chunk picks, by
+    ``lax.switch``, the shortest static prefix of the distance-sorted pair
+    list that holds every pair whose centres are closer than the contact
+    range s sqrt(2) plus a skin (twice the distance two fragments can close
+    in a chunk at twice the fastest current speed, plus 2 cm), and leaves out
+    the joint forces once every joint is broken. Pairs beyond that range
+    cannot touch within the chunk, so the forces are those of the full list.
+    """
+    n = block.n_side
+
+    def run(nbr):
+        return lax.fori_loop(0, options.chunk,
+                             lambda _, x: _step_with_stations(x, params, c, nbr, options, block),
+                             s)
+
+    if n == 1:
+        return run(None)
+    nbr = _neighbours(s, k_nb, options)
+    if options.pair_search == "knn":
+        return run(nbr)
+    pi, pj, jid, d2 = nbr
+    if not options.adaptive:
+        return run((pi, pj, jid, True))
+    radius = c.half * math.sqrt(2.0)
+    vmax = jnp.max(jnp.where(s.exited, 0.0, jnp.sqrt(jnp.sum(s.vel ** 2, -1))
+                             + jnp.abs(s.omega) * radius))
+    skin = 2.0 * (2.0 * vmax) * options.chunk * c.dt + 0.02
+    n_near = jnp.sum(d2 < (2.0 * radius + skin) ** 2)
+    tiers = _pair_tiers(pi.shape[0])
+    tier = jnp.searchsorted(jnp.asarray(tiers), n_near, side="left")
+    any_joint = jnp.any(s.intact)
+    branches = [(lambda p, j: (lambda _: run((pi[:p], pj[:p], jid[:p], j))))(p, j)
+                for j in (False, True) for p in tiers]
+    return lax.switch(tier + len(tiers) * any_joint.astype(jnp.int32), branches, None)
 
 
 def init(params: Params, block: Block, key: jax.Array, options: Options = Options(),
@@ -245,7 +322,9 @@ def init(params: Params, block: Block, key: jax.Array, options: Options = Option
                rec=jax.tree.map(lambda a: jnp.broadcast_to(a, (n_frag,) + a.shape),
                                 empty_record(block.stations_x_m.shape[0])),
                n_steps=jnp.asarray(0, jnp.int32), status=jnp.asarray(RUNNING, jnp.int32))
-    nbr = _neighbours(st, min(options.n_neighbors, n_frag - 1)) if n > 1 else None
+    nbr = _neighbours(st, min(options.n_neighbors, n_frag - 1), options) if n > 1 else None
+    if nbr is not None and options.pair_search != "knn":
+        nbr = (*nbr[:3], True)
     force, torque, _, _, _ = _forces(st, params, c, nbr, options, n)
     acc = force / c.mass + jnp.array([0.0, -1.0]) * params.gravity
     st = st._replace(vel=st.vel - 0.5 * c.dt * acc,
@@ -349,13 +428,8 @@ def simulate(params: Params, block: Block, key: jax.Array, options: Options = Op
     c, st = init(params, block, key, options, pose)
     k_nb = min(options.n_neighbors, n_frag - 1)
 
-    def body(s):
-        nbr = _neighbours(s, k_nb) if n > 1 else None
-        return lax.fori_loop(0, options.chunk,
-                             lambda _, x: _step_with_stations(x, params, c, nbr, options, block),
-                             s)
-
-    st = lax.while_loop(lambda s: s.status == RUNNING, body, st)
+    st = lax.while_loop(lambda s: s.status == RUNNING,
+                        lambda s: _chunk(s, params, c, options, block, k_nb), st)
     return result(st, c)
 
 
@@ -366,6 +440,10 @@ def simulate_batch(params: Params, block: Block, keys: jax.Array,
 
 
 def _simulate_batch_impl(params, block, keys, options):
+    if keys.shape[0] == 1:  # one lane: no vmap, so the adaptive lax.switch stays a switch
+        return jax.tree.map(lambda a: a[None], simulate(params, block, keys[0], options))
+    # under vmap a switch runs every branch: use the plain full pair list
+    options = options._replace(adaptive=False)
     return jax.vmap(lambda k: simulate(params, block, k, options))(keys)
 
 
@@ -383,7 +461,9 @@ def trajectory(params: Params, block: Block, key: jax.Array, n_saves: int, every
     k_nb = min(options.n_neighbors, n * n - 1)
 
     def outer(s, _):
-        nbr = _neighbours(s, k_nb) if n > 1 else None
+        nbr = _neighbours(s, k_nb, options) if n > 1 else None
+        if nbr is not None and options.pair_search != "knn":
+            nbr = (*nbr[:3], True)
         s = lax.fori_loop(0, every,
                           lambda _, x: _step_with_stations(x, params, c, nbr, options, block), s)
         return s, s

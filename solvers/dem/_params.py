@@ -135,6 +135,15 @@ class Options(NamedTuple):
         smooth: softplus normal force and tanh-smoothed friction/damping signs.
         segment_search: "local" (each corner tests only the segment below it)
             or "all" (each corner tests every segment; kept for benchmarks).
+        pair_search: "list" (the n_neighbors N / 2 closest unordered pairs,
+            both directions tested, one scatter) or "knn" (each fragment's
+            corners against its n_neighbors nearest; the earlier, slower
+            scheme, kept for benchmarks).
+        adaptive: per chunk, use only the prefix of the pair list that can
+            touch within the chunk and skip joint forces once all joints are
+            broken (``lax.switch``; same forces). Under ``vmap`` a switch
+            runs every branch, so batched callers should turn it off
+            (``simulate_batch`` does for batches of more than one block).
     """
 
     max_steps: int = 2_000_000
@@ -142,6 +151,8 @@ class Options(NamedTuple):
     n_neighbors: int = 8
     smooth: bool = False
     segment_search: str = "local"
+    pair_search: str = "list"
+    adaptive: bool = True
 
 
 def make_params(profile: Profile, *, damping: str = "unbalanced", **kw) -> Params:
