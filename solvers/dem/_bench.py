@@ -14,8 +14,8 @@ import time
 import jax
 import numpy as np
 
-from solvers.dem._integrate import simulate_batch
-from solvers.dem._params import Options, make_block, make_params, stable_dt
+from solvers.dem._integrate import _simulate_batch, simulate_batch
+from solvers.dem._params import STATUS_NAMES, Options, make_block, make_params, stable_dt
 from solvers.profile import load_profile, make_profile
 
 __all__ = ["run_benchmarks"]
@@ -44,22 +44,32 @@ def _refined(profile, n_seg):
     return make_profile(xs, zs, seg_zone, mats)
 
 
-def run_benchmarks(quick: bool = False) -> dict:
+def run_benchmarks(quick: bool = False, fragments_only: bool = False,
+                   options: Options = Options(), fragment_scale: float = 0.01) -> dict:
     """DEM figures of issue 3. ``quick`` shrinks batch sizes (for CI smoke runs).
+
+    Args:
+        quick: smaller batches, 16 instead of 64 fragments.
+        fragments_only: run only the fragmented-block figure.
+        options: base options of the fragment run (e.g. ``pair_search="knn",
+            adaptive=False`` reproduces the scheme before the pair-list change).
+        fragment_scale: stiffness scale of the fragment run.
 
     Returns:
         dict of name -> {figure: value}, all plain Python numbers.
     """
     profile = load_profile(PROFILE_CSV)
     out: dict = {}
+    keys = jax.random.split(jax.random.key(0), 1000)
+    if fragments_only:
+        return _fragment_figure(profile, keys, quick, options, fragment_scale, out)
     scale = 0.01
     params = make_params(profile, stiffness_scale=scale)
     block = make_block(0.9, alpha=0.43)
     dt = float(stable_dt(params, block))
     n_blocks = 100 if quick else 1000
     opts = Options(max_steps=int(math.ceil(120.0 / dt)))
-    keys = jax.random.split(jax.random.key(0), n_blocks)
-    res, wall = _timed(params, block, keys, opts)
+    res, wall = _timed(params, block, keys[:n_blocks], opts)
     steps = int(np.sum(res.n_steps))
     out["single_0.9m_to_rest"] = {
         "n_blocks": n_blocks, "stiffness_scale": scale, "dt_s": dt, "wall_s": wall,
@@ -90,20 +100,33 @@ def run_benchmarks(quick: bool = False) -> dict:
             "n_blocks": nb, "wall_s": wall,
             "block_steps_per_s": float(np.sum(res.n_steps)) / wall}
 
-    # one 1.8 m block in 64 (quick: 16) fragments to rest
+    return _fragment_figure(profile, keys, quick, options, fragment_scale, out)
+
+
+def _fragment_figure(profile, keys, quick, options, fragment_scale, out):
+    """One 1.8 m block in 64 (quick: 16) fragments to rest; compile timed apart."""
     nf = 16 if quick else 64
     fblock = make_block(1.8, n_fragments=nf)
-    dt_f = float(stable_dt(params, fblock))
+    pf = make_params(profile, stiffness_scale=fragment_scale)
+    dt_f = float(stable_dt(pf, fblock))
+    fopts = options._replace(max_steps=int(math.ceil(400.0 / dt_f)))
     t0 = time.perf_counter()
-    res = jax.block_until_ready(simulate_batch(
-        params, fblock, keys[:1], Options(max_steps=int(math.ceil(150.0 / dt_f)))))
+    compiled = _simulate_batch.lower(pf, fblock, keys[:1], fopts).compile()
+    compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    res = jax.block_until_ready(compiled(pf, fblock, keys[:1]))
     wall = time.perf_counter() - t0
+    r = np.asarray(res.runout_m[0])
     out[f"fragments_{nf}_to_rest"] = {
-        "n_fragments": nf, "stiffness_scale": scale, "dt_s": dt_f,
-        "wall_s_incl_compile": wall, "steps": int(res.n_steps[0]),
+        "n_fragments": nf, "stiffness_scale": fragment_scale, "dt_s": dt_f,
+        "pair_search": fopts.pair_search, "adaptive": fopts.adaptive,
+        "compile_s": compile_s, "wall_s": wall, "steps": int(res.n_steps[0]),
+        "us_per_step": 1e6 * wall / int(res.n_steps[0]),
         "fragment_steps_per_s": nf * int(res.n_steps[0]) / wall,
-        "status": int(res.status[0]), "simulated_s": float(res.time_s[0]),
-        "runout_min_m": float(np.min(res.runout_m)), "runout_max_m": float(np.max(res.runout_m))}
+        "status": STATUS_NAMES[int(res.status[0])], "simulated_s": float(res.time_s[0]),
+        "stopped": int(np.sum(res.stopped)), "median_runout_m": float(np.median(r)),
+        "runout_p10_m": float(np.percentile(r, 10)), "runout_p90_m": float(np.percentile(r, 90)),
+        "runout_min_m": float(r.min()), "runout_max_m": float(r.max())}
     return out
 
 
@@ -111,4 +134,5 @@ if __name__ == "__main__":
     import json
     import sys
 
-    print(json.dumps(run_benchmarks(quick="--quick" in sys.argv), indent=1))
+    print(json.dumps(run_benchmarks(quick="--quick" in sys.argv,
+                                    fragments_only="--fragments-only" in sys.argv), indent=1))
