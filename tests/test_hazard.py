@@ -252,3 +252,44 @@ def test_one_million_blocks_per_size_run_in_bounded_memory(tmp_path):
     t = pd.read_csv(tmp_path / "out" / "hazard_table.csv")
     assert (t.n_blocks_per_draw == 1_000_000).all()
     assert peak_mb < 1500, peak_mb
+
+
+# ------------------------------------------------------------------------- DEM
+
+def _dem_run(tmp_path, n_blocks):
+    path = write_calibration(tmp_path, dem=(0.40, 0.5))
+    cal = load_calibration(path, "dem")
+    profile = load_profile(cal.profile_csv)
+    draws = draw_parameters(cal, 1, 0)
+    stations = np.array([0.0, 50.0, 115.0, 130.0, 160.0])
+    return cal, profile, run_hazard(cal, draws, profile, [2.0], stations, n_blocks, 5)
+
+
+def test_dem_hazard_counts_are_consistent(tmp_path):
+    """DEM path: a 2 m square, alpha = 0.40 L^-0.5; every block passes the talus
+    (x = 50 m) and the curves are monotone; reach >= exceedance."""
+    _, profile, c = _dem_run(tmp_path, 3)
+    exc = exceedance_table(c)
+    p = exc.p_exceed_mean.to_numpy()
+    assert np.all(np.diff(p) <= 0) and p[0] == 1.0 and p[1] == 1.0
+    t = hazard_table(c, profile)
+    assert t.reach_prob_mean.iloc[1] == 1.0 and np.isnan(t.reach_prob_mean.iloc[0])
+    assert np.all(t.reach_prob_mean.iloc[1:] >= t.p_exceed_mean.iloc[1:])
+    assert c.n_unfinished.sum() == 0
+    assert np.isfinite(t.energy_p95_kJ.iloc[1]) and t.energy_p95_kJ.iloc[1] > 0
+
+
+def test_dem_counts_equal_a_direct_batch_run(tmp_path):
+    from solvers import dem
+    from solvers.dem._integrate import simulate_batch
+
+    cal, profile, c = _dem_run(tmp_path, 3)
+    params = dem.make_params(profile, stiffness_scale=0.01)
+    block = dem.make_block(2.0, alpha=0.40 * 2.0**-0.5, release_x_m=0.0,
+                           stations=c.stations_x_m)
+    dt = float(dem.stable_dt(params, dem.make_block(2.0, alpha=0.0)))
+    keys = jax.vmap(lambda i: jax.random.fold_in(draw_key(5, 0), i))(np.arange(3))
+    res = simulate_batch(params, block, keys, dem.Options(max_steps=math.ceil(120.0 / dt)))
+    np.testing.assert_array_equal(c.reach[0, 0], np.asarray(res.stations.passed[:, 0]).sum(0))
+    beyond = (np.asarray(res.stop_x_m[:, 0])[:, None] > c.stations_x_m).sum(0)
+    np.testing.assert_array_equal(c.exceed[0, 0], beyond)

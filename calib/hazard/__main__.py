@@ -19,7 +19,7 @@ from solvers._cli import CliError, OneLineParser, fail, parse_floats, parse_stat
 
 # model -> (blocks per draw and size, posterior draws); DEM defaults keep the
 # default DEM run under 10 minutes on 2 CPU cores (measured: calib/hazard/README.md)
-DEFAULTS = {"crsp": (20000, 100), "dem": (48, 12)}
+DEFAULTS = {"crsp": (20000, 100), "dem": (64, 16)}
 ROAD_X_M = 230.0  # data/README.md: the road is assumed at x = 230 m on Postignano
 
 
