@@ -43,24 +43,60 @@ def summary(res):
             f"stopped {int(np.sum(res.stopped))}/{r.size}")
 
 
-def figure(profile, res, title, path):
+def figure(profile, res, title, path, paper_range_m=None):
+    """Final fragment centres on the profile (like the paper's Figs. 5-6), with
+    a histogram of fragment runouts and the paper's range shaded."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(9, 4))
-    ax.plot(np.asarray(profile.x_m), np.asarray(profile.z_m), "k-", lw=1)
+    fig, (ax, hx) = plt.subplots(2, 1, figsize=(9, 5.5), height_ratios=[3, 1.3],
+                                 sharex=True)
+    px, pz = np.asarray(profile.x_m), np.asarray(profile.z_m)
+    ax.fill_between(px, pz, pz.min() - 5, color="0.85", lw=0)
+    ax.plot(px, pz, "k-", lw=1)
     x, z = np.asarray(res.stop_x_m).ravel(), np.asarray(res.stop_z_m).ravel()
-    ax.plot(x, z, "s", ms=3, color="tab:red", label="final fragment centres")
-    for xv, name in ((8.0, "cliff foot"), (110.0, "slope break")):
-        ax.axvline(xv, color="0.7", lw=0.5)
-        ax.text(xv, float(np.max(profile.z_m)), name, fontsize=7, rotation=90, va="top")
-    ax.set_xlabel("x (m)")
+    stopped = np.asarray(res.stopped).ravel()
+    ax.plot(x[stopped], z[stopped], "s", ms=3, color="tab:red", label="final fragment centres")
+    if (~stopped).any():
+        ax.plot(x[~stopped], z[~stopped], "s", ms=3, mfc="none", color="tab:blue",
+                label="still moving at the time bound")
+    names = {"cliff": "cliff", "talus": "upper accumulation zone",
+             "lower": "lower accumulation zone"}
+    for i, zone in enumerate(profile.segment_zone_names()):
+        xm = 0.5 * (px[i] + px[i + 1])
+        ax.text(xm, pz.max() * 0.98, names.get(zone, zone), fontsize=7, ha="center",
+                va="top")
+        ax.axvline(px[i + 1], color="0.7", lw=0.5)
+    release = float(np.asarray(res.stop_x_m).ravel()[0] - np.asarray(res.runout_m).ravel()[0])
+    # zoom on the deposit (fragments are 0.2-0.5 m on a 300 m profile)
+    lo_x, hi_x = np.percentile(x, 5) - 4.0, np.percentile(x, 95) + 4.0
+    ins = ax.inset_axes([0.55, 0.38, 0.43, 0.45])
+    ins.fill_between(px, pz, pz.min() - 5, color="0.85", lw=0)
+    ins.plot(px, pz, "k-", lw=1)
+    ins.plot(x[stopped], z[stopped], "s", ms=3, color="tab:red")
+    ins.plot(x[~stopped], z[~stopped], "s", ms=3, mfc="none", color="tab:blue")
+    gz = np.interp([lo_x, hi_x], px, pz)
+    ins.set_xlim(lo_x, hi_x)
+    ins.set_ylim(min(gz.min(), z.min()) - 2.0, max(gz.max(), z.max()) + 2.0)
+    ins.tick_params(labelsize=6)
+    ins.set_title("deposit (zoom)", fontsize=7)
     ax.set_ylabel("z (m)")
     ax.set_title(title, fontsize=9)
-    ax.set_aspect("equal")
-    ax.legend(fontsize=7)
+    ax.set_ylim(pz.min() - 5, pz.max() + 5)
+    ax.legend(fontsize=7, loc="lower left")
+    r = np.asarray(res.runout_m).ravel()
+    hx.hist(x, bins=np.arange(px[0], px[-1] + 5, 5.0), color="tab:red")
+    if paper_range_m is not None:
+        lo, hi = paper_range_m
+        for a in (ax, hx):
+            a.axvspan(release + lo, release + hi, color="tab:green", alpha=0.15, lw=0)
+        hx.text(release + 0.5 * (lo + hi), hx.get_ylim()[1] * 0.9,
+                f"paper: {lo:g}-{hi:g} m", fontsize=7, ha="center", va="top")
+    hx.set_xlabel(f"x (m); runout = x - {release:.1f} m;  median runout {np.median(r):.0f} m, "
+                  f"{int(stopped.sum())}/{r.size} at rest")
+    hx.set_ylabel("fragments")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=90)
     plt.close(fig)
 
 
@@ -69,7 +105,7 @@ def main():
     ap.add_argument("--out", required=True)
     ap.add_argument("--n-blocks", type=int, default=64)
     ap.add_argument("--stiffness-scale", type=float, default=0.01)
-    ap.add_argument("--max-time-s", type=float, default=200.0)
+    ap.add_argument("--max-time-s", type=float, default=400.0)
     ap.add_argument("--fragment-seeds", type=int, default=2)
     ap.add_argument("--skip-full-stiffness", action="store_true")
     args = ap.parse_args()
@@ -97,9 +133,11 @@ def main():
         print(f"   {nf:2d} fragments (alpha {float(blk.alpha[0]):.2f}, {seeds} run(s)): "
               f"{summary(res)}  broken joints {br:.0%}  ({w:.0f} s)", flush=True)
         if nf in (16, 64):
-            figure(prof, res, f"L = 1.8 m block in {nf} fragments: final positions "
+            figure(prof, res, f"L = 1.8 m block in {nf} fragments, alpha "
+                   f"{float(blk.alpha[0]):.2f} per fragment: final positions "
                    f"(cf. paper Fig. {5 if nf == 16 else 6})",
-                   os.path.join(args.out, f"dem_fragments_{nf}.png"))
+                   os.path.join(args.out, f"dem_fragments_{nf}.png"),
+                   (110.0, 160.0) if nf == 16 else (40.0, 110.0))
     print("damping mode, L=0.9 alpha=0.43")
     for mode in ("unbalanced", "contact"):
         pm = make_params(prof, stiffness_scale=args.stiffness_scale, damping=mode)
