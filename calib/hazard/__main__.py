@@ -18,7 +18,7 @@ import time
 from solvers._cli import CliError, OneLineParser, fail, parse_floats, parse_stations
 
 # model -> (blocks per draw and size, posterior draws); DEM defaults keep the
-# default DEM run under 10 minutes on 2 CPU cores (measured: calib/hazard/README.md)
+# default DEM run under 10 minutes on 2 CPU cores (measured 4.3 min: see README.md)
 DEFAULTS = {"crsp": (20000, 100), "dem": (64, 16)}
 ROAD_X_M = 230.0  # data/README.md: the road is assumed at x = 230 m on Postignano
 
