@@ -280,6 +280,8 @@ def test_dem_hazard_counts_are_consistent(tmp_path):
 
 
 def test_dem_counts_equal_a_direct_batch_run(tmp_path):
+    """The DEM unit (keys, step bound, per-block energy) against a plain
+    ``simulate_batch`` run of the same blocks."""
     from solvers import dem
     from solvers.dem._integrate import simulate_batch
 
@@ -293,3 +295,11 @@ def test_dem_counts_equal_a_direct_batch_run(tmp_path):
     np.testing.assert_array_equal(c.reach[0, 0], np.asarray(res.stations.passed[:, 0]).sum(0))
     beyond = (np.asarray(res.stop_x_m[:, 0])[:, None] > c.stations_x_m).sum(0)
     np.testing.assert_array_equal(c.exceed[0, 0], beyond)
+    # energies per block: the 2D energy per metre times the side (a 2 m cube)
+    e_block = np.asarray(res.stations.energy_kJ[:, 0]) * 2.0
+    passed = np.asarray(res.stations.passed[:, 0])
+    bins = BINS["energy_kJ"]
+    for s in range(len(c.stations_x_m)):
+        k = np.asarray(bins.index(jax.numpy.asarray(e_block[passed[:, s], s])))
+        np.testing.assert_array_equal(c.hist["energy_kJ"][0, s],
+                                      np.bincount(k, minlength=bins.n))

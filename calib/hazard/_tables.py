@@ -12,7 +12,9 @@ Definitions (station x, block size D; draws d = 1..M, N blocks each):
   stations at or upslope of the release point, where blocks start.
 * energy p50/p95/p99, bounce-height p95 and velocity p95 of the blocks that
   pass x: quantiles of the posterior predictive distribution (the passers of
-  all draws pooled), read from histograms (``_stats``: error < 1.2 %).
+  all draws pooled), read from histograms (``_stats``: error < 1.2 %). Energies
+  are kJ per block: the DEM's per-metre energy times the square's side
+  (``_units``: a cube of side D, an assumption).
   ``energy_p95_kJ_q05`` / ``_q95``: 5/95 % quantiles over draws of each draw's
   p95 (the calibration's uncertainty on the design energy).
 * P(E > 30 kJ | reach), P(E > 300 kJ | reach): pooled over draws.

@@ -12,7 +12,13 @@ tables do not depend on chunking or on the number of devices.
 CRSP: all sizes of a draw run as tasks of one lane pool
 (``solvers.crsp._batch._pooled``, the traced core of ``simulate_tasks``; called
 directly because ``simulate_tasks`` has no block offset, which chunking needs).
-DEM: one size per unit, ``jax.vmap`` of ``solvers.dem.simulate``.
+DEM: one size per unit, ``jax.vmap`` of ``solvers.dem.simulate``. The 2D DEM
+gives kinetic energy per metre of thickness; it is multiplied by the square's
+side L, i.e. the block is taken as a prism of thickness L (a cube of side D for
+a block of average diameter D). This makes the energies kJ per block, as the
+CRSP's and as the intensity classes need. It is an assumption of this module
+(the paper's 2D runs have no thickness); a cube is about twice as heavy as the
+CRSP sphere of the same diameter.
 """
 
 from __future__ import annotations
@@ -83,6 +89,7 @@ def dem_chunk(params, block, key, offset, n_valid, *, n_chunk: int, options) -> 
     st = res.stations  # fields (n, 1, S): one fragment
     unfinished = (res.status == MAX_STEPS) | (res.status == NONFINITE) | (res.status == RUNNING)
     valid = jnp.arange(n_chunk) < n_valid
+    energy_kJ = st.energy_kJ[None, :, 0] * block.size_m  # per metre -> per block (cube)
     return reduce_chunk(res.stop_x_m[None, :, 0], unfinished[None], st.passed[None, :, 0],
-                        st.energy_kJ[None, :, 0], st.velocity_m_s[None, :, 0],
+                        energy_kJ, st.velocity_m_s[None, :, 0],
                         st.bounce_height_m[None, :, 0], valid, block.stations_x_m)
