@@ -157,6 +157,24 @@ def test_second_order_convergence_in_dt():
     assert np.all(orders > 1.7), (errs, orders)
 
 
+def test_station_clearance_at_crossing():
+    """A block thrown horizontally in undamped free fall crosses a station at
+    t* = (x_s - x0) / vx: recorded clearance = z0 - g t*^2 / 2 - h - ground,
+    speed = |v| (half-step velocity, within g dt), to far below one step's fall."""
+    prof = incline(0.0)
+    params = make_params(prof, damping="contact", dt_s=1e-3)
+    block = make_block(1.0, alpha=0.5, stations=(3.0507,))
+    pose = pose1(0.0, 50.0, vx=2.0)
+    c, h = run_traj(params, block, pose, 20, 100)
+    t_star = 3.0507 / 2.0
+    rec = h.rec
+    assert bool(rec.passed[-1, 0, 0])
+    z_star = 50.0 - 0.5 * G * t_star ** 2 - 0.5
+    # one step late would be off by |vz| dt = 15 mm here
+    assert abs(float(rec.bounce_height_m[-1, 0, 0]) - z_star) < 1e-4
+    assert abs(float(rec.velocity_m_s[-1, 0, 0]) - math.hypot(2.0, G * t_star)) < 2 * G * 1e-3
+
+
 # ---------------------------------------------------------------- invariants
 
 def test_energy_never_created():

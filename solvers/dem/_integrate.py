@@ -377,13 +377,31 @@ def step(st: State, params: Params, c: Consts, nbr, options: Options, n_side: in
     return State(pos, theta, vel, omega, fs, intact, slow_s, exited, rec, n_steps, status)
 
 
-def _stations(old: State, new: State, c: Consts, block: Block, corners) -> StationRecord:
+def _lowest_z(st: State, c: Consts) -> jax.Array:
+    """(N,) height of each fragment's lowest corner, m."""
+    cs, sn = jnp.cos(st.theta), jnp.sin(st.theta)
+    corners = st.pos[:, None, :] + rotate(corner_offsets(c.half)[None], cs[:, None],
+                                          sn[:, None])
+    return jnp.min(corners[..., 1], axis=1)
+
+
+def _stations(old: State, new: State, c: Consts, block: Block) -> StationRecord:
+    """Record first downslope passages of the stations during the step old -> new.
+
+    Speed and energy use v(t + dt/2), the velocity over the step in which the
+    centre crossed. The clearance is interpolated linearly to the crossing,
+    x(t) + f (x(t+dt) - x(t)) = x_s, between the lowest-corner heights at t
+    and t + dt (it was taken at t + dt, one step late).
+    """
     xs = block.stations_x_m
-    crossed = (old.pos[:, 0:1] < xs) & (new.pos[:, 0:1] >= xs)
+    x0, x1 = old.pos[:, 0:1], new.pos[:, 0:1]
+    crossed = (x0 < xs) & (x1 >= xs)
+    dx = x1 - x0
+    f = jnp.where(crossed, (xs - x0) / jnp.where(crossed, dx, 1.0), 1.0)
     e_kj = 0.5e-3 * (c.mass * jnp.sum(new.vel ** 2, -1) + c.inertia * new.omega ** 2)
     speed = jnp.sqrt(jnp.sum(new.vel ** 2, -1))
-    low = jnp.min(corners[..., 1], axis=1)
-    height = low[:, None] - c.ground_at_stations
+    low0, low1 = _lowest_z(old, c)[:, None], _lowest_z(new, c)[:, None]
+    height = low0 + f * (low1 - low0) - c.ground_at_stations
     return record_passage(old.rec, crossed, jnp.broadcast_to(e_kj[:, None], crossed.shape),
                           jnp.broadcast_to(speed[:, None], crossed.shape), height)
 
@@ -392,10 +410,7 @@ def _step_with_stations(st, params, c, nbr, options, block):
     n = block.n_side
     new = step(st, params, c, nbr, options, n)
     if block.stations_x_m.shape[0] > 0:
-        cs, sn = jnp.cos(new.theta), jnp.sin(new.theta)
-        corners = new.pos[:, None, :] + rotate(corner_offsets(c.half)[None], cs[:, None],
-                                               sn[:, None])
-        new = new._replace(rec=_stations(st, new, c, block, corners))
+        new = new._replace(rec=_stations(st, new, c, block))
     return new
 
 
