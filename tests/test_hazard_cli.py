@@ -69,7 +69,8 @@ def test_cli_writes_tables_figures_and_summary(run_a):
                                  "p_exceed_q05", "p_exceed_q50", "p_exceed_q95"]
     assert len(exc) == 2 * 31  # 2 sizes x 31 stations (the road at 230 m among them)
     table = pd.read_csv(out / "hazard_table.csv")
-    for col in ("reach_prob_mean", "energy_p50_kJ", "energy_p95_kJ", "energy_p99_kJ",
+    for col in ("reach_prob_mean", "n_blocks_reached", "energy_p50_kJ", "energy_p95_kJ",
+                "energy_p99_kJ",
                 "bounce_height_p95_m", "velocity_p95_m_s", "p_E_gt_30kJ_given_reach",
                 "p_E_gt_300kJ_given_reach", "intensity_class", "freq_reach_per_yr",
                 "freq_E_gt_30kJ_per_yr", "freq_E_gt_300kJ_per_yr", "hazard_level"):

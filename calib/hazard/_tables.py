@@ -18,6 +18,8 @@ Definitions (station x, block size D; draws d = 1..M, N blocks each):
   ``energy_p95_kJ_q05`` / ``_q95``: 5/95 % quantiles over draws of each draw's
   p95 (the calibration's uncertainty on the design energy).
 * P(E > 30 kJ | reach), P(E > 300 kJ | reach): pooled over draws.
+* ``n_blocks_reached``: passers over all draws, the sample behind the design
+  values (a p95 from a handful of blocks is not a design value).
 * intensity class: Swiss class (``_intensity``) of the design energy, E p95
   (the percentile UNI 11211-4 designs on, per NOTES.md, checked via a
   secondary source).
@@ -121,6 +123,7 @@ def hazard_table(c: HazardCounts, profile: Profile,
                 "reach_prob_mean": r_mean,
                 "reach_prob_q05": float(rq[0, s]) if ok else np.nan,
                 "reach_prob_q95": float(rq[2, s]) if ok else np.nan,
+                "n_blocks_reached": int(n_pass[t, s]),
                 "energy_p50_kJ": float(e_q[0.5][t, s]) if ok else np.nan,
                 "energy_p95_kJ": e95,
                 "energy_p99_kJ": float(e_q[0.99][t, s]) if ok else np.nan,
@@ -158,7 +161,8 @@ def summary_text(c: HazardCounts, table: pd.DataFrame, road_x_m: float,
         line = (f"  D = {r.block_size_m:g} m: P(reach road) = {r.reach_prob_mean:.3g} "
                 f"[5-95 %: {r.reach_prob_q05:.3g}-{r.reach_prob_q95:.3g}]")
         if np.isfinite(r.energy_p95_kJ):
-            line += (f"; at the road E p95 = {r.energy_p95_kJ:.4g} kJ "
+            line += (f"; from the {r.n_blocks_reached} blocks that reach it: "
+                     f"E p95 = {r.energy_p95_kJ:.4g} kJ "
                      f"[{r.energy_p95_kJ_q05:.4g}-{r.energy_p95_kJ_q95:.4g}], "
                      f"E p99 = {r.energy_p99_kJ:.4g} kJ, bounce height p95 = "
                      f"{r.bounce_height_p95_m:.3g} m, v p95 = {r.velocity_p95_m_s:.3g} m/s, "
