@@ -9,8 +9,6 @@
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import pandas as pd
 
@@ -103,10 +101,3 @@ def plot_envelopes(table: pd.DataFrame, profile: Profile, road_x_m: float, path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
-
-def save_figure_atomic(plot, path: str, *args, **kwargs) -> str:
-    """Draw with ``plot(..., tmp_path)`` into a temporary file next to ``path``
-    and return that temporary path (the caller renames it)."""
-    tmp = os.path.join(os.path.dirname(path), f".tmp-{os.path.basename(path)}")
-    plot(*args, tmp, **kwargs)
-    return tmp
