@@ -68,8 +68,9 @@ def smoothed_gradient(objective: Callable[[np.ndarray], np.ndarray], u: np.ndarr
         k: directions per point (2 k objective values per point).
 
     Returns:
-        (g, j_mean): g (S, d) the estimate; j_mean (S,) the mean of the 2 k
-        perturbed values (an estimate of J_sigma(u)).
+        (g, j_mean, se): g (S, d) the estimate; j_mean (S,) the mean of the 2 k
+        perturbed values (an estimate of J_sigma(u)); se (S, d) the standard
+        error of g (spread of the k per-direction terms / sqrt(k)).
     """
     u = np.atleast_2d(np.asarray(u, float))
     n_s, d = u.shape
@@ -77,8 +78,10 @@ def smoothed_gradient(objective: Callable[[np.ndarray], np.ndarray], u: np.ndarr
     pts = np.concatenate([u[:, None] + sigma * eps, u[:, None] - sigma * eps], axis=1)
     vals = np.asarray(objective(pts.reshape(-1, d)), float).reshape(n_s, 2 * k)
     diff = (vals[:, :k] - vals[:, k:]) / (2 * sigma)
-    g = np.einsum("sk,skd->sd", diff, eps) / k
-    return g, vals.mean(axis=1)
+    terms = diff[..., None] * eps  # (S, k, d)
+    g = terms.mean(axis=1)
+    se = terms.std(axis=1, ddof=1) / np.sqrt(k) if k > 1 else np.full_like(g, np.inf)
+    return g, vals.mean(axis=1), se
 
 
 @dataclasses.dataclass
@@ -102,7 +105,7 @@ class GradientFit:
 
 def fit_gradient(objective_theta: Callable[[np.ndarray], np.ndarray], box: Box,
                  theta_starts: np.ndarray, key: jax.Array, n_steps: int = 40,
-                 learning_rate: float = 0.15, sigma: float = 0.15, k: int = 3,
+                 learning_rate: float = 0.3, sigma: float = 0.15, k: int = 3,
                  progress: Callable[[int], None] | None = None) -> GradientFit:
     """Minimise objective(theta) over the box by Adam on the smoothed gradient.
 
@@ -124,7 +127,7 @@ def fit_gradient(objective_theta: Callable[[np.ndarray], np.ndarray], box: Box,
     state = opt.init(jnp.asarray(u))
     hist = []
     for i in range(n_steps):
-        g, j = smoothed_gradient(obj_u, u, sigma, jax.random.fold_in(key, i), k)
+        g, j, _ = smoothed_gradient(obj_u, u, sigma, jax.random.fold_in(key, i), k)
         hist.append(j)
         upd, state = opt.update(jnp.asarray(g), state)
         u = np.asarray(optax.apply_updates(jnp.asarray(u), upd))
@@ -132,7 +135,7 @@ def fit_gradient(objective_theta: Callable[[np.ndarray], np.ndarray], box: Box,
         if progress is not None:
             progress(i)
     # final smoothed objective at each start (same estimator, fresh directions)
-    _, j_final = smoothed_gradient(obj_u, u, sigma, jax.random.fold_in(key, n_steps), k)
+    _, j_final, _ = smoothed_gradient(obj_u, u, sigma, jax.random.fold_in(key, n_steps), k)
     hist = np.array(hist)
     best = int(np.argmin(j_final))
     thetas = theta_of_u(box, u)

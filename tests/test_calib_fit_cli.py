@@ -1,0 +1,112 @@
+"""The main job, ``python -m calib.fit``, end to end (--quick) and its bad-input errors."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+DATA = "data/postignano.csv"
+PROFILE = "data/postignano_profile.csv"
+
+
+def run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "calib.fit", *args], capture_output=True,
+                          text=True, cwd=cwd, timeout=900)
+
+
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("results")
+    proc = run(DATA, "--quick", "--out", str(out), "--no-progress")
+    return proc, out
+
+
+def test_quick_run_writes_every_output(quick_run):
+    proc, out = quick_run
+    print(proc.stdout[-3000:], proc.stderr[-3000:])
+    assert proc.returncode == 0, proc.stderr
+    names = set(os.listdir(out))
+    assert {"calibration.json", "crsp_posterior.csv", "dem_posterior.csv", "runout_vs_size.png",
+            "alpha_law.png", "crsp_pairs.png", "dem_pairs.png"} <= names
+    assert not [n for n in names if n.startswith(".")], names  # no temporary leftovers
+    cal = json.loads((out / "calibration.json").read_text())
+    for p in ("Kn", "Kt", "roughness_m"):
+        assert set(cal["crsp"][p]) >= {"map", "mean", "q05", "q95"}
+        assert cal["crsp"][p]["q05"] <= cal["crsp"][p]["mean"] <= cal["crsp"][p]["q95"]
+    law = cal["dem"]["alpha_law"]
+    assert law["form"] == "power" and {"a", "b"} <= set(law)
+    assert set(cal["dem"]["alpha_at_L"]) == {"0.2", "0.9", "1.8"}
+    for v in cal["dem"]["alpha_at_L"].values():
+        assert 0 <= v["q05"] <= v["q95"] <= 0.95
+    assert len(cal["fit_quality"]["crsp"]) == 2 and len(cal["fit_quality"]["dem"]) == 2
+    assert cal["seed"] == 0 and cal["versions"]["jax"]
+    assert "ok" in cal["crsp"]["bayes"] and "rhat" in cal["crsp"]["bayes"]["summary"]["Kn"]
+    # the summary table and stage times are printed
+    assert "90% interval" in proc.stdout and "stage times" in proc.stdout
+    # diagnostics that fail are said loudly
+    for m in ("crsp", "dem"):
+        if not cal[m]["bayes"]["ok"]:
+            assert f"{m.upper()} POSTERIOR DIAGNOSTICS FAILED" in proc.stderr
+    rows = (out / "crsp_posterior.csv").read_text().splitlines()
+    assert rows[0] == "Kn,Kt,roughness_m" and len(rows) > 100
+
+
+def test_help_explains():
+    proc = run("--help")
+    assert proc.returncode == 0
+    for word in ("--model", "--method", "--quick", "--alpha-law", "runout_sd_m"):
+        assert word in proc.stdout
+
+
+@pytest.mark.parametrize("content,needle", [
+    (None, "no such file"),
+    ("", "empty file"),
+    ("block_size_m,runout_m\n0.5,100\n", "runout_sd_m"),
+    ("block_size_m,runout_m,runout_sd_m\n-0.5,100,10\n", "line 2, column 'block_size_m'"),
+    ("block_size_m,runout_m,runout_sd_m\nnan,100,10\n", "line 2, column 'block_size_m'"),
+    ("block_size_m,runout_min_m,runout_max_m\n0.5,150,120\n", "line 2, column 'runout_min_m'"),
+    ("block_size_m,runout_m,runout_sd_m\n0.5,100,10\n1.0,450,10\n",
+     "line 3, column 'runout_m': runout 450 m lies beyond the end of the profile"),
+])
+def test_bad_input_one_line_exit_2_nothing_written(tmp_path, content, needle):
+    data = tmp_path / "site.csv"
+    if content is not None:
+        data.write_text(content)
+    out = tmp_path / "out"
+    proc = run(str(data), "--profile", os.path.abspath(PROFILE), "--out", str(out), "--quick")
+    assert proc.returncode == 2, proc.stderr
+    assert needle in proc.stderr, proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert not out.exists()
+
+
+def test_missing_default_profile_is_explained(tmp_path):
+    data = tmp_path / "elsewhere.csv"
+    data.write_text("block_size_m,runout_m,runout_sd_m\n0.5,100,10\n")
+    proc = run(str(data), "--out", str(tmp_path / "out"))
+    assert proc.returncode == 2
+    assert "elsewhere_profile.csv: no such profile file (give --profile)" in proc.stderr
+
+
+def test_notebook_01_calibration_runs(quick_run, tmp_path):
+    """notebooks/01_calibration.py (jupytext) executes top to bottom on the quick run."""
+    import jupytext
+    import nbclient
+
+    proc, out = quick_run
+    assert proc.returncode == 0
+    nb = jupytext.read("notebooks/01_calibration.py")
+    os.environ["NOTEBOOK_RESULTS"] = str(out)
+    try:
+        nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
+                                resources={"metadata": {"path": os.getcwd()}}).execute()
+    finally:
+        del os.environ["NOTEBOOK_RESULTS"]
+    text = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code"
+                   for o in c.get("outputs", []))
+    assert "Kn" in text and "Table 1" in text and "prior range" in text

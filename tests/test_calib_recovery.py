@@ -1,0 +1,173 @@
+"""Calibration recovers known truth on data made by the solvers (issue 4).
+
+Tolerances were fixed before the first run: the point estimate within 15 % of
+each parameter's prior width of the truth, and the 90 % credible interval
+covering the truth.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+
+import calib  # noqa: F401  (x64)
+from calib.calibrate import calibrate, presets
+from calib.forward import CrspForward, DemForward
+from calib.gradient import smoothed_gradient, theta_of_u, u_of_theta
+from calib.likelihood import log_likelihood
+from calib.priors import CRSP_BOX
+from calib.synthetic import synthesize
+from solvers.profile import load_profile
+
+PROFILE = load_profile("data/postignano_profile.csv")
+CRSP_TRUTH = np.array([0.45, 0.92, 0.8])
+CRSP_SIZES = np.array([0.4, 0.8, 1.2, 1.6, 2.0])
+TOL_FRAC = 0.15
+
+
+@pytest.fixture(scope="module")
+def crsp_data():
+    return synthesize(CrspForward, PROFILE, CRSP_TRUTH, CRSP_SIZES, 12, 3.0,
+                      jax.random.key(2024))
+
+
+def _objective(obs, forward):
+    idx = obs.size_index
+    y, sd = obs.runout_m, obs.runout_sd_m
+    zeros = np.zeros(obs.n_obs)
+
+    def f(theta):
+        runs = forward.runouts(theta)
+        return np.array([-float(np.sum(log_likelihood(r[idx], y, sd, zeros, zeros,
+                                                      obs.is_interval))) for r in runs])
+    return f
+
+
+def test_smoothed_gradient_agrees_with_central_differences(crsp_data):
+    """The optimiser minimises J_sigma(u) = E_eps J(u + sigma eps), the Gaussian
+    smoothing of the common-random-number objective J. Its gradient estimator must
+    agree with central finite differences of that same objective (J_sigma estimated
+    with a fixed set of 2 x 32 antithetic directions: common random numbers in eps
+    too; step 0.1 in u) within the two estimates' sampling errors, and point the
+    same way. Off-optimum point; the two largest sizes of the synthetic data, 64
+    blocks per size.
+
+    Central differences of the raw J are NOT a usable reference: with common random
+    numbers J still jumps when a block's event sequence changes, and its differences
+    scatter by a factor of several and change sign for steps below 0.1 in u (measured
+    while writing this test). That is why the optimiser smooths."""
+    keep = crsp_data.block_size_m >= 1.6
+    obs = dataclasses.replace(
+        crsp_data, **{f.name: getattr(crsp_data, f.name)[keep] for f in
+                      dataclasses.fields(crsp_data) if f.name not in ("source", "path")},
+        source=tuple(np.array(crsp_data.source)[keep]))
+    fw = CrspForward(PROFILE, obs.sizes_m, 64, jax.random.key(7))
+    obj = _objective(obs, fw)
+    u0 = u_of_theta(CRSP_BOX, np.array([0.35, 0.85, 1.6]))
+    sigma, h, m = 0.15, 0.1, 32
+    eps = np.asarray(jax.random.normal(jax.random.key(8), (m, 3)))
+    eps = np.concatenate([eps, -eps])
+
+    def j_sigma_terms(points):
+        pts = points[:, None, :] + sigma * eps[None]
+        vals = obj(theta_of_u(CRSP_BOX, pts.reshape(-1, 3)))
+        return vals.reshape(len(points), -1)
+
+    steps = np.eye(3) * h
+    terms = j_sigma_terms(np.concatenate([u0 + steps, u0 - steps]))
+    fd_terms = (terms[:3] - terms[3:]) / (2 * h)  # (3, 2m), paired by direction
+    fd = fd_terms.mean(axis=1)
+    fd_se = fd_terms.std(axis=1, ddof=1) / np.sqrt(fd_terms.shape[1])
+    g, _, g_se = smoothed_gradient(lambda p: obj(theta_of_u(CRSP_BOX, p)), u0[None], sigma,
+                                   jax.random.key(3), k=128)
+    g, g_se = g[0], g_se[0]
+    z = (g - fd) / np.sqrt(g_se**2 + fd_se**2)
+    cos = float(g @ fd / (np.linalg.norm(g) * np.linalg.norm(fd)))
+    print(f"FD of J_sigma {fd} (se {fd_se}), smoothed estimator {g} (se {g_se}), "
+          f"z {z}, cosine {cos:.3f}")
+    assert np.all(np.abs(z) < 3.0), z
+    assert cos > 0.9
+
+
+@pytest.fixture(scope="module")
+def crsp_fit(crsp_data):
+    budget = dataclasses.replace(presets("crsp", quick=True), grad_starts=3, grad_steps=40)
+    fw = CrspForward(PROFILE, crsp_data.sizes_m, budget.n_blocks_design, jax.random.key(11))
+    return calibrate(fw, crsp_data, jax.random.key(12), ("gradient", "bayes"), budget)
+
+
+IDENTIFIED = np.array([False, True, True])  # Kn, Kt, roughness_m: see the posterior test
+
+
+def test_gradient_converges_from_several_starts_to_the_truth(crsp_fit):
+    """Three starts end in the same valley (final smoothed objectives within 10 % of
+    the best), and the estimate (the best start) lies within tolerance of the truth.
+    Kn is the weakest: when this test was written the three starts ended at
+    Kn = 0.51-0.58 (truth 0.45) and the best one at 0.515, an error of 0.144 of the
+    prior width against the tolerance 0.15."""
+    width = CRSP_BOX.hi - CRSP_BOX.lo
+    g = crsp_fit.gradient
+    print("final points per start:", g.theta_starts, "objective", g.objective_final)
+    assert np.all(g.objective_final <= 1.10 * g.objective_final.min())
+    assert np.all(g.history[-1] < g.history[0])
+    err = np.abs(g.theta - CRSP_TRUTH) / width
+    assert np.all(err < TOL_FRAC), err
+
+
+def test_posterior_90_interval_covers_crsp_truth(crsp_fit):
+    """The 90 % interval covers the truth for every parameter and is informative
+    (narrower than half the prior) for Kt and S. Kn is weakly identified by runouts
+    (its interval was 0.24-0.58 of a 0.15-0.60 prior when written)."""
+    s = crsp_fit.posterior.summary()
+    print({k: (round(v["map"], 3), round(v["q05"], 3), round(v["q95"], 3))
+           for k, v in s.items()}, crsp_fit.posterior.problems, crsp_fit.emulator_check)
+    width = CRSP_BOX.hi - CRSP_BOX.lo
+    for i, name in enumerate(crsp_fit.names):
+        assert s[name]["q05"] <= CRSP_TRUTH[i] <= s[name]["q95"], (name, s[name])
+        if IDENTIFIED[i]:
+            assert s[name]["q95"] - s[name]["q05"] < 0.5 * width[i], (name, s[name])
+
+
+@pytest.mark.slow
+def test_coverage_of_90_intervals_over_synthetic_data_sets():
+    """How often the 90 % interval covers the truth, over 5 data sets whose truths are
+    drawn inside the box (report the figure; with 5 x 3 intervals we require at least
+    60 %, a floor that a badly overconfident posterior would miss)."""
+    rng = np.random.default_rng(17)
+    lo = np.array([0.25, 0.82, 0.4])
+    hi = np.array([0.55, 0.96, 2.0])
+    covered = []
+    for i in range(5):
+        truth = lo + (hi - lo) * rng.random(3)
+        obs = synthesize(CrspForward, PROFILE, truth, CRSP_SIZES, 12, 3.0,
+                         jax.random.key(1000 + i))
+        budget = presets("crsp", quick=True)
+        fw = CrspForward(PROFILE, obs.sizes_m, budget.n_blocks_design, jax.random.key(11))
+        fit = calibrate(fw, obs, jax.random.key(12), ("bayes",), budget)
+        s = fit.posterior.summary()
+        cov = [s[n]["q05"] <= truth[j] <= s[n]["q95"] for j, n in enumerate(fit.names)]
+        print(f"data set {i}: truth {np.round(truth, 3)}, covered {cov}, "
+              f"intervals {[(round(s[n]['q05'], 3), round(s[n]['q95'], 3)) for n in fit.names]}")
+        covered.append(cov)
+    covered = np.array(covered)
+    print("coverage per parameter:", covered.mean(axis=0), "overall:", covered.mean())
+    assert covered.mean() >= 0.6
+
+
+@pytest.mark.slow
+def test_dem_recovers_power_law_exponent():
+    """DEM data made with alpha = 0.40 L^-0.5: b recovered within +-0.15 (issue 4)."""
+    truth = np.array([0.40, 0.5])
+    sizes = np.array([0.3, 0.6, 1.0, 1.5, 2.0])
+    obs = synthesize(DemForward, PROFILE, truth, sizes, 6, 3.0, jax.random.key(99))
+    budget = presets("dem", quick=False)
+    fw = DemForward(PROFILE, obs.sizes_m, budget.n_blocks_design, jax.random.key(5))
+    fit = calibrate(fw, obs, jax.random.key(6), ("gradient", "bayes"), budget)
+    s = fit.posterior.summary()
+    print("gradient", fit.gradient.theta, "posterior", s, fit.posterior.problems)
+    assert abs(fit.gradient.theta[1] - 0.5) < 0.15
+    assert abs(s["b"]["map"] - 0.5) < 0.15
+    assert s["b"]["q05"] <= 0.5 <= s["b"]["q95"]

@@ -1,0 +1,119 @@
+"""Unit tests of the calibration building blocks: observations, likelihood, emulator."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.stats import norm
+
+import calib  # noqa: F401  (x64)
+from calib.emulator import fit_emulator, holdout_error
+from calib.forward import alpha_of
+from calib.likelihood import log_likelihood
+from calib.observations import ObservationError, load_observations
+
+
+def _write(tmp_path, text, name="obs.csv"):
+    p = tmp_path / name
+    p.write_text(text)
+    return str(p)
+
+
+def test_postignano_observations_load():
+    obs = load_observations("data/postignano.csv")
+    assert obs.n_obs == 2
+    np.testing.assert_allclose(obs.block_size_m, [0.2, 2.0])
+    np.testing.assert_allclose(obs.runout_m, [110.0, 220.0])
+    assert not obs.is_interval.any()
+
+
+def test_interval_rows(tmp_path):
+    p = _write(tmp_path, "block_size_m,runout_min_m,runout_max_m\n0.5,100,150\n1.0,120,200\n")
+    obs = load_observations(p)
+    assert obs.is_interval.all()
+    np.testing.assert_allclose(obs.centre_m, [125.0, 160.0])
+
+
+@pytest.mark.parametrize("text,needle", [
+    ("", "empty file"),
+    ("size,runout_m,runout_sd_m\n1,100,5\n", "missing column 'block_size_m'"),
+    ("block_size_m,runout_m,runout_sd_m\n", "no observation rows"),
+    ("block_size_m,runout_m,runout_sd_m\n-1,100,5\n", "line 2, column 'block_size_m'"),
+    ("block_size_m,runout_m,runout_sd_m\nnan,100,5\n", "line 2, column 'block_size_m'"),
+    ("block_size_m,runout_m,runout_sd_m\n1,abc,5\n", "line 2, column 'runout_m'"),
+    ("block_size_m,runout_m,runout_sd_m\n1,100,5\n1,100,0\n", "line 3, column 'runout_sd_m'"),
+    ("block_size_m,runout_min_m,runout_max_m\n1,200,150\n", "interval min 200 > max 150"),
+    ("block_size_m,runout_min_m,runout_max_m\n1,200,\n", "needs both"),
+    ("block_size_m,foo\n1,2\n", "expected columns"),
+])
+def test_bad_observation_files_name_the_line_and_column(tmp_path, text, needle):
+    p = _write(tmp_path, text)
+    with pytest.raises(ObservationError, match=None) as e:
+        load_observations(p)
+    assert needle in str(e.value) and p in str(e.value)
+
+
+def test_point_likelihood_is_the_kernel_density():
+    """One sample r: p(y) = N(y; r, sd^2); two samples: the mixture."""
+    r = jnp.array([[100.0, 130.0]])
+    y, sd = jnp.array([110.0]), jnp.array([15.0])
+    z = jnp.zeros(1)
+    ll = log_likelihood(r, y, sd, z, z, jnp.array([False]))
+    expect = math.log(0.5 * norm.pdf(110, 100, 15) + 0.5 * norm.pdf(110, 130, 15))
+    assert float(ll[0]) == pytest.approx(expect, rel=1e-10)
+
+
+def test_interval_likelihood_is_a_probability_and_finite_in_the_tails():
+    rng = np.random.default_rng(0)
+    r = jnp.asarray(rng.normal(150.0, 10.0, (1, 4000)))
+    z = jnp.zeros(1)
+    ll = log_likelihood(r, z, z, jnp.array([140.0]), jnp.array([160.0]), jnp.array([True]))
+    # smoothed by a kernel of width h: P = P(|N(0, 10^2 + h^2)| < 10), h small
+    assert math.exp(float(ll[0])) == pytest.approx(0.683, abs=0.02)
+    far = log_likelihood(r, z, z, jnp.array([400.0]), jnp.array([500.0]), jnp.array([True]))
+    assert np.isfinite(float(far[0])) and float(far[0]) < -100
+    lower = log_likelihood(r, z, z, jnp.array([0.0]), jnp.array([10.0]), jnp.array([True]))
+    assert np.isfinite(float(lower[0])) and float(lower[0]) < -100
+
+
+def test_emulator_learns_a_smooth_quantile_function_and_its_uncertainty_is_honest():
+    """Runouts ~ N(100 + 40 x0^2 + 10 x1, 5^2): quantiles are smooth in x; the GP
+    must predict held-out quantiles to within a metre and with z_rms near 1."""
+    rng = np.random.default_rng(1)
+    x = rng.random((60, 2))
+    mean = 100 + 40 * x[:, 0] ** 2 + 10 * x[:, 1]
+    runs = mean[:, None, None] + 5.0 * rng.standard_normal((60, 1, 400))
+    err = holdout_error(x, runs, np.zeros(2), np.ones(2), n_levels=5)
+    print(err)
+    assert err["rmse_m"] < 1.0
+    assert 0.3 < err["z_rms"] < 3.0
+    emu = fit_emulator(x, runs, np.zeros(2), np.ones(2), n_levels=5)
+    m, v = emu.predict(jnp.array([[0.5, 0.5]]))
+    expect = 100 + 10 + 5 + 5.0 * norm.ppf(emu.levels)
+    np.testing.assert_allclose(np.asarray(m)[0], expect, atol=1.5)
+    assert np.all(np.diff(np.asarray(m)[0]) >= 0)
+
+
+def test_alpha_laws():
+    L = np.array([0.2, 0.9, 1.8])
+    np.testing.assert_allclose(alpha_of("power", np.array([0.4, 0.5]), L),
+                               np.minimum(0.4 * L**-0.5, 0.95))
+    np.testing.assert_allclose(alpha_of("constant", np.array([0.43]), L), 0.43)
+    assert float(alpha_of("power", np.array([0.9, 1.5]), np.array([0.2]))[0]) == 0.95
+    with pytest.raises(ValueError):
+        alpha_of("cubic", np.array([1.0]), L)
+
+
+def test_same_key_same_forward_runouts():
+    from calib.forward import CrspForward
+    from solvers.profile import load_profile
+
+    prof = load_profile("data/postignano_profile.csv")
+    fw = CrspForward(prof, np.array([0.5, 1.5]), 32, jax.random.key(3))
+    th = np.array([[0.4, 0.85, 1.0], [0.3, 0.9, 2.0]])
+    a, b = fw.runouts(th), fw.runouts(th[::-1])
+    np.testing.assert_array_equal(a, b[::-1])  # same block keys whatever the batch
