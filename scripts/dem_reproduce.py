@@ -1,6 +1,6 @@
 """Reproduce the paper's DEM findings (issue 3, items 1-4) and print a table.
 
-    python scripts/dem_reproduce.py --out figures/ [--n-blocks 64] [--quick]
+    python scripts/dem_reproduce.py --out figures/ [--n-blocks 64] [--skip-full-stiffness]
 
 1. single blocks L = 0.2, 0.9, 1.8 m with Table 1 alphas 0.90, 0.43, 0.30;
 2. the same blocks with one alpha (0.43) for all sizes;
@@ -133,7 +133,7 @@ def main():
         print(f"   {nf:2d} fragments (alpha {float(blk.alpha[0]):.2f}, {seeds} run(s)): "
               f"{summary(res)}  broken joints {br:.0%}  ({w:.0f} s)", flush=True)
         if nf in (16, 64):
-            figure(prof, res, f"L = 1.8 m block in {nf} fragments, alpha "
+            figure(prof, res, f"L = 1.8 m block in {nf} fragments ({seeds} run(s)), alpha "
                    f"{float(blk.alpha[0]):.2f} per fragment: final positions "
                    f"(cf. paper Fig. {5 if nf == 16 else 6})",
                    os.path.join(args.out, f"dem_fragments_{nf}.png"),
