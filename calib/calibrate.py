@@ -64,17 +64,17 @@ def presets(model: str, quick: bool) -> Budget:
     """Stage sizes per model (``--quick`` for tests; the default for real use)."""
     if model == "crsp":
         if quick:
-            return Budget(n_design=48, n_design2=32, n_blocks_design=128, nuts_warmup=300,
-                          nuts_samples=500, nuts_chains=2, grad_starts=2, grad_steps=12,
-                          grad_k=2, n_blocks_grad=128, n_check=128)
+            return Budget(n_design=48, n_design2=32, n_blocks_design=128, nuts_warmup=200,
+                          nuts_samples=400, nuts_chains=2, grad_starts=2, grad_steps=8,
+                          grad_k=2, n_blocks_grad=64, n_check=128)
         return Budget()
     if model == "dem":
         if quick:
-            return Budget(n_design=8, n_design2=0, n_blocks_design=4, nuts_warmup=300,
-                          nuts_samples=300, nuts_chains=2, grad_starts=1, grad_steps=4,
+            return Budget(n_design=8, n_design2=0, n_blocks_design=4, nuts_warmup=200,
+                          nuts_samples=400, nuts_chains=2, grad_starts=1, grad_steps=2,
                           grad_k=1, n_blocks_grad=4, n_check=4)
         return Budget(n_design=16, n_design2=0, n_blocks_design=12, grad_starts=2,
-                      grad_steps=10, grad_k=2, n_blocks_grad=8, n_check=16)
+                      grad_steps=10, grad_k=1, n_blocks_grad=8, n_check=16)
     raise ValueError(f"unknown model {model!r}")
 
 
@@ -89,6 +89,7 @@ class ModelFit:
     gradient: GradientFit | None
     emulator_check: dict | None
     quality: list[dict]
+    check_sizes_m: np.ndarray
     check_runouts: np.ndarray
     timings_s: dict
     budget: Budget
@@ -174,8 +175,8 @@ def _pilot_draws(pointwise_loglik, box, n: int, key: jax.Array) -> np.ndarray:
 
 
 def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ...],
-              budget: Budget, progress: Callable[[str, int, int], None] | None = None
-              ) -> ModelFit:
+              budget: Budget, progress: Callable[[str, int, int], None] | None = None,
+              extra_sizes_m=()) -> ModelFit:
     """Run the stages of the module docstring for one forward model.
 
     Args:
@@ -185,6 +186,8 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
         methods: subset of ("gradient", "bayes").
         budget: stage sizes.
         progress: optional callable(stage, done, total).
+        extra_sizes_m: more block sizes to simulate in the check (for figures);
+            ``ModelFit.check_sizes_m`` lists every size checked.
     """
     k_design, k_grad, k_nuts, k_pilot, k_check = jax.random.split(key, 5)
     tick = progress or (lambda *a: None)
@@ -208,7 +211,7 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
             tick("design2", 0, 1)
             r2 = forward.runouts(x2)
             tick("design2", 1, 1)
-            x, r = np.concatenate([x, x2]), np.concatenate([r, r2])
+            x, r = np.concatenate([x, np.asarray(forward.to_input(x2))]), np.concatenate([r, r2])
             timings["design2_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         emu_check = holdout_error(x, r, ibox.lo, ibox.hi, budget.n_levels)
@@ -248,9 +251,11 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     else:
         estimate, source = posterior.map, "posterior_mode"
     t0 = time.perf_counter()
-    check_forward = dataclasses.replace(forward, n_blocks=budget.n_check, key=k_check)
+    sizes = np.unique(np.concatenate([obs.sizes_m, np.asarray(extra_sizes_m, float)]))
+    check_forward = dataclasses.replace(forward, sizes_m=sizes, n_blocks=budget.n_check,
+                                        key=k_check)
     check = check_forward.runouts(estimate[None])[0]
-    quality = fit_quality(obs, check)
+    quality = fit_quality(obs, check[np.searchsorted(sizes, obs.sizes_m)])
     timings["check_s"] = time.perf_counter() - t0
     return ModelFit(tuple(box.names), np.asarray(estimate), source, posterior, gfit, emu_check,
-                    quality, check, timings, budget)
+                    quality, sizes, check, timings, budget)

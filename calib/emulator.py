@@ -8,7 +8,8 @@ Q_s(p_k; x) at design points x (simulations with common random numbers), and
 fit one GP per (s, k):
 
     Q(x) ~ GP(m, k),  k(x, x') = sf^2 exp(-1/2 sum_d ((x_d - x'_d)/l_d)^2),
-    observed with noise sn^2 (the Monte Carlo error of the quantile estimate),
+    observed with noise v_i + sn^2: v_i the Monte Carlo variance of the quantile
+    estimate at design point i (bootstrap over its blocks), sn^2 a fitted nugget,
 
 inputs scaled to [0, 1]^d and outputs standardised. Hyperparameters (l_d, sf,
 sn) maximise the log marginal likelihood (Rasmussen & Williams 2006, eq. 2.30)
@@ -41,13 +42,12 @@ def _kernel(x1, x2, log_ls, log_sf):
     return jnp.exp(2 * log_sf - 0.5 * jnp.sum(d * d, -1))
 
 
-def _nlml(h, x, y):
+def _nlml(h, x, y, nv):
     log_ls, log_sf, log_sn = h
-    n = x.shape[0]
-    k = _kernel(x, x, log_ls, log_sf) + (jnp.exp(2 * log_sn) + 1e-8) * jnp.eye(n)
+    k = _kernel(x, x, log_ls, log_sf) + jnp.diag(jnp.exp(2 * log_sn) + nv + 1e-8)
     chol = jnp.linalg.cholesky(k)
     a = jax.scipy.linalg.cho_solve((chol, True), y)
-    return 0.5 * y @ a + jnp.sum(jnp.log(jnp.diag(chol))) + 0.5 * n * jnp.log(2 * jnp.pi)
+    return 0.5 * y @ a + jnp.sum(jnp.log(jnp.diag(chol))) + 0.5 * y.shape[0] * jnp.log(2 * jnp.pi)
 
 
 def _clip(h):
@@ -56,7 +56,7 @@ def _clip(h):
             jnp.clip(log_sn, jnp.log(1e-3), jnp.log(1.0)))
 
 
-def _fit_one(x, y):
+def _fit_one(x, y, nv):
     d = x.shape[1]
     h = (jnp.full((d,), jnp.log(0.3)), jnp.asarray(0.0), jnp.asarray(jnp.log(0.1)))
     opt = optax.adam(0.08)
@@ -64,7 +64,7 @@ def _fit_one(x, y):
 
     def step(carry, _):
         h, state = carry
-        g = jax.grad(_nlml)(h, x, y)
+        g = jax.grad(_nlml)(h, x, y, nv)
         upd, state = opt.update(g, state)
         return (_clip(optax.apply_updates(h, upd)), state), None
 
@@ -119,6 +119,16 @@ class QuantileEmulator:
         return jnp.sort(mean, axis=-1), var
 
 
+def _bootstrap_var(runouts: np.ndarray, levels: np.ndarray, n_boot: int = 64) -> np.ndarray:
+    """Monte Carlo variance of each quantile estimate, (n, S, K): bootstrap over the
+    blocks of each design point (Efron 1979); the GP takes it as known noise."""
+    rng = np.random.default_rng(0)
+    n_blocks = runouts.shape[-1]
+    idx = rng.integers(0, n_blocks, (n_boot, n_blocks))
+    boot = np.quantile(runouts[..., idx], levels, axis=-1)  # (K, n, S, n_boot)
+    return np.moveaxis(boot.var(axis=-1), 0, -1)
+
+
 def _quantiles(runouts: np.ndarray, levels: np.ndarray) -> np.ndarray:
     """(n, S, n_blocks) -> (n, S, K)."""
     return np.moveaxis(np.quantile(runouts, levels, axis=-1), 0, -1)
@@ -141,23 +151,24 @@ def fit_emulator(x: np.ndarray, runouts: np.ndarray, lo, hi, n_levels: int = 10
     mu = q.mean(axis=0)
     sd = np.maximum(q.std(axis=0), 1e-3)
     y_sk = jnp.moveaxis(jnp.asarray((q - mu) / sd), 0, -1)  # (S, K, n) standardised
-    hyp, chol, alpha = _fit_all(xu, y_sk)
+    nv_sk = jnp.moveaxis(jnp.asarray(_bootstrap_var(runouts, levels) / sd**2), 0, -1)
+    hyp, chol, alpha = _fit_all(xu, y_sk, nv_sk)
     return QuantileEmulator(xu, lo, hi, alpha, chol, hyp, jnp.asarray(mu), jnp.asarray(sd),
                             levels)
 
 
 @jax.jit
-def _fit_all(xu, y_sk):
+def _fit_all(xu, y_sk, nv_sk):
     """Hyperparameters, Cholesky factors and K^-1 y of every (size, level) GP."""
-    hyp = jax.vmap(jax.vmap(_fit_one, in_axes=(None, 0)), in_axes=(None, 0))(xu, y_sk)
+    hyp = jax.vmap(jax.vmap(_fit_one, in_axes=(None, 0, 0)), in_axes=(None, 0, 0))(
+        xu, y_sk, nv_sk)
 
-    def factor(log_ls, log_sf, log_sn, y):
-        n = xu.shape[0]
-        k = _kernel(xu, xu, log_ls, log_sf) + (jnp.exp(2 * log_sn) + 1e-8) * jnp.eye(n)
+    def factor(log_ls, log_sf, log_sn, y, nv):
+        k = _kernel(xu, xu, log_ls, log_sf) + jnp.diag(jnp.exp(2 * log_sn) + nv + 1e-8)
         chol = jnp.linalg.cholesky(k)
         return chol, jax.scipy.linalg.cho_solve((chol, True), y)
 
-    chol, alpha = jax.vmap(jax.vmap(factor))(hyp[0], hyp[1], hyp[2], y_sk)
+    chol, alpha = jax.vmap(jax.vmap(factor))(hyp[0], hyp[1], hyp[2], y_sk, nv_sk)
     return hyp, chol, alpha
 
 
@@ -182,7 +193,7 @@ def holdout_error(x: np.ndarray, runouts: np.ndarray, lo, hi, n_levels: int = 10
     emu = fit_emulator(x[train], runouts[train], lo, hi, n_levels)
     q = _quantiles(runouts[test], emu.levels)
     n_s = runouts.shape[1]
-    noise = np.asarray(emu.y_std * jnp.exp(emu.hyp[2])) ** 2  # (S, K)
+    noise = _bootstrap_var(runouts[test], emu.levels)  # (n_test, S, K)
     xt = np.stack([per_size_inputs(row) if per_size_inputs
                    else np.broadcast_to(row, (n_s, len(row))) for row in x[test]])
     mean, var = jax.jit(jax.vmap(emu.predict))(jnp.asarray(xt))

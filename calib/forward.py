@@ -140,22 +140,33 @@ class CrspForward:
         """Scrambled-Sobol design over the prior box.
 
         Returns:
-            (X, runouts): X (n_design, 3) theta; runouts (n_design, S, n_blocks).
+            (X, runouts): X (n_design, 3) emulator inputs (``to_input`` of the
+            thetas); runouts (n_design, S, n_blocks).
         """
         from scipy.stats import qmc
 
         z = qmc.Sobol(self.box.dim, scramble=True, seed=seed).random_base2(
             int(np.ceil(np.log2(n_design))))[:n_design]
         x = self.box.from_unit(z)
-        return x, self.runouts(x)
+        return self.to_input(x), self.runouts(x)
+
+    @staticmethod
+    def to_input(theta):
+        """Emulator coordinates (Kn, log(1 - Kt), log S): runouts change fastest as
+        Kt -> 1 and S -> 0; in these coordinates the response is closer to stationary,
+        which a GP with one length scale per input assumes (input warping)."""
+        t = jnp.asarray(theta)
+        return jnp.stack([t[..., 0], jnp.log1p(-t[..., 1]), jnp.log(t[..., 2])], axis=-1)
 
     def emulator_inputs(self, theta):
-        """Emulator input of each size for theta (3,): theta itself -> (S, 3)."""
-        return jnp.broadcast_to(jnp.asarray(theta), (len(self.sizes_m), self.box.dim))
+        """Emulator input of each size for theta (3,) -> (S, 3)."""
+        return jnp.broadcast_to(self.to_input(theta), (len(self.sizes_m), self.box.dim))
 
     @property
     def input_box(self) -> Box:
-        return self.box
+        a, b = np.asarray(self.to_input(self.box.lo)), np.asarray(self.to_input(self.box.hi))
+        return Box(("Kn", "log(1-Kt)", "log(S)"), tuple(np.minimum(a, b)),
+                   tuple(np.maximum(a, b)))
 
 
 @dataclasses.dataclass
