@@ -74,7 +74,7 @@ def presets(model: str, quick: bool) -> Budget:
                           nuts_samples=400, nuts_chains=2, grad_starts=1, grad_steps=2,
                           grad_k=1, n_blocks_grad=4, n_check=4)
         return Budget(n_design=16, n_design2=0, n_blocks_design=12, grad_starts=2,
-                      grad_steps=10, grad_k=1, n_blocks_grad=8, n_check=16)
+                      grad_steps=8, grad_k=1, n_blocks_grad=8, n_check=16)
     raise ValueError(f"unknown model {model!r}")
 
 
