@@ -247,3 +247,14 @@ def test_tasks_match_separate_pooled_runs_with_common_random_numbers():
                                    n_blocks=n, pool=8)
         np.testing.assert_allclose(both.runout_m[t], one.runout_m, rtol=1e-9, atol=1e-9)
         np.testing.assert_array_equal(both.status[t], one.status)
+
+
+def test_tasks_offset_gives_the_same_blocks_as_a_longer_run():
+    prof = load_profile(POSTIGNANO)
+    params = jax.tree_util.tree_map(lambda a: a[None], crsp.params_from_profile(prof))
+    block = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], crsp.make_block(0.5))
+    st = jnp.zeros((0,))
+    full = crsp.simulate_tasks(params, block, jax.random.key(2), prof, st, n_per_task=20, pool=8)
+    part = crsp.simulate_tasks(params, block, jax.random.key(2), prof, st, n_per_task=10, pool=8,
+                               offset=5)
+    np.testing.assert_array_equal(part.runout_m[0], full.runout_m[0, 5:15])

@@ -10,8 +10,7 @@ A block's key does not depend on the chunk it runs in or on the device, so the
 tables do not depend on chunking or on the number of devices.
 
 CRSP: all sizes of a draw run as tasks of one lane pool
-(``solvers.crsp._batch._pooled``, the traced core of ``simulate_tasks``; called
-directly because ``simulate_tasks`` has no block offset, which chunking needs).
+(``solvers.crsp.simulate_tasks``, with the chunk's block offset).
 DEM: one size per unit, ``jax.vmap`` of ``solvers.dem.simulate``. The 2D DEM
 gives kinetic energy per metre of thickness; it is multiplied by the square's
 side L, i.e. the block is taken as a prism of thickness L (a cube of side D for
@@ -29,8 +28,7 @@ import jax
 import jax.numpy as jnp
 
 from calib.hazard._stats import ChunkStats, reduce_chunk
-from solvers.crsp import MAX_EVENTS, Settings
-from solvers.crsp._batch import _pooled
+from solvers.crsp import MAX_EVENTS, Settings, simulate_tasks
 from solvers.dem import simulate as dem_simulate
 from solvers.dem._params import MAX_STEPS, NONFINITE, RUNNING
 
@@ -60,8 +58,8 @@ def crsp_chunk(params, blocks, key, profile, stations_x_m, offset, n_valid, *, n
     Returns:
         ``ChunkStats`` with T tasks.
     """
-    res = _pooled(params, blocks, key, profile, stations_x_m, n_chunk, pool, settings, 8,
-                  offset)
+    res = simulate_tasks(params, blocks, key, profile, stations_x_m, n_per_task=n_chunk,
+                         pool=pool, settings=settings, offset=offset)
     st = res.stations
     valid = jnp.arange(n_chunk) < n_valid
     return reduce_chunk(res.stop_x_m, res.status == MAX_EVENTS, st.passed, st.energy_kJ,

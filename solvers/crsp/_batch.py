@@ -80,7 +80,8 @@ def simulate_pooled(params: Params, block: Block, key: jax.Array, profile: Profi
                                              "refill_every"))
 def simulate_tasks(params: Params, block: Block, key: jax.Array, profile: Profile,
                    stations_x_m: jax.Array, n_per_task: int, pool: int = 1024,
-                   settings: Settings = Settings(), refill_every: int = 8) -> Result:
+                   settings: Settings = Settings(), refill_every: int = 8,
+                   offset: jax.Array | int = 0) -> Result:
     """Many (parameter set, block) tasks in one pool, with common random numbers.
 
     ``params`` and ``block`` carry a leading task axis T (every leaf). Block j of
@@ -89,12 +90,14 @@ def simulate_tasks(params: Params, block: Block, key: jax.Array, profile: Profil
     parameters, not from the draws (common random numbers, as calibration by
     finite differences needs). Task t with ``params[t]`` gives exactly what
     ``simulate_pooled(params[t], block[t], key, ..., n_blocks=n_per_task)`` gives.
+    ``offset`` (traced) shifts the block indices to ``offset .. offset +
+    n_per_task - 1``, so a long run can be computed in chunks with one program.
 
     Returns:
         ``Result`` with leading dimensions (T, n_per_task).
     """
     return _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, settings,
-                   refill_every, 0)
+                   refill_every, offset)
 
 
 def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, settings,
