@@ -40,6 +40,7 @@ import numpy as np
 
 from solvers._rng import key_words, uniform_from_counter
 from solvers.crsp._contact import contact_move
+from solvers.crsp._effects import breaks, in_belt, size_scaled
 from solvers.crsp._flight import next_impact
 from solvers.crsp._impact import crsp_impact, roughness_tilt
 from solvers.profile import Profile, ground_z, segment_index
@@ -132,6 +133,17 @@ class Params(NamedTuple):
             ``[release_x_m, release_x_m + spread]``, m.
         release_height_m: height of the release point above the ground, m.
         release_vx_m_s, release_vz_m_s: initial velocity, m/s.
+        restitution_size_exponent: gamma of the size-dependent restitution
+            ``K (2 r / 1 m)^gamma`` (0: off). See ``_effects``.
+        frag_energy_kJ: normal impact energy above which the block breaks, kJ
+            (inf: off).
+        frag_radius_ratio: fragment radius / block radius.
+        frag_speed_ratio: fragment speed / rebound speed at the break.
+        rolling_resistance: extra rolling-resistance coefficient added to
+            ``tan(phi_r)`` in every zone (0: off).
+        belt_start_m, belt_end_m: abscissae of the vegetation belt, m.
+        belt_loss: fraction of the rebound energy lost at an impact in the belt,
+            and extra rolling resistance there (0: off).
     """
 
     Kn: jax.Array
@@ -144,6 +156,14 @@ class Params(NamedTuple):
     release_height_m: jax.Array
     release_vx_m_s: jax.Array
     release_vz_m_s: jax.Array
+    restitution_size_exponent: jax.Array
+    frag_energy_kJ: jax.Array
+    frag_radius_ratio: jax.Array
+    frag_speed_ratio: jax.Array
+    rolling_resistance: jax.Array
+    belt_start_m: jax.Array
+    belt_end_m: jax.Array
+    belt_loss: jax.Array
 
 
 def params_from_profile(profile: Profile, **overrides) -> Params:
@@ -152,7 +172,9 @@ def params_from_profile(profile: Profile, **overrides) -> Params:
     Zone arrays (Kn, Kt, roughness_m, rolling_friction_deg) accept a scalar that
     applies to every zone. Defaults: rolling threshold 0.5 m/s (a rebound of
     about 1.3 cm), release at the profile's first vertex, on the ground, with
-    1 m/s horizontal velocity (the block is pushed over the crest).
+    1 m/s horizontal velocity (the block is pushed over the crest). The optional
+    effects of ``_effects`` are off (fragment size and speed ratios 0.5 and 0.7,
+    assumptions, matter only once ``frag_energy_kJ`` is finite).
     """
     n_zones = len(profile.zone_names)
     values = dict(
@@ -160,7 +182,9 @@ def params_from_profile(profile: Profile, **overrides) -> Params:
         rolling_friction_deg=profile.rolling_friction_deg,
         rolling_threshold_m_s=0.5, release_x_m=float(profile.x_m[0]),
         release_x_spread_m=0.0, release_height_m=0.0, release_vx_m_s=1.0,
-        release_vz_m_s=0.0,
+        release_vz_m_s=0.0, restitution_size_exponent=0.0, frag_energy_kJ=float("inf"),
+        frag_radius_ratio=0.5, frag_speed_ratio=0.7, rolling_resistance=0.0,
+        belt_start_m=0.0, belt_end_m=0.0, belt_loss=0.0,
     )
     unknown = set(overrides) - set(values)
     if unknown:
@@ -205,6 +229,8 @@ class State(NamedTuple):
         pending: bool, the last rebound points into the mean slope: the next
             event is an immediate new impact (no flight).
         stations: first-passage records, fields of shape (n_stations,).
+        radius_m: current radius (the fragment's after a break), m.
+        fragmented: bool, the block has broken (``_effects``).
     """
 
     x_m: jax.Array
@@ -218,6 +244,8 @@ class State(NamedTuple):
     n_impacts: jax.Array
     pending: jax.Array
     stations: StationRecord
+    radius_m: jax.Array
+    fragmented: jax.Array
 
 
 class Result(NamedTuple):
@@ -254,7 +282,8 @@ def _segment_geometry(profile: Profile, seg):
 
 class SegmentTable(NamedTuple):
     """Per-segment constants, computed once per block outside the event loop
-    (transcendentals inside the loop dominated its cost on CPU). Shapes (S,)."""
+    (transcendentals inside the loop dominated its cost on CPU). Shapes (S,).
+    The ``*_frag`` fields are those of a fragment (``_effects``)."""
 
     beta: jax.Array
     cos: jax.Array
@@ -263,20 +292,34 @@ class SegmentTable(NamedTuple):
     theta_max: jax.Array
     Kn: jax.Array
     Kt: jax.Array
+    theta_max_frag: jax.Array
+    Kn_frag: jax.Array
+    Kt_frag: jax.Array
+    mass_frag_kg: jax.Array
+    belt_keep: jax.Array
 
 
 def segment_table(profile: Profile, params: Params, block: Block) -> SegmentTable:
-    """Angles, their cos/sin, rolling resistance tan(phi_r) and the roughness
-    angle ``theta_max = arctan(S / R)`` (see ``_impact.roughness_tilt``) per segment."""
+    """Angles, their cos/sin, rolling resistance ``tan(phi_r) + Delta-mu``, the
+    roughness angle ``theta_max = arctan(S / R)`` (see ``_impact.roughness_tilt``)
+    and the (size-scaled, ``_effects``) restitution per segment, for the block and
+    for a fragment of it."""
     dx = jnp.diff(profile.x_m)
     dz = jnp.diff(profile.z_m)
     beta = jnp.arctan2(dz, dx)
     zone = profile.zone_id
+    r_frag = block.radius_m * params.frag_radius_ratio
+    gamma = params.restitution_size_exponent
+    Kn, Kt = params.Kn[zone], params.Kt[zone]
     return SegmentTable(
         beta=beta, cos=jnp.cos(beta), sin=jnp.sin(beta),
-        mu=jnp.tan(jnp.deg2rad(params.rolling_friction_deg[zone])),
+        mu=jnp.tan(jnp.deg2rad(params.rolling_friction_deg[zone])) + params.rolling_resistance,
         theta_max=roughness_tilt(1.0, params.roughness_m[zone], block.radius_m),
-        Kn=params.Kn[zone], Kt=params.Kt[zone],
+        Kn=size_scaled(Kn, block.radius_m, gamma), Kt=size_scaled(Kt, block.radius_m, gamma),
+        theta_max_frag=roughness_tilt(1.0, params.roughness_m[zone], r_frag),
+        Kn_frag=size_scaled(Kn, r_frag, gamma), Kt_frag=size_scaled(Kt, r_frag, gamma),
+        mass_frag_kg=block.mass_kg * params.frag_radius_ratio**3,
+        belt_keep=jnp.sqrt(1.0 - params.belt_loss),
     )
 
 
@@ -287,7 +330,6 @@ def init(params: Params, block: Block, key: jax.Array, profile: Profile,
     The block starts in flight, or in ground contact when it is released on the
     ground (height 0) with a velocity that does not leave the slope (normal
     component below the rolling threshold)."""
-    del block
     u = jax.random.uniform(key, dtype=jnp.float64)
     x0 = params.release_x_m + u * params.release_x_spread_m
     x0 = jnp.clip(x0, profile.x_m[0], profile.x_m[-1])
@@ -306,6 +348,7 @@ def init(params: Params, block: Block, key: jax.Array, profile: Profile,
         seg=seg, mode=jnp.where(on_ground, CONTACT, FLIGHT).astype(jnp.int32),
         n_events=jnp.asarray(0, jnp.int32), n_impacts=jnp.asarray(0, jnp.int32),
         pending=jnp.asarray(False), stations=empty_record(n_stations),
+        radius_m=zero + block.radius_m, fragmented=jnp.asarray(False),
     )
 
 
@@ -326,7 +369,8 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
     vz1 = vz - g * t
 
     # first passages during this flight
-    r, k, m = block.radius_m, block.inertia_ratio, block.mass_kg
+    r, k = state.radius_m, block.inertia_ratio
+    m = jnp.where(state.fragmented, table.mass_frag_kg, block.mass_kg)
     safe_vx = jnp.where(vx > 0.0, vx, 1.0)
     ts = (stations_x_m - x) / safe_vx
     crossed = (vx > 0.0) & (stations_x_m > x) & (stations_x_m <= x1)
@@ -341,9 +385,21 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
     xa, xb = profile.x_m[seg], profile.x_m[seg + 1]
     za, zb = profile.z_m[seg], profile.z_m[seg + 1]
     beta, cb, sb = table.beta[seg], table.cos[seg], table.sin[seg]
-    tilt = uniform_from_counter(key, state.n_events) * table.theta_max[seg]
-    imp = crsp_impact(vx, vz1, state.spin_rad_s, beta, tilt, table.Kn[seg], table.Kt[seg],
+    frag = state.fragmented
+    theta_max = jnp.where(frag, table.theta_max_frag[seg], table.theta_max[seg])
+    tilt = uniform_from_counter(key, state.n_events) * theta_max
+    imp = crsp_impact(vx, vz1, state.spin_rad_s, beta, tilt,
+                      jnp.where(frag, table.Kn_frag[seg], table.Kn[seg]),
+                      jnp.where(frag, table.Kt_frag[seg], table.Kt[seg]),
                       r, k, slope_cos=cb, slope_sin=sb)
+    # optional effects (_effects): a break on a hard impact, a vegetation belt
+    brk = fh.hit & breaks(m, vx * sb - vz1 * cb, params.frag_energy_kJ, frag)
+    r_new = jnp.where(brk, r * params.frag_radius_ratio, r)
+    f = jnp.where(in_belt(x1, params.belt_start_m, params.belt_end_m), table.belt_keep, 1.0)
+    f_spin = f * jnp.where(brk, params.frag_speed_ratio / params.frag_radius_ratio, 1.0)
+    f = f * jnp.where(brk, params.frag_speed_ratio, 1.0)
+    imp = imp._replace(vx_m_s=f * imp.vx_m_s, vz_m_s=f * imp.vz_m_s,
+                       spin_rad_s=f_spin * imp.spin_rad_s)
     vn_mean = -imp.vx_m_s * sb + imp.vz_m_s * cb
     roll = jnp.abs(vn_mean) < params.rolling_threshold_m_s
     into_slope = vn_mean <= -params.rolling_threshold_m_s
@@ -358,13 +414,16 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
         z_m=jnp.where(hit, z_line, z1),
         vx_m_s=jnp.where(hit, jnp.where(roll, u_t * cb, imp.vx_m_s), vx),
         vz_m_s=jnp.where(hit, jnp.where(roll, u_t * sb, imp.vz_m_s), vz1),
-        spin_rad_s=jnp.where(hit, jnp.where(roll, u_t / r, imp.spin_rad_s), state.spin_rad_s),
+        spin_rad_s=jnp.where(hit, jnp.where(roll, u_t / r_new, imp.spin_rad_s),
+                             state.spin_rad_s),
         seg=seg,
         mode=mode,
         n_events=state.n_events + 1,
         n_impacts=state.n_impacts + hit.astype(jnp.int32),
         pending=hit & into_slope,
         stations=rec,
+        radius_m=r_new,
+        fragmented=frag | brk,
     )
 
 
@@ -375,18 +434,22 @@ def _contact_event(state: State, params: Params, block: Block, profile: Profile,
     seg = state.seg
     xa, xb = profile.x_m[seg], profile.x_m[seg + 1]
     za, zb = profile.z_m[seg], profile.z_m[seg + 1]
-    beta, cb, sb, mu = table.beta[seg], table.cos[seg], table.sin[seg], table.mu[seg]
+    beta, cb, sb = table.beta[seg], table.cos[seg], table.sin[seg]
     x = state.x_m
+    r = state.radius_m
+    mu = table.mu[seg] + jnp.where(in_belt(x, params.belt_start_m, params.belt_end_m),
+                                   params.belt_loss, 0.0)
     u = state.vx_m_s * cb + state.vz_m_s * sb
     rough = table.theta_max[seg] > 0.0
     mv = contact_move(u, cb, sb, mu, jnp.maximum((xb - x) / cb, 0.0),
                       jnp.maximum((x - xa) / cb, 0.0), block.inertia_ratio, g,
-                      dist_kick_m=jnp.where(rough, block.radius_m, jnp.inf))
+                      dist_kick_m=jnp.where(rough, r, jnp.inf))
     x1 = jnp.clip(x + mv.dist_m * cb, xa, xb)
     z1 = za + (zb - za) * (x1 - xa) / (xb - xa)
 
     # first passages while rolling downslope
-    k, m = block.inertia_ratio, block.mass_kg
+    k = block.inertia_ratio
+    m = jnp.where(state.fragmented, table.mass_frag_kg, block.mass_kg)
     crossed = (mv.direction > 0) & (stations_x_m > x) & (stations_x_m <= x1)
     d_s = (stations_x_m - x) / cb
     v2 = jnp.maximum(u * u + 2.0 * mv.accel_m_s2 * mv.direction * d_s, 0.0)
@@ -418,13 +481,15 @@ def _contact_event(state: State, params: Params, block: Block, profile: Profile,
         z_m=z1,
         vx_m_s=jnp.where(stopped, 0.0, vx_new),
         vz_m_s=jnp.where(stopped, 0.0, vz_new),
-        spin_rad_s=jnp.where(stopped, 0.0, speed_along / block.radius_m),
+        spin_rad_s=jnp.where(stopped, 0.0, speed_along / r),
         seg=jnp.where(switch, nxt_c, seg).astype(jnp.int32),
         mode=mode,
         n_events=state.n_events + 1,
         n_impacts=state.n_impacts,
         pending=mv.kicked,
         stations=rec,
+        radius_m=r,
+        fragmented=state.fragmented,
     )
 
 
