@@ -91,6 +91,9 @@ class CrspForward:
         key: PRNG key shared by all thetas (common random numbers).
         pool: lanes of the scheduler.
         task_chunk: (theta, size) tasks per compiled call.
+        effect: a candidate effect of ``calib.effects`` switched on ("none": plain
+            CRSP); its parameters follow (Kn, Kt, roughness_m) in theta, and the
+            box becomes ``calib.effects.full_box``.
     """
 
     profile: Profile
@@ -100,15 +103,29 @@ class CrspForward:
     pool: int = 2048
     task_chunk: int = 32
     box: Box = CRSP_BOX
+    effect: str = "none"
+
+    def __post_init__(self):
+        if self.effect != "none":
+            from calib.effects import full_box
+
+            self.box = full_box(self.effect, self.profile)
 
     @property
     def names(self) -> tuple[str, ...]:
         return self.box.names
 
     def params(self, theta) -> crsp.Params:
-        """Per-task CRSP parameters (T, ...) from theta (T, 3), one set for all zones."""
-        return _crsp_params(crsp.params_from_profile(self.profile),
-                            jnp.asarray(theta, jnp.float64))
+        """Per-task CRSP parameters (T, ...) from theta (T, 3 + k), one set for all zones."""
+        theta = np.atleast_2d(np.asarray(theta, float))
+        p = _crsp_params(crsp.params_from_profile(self.profile),
+                         jnp.asarray(theta[:, :3], jnp.float64))
+        if self.effect == "none":
+            return p
+        from calib.effects import crsp_overrides
+
+        extra = crsp_overrides(self.effect, theta[:, 3:], self.profile)
+        return p._replace(**{k: jnp.asarray(v, jnp.float64) for k, v in extra.items()})
 
     def runouts(self, theta) -> np.ndarray:
         """Runouts (T, S, n_blocks), m, for theta (T, 3).

@@ -1,0 +1,217 @@
+"""``python -m calib.discover DATA.csv``: find where the model disagrees with the data,
+name the missing effect, add it and show the gap shrink.
+
+Fits the baseline model and each candidate effect (``calib.effects``: for CRSP
+size_dissipation, fragmentation, rolling_resistance, vegetation_belt; for the
+DEM size_dissipation and fragmentation), locates the baseline's disagreement
+(quantile residuals against block size and stop position), compares the
+candidates by held-out log predictive density and names an effect only when
+its gain over the baseline exceeds 4 nats and 2 standard errors (else
+``none``). The workflow and its sources: ``calib/discrepancy.py``.
+
+Writes into ``--out`` (atomically; nothing on error):
+
+* ``discovery.json``: named_effect, candidates [{effect, score, gap, ...}],
+  gap_metric, gap_before, gap_after, where (the baseline's disagreement), the
+  named model's fit, budgets, timings, seed;
+* ``residuals.png`` (where the baseline fails), ``candidates.png`` (scores),
+  ``before_after.png`` (the gap before and after).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+import jax
+import numpy as np
+
+from solvers._cli import CliError, OneLineParser, fail
+
+__all__ = ["main"]
+
+PROG = "python -m calib.discover"
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = OneLineParser(
+        prog=PROG, description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="Examples:\n  python -m calib.synth --effect fragmentation --seed 3 --out "
+               "synth.csv\n  python -m calib.discover synth.csv --out results/discovery/\n"
+               "  python -m calib.discover data/postignano.csv --model dem\n"
+               "Observation CSV columns as for calib.fit (data/README.md).")
+    p.add_argument("data", help="observed runouts CSV (schema of data/postignano.csv)")
+    p.add_argument("--profile", default=None,
+                   help="slope profile CSV (default: <data stem>_profile.csv next to DATA)")
+    p.add_argument("--model", choices=["crsp", "dem"], default="crsp",
+                   help="solver (default crsp, the fast one; dem: one alpha as baseline, "
+                        "candidates alpha(L) and bonded fragments)")
+    p.add_argument("--effects", default=None,
+                   help="comma-separated candidate effects to try (default: all the "
+                        "model has)")
+    p.add_argument("--out", default=os.path.join("results", "discovery"),
+                   help="output folder (default results/discovery/)")
+    p.add_argument("--seed", type=int, default=0, help="PRNG seed of the fits (default 0)")
+    p.add_argument("--quick", action="store_true", help="small budgets (tests, a first look)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    return p
+
+
+def _candidates(model: str, effects_arg: str | None, profile):
+    from calib.effects import CRSP_EFFECTS, DEM_EFFECTS
+
+    allowed = CRSP_EFFECTS if model == "crsp" else DEM_EFFECTS
+    if effects_arg is None:
+        chosen = list(allowed)
+    else:
+        chosen = [e.strip() for e in effects_arg.split(",") if e.strip()]
+        bad = [e for e in chosen if e not in allowed]
+        if bad or not chosen:
+            raise CliError(f"--effects: {', '.join(bad) or '(empty)'}: expected effects of the "
+                           f"{model} model among {', '.join(a for a in allowed if a != 'none')}")
+    if model == "crsp":
+        from calib.candidates import crsp_candidates
+
+        return crsp_candidates(profile, chosen)
+    from calib.dem_candidates import dem_candidates
+
+    return dem_candidates(profile, chosen)
+
+
+def _fit_section(f) -> dict:
+    return {"parameters": list(f.names),
+            "estimate": dict(zip(f.names, map(float, f.estimate))),
+            "q05": dict(zip(f.names, map(float, f.q05))),
+            "q95": dict(zip(f.names, map(float, f.q95))),
+            "best_design_point": dict(zip(f.names, map(float, f.best))),
+            "ess": f.ess, "n_design": int(f.theta.shape[0]),
+            "gap_by_size_class_m": [None if not np.isfinite(g) else float(g)
+                                    for g in f.gap_by_class]}
+
+
+def _run(args) -> int:
+    from calib import discovery_figures as figs
+    from calib.discrepancy import GAP_METRIC, PRESETS, discover
+    from calib.fit import _check_reach, _default_profile, _Progress, _versions, _write_all
+    from calib.observations import ObservationError, load_observations
+    from calib.scores import ELPD_MIN, Z_MIN
+    from solvers.profile import ProfileError, load_profile
+
+    t0 = time.perf_counter()
+    profile_path = args.profile or _default_profile(args.data)
+    try:
+        obs = load_observations(args.data)
+    except ObservationError as e:
+        raise CliError(str(e)) from None
+    if not os.path.isfile(profile_path):
+        raise CliError(f"{profile_path}: no such profile file (give --profile)")
+    try:
+        profile = load_profile(profile_path)
+    except ProfileError as e:
+        raise CliError(str(e)) from None
+    _check_reach(obs, profile, profile_path)
+    if os.path.exists(args.out) and not os.path.isdir(args.out):
+        raise CliError(f"--out {args.out}: exists and is not a folder")
+    cands = _candidates(args.model, args.effects, profile)
+    budget = PRESETS[args.model + ("-quick" if args.quick else "")]
+    bar = _Progress(not args.no_progress, args.model.upper())
+    d = discover(cands, obs, profile, jax.random.key(args.seed), budget, bar)
+    bar.close()
+    named_fit = d.fits[d.named_effect]
+    result = {
+        "schema": "rockfall-discovery/1",
+        "command": " ".join([PROG] + sys.argv[1:]),
+        "data_csv": args.data, "profile_csv": profile_path, "model": args.model,
+        "seed": args.seed, "quick": bool(args.quick), "n_observations": obs.n_obs,
+        "named_effect": d.named_effect,
+        "decision_rule": f"name the candidate with the largest held-out score gain over the "
+                         f"baseline if the gain exceeds {ELPD_MIN:g} nats and {Z_MIN:g} "
+                         f"standard errors; otherwise 'none'",
+        "score": f"{budget.k_folds}-fold (leave-one-out below {budget.k_folds} rows) held-out "
+                 f"log predictive density, summed over rows (higher is better)",
+        "candidates": d.table,
+        "gap_metric": GAP_METRIC,
+        "gap_before": d.gap_before, "gap_after": d.gap_after,
+        "gap_ratio": d.gap_after / d.gap_before if d.gap_before > 0 else None,
+        "size_classes_m": [float(s) for s in d.class_sizes_m],
+        "where": d.where_before,
+        "where_after": d.where_after,
+        "fits": {e: _fit_section(f) for e, f in d.fits.items()},
+        "budget": {k: (list(v) if isinstance(v, tuple) else v)
+                   for k, v in vars(budget).items()},
+        "timings_s": {**d.timings_s, "total_s": time.perf_counter() - t0},
+        "versions": _versions(),
+    }
+    base = d.fits["none"]
+    out_figs = {
+        "residuals.png": figs.residuals(obs, d.where_before,
+                                        f"where the baseline ({args.model}) disagrees: "
+                                        f"{len(d.where_before['flagged'])} flagged"),
+        "candidates.png": figs.candidates(d.table, d.named_effect, ELPD_MIN),
+        "before_after.png": figs.before_after(
+            obs, d.class_sizes_m, d.row_class, base.samples,
+            None if d.named_effect == "none" else named_fit.samples, d.named_effect,
+            (d.gap_before, d.gap_after)),
+    }
+    text = json.dumps(_clean(result), indent=1, allow_nan=False) + "\n"
+    _write_all(args.out, {"discovery.json": text}, out_figs)
+    _print_summary(result, args.out)
+    return 0
+
+
+def _clean(v):
+    """JSON-ready copy: NumPy scalars to Python, non-finite floats to None."""
+    if isinstance(v, dict):
+        return {k: _clean(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_clean(x) for x in v]
+    if isinstance(v, (np.bool_, bool)):
+        return bool(v)
+    if isinstance(v, (np.integer, int)):
+        return int(v)
+    if isinstance(v, (np.floating, float)):
+        return float(v) if np.isfinite(v) else None
+    return v
+
+
+def _print_summary(r: dict, out: str) -> None:
+    print(f"where the baseline ({r['model']}) disagrees with the {r['n_observations']} rows:")
+    flagged = r["where"]["flagged"]
+    for line in flagged[:6] or [r["where"]["summary"]]:
+        print(f"  - {line}")
+    if len(flagged) > 6:
+        print(f"  ... and {len(flagged) - 6} more (discovery.json: where)")
+    print(f"\n{'candidate':20} {'score':>9} {'gain':>8} {'± se':>6} {'gap m':>7}")
+    for c in r["candidates"]:
+        se = "-" if c["effect"] == "none" or c["se_delta"] is None else f"{c['se_delta']:.1f}"
+        print(f"{c['effect']:20} {c['score']:9.1f} {c['delta_vs_none']:+8.1f} {se:>6} "
+              f"{c['gap']:7.2f}")
+    print(f"\nnamed effect: {r['named_effect']}")
+    if r["named_effect"] != "none":
+        f = r["fits"][r["named_effect"]]
+        est = ", ".join(f"{n} {f['estimate'][n]:.3g} [{f['q05'][n]:.3g}, {f['q95'][n]:.3g}]"
+                        for n in f["parameters"])
+        print(f"fit with it (mean [90 %]): {est}")
+    print(f"gap (mean CRPS per size class): before {r['gap_before']:.2f} m, after "
+          f"{r['gap_after']:.2f} m (x{r['gap_after'] / r['gap_before']:.2f})")
+    print(f"total {r['timings_s']['total_s']:.0f} s; wrote {os.path.join(out, 'discovery.json')} "
+          f"and figures in {out}/")
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        return _run(args)
+    except CliError as e:
+        fail(PROG, str(e))
+    except KeyboardInterrupt:
+        fail(PROG, "interrupted; nothing written")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,157 @@
+"""Candidate effects of the discrepancy workflow: names, parameters, priors, truths.
+
+Each effect is a switchable extension of the solvers with its own parameters
+(the physics and its sources: ``solvers.crsp._effects`` for CRSP,
+``solvers.dem`` for the DEM's damping law and bonded fragments). This module
+only says, for the calibration side, which parameters an effect adds, over
+which prior box, how they map onto solver parameters, and what "strength S"
+means when synthetic data are made with the effect switched on.
+
+CRSP effects (theta = (Kn, Kt, roughness_m) + the effect's columns):
+
+=====================  ==========================  ===================  ==================
+effect                 extra columns               prior box            truth at strength S
+=====================  ==========================  ===================  ==================
+size_dissipation       gamma (restitution          [-0.6, 0.6]          gamma = 0.25 S
+                       ``K (d / 1 m)^gamma``)
+fragmentation          log10_frag_energy_kJ        [1, 4] (10 kJ-10 MJ) E_f = 300 kJ / S
+rolling_resistance     delta_mu                    [0, 1]               delta_mu = 0.4 S
+vegetation_belt        belt_start_m, belt_loss     [x0 + 0.3 W,         start x0 + 0.43 W,
+                       (belt width 0.15 W fixed)   x1 - 0.15 W], [0,.8] loss = 0.4 S
+=====================  ==========================  ===================  ==================
+
+(W: the profile's horizontal extent x1 - x0; on Postignano the truth belt is
+129-174 m, on the gentle runout zone below the 110 m slope break.) The boxes and
+strengths are assumptions of this toolkit, not published values: the boxes span
+"no effect" to "dominant effect"; strength 1 ("moderate") was chosen, before
+any workflow run, as the value that moves the median runout of the most
+affected size class by roughly 30-80 m on Postignano with the base truth
+``SYNTH_BASE`` (development log in ``data/README.md``).
+
+DEM effects (the paper's: damping and fragmentation): the baseline is one
+damping coefficient for all sizes (theta = (alpha,)); ``size_dissipation`` is
+the power law alpha(L) = a L^-b (theta = (a, b)); ``fragmentation`` is one alpha
+plus 2 x 2 bonded fragments whose joints have tensile strength and cohesion
+10^log10_joint_strength_pa (theta = (alpha, log10_joint_strength_pa)).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calib.priors import CRSP_BOX, Box
+
+__all__ = [
+    "CRSP_EFFECTS",
+    "DEM_EFFECTS",
+    "EFFECT_NAMES",
+    "SYNTH_BASE",
+    "belt_geometry_m",
+    "crsp_overrides",
+    "effect_box",
+    "full_box",
+    "truth",
+]
+
+EFFECT_NAMES = ("none", "size_dissipation", "fragmentation", "rolling_resistance",
+                "vegetation_belt")
+CRSP_EFFECTS = EFFECT_NAMES
+DEM_EFFECTS = ("none", "size_dissipation", "fragmentation")
+
+# base CRSP truth of synthetic data: close to the Postignano calibration
+# (Kn 0.44, Kt 0.96, S 0.37 m): 2 m blocks reach a median of 220 m.
+SYNTH_BASE = (0.40, 0.96, 0.40)
+BELT_WIDTH_FRAC = 0.15
+
+
+def belt_geometry_m(profile) -> tuple[float, float, float]:
+    """(lowest start, highest start, width) of the vegetation belt on ``profile``, m."""
+    x0, x1 = float(profile.x_m[0]), float(profile.x_m[-1])
+    w = x1 - x0
+    return x0 + 0.3 * w, x1 - BELT_WIDTH_FRAC * w, BELT_WIDTH_FRAC * w
+
+
+def effect_box(effect: str, profile, model: str = "crsp") -> Box:
+    """Prior box of the effect's extra parameters (CRSP) or of the whole law (DEM)."""
+    if model == "dem":
+        if effect == "none":
+            return Box(("alpha",), (0.02,), (0.95,))
+        if effect == "size_dissipation":
+            return Box(("a", "b"), (0.05, 0.0), (0.95, 1.5))
+        if effect == "fragmentation":
+            return Box(("alpha", "log10_joint_strength_pa"), (0.02, 4.0), (0.95, 7.0))
+        raise ValueError(f"effect {effect!r} is not available for the DEM; expected one of "
+                         f"{', '.join(DEM_EFFECTS)}")
+    if effect == "none":
+        return Box((), (), ())
+    if effect == "size_dissipation":
+        return Box(("gamma",), (-0.6,), (0.6,))
+    if effect == "fragmentation":
+        return Box(("log10_frag_energy_kJ",), (1.0,), (4.0,))
+    if effect == "rolling_resistance":
+        return Box(("delta_mu",), (0.0,), (1.0,))
+    if effect == "vegetation_belt":
+        lo, hi, _ = belt_geometry_m(profile)
+        return Box(("belt_start_m", "belt_loss"), (lo, 0.0), (hi, 0.8))
+    raise ValueError(f"unknown effect {effect!r}; expected one of {', '.join(EFFECT_NAMES)}")
+
+
+def full_box(effect: str, profile, model: str = "crsp") -> Box:
+    """Prior box of all parameters of a candidate model (CRSP: baseline + effect)."""
+    extra = effect_box(effect, profile, model)
+    if model == "dem":
+        return extra
+    return Box(CRSP_BOX.names + extra.names, CRSP_BOX.lower + extra.lower,
+               CRSP_BOX.upper + extra.upper)
+
+
+def crsp_overrides(effect: str, extra, profile) -> dict[str, np.ndarray]:
+    """CRSP ``Params`` fields (arrays (T,)) of the effect's columns ``extra`` (T, k)."""
+    e = np.atleast_2d(np.asarray(extra, float))
+    if effect == "none":
+        return {}
+    if effect == "size_dissipation":
+        return {"restitution_size_exponent": e[:, 0]}
+    if effect == "fragmentation":
+        return {"frag_energy_kJ": 10.0 ** e[:, 0]}
+    if effect == "rolling_resistance":
+        return {"rolling_resistance": e[:, 0]}
+    if effect == "vegetation_belt":
+        width = belt_geometry_m(profile)[2]
+        return {"belt_start_m": e[:, 0], "belt_end_m": e[:, 0] + width, "belt_loss": e[:, 1]}
+    raise ValueError(f"unknown effect {effect!r}; expected one of {', '.join(EFFECT_NAMES)}")
+
+
+def truth(effect: str, strength: float, profile, model: str = "crsp") -> np.ndarray:
+    """Full parameter vector of synthetic data with ``effect`` at ``strength``.
+
+    CRSP: ``SYNTH_BASE`` + the effect's columns (table in the module docstring).
+    DEM: none -> alpha 0.40; size_dissipation -> a = 0.40, b = 0.5 S (Table 1's
+    trend at S = 1); fragmentation -> alpha 0.40 and joint strength
+    10^(5 - S) Pa (0.1 MPa at S = 1, the DEM's default joint strength).
+    """
+    if not (np.isfinite(strength) and strength > 0):
+        raise ValueError(f"strength must be a positive number, got {strength}")
+    if model == "dem":
+        if effect == "none":
+            return np.array([0.40])
+        if effect == "size_dissipation":
+            return np.array([0.40, 0.5 * strength])
+        if effect == "fragmentation":
+            return np.array([0.40, 5.0 - strength])
+        effect_box(effect, profile, "dem")  # raises
+    base = np.asarray(SYNTH_BASE, float)
+    if effect == "none":
+        return base
+    if effect == "size_dissipation":
+        extra = [0.25 * strength]
+    elif effect == "fragmentation":
+        extra = [np.log10(300.0 / strength)]
+    elif effect == "rolling_resistance":
+        extra = [0.4 * strength]
+    elif effect == "vegetation_belt":
+        x0, x1 = float(profile.x_m[0]), float(profile.x_m[-1])
+        extra = [x0 + 0.43 * (x1 - x0), min(0.4 * strength, 0.95)]
+    else:
+        raise ValueError(f"unknown effect {effect!r}; expected one of {', '.join(EFFECT_NAMES)}")
+    return np.concatenate([base, extra])

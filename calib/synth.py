@@ -1,0 +1,154 @@
+"""``python -m calib.synth --effect E --out synth.csv``: observations with a hidden effect.
+
+Simulates blocks with one candidate effect of ``calib.effects`` switched on
+(inside the solver) and writes them as observed runouts in the schema of
+``data/postignano.csv``, so that ``python -m calib.discover`` can be tested on
+data whose missing physics is known. Three files are written, atomically:
+
+* ``OUT`` (e.g. ``synth.csv``): the observations. Nothing in it names the effect.
+* ``<OUT stem>.truth.json``: the effect, its strength, the full parameter vector,
+  the seed and the noise (kept out of the CSV so the workflow cannot see it).
+* ``<OUT stem>_profile.csv``, ``<OUT stem>_materials.csv``: copies of the slope
+  profile used and its materials, where ``calib.discover`` looks by default.
+
+Rows: ``--n-obs`` blocks spread over the sizes 0.2, 0.4, 0.7, 1.0, 1.4, 2.0 m;
+each runout is one simulated block plus Gaussian noise of ``--sd`` m, which is
+also the row's stated tolerance. The truths (base CRSP set and strengths) are
+in ``calib.effects``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import sys
+import tempfile
+
+from solvers._cli import CliError, OneLineParser, fail
+
+__all__ = ["main"]
+
+PROG = "python -m calib.synth"
+DEFAULT_PROFILE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                               "data", "postignano_profile.csv")
+
+
+def _parser() -> argparse.ArgumentParser:
+    from calib.effects import EFFECT_NAMES
+
+    p = OneLineParser(
+        prog=PROG, description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="Example: python -m calib.synth --effect fragmentation --seed 3 --out synth.csv"
+               "\n         python -m calib.discover synth.csv\n"
+               "Effects (calib/effects.py): none, size_dissipation (size-dependent "
+               "restitution; DEM: alpha(L)), fragmentation (break on a hard impact), "
+               "rolling_resistance (extra rolling resistance), vegetation_belt (a forest "
+               "stretch that brakes blocks). The DEM has none, size_dissipation and "
+               "fragmentation.")
+    p.add_argument("--effect", required=True, choices=EFFECT_NAMES,
+                   help="effect switched on in the simulation")
+    p.add_argument("--strength", type=float, default=1.0,
+                   help="strength of the effect (1 = moderate, the default; see "
+                        "calib/effects.py for what it means for each effect)")
+    p.add_argument("--model", choices=["crsp", "dem"], default="crsp",
+                   help="solver that makes the data (default crsp)")
+    p.add_argument("--n-obs", type=int, default=60, help="number of rows (default 60)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the simulated blocks "
+                   "and the noise (default 0)")
+    p.add_argument("--sd", type=float, default=5.0,
+                   help="measurement noise and stated tolerance of each row, m (default 5)")
+    p.add_argument("--profile", default=DEFAULT_PROFILE,
+                   help="slope profile CSV (default: data/postignano_profile.csv)")
+    p.add_argument("--out", required=True, help="observations CSV to write")
+    p.add_argument("--no-progress", action="store_true", help="accepted for symmetry; "
+                   "the simulation prints nothing")
+    return p
+
+
+def _check(args) -> None:
+    from calib.effects import DEM_EFFECTS
+
+    if args.model == "dem" and args.effect not in DEM_EFFECTS:
+        raise CliError(f"--effect {args.effect}: not available for the DEM (it has "
+                       f"{', '.join(DEM_EFFECTS)})")
+    if not (args.strength > 0 and args.strength < 1e6):
+        raise CliError(f"--strength: expected a positive number, got {args.strength:g}")
+    if args.n_obs < 1 or args.n_obs > 100_000:
+        raise CliError(f"--n-obs: expected 1 to 100000 rows, got {args.n_obs}")
+    if not (args.sd > 0 and args.sd < 1e4):
+        raise CliError(f"--sd: expected a positive number of metres, got {args.sd:g}")
+    if not args.out.endswith(".csv"):
+        raise CliError(f"--out {args.out}: expected a .csv file name")
+    parent = os.path.dirname(os.path.abspath(args.out))
+    if not os.path.isdir(parent):
+        raise CliError(f"--out {args.out}: folder {parent} does not exist")
+    if not os.path.isfile(args.profile):
+        raise CliError(f"{args.profile}: no such profile file")
+
+
+def _text(text: str):
+    def write(path):
+        with open(path, "w") as f:
+            f.write(text)
+    return write
+
+
+def _atomic(path: str, write) -> str:
+    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".",
+                               dir=os.path.dirname(os.path.abspath(path)))
+    os.close(fd)
+    write(tmp)
+    return tmp
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        _check(args)
+        from calib.synthetic import synthesize_effect
+        from solvers.profile import ProfileError, default_materials_path, load_profile
+
+        try:
+            profile = load_profile(args.profile)
+        except ProfileError as e:
+            raise CliError(str(e)) from None
+        obs, truth = synthesize_effect(profile, args.effect, args.strength, args.n_obs,
+                                       args.seed, args.model, args.sd)
+        stem = args.out[:-4]
+        truth.update({"observations_csv": args.out, "profile_csv": stem + "_profile.csv",
+                      "profile_source": args.profile, "command": " ".join([PROG] + sys.argv[1:]),
+                      "note": "the truth is kept out of the observations on purpose"})
+        lines = ["block_size_m,runout_m,runout_sd_m,runout_min_m,runout_max_m,source"]
+        lines += [f"{d:g},{y:.3f},{s:g},,,synthetic: calib.synth seed {args.seed}"
+                  for d, y, s in zip(obs.block_size_m, obs.runout_m, obs.runout_sd_m)]
+        outputs = [
+            (args.out, _text("\n".join(lines) + "\n")),
+            (stem + ".truth.json", _text(json.dumps(truth, indent=1) + "\n")),
+            (stem + "_profile.csv", lambda p: shutil.copyfile(args.profile, p)),
+            (stem + "_materials.csv",
+             lambda p: shutil.copyfile(default_materials_path(args.profile), p)),
+        ]
+        tmps = []
+        try:
+            for path, write in outputs:
+                tmps.append((_atomic(path, write), path))
+        except BaseException:
+            for tmp, _ in tmps:
+                os.unlink(tmp)
+            raise
+        for tmp, path in tmps:
+            os.replace(tmp, path)
+        print(f"wrote {len(lines) - 1} rows to {args.out} (truth in {stem}.truth.json, "
+              f"profile in {stem}_profile.csv and {stem}_materials.csv)")
+    except CliError as e:
+        fail(PROG, str(e))
+    except KeyboardInterrupt:
+        fail(PROG, "interrupted; nothing written")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
