@@ -40,7 +40,7 @@ from scipy.stats import qmc
 
 from calib.likelihood import log_likelihood, silverman_width_m
 from calib.priors import Box
-from calib.residuals import locate
+from calib.residuals import locate, point_view
 from calib.scores import ELPD_MIN, Z_MIN, crps_ensemble, cv_elpd, elpd_difference, folds
 
 __all__ = [
@@ -74,10 +74,10 @@ class Budget:
         k_folds: folds of the held-out score (leave-one-out below this many rows).
     """
 
-    n_sobol: int = 64
-    n_warm: int = 64
-    n_refine: tuple[int, ...] = (32, 32, 32, 32)
-    n_blocks: int = 64
+    n_sobol: int = 128
+    n_warm: int = 128
+    n_refine: tuple[int, ...] = (64, 64, 64, 64)
+    n_blocks: int = 128
     n_draws: int = 16
     n_blocks_check: int = 128
     k_folds: int = 5
@@ -233,9 +233,7 @@ def _proposal(mean, cov, rng, n, dim):
 
 def gap(samples: np.ndarray, obs, row_class: np.ndarray, rng: np.random.Generator):
     """The gap metric (``GAP_METRIC``): (per-class mean CRPS (C,), their mean), m."""
-    y = np.where(obs.is_interval, 0.5 * (obs.runout_min_m + obs.runout_max_m), obs.runout_m)
-    sd = np.where(obs.is_interval, (obs.runout_max_m - obs.runout_min_m) / np.sqrt(12.0),
-                  obs.runout_sd_m)
+    y, sd = point_view(obs)
     per_row = np.array([crps_ensemble(samples[row_class[i]] + sd[i] * rng.standard_normal(
         samples.shape[1]), y[i]) for i in range(obs.n_obs)])
     classes = np.unique(row_class)
@@ -268,7 +266,12 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
 
     if cand.design is not None:  # fixed design (grids): uniform over the box
         z = box.to_unit(np.atleast_2d(cand.design()))
-        ll = simulate(z)
+        parts = []
+        for i in range(0, z.shape[0], 8):  # in pieces, for the progress bar
+            parts.append(simulate(z[i:i + 8]))
+            if progress:
+                progress(cand.effect, min(i + 8, z.shape[0]), z.shape[0])
+        ll = np.concatenate(parts)
         log_q = np.zeros(z.shape[0])
     else:
         total = budget.n_design - (budget.n_warm if warm is None else 0)

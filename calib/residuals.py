@@ -27,12 +27,13 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
-__all__ = ["quantile_residuals", "locate", "slope_parts"]
+__all__ = ["locate", "point_view", "quantile_residuals", "slope_parts"]
 
 P_FLAG = 0.05
 
 
-def _point_view(obs):
+def point_view(obs):
+    """(y, sd) of each row; intervals as midpoint and width / sqrt(12)."""
     y = np.where(obs.is_interval, 0.5 * (obs.runout_min_m + obs.runout_max_m), obs.runout_m)
     sd = np.where(obs.is_interval, (obs.runout_max_m - obs.runout_min_m) / np.sqrt(12.0),
                   obs.runout_sd_m)
@@ -41,7 +42,7 @@ def _point_view(obs):
 
 def quantile_residuals(obs, row_class: np.ndarray, samples: np.ndarray):
     """(PIT, q) of each row given predictive runout samples per class (C, m)."""
-    y, sd = _point_view(obs)
+    y, sd = point_view(obs)
     pit = np.array([np.mean(stats.norm.cdf((y[i] - samples[row_class[i]]) / sd[i]))
                     for i in range(obs.n_obs)])
     q = stats.norm.ppf(np.clip(pit, 1e-6, 1 - 1e-6))
@@ -80,7 +81,7 @@ def locate(obs, row_class: np.ndarray, class_sizes_m: np.ndarray, samples: np.nd
         plain-text findings, most significant first) and ``summary``.
     """
     pit, q = quantile_residuals(obs, row_class, samples)
-    y, sd = _point_view(obs)
+    y, sd = point_view(obs)
     x0 = float(profile.x_m[0])
     by_size = []
     for c, d in enumerate(class_sizes_m):
