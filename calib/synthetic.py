@@ -55,7 +55,8 @@ def synthesize_effect(profile, effect: str, strength: float, n_obs: int, seed: i
     ``n_obs`` rows spread round-robin over ``SYNTH_SIZES_M``; each row is one
     simulated block plus N(0, sd_m^2) noise (``synthesize``). The blocks use the
     key ``fold_in(key(seed), 7919)``, which no fit uses (fits key their common
-    random numbers from their own ``--seed``).
+    random numbers from their own ``--seed``). Values are clipped to the
+    profile's extent (a survey maps the slope, not beyond it).
 
     Returns:
         (Observations, truth dict: effect, strength, model, parameter names and values).
@@ -81,7 +82,8 @@ def synthesize_effect(profile, effect: str, strength: float, n_obs: int, seed: i
     rows = np.arange(n_obs)
     size_i, block_j = rows % sizes.size, rows // sizes.size
     noise = sd_m * np.asarray(jax.random.normal(k_noise, (n_obs,)))
-    y = np.maximum(runs[size_i, block_j] + noise, 0.0)
+    # a runout is observed on the mapped profile only (noise cannot move it off)
+    y = np.clip(runs[size_i, block_j] + noise, 0.0, float(profile.x_m[-1] - profile.x_m[0]))
     obs = Observations.points(sizes[size_i], y, sd_m,
                               source=(f"synthetic ({model}, effect {effect}, seed {seed})",)
                               * n_obs)

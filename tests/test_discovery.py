@@ -1,0 +1,198 @@
+"""The discrepancy workflow's parts (scores, residuals, proposal) and its two
+commands, ``python -m calib.synth`` and ``python -m calib.discover`` (quick)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from calib.discrepancy import _proposal, size_classes
+from calib.observations import Observations
+from calib.residuals import locate
+from calib.scores import crps_ensemble, cv_elpd, elpd_difference, folds
+from solvers.profile import load_profile
+
+PROFILE = load_profile("data/postignano_profile.csv")
+
+
+def _cli(module, *args):
+    return subprocess.run([sys.executable, "-m", module, *args], capture_output=True, text=True,
+                          timeout=900)
+
+
+def test_crps_of_an_ensemble_matches_the_gaussian_closed_form():
+    rng = np.random.default_rng(0)
+    x = rng.normal(3.0, 2.0, 40_000)
+    for y in (3.0, 5.5, -1.0):
+        z = (y - 3.0) / 2.0
+        exact = 2.0 * (z * (2 * stats.norm.cdf(z) - 1) + 2 * stats.norm.pdf(z) - 1 / np.sqrt(np.pi))
+        assert crps_ensemble(x, y) == pytest.approx(exact, rel=0.02)
+    assert crps_ensemble(np.full(10, 4.0), 4.0) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_folds_are_balanced_and_loo_for_few_rows():
+    g = np.repeat(np.arange(3), 10)
+    f = folds(g, 5, seed=0)
+    assert np.all(np.bincount(f) == 6)
+    for c in range(3):
+        assert np.all(np.bincount(f[g == c], minlength=5) == 2)
+    np.testing.assert_array_equal(folds(np.zeros(3), 5, 0), [0, 1, 2])
+
+
+def test_cv_elpd_by_hand():
+    # two design points, three rows, leave-one-out
+    ll = np.log(np.array([[0.5, 0.2, 0.1], [0.1, 0.4, 0.3]]))
+    out = cv_elpd(ll, np.zeros(2), np.arange(3))
+    for i in range(3):
+        w = np.exp(ll[:, [j for j in range(3) if j != i]].sum(axis=1))
+        w = w / w.sum()
+        assert out[i] == pytest.approx(np.log(w @ np.exp(ll[:, i])))
+    d, se = elpd_difference(np.array([1.0, 2.0, 3.0]), np.zeros(3))
+    assert d == 6.0 and se == pytest.approx(np.sqrt(3 * 1.0))
+
+
+def test_proposal_density_is_normalised_on_the_cube():
+    rng = np.random.default_rng(1)
+    mean, cov = np.array([0.8, 0.1]), np.array([[0.04, 0.01], [0.01, 0.02]])
+    draws, logpdf = _proposal(mean, cov, rng, 500, dim=3)
+    assert draws.shape == (500, 3) and np.all((draws >= 0) & (draws <= 1))
+    u = rng.uniform(size=(200_000, 3))
+    assert np.mean(np.exp(logpdf(u))) == pytest.approx(1.0, rel=0.03)
+
+
+def test_size_classes_bin_many_sizes():
+    sizes = np.geomspace(0.2, 2.0, 40)
+    reps, cls = size_classes(sizes, max_classes=8)
+    assert reps.size == 8 and cls.min() == 0 and cls.max() == 7
+    assert np.all(np.diff(reps) > 0)
+    reps, cls = size_classes(np.array([0.2, 2.0, 0.2]))
+    np.testing.assert_array_equal(reps, [0.2, 2.0])
+    np.testing.assert_array_equal(cls, [0, 1, 0])
+
+
+def test_locate_flags_the_size_class_that_is_off_and_nothing_else():
+    rng = np.random.default_rng(2)
+    sizes = np.repeat([0.2, 1.0, 2.0], 20)
+    cls = np.repeat([0, 1, 2], 20)
+    centre = np.array([120.0, 150.0, 200.0])
+    samples = centre[:, None] + 10.0 * rng.standard_normal((3, 4000))
+    y = centre[cls] + 10.0 * rng.standard_normal(60)
+    ok = locate(Observations.points(sizes, y, 3.0), cls, np.array([0.2, 1.0, 2.0]), samples,
+                PROFILE, rng)
+    assert ok["flagged"] == [], ok["flagged"]
+    y_bad = y + np.where(cls == 2, 25.0, 0.0)  # 2 m blocks travel 25 m further than modelled
+    bad = locate(Observations.points(sizes, y_bad, 3.0), cls, np.array([0.2, 1.0, 2.0]),
+                 samples, PROFILE, rng)
+    flagged = [s["size_m"] for s in bad["by_size"] if s["flag"]]
+    assert flagged == [2.0], bad["by_size"]
+    assert "2.00 m travel further" in bad["summary"]
+
+
+@pytest.fixture(scope="module")
+def synth_files(tmp_path_factory):
+    out = tmp_path_factory.mktemp("synth")
+    proc = _cli("calib.synth", "--effect", "size_dissipation", "--strength", "2",
+                "--n-obs", "36", "--seed", "11", "--out", str(out / "synth.csv"))
+    return proc, out
+
+
+def test_synth_writes_data_truth_and_profile_but_hides_the_effect(synth_files):
+    proc, out = synth_files
+    assert proc.returncode == 0, proc.stderr
+    assert {"synth.csv", "synth.truth.json", "synth_profile.csv", "synth_materials.csv"} <= \
+        set(os.listdir(out))
+    text = (out / "synth.csv").read_text()
+    assert text.splitlines()[0] == ("block_size_m,runout_m,runout_sd_m,runout_min_m,"
+                                    "runout_max_m,source")
+    assert len(text.splitlines()) == 37
+    assert "size" not in text.split("\n", 1)[1] and "dissipation" not in text
+    truth = json.loads((out / "synth.truth.json").read_text())
+    assert truth["effect"] == "size_dissipation" and truth["strength"] == 2.0
+    assert truth["parameters"]["gamma"] == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--effect", "vegetation_belt", "--model", "dem"], "not available for the DEM"),
+    (["--effect", "none", "--n-obs", "0"], "--n-obs"),
+    (["--effect", "none", "--strength", "-1"], "--strength"),
+    (["--effect", "bogus"], "invalid choice"),
+])
+def test_synth_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, needle):
+    proc = _cli("calib.synth", *args, "--out", str(tmp_path / "s.csv"))
+    assert proc.returncode == 2
+    assert needle in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.fixture(scope="module")
+def discover_run(synth_files):
+    _, out = synth_files
+    proc = _cli("calib.discover", str(out / "synth.csv"), "--quick", "--out",
+                str(out / "disc"), "--no-progress")
+    return proc, out / "disc"
+
+
+def test_discover_names_a_strong_hidden_effect_and_shrinks_the_gap(discover_run):
+    proc, out = discover_run
+    print(proc.stdout)
+    assert proc.returncode == 0, proc.stderr
+    assert {"discovery.json", "residuals.png", "candidates.png", "before_after.png"} <= \
+        set(os.listdir(out))
+    assert not [n for n in os.listdir(out) if n.startswith(".")]
+    r = json.loads((out / "discovery.json").read_text())
+    for k in ("named_effect", "candidates", "gap_metric", "gap_before", "gap_after", "where"):
+        assert k in r
+    assert {c["effect"] for c in r["candidates"]} == {
+        "none", "size_dissipation", "fragmentation", "rolling_resistance", "vegetation_belt"}
+    for c in r["candidates"]:
+        assert {"effect", "score", "gap"} <= set(c)
+    assert r["named_effect"] == "size_dissipation"
+    assert r["gap_after"] < r["gap_before"]
+    # where: the residuals trend with size (big blocks further than the baseline says)
+    assert r["where"]["size_trend"]["flag"] and r["where"]["size_trend"]["spearman_rho"] > 0
+    assert "named effect: size_dissipation" in proc.stdout
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["no/such.csv"], "no such file"),
+    (["data/postignano.csv", "--effects", "teleportation"], "--effects"),
+    (["data/postignano.csv", "--model", "dem", "--effects", "vegetation_belt"], "--effects"),
+    (["data/postignano.csv", "--profile", "no/profile.csv"], "no such profile"),
+])
+def test_discover_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, needle):
+    out = tmp_path / "d"
+    proc = _cli("calib.discover", *args, "--out", str(out), "--no-progress")
+    assert proc.returncode == 2
+    assert needle in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert not out.exists()
+
+
+def test_discover_help_explains():
+    proc = _cli("calib.discover", "--help")
+    assert proc.returncode == 0
+    for word in ("--model", "--effects", "named_effect", "gap"):
+        assert word in proc.stdout
+
+
+def test_notebook_03_discrepancy_runs_at_small_size(tmp_path):
+    """notebooks/03_discrepancy.py (jupytext) executes top to bottom (quick budgets)."""
+    import jupytext
+    import nbclient
+
+    nb = jupytext.read("notebooks/03_discrepancy.py")
+    os.environ["NOTEBOOK_SMALL"] = "1"
+    try:
+        nbclient.NotebookClient(nb, timeout=900, kernel_name="python3",
+                                resources={"metadata": {"path": os.getcwd()}}).execute()
+    finally:
+        del os.environ["NOTEBOOK_SMALL"]
+    text = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code"
+                   for o in c.get("outputs", []))
+    assert "hidden: rolling_resistance | named:" in text
+    assert "size_dissipation" in text and "named:" in text
