@@ -63,7 +63,7 @@ def candidates(table: list[dict], named: str, min_gain: float):
 def before_after(obs, class_sizes, row_class, before, after, named: str, gaps):
     """Observed runouts per size class with the 5-95 % predictive bands of the
     baseline and of the model with the named effect."""
-    fig, ax = plt.subplots(figsize=(8, 4.5))
+    fig, ax = plt.subplots(figsize=(8, 5.2))
     x = np.asarray(class_sizes)
     for samples, label, color, off in ((before, f"baseline (gap {gaps[0]:.1f} m)", "C0", -0.02),
                                        (after, f"with {named} (gap {gaps[1]:.1f} m)", "C2",
@@ -78,7 +78,8 @@ def before_after(obs, class_sizes, row_class, before, after, named: str, gaps):
     ax.set_xscale("log")
     ax.set_xlabel("block size d, m")
     ax.set_ylabel("runout, m")
-    ax.legend(fontsize=8)
+    # below the axes: inside, it can hide observations
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2)
     ax.set_title("gap before / after adding the named effect")
     fig.tight_layout()
     return fig
