@@ -29,7 +29,7 @@ import time
 import jax
 import numpy as np
 
-from solvers._cli import CliError, OneLineParser, fail
+from solvers._cli import CliError, OneLineParser, run_guarded
 
 __all__ = ["main"]
 
@@ -105,26 +105,11 @@ def _fit_section(f) -> dict:
 def _run(args) -> int:
     from calib import discovery_figures as figs
     from calib.discrepancy import GAP_METRIC, PRESETS, discover
-    from calib.fit import _check_reach, _default_profile, _Progress, _versions, _write_all
-    from calib.observations import ObservationError, load_observations
+    from calib.fit import _Progress, _versions, _write_all, load_inputs
     from calib.scores import ELPD_MIN, Z_MIN
-    from solvers.profile import ProfileError, load_profile
 
     t0 = time.perf_counter()
-    profile_path = args.profile or _default_profile(args.data)
-    try:
-        obs = load_observations(args.data)
-    except ObservationError as e:
-        raise CliError(str(e)) from None
-    if not os.path.isfile(profile_path):
-        raise CliError(f"{profile_path}: no such profile file (give --profile)")
-    try:
-        profile = load_profile(profile_path)
-    except ProfileError as e:
-        raise CliError(str(e)) from None
-    _check_reach(obs, profile, profile_path)
-    if os.path.exists(args.out) and not os.path.isdir(args.out):
-        raise CliError(f"--out {args.out}: exists and is not a folder")
+    obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
     cands = _candidates(args.model, args.effects, profile)
     budget = PRESETS[args.model + ("-quick" if args.quick else "")]
     bar = _Progress(not args.no_progress, args.model.upper())
@@ -212,14 +197,7 @@ def _print_summary(r: dict, out: str) -> None:
 
 
 def main(argv=None) -> int:
-    args = _parser().parse_args(argv)
-    try:
-        return _run(args)
-    except CliError as e:
-        fail(PROG, str(e))
-    except KeyboardInterrupt:
-        fail(PROG, "interrupted; nothing written")
-    return 0
+    return run_guarded(PROG, _run, _parser().parse_args(argv))
 
 
 if __name__ == "__main__":

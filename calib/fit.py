@@ -32,7 +32,7 @@ import time
 import jax
 import numpy as np
 
-from solvers._cli import CliError, OneLineParser, fail
+from solvers._cli import CliError, OneLineParser, run_guarded
 
 __all__ = ["main"]
 
@@ -166,16 +166,16 @@ def _model_section(name, fit, forward, law_form=None) -> dict:
     return sec
 
 
-def _run(args) -> int:
-    from calib.calibrate import calibrate, presets
-    from calib.forward import CrspForward, DemForward, alpha_of
+def load_inputs(data: str, profile_arg: str | None, out: str):
+    """Observations, profile and its path, checked for a command (``CliError`` on bad
+    input): the files exist and parse, every runout lies on the profile, ``out``
+    can be a folder. Shared by ``calib.fit`` and ``calib.discover``."""
     from calib.observations import ObservationError, load_observations
     from solvers.profile import ProfileError, load_profile
 
-    t_start = time.perf_counter()
-    profile_path = args.profile or _default_profile(args.data)
+    profile_path = profile_arg or _default_profile(data)
     try:
-        obs = load_observations(args.data)
+        obs = load_observations(data)
     except ObservationError as e:
         raise CliError(str(e)) from None
     if not os.path.isfile(profile_path):
@@ -185,8 +185,17 @@ def _run(args) -> int:
     except ProfileError as e:
         raise CliError(str(e)) from None
     _check_reach(obs, profile, profile_path)
-    if os.path.exists(args.out) and not os.path.isdir(args.out):
-        raise CliError(f"--out {args.out}: exists and is not a folder")
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise CliError(f"--out {out}: exists and is not a folder")
+    return obs, profile, profile_path
+
+
+def _run(args) -> int:
+    from calib.calibrate import calibrate, presets
+    from calib.forward import CrspForward, DemForward, alpha_of
+
+    t_start = time.perf_counter()
+    obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
 
     models = ["crsp", "dem"] if args.model == "both" else [args.model]
     methods = ("gradient", "bayes") if args.method == "both" else (args.method,)
@@ -322,14 +331,7 @@ def _print_summary(result: dict, models, out: str) -> None:
 
 
 def main(argv=None) -> int:
-    args = _parser().parse_args(argv)
-    try:
-        return _run(args)
-    except CliError as e:
-        fail(PROG, str(e))
-    except KeyboardInterrupt:
-        fail(PROG, "interrupted; nothing written")
-    return 0
+    return run_guarded(PROG, _run, _parser().parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -26,7 +26,7 @@ import shutil
 import sys
 import tempfile
 
-from solvers._cli import CliError, OneLineParser, fail
+from solvers._cli import CliError, OneLineParser, run_guarded
 
 __all__ = ["main"]
 
@@ -104,50 +104,48 @@ def _atomic(path: str, write) -> str:
     return tmp
 
 
-def main(argv=None) -> int:
-    args = _parser().parse_args(argv)
-    try:
-        _check(args)
-        from calib.synthetic import synthesize_effect
-        from solvers.profile import ProfileError, default_materials_path, load_profile
+def _run(args) -> int:
+    _check(args)
+    from calib.synthetic import synthesize_effect
+    from solvers.profile import ProfileError, default_materials_path, load_profile
 
-        try:
-            profile = load_profile(args.profile)
-        except ProfileError as e:
-            raise CliError(str(e)) from None
-        obs, truth = synthesize_effect(profile, args.effect, args.strength, args.n_obs,
-                                       args.seed, args.model, args.sd)
-        stem = args.out[:-4]
-        truth.update({"observations_csv": args.out, "profile_csv": stem + "_profile.csv",
-                      "profile_source": args.profile, "command": " ".join([PROG] + sys.argv[1:]),
-                      "note": "the truth is kept out of the observations on purpose"})
-        lines = ["block_size_m,runout_m,runout_sd_m,runout_min_m,runout_max_m,source"]
-        lines += [f"{d:g},{y:.3f},{s:g},,,synthetic: calib.synth seed {args.seed}"
-                  for d, y, s in zip(obs.block_size_m, obs.runout_m, obs.runout_sd_m)]
-        outputs = [
-            (args.out, _text("\n".join(lines) + "\n")),
-            (stem + ".truth.json", _text(json.dumps(truth, indent=1) + "\n")),
-            (stem + "_profile.csv", lambda p: shutil.copyfile(args.profile, p)),
-            (stem + "_materials.csv",
-             lambda p: shutil.copyfile(default_materials_path(args.profile), p)),
-        ]
-        tmps = []
-        try:
-            for path, write in outputs:
-                tmps.append((_atomic(path, write), path))
-        except BaseException:
-            for tmp, _ in tmps:
-                os.unlink(tmp)
-            raise
-        for tmp, path in tmps:
-            os.replace(tmp, path)
-        print(f"wrote {len(lines) - 1} rows to {args.out} (truth in {stem}.truth.json, "
-              f"profile in {stem}_profile.csv and {stem}_materials.csv)")
-    except CliError as e:
-        fail(PROG, str(e))
-    except KeyboardInterrupt:
-        fail(PROG, "interrupted; nothing written")
+    try:
+        profile = load_profile(args.profile)
+    except ProfileError as e:
+        raise CliError(str(e)) from None
+    obs, truth = synthesize_effect(profile, args.effect, args.strength, args.n_obs,
+                                   args.seed, args.model, args.sd)
+    stem = args.out[:-4]
+    truth.update({"observations_csv": args.out, "profile_csv": stem + "_profile.csv",
+                  "profile_source": args.profile, "command": " ".join([PROG] + sys.argv[1:]),
+                  "note": "the truth is kept out of the observations on purpose"})
+    lines = ["block_size_m,runout_m,runout_sd_m,runout_min_m,runout_max_m,source"]
+    lines += [f"{d:g},{y:.3f},{s:g},,,synthetic: calib.synth seed {args.seed}"
+              for d, y, s in zip(obs.block_size_m, obs.runout_m, obs.runout_sd_m)]
+    outputs = [
+        (args.out, _text("\n".join(lines) + "\n")),
+        (stem + ".truth.json", _text(json.dumps(truth, indent=1) + "\n")),
+        (stem + "_profile.csv", lambda p: shutil.copyfile(args.profile, p)),
+        (stem + "_materials.csv",
+         lambda p: shutil.copyfile(default_materials_path(args.profile), p)),
+    ]
+    tmps = []
+    try:
+        for path, write in outputs:
+            tmps.append((_atomic(path, write), path))
+    except BaseException:
+        for tmp, _ in tmps:
+            os.unlink(tmp)
+        raise
+    for tmp, path in tmps:
+        os.replace(tmp, path)
+    print(f"wrote {len(lines) - 1} rows to {args.out} (truth in {stem}.truth.json, "
+          f"profile in {stem}_profile.csv and {stem}_materials.csv)")
     return 0
+
+
+def main(argv=None) -> int:
+    return run_guarded(PROG, _run, _parser().parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ __all__ = [
     "fail",
     "parse_floats",
     "parse_stations",
+    "run_guarded",
     "write_csv_atomic",
 ]
 
@@ -36,6 +37,17 @@ def fail(prog: str, message: str) -> None:
     """Print ``prog: error: message`` on one line and exit 2."""
     sys.stderr.write(f"{prog}: error: {' '.join(str(message).split())}\n")
     raise SystemExit(2)
+
+
+def run_guarded(prog: str, fn, *args) -> int:
+    """``fn(*args)``, turning a ``CliError`` or Ctrl-C into one line and exit 2."""
+    try:
+        return fn(*args)
+    except CliError as e:
+        fail(prog, str(e))
+    except KeyboardInterrupt:
+        fail(prog, "interrupted; nothing written")
+    return 0
 
 
 def parse_floats(text: str, name: str) -> list[float]:
