@@ -1,0 +1,87 @@
+"""``python -m calib.power``: the detection-rate table, seed parsing, resuming,
+and bad input (one line, exit 2, nothing written)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pandas as pd
+import pytest
+
+from calib.power import detection_table, parse_seeds
+from solvers._cli import CliError
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "calib.power", *args], capture_output=True,
+                          text=True, timeout=900)
+
+
+def test_parse_seeds_lists_and_ranges():
+    assert parse_seeds("3001-3003") == [3001, 3002, 3003]
+    assert parse_seeds("4, 9,1") == [4, 9, 1]
+    for bad in ("5-2", "a,b", ",", "1-x"):
+        with pytest.raises(CliError):
+            parse_seeds(bad)
+
+
+def test_detection_table_counts_rates_and_exact_intervals():
+    runs = [{"effect": "fragmentation", "strength": 1.0, "n_obs": 60, "seed": k,
+             "named": named, "gains": {"fragmentation": [g, 2.0], "vegetation_belt": [0.0, 1.0]}}
+            for k, (named, g) in enumerate([("fragmentation", 10.0), ("none", 2.0),
+                                            ("fragmentation", 12.0), ("vegetation_belt", 1.0)])]
+    runs += [{"effect": "none", "strength": 1.0, "n_obs": 60, "seed": 9, "named": "none",
+              "gains": {"fragmentation": [0.5, 1.0]}}]
+    table = {c["effect"]: c for c in detection_table(runs)}
+    f = table["fragmentation"]
+    assert (f["runs"], f["named_right"], f["rate"]) == (4, 2, 0.5)
+    assert f["named"] == {"none": 1, "fragmentation": 2, "vegetation_belt": 1}
+    assert f["median_gain_nats"] == pytest.approx(6.0)  # median of 10, 2, 12, 1
+    assert f["median_gain_se"] == pytest.approx(3.0)
+    # Clopper-Pearson 90 % for 2 of 4: the 5 % and 95 % beta quantiles
+    from scipy.stats import beta
+
+    assert f["rate_q05"] == pytest.approx(beta.ppf(0.05, 2, 3))
+    assert f["rate_q95"] == pytest.approx(beta.ppf(0.95, 3, 2))
+    n = table["none"]
+    assert (n["named_right"], n["rate"], n["median_gain_nats"]) == (1, 1.0, None)
+
+
+def test_power_quick_run_writes_table_and_resumes(tmp_path):
+    out = tmp_path / "pw"
+    args = ["--effects", "none", "--n-obs", "12", "--seeds", "5", "--quick", "--no-progress",
+            "--out", str(out)]
+    r = _cli(*args)
+    assert r.returncode == 0, r.stderr
+    df = pd.read_csv(out / "power.csv")
+    assert list(df["effect"]) == ["none"] and int(df["runs"][0]) == 1
+    doc = json.loads((out / "power.json").read_text())
+    assert doc["runs"][0]["named"] in ("none", "size_dissipation", "fragmentation",
+                                       "rolling_resistance", "vegetation_belt")
+    (rec,) = os.listdir(out / "runs")
+    # a second call finds the finished run and does not redo it
+    mtime = os.path.getmtime(out / "runs" / rec)
+    r2 = _cli(*args)
+    assert r2.returncode == 0, r2.stderr
+    assert os.path.getmtime(out / "runs" / rec) == mtime
+    assert "none" in r2.stdout and "named right" in r2.stdout
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--effects", "avalanche"], "--effects: avalanche"),
+    (["--strengths", "0"], "--strengths"),
+    (["--n-obs", "2.5"], "--n-obs"),
+    (["--seeds", "9-1"], "--seeds"),
+    (["--sd", "-1"], "--sd"),
+    (["--profile", "nope.csv"], "nope.csv"),
+])
+def test_power_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, needle):
+    out = tmp_path / "pw"
+    r = _cli(*args, "--out", str(out), "--no-progress")
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0] and lines[0].startswith("python -m calib.power")
+    assert not out.exists()
