@@ -146,8 +146,13 @@ def test_discover_names_a_strong_hidden_effect_and_shrinks_the_gap(discover_run)
         set(os.listdir(out))
     assert not [n for n in os.listdir(out) if n.startswith(".")]
     r = json.loads((out / "discovery.json").read_text())
-    for k in ("named_effect", "candidates", "gap_metric", "gap_before", "gap_after", "where"):
+    for k in ("named_effect", "candidates", "gap_metric", "gap_before", "gap_after", "where",
+              "warnings"):
         assert k in r
+    low = [e for e, f in r["fits"].items() if f["ess"] < 10]
+    assert bool(r["warnings"]) == bool(low)
+    for e in low:
+        assert e in r["warnings"][0] and f"warning: {r['warnings'][0][:40]}" in proc.stdout
     assert {c["effect"] for c in r["candidates"]} == {
         "none", "size_dissipation", "fragmentation", "rolling_resistance", "vegetation_belt"}
     for c in r["candidates"]:
@@ -157,6 +162,16 @@ def test_discover_names_a_strong_hidden_effect_and_shrinks_the_gap(discover_run)
     # where: the residuals trend with size (big blocks further than the baseline says)
     assert r["where"]["size_trend"]["flag"] and r["where"]["size_trend"]["spearman_rho"] > 0
     assert "named effect: size_dissipation" in proc.stdout
+
+
+def test_ess_warnings_name_the_degenerate_fits_only():
+    from calib.discover import ess_warnings
+
+    assert ess_warnings({"none": (40.0, 384), "fragmentation": (12.0, 512)}) == []
+    (w,) = ess_warnings({"none": (1.5, 384), "fragmentation": (30.0, 512),
+                         "vegetation_belt": (8.0, 512)})
+    assert "none 1.5 of 384" in w and "vegetation_belt 8.0 of 512" in w
+    assert "fragmentation" not in w
 
 
 @pytest.mark.parametrize("args, needle", [

@@ -8,6 +8,11 @@ effect is named in at least 4 of 5 seeds; on null data ``none`` in at least
 
 Run: ``pytest -m slow -s tests/test_discovery_hidden_effects.py`` (about 25
 minutes on 2 cores); it prints the confusion matrix.
+
+How the two shortfalls depend on the number of rows and on strength is
+measured by ``python -m calib.power`` (other unseen seeds, 3001-3005; README,
+"How much data does discover need?"): with 180 rows fragmentation is named in
+5 of 5, the vegetation belt in 0 of 5.
 """
 
 import json
