@@ -17,17 +17,8 @@ from calib.forward import CrspForward
 __all__ = ["crsp_candidates"]
 
 
-def _lanes() -> int:
-    """Lanes of the CRSP pool: on a CPU small pools run fastest (measured on 2 cores:
-    6,900 blocks/s with 128 lanes, 2,700 with 1024); accelerators want wide ones."""
-    import jax
-
-    return 128 if jax.default_backend() == "cpu" else 4096
-
-
 def _crsp_forward(profile, effect, sizes_m, n_blocks, key):
-    return CrspForward(profile, sizes_m, n_blocks, key, effect=effect, pool=_lanes(),
-                       task_chunk=96)
+    return CrspForward(profile, sizes_m, n_blocks, key, effect=effect)
 
 
 def crsp_candidates(profile, effects=CRSP_EFFECTS) -> list[Candidate]:
