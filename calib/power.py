@@ -24,7 +24,6 @@ import argparse
 import json
 import os
 import sys
-import tempfile
 import time
 
 import numpy as np
@@ -101,8 +100,9 @@ def detection_table(runs: list[dict], effects=None) -> list[dict]:
         hits = sum(r["named"] == eff for r in rows)
         ci = binomtest(hits, len(rows)).proportion_ci(confidence_level=0.9, method="exact")
         gains = [r["gains"].get(eff) for r in rows] if eff != "none" else []
-        g = np.array([x[0] for x in gains if x is not None], float)
-        z = np.array([x[0] / x[1] for x in gains if x is not None and x[1] > 0], float)
+        gains = [x for x in gains if x is not None and x[0] is not None]
+        g = np.array([x[0] for x in gains], float)
+        z = np.array([x[0] / x[1] for x in gains if x[1] is not None and x[1] > 0], float)
         table.append({
             "effect": eff, "strength": s, "n_obs": n, "runs": len(rows), "named_right": hits,
             "rate": hits / len(rows), "rate_q05": float(ci.low), "rate_q95": float(ci.high),
@@ -115,18 +115,10 @@ def detection_table(runs: list[dict], effects=None) -> list[dict]:
 
 
 def _write_json_atomic(path: str, obj) -> None:
-    d = os.path.dirname(os.path.abspath(path))
-    os.makedirs(d, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=d)
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(obj, f, indent=1, allow_nan=False)
-            f.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    from calib.discover import _clean
+    from solvers._cli import write_text_atomic
+
+    write_text_atomic(path, json.dumps(_clean(obj), indent=1, allow_nan=False) + "\n")
 
 
 def _one_run(profile, effect, strength, n_obs, seed, sd_m, fit_seed, budget) -> dict:

@@ -18,6 +18,7 @@ __all__ = [
     "parse_stations",
     "run_guarded",
     "write_csv_atomic",
+    "write_text_atomic",
 ]
 
 
@@ -96,17 +97,23 @@ def parse_stations(text: str | None, x_range_m: tuple[float, float]) -> list[flo
     return stations
 
 
-def write_csv_atomic(df, path: str) -> None:
-    """Write a pandas DataFrame to ``path`` via a temporary file and rename, so
-    that a crash never leaves a half-written file."""
+def write_text_atomic(path: str, text: str) -> None:
+    """Write ``text`` to ``path`` via a temporary file and rename, so that a
+    crash never leaves a half-written file."""
     directory = os.path.dirname(os.path.abspath(path))
     os.makedirs(directory, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".csv", dir=directory)
+    suffix = os.path.splitext(path)[1]
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=suffix, dir=directory)
     try:
         with os.fdopen(fd, "w", newline="") as fh:
-            df.to_csv(fh, index=False)
+            fh.write(text)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def write_csv_atomic(df, path: str) -> None:
+    """Write a pandas DataFrame to ``path`` atomically (``write_text_atomic``)."""
+    write_text_atomic(path, df.to_csv(index=False))
