@@ -21,18 +21,18 @@ tolerance (points) or known to lie in an interval.
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib.metadata as md
 import json
 import os
 import platform
 import sys
-import tempfile
 import time
 
 import jax
 import numpy as np
 
-from solvers._cli import CliError, OneLineParser, run_guarded
+from solvers._cli import CliError, OneLineParser, run_guarded, text_writer, write_all_atomic
 
 __all__ = ["main"]
 
@@ -266,26 +266,11 @@ def _run(args) -> int:
 
 
 def _write_all(out: str, files: dict, figs: dict) -> None:
-    """Write every output to a temporary name in ``out``, then rename them all."""
-    os.makedirs(out, exist_ok=True)
-    tmp = []
-    try:
-        for name, text in files.items():
-            fd, path = tempfile.mkstemp(prefix=f".{name}.", dir=out)
-            with os.fdopen(fd, "w") as f:
-                f.write(text)
-            tmp.append((path, name))
-        for name, fig in figs.items():
-            fd, path = tempfile.mkstemp(prefix=f".{name}.", suffix=".png", dir=out)
-            os.close(fd)
-            fig.savefig(path, dpi=120)
-            tmp.append((path, name))
-    except BaseException:
-        for path, _ in tmp:
-            os.unlink(path)
-        raise
-    for path, name in tmp:
-        os.replace(path, os.path.join(out, name))
+    """Write every output into ``out`` atomically (``solvers._cli.write_all_atomic``)."""
+    writers = {os.path.join(out, name): text_writer(text) for name, text in files.items()}
+    writers.update({os.path.join(out, name): functools.partial(fig.savefig, dpi=120)
+                    for name, fig in figs.items()})
+    write_all_atomic(writers)
 
 
 def _fmt(v, nd=3):

@@ -24,9 +24,8 @@ import json
 import os
 import shutil
 import sys
-import tempfile
 
-from solvers._cli import CliError, OneLineParser, run_guarded
+from solvers._cli import CliError, OneLineParser, run_guarded, text_writer, write_all_atomic
 
 __all__ = ["main"]
 
@@ -89,21 +88,6 @@ def _check(args) -> None:
         raise CliError(f"{args.profile}: no such profile file")
 
 
-def _text(text: str):
-    def write(path):
-        with open(path, "w") as f:
-            f.write(text)
-    return write
-
-
-def _atomic(path: str, write) -> str:
-    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".",
-                               dir=os.path.dirname(os.path.abspath(path)))
-    os.close(fd)
-    write(tmp)
-    return tmp
-
-
 def _run(args) -> int:
     _check(args)
     from calib.synthetic import synthesize_effect
@@ -122,23 +106,13 @@ def _run(args) -> int:
     lines = ["block_size_m,runout_m,runout_sd_m,runout_min_m,runout_max_m,source"]
     lines += [f"{d:g},{y:.3f},{s:g},,,synthetic: calib.synth seed {args.seed}"
               for d, y, s in zip(obs.block_size_m, obs.runout_m, obs.runout_sd_m)]
-    outputs = [
-        (args.out, _text("\n".join(lines) + "\n")),
-        (stem + ".truth.json", _text(json.dumps(truth, indent=1) + "\n")),
-        (stem + "_profile.csv", lambda p: shutil.copyfile(args.profile, p)),
-        (stem + "_materials.csv",
-         lambda p: shutil.copyfile(default_materials_path(args.profile), p)),
-    ]
-    tmps = []
-    try:
-        for path, write in outputs:
-            tmps.append((_atomic(path, write), path))
-    except BaseException:
-        for tmp, _ in tmps:
-            os.unlink(tmp)
-        raise
-    for tmp, path in tmps:
-        os.replace(tmp, path)
+    write_all_atomic({
+        args.out: text_writer("\n".join(lines) + "\n"),
+        stem + ".truth.json": text_writer(json.dumps(truth, indent=1) + "\n"),
+        stem + "_profile.csv": lambda p: shutil.copyfile(args.profile, p),
+        stem + "_materials.csv":
+            lambda p: shutil.copyfile(default_materials_path(args.profile), p),
+    })
     print(f"wrote {len(lines) - 1} rows to {args.out} (truth in {stem}.truth.json, "
           f"profile in {stem}_profile.csv and {stem}_materials.csv)")
     return 0

@@ -17,6 +17,8 @@ __all__ = [
     "parse_floats",
     "parse_stations",
     "run_guarded",
+    "text_writer",
+    "write_all_atomic",
     "write_csv_atomic",
     "write_text_atomic",
 ]
@@ -97,21 +99,45 @@ def parse_stations(text: str | None, x_range_m: tuple[float, float]) -> list[flo
     return stations
 
 
-def write_text_atomic(path: str, text: str) -> None:
-    """Write ``text`` to ``path`` via a temporary file and rename, so that a
-    crash never leaves a half-written file."""
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    suffix = os.path.splitext(path)[1]
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=suffix, dir=directory)
+def write_all_atomic(writers: dict) -> list[str]:
+    """Write several outputs so that a crash leaves none of them half-written.
+
+    ``writers`` maps each final path to a callable ``write(tmp_path)``. Every
+    output is first written to a temporary file beside its final path (same
+    extension, so e.g. matplotlib picks the format), and only when all have
+    been written are they renamed into place; on any error the temporaries
+    are removed and nothing is renamed. Returns the final paths.
+    """
+    staged = []
     try:
-        with os.fdopen(fd, "w", newline="") as fh:
+        for final, write in writers.items():
+            directory = os.path.dirname(os.path.abspath(final))
+            os.makedirs(directory, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.splitext(final)[1],
+                                       dir=directory)
+            os.close(fd)
+            staged.append((tmp, final))
+            write(tmp)
+        for tmp, final in staged:
+            os.replace(tmp, final)
+    finally:
+        for tmp, _ in staged:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+    return [final for _, final in staged]
+
+
+def text_writer(text: str):
+    """A ``write(path)`` callable for ``write_all_atomic`` that writes ``text``."""
+    def write(path):
+        with open(path, "w", newline="") as fh:
             fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    return write
+
+
+def write_text_atomic(path: str, text: str) -> None:
+    """Write ``text`` to ``path`` atomically (``write_all_atomic``)."""
+    write_all_atomic({path: text_writer(text)})
 
 
 def write_csv_atomic(df, path: str) -> None:

@@ -12,10 +12,16 @@ from __future__ import annotations
 import math
 import os
 import sys
-import tempfile
 import time
 
-from solvers._cli import CliError, OneLineParser, fail, parse_floats, parse_stations
+from solvers._cli import (
+    CliError,
+    OneLineParser,
+    fail,
+    parse_floats,
+    parse_stations,
+    write_all_atomic,
+)
 
 # model -> (blocks per draw and size, posterior draws); DEM defaults keep the
 # default DEM run under 10 minutes on 2 CPU cores (measured 4.3 min: see README.md)
@@ -71,23 +77,8 @@ def _positive_int(name: str, v: int) -> None:
 
 
 def _write_all(out_dir: str, writers: dict) -> list[str]:
-    """Write every output to a temporary file in ``out_dir``, then rename them all."""
-    os.makedirs(out_dir, exist_ok=True)
-    staged = []
-    try:
-        for name, write in writers.items():
-            fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.splitext(name)[1],
-                                       dir=out_dir)
-            os.close(fd)
-            staged.append((tmp, os.path.join(out_dir, name)))
-            write(tmp)
-        for tmp, final in staged:
-            os.replace(tmp, final)
-    finally:
-        for tmp, _ in staged:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-    return [final for _, final in staged]
+    """Write every output into ``out_dir`` atomically (``solvers._cli.write_all_atomic``)."""
+    return write_all_atomic({os.path.join(out_dir, name): w for name, w in writers.items()})
 
 
 def main(argv: list[str] | None = None) -> int:
