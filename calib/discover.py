@@ -21,6 +21,7 @@ Writes into ``--out`` (atomically; nothing on error):
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -31,7 +32,7 @@ import numpy as np
 
 from solvers._cli import CliError, OneLineParser, run_guarded
 
-__all__ = ["ess_warnings", "main"]
+__all__ = ["budget_for", "ess_warnings", "main", "noise_warnings"]
 
 PROG = "python -m calib.discover"
 # The DEM's fragmentation candidate (2 x 2 bonded fragments) is opt-in: on
@@ -40,6 +41,10 @@ DEM_DEFAULT = ("none", "size_dissipation")
 # below this importance-sampling ESS a fit's posterior rests on a handful of
 # design points (measured: ESS 1-14 with 180 rows at the default budget)
 MIN_ESS = 10.0
+# above this Monte Carlo sd of the summed log-likelihood (nats) importance
+# weights are dominated by simulation noise (Doucet et al. 2015: 1.0-1.7 is
+# the efficient range; calib.discrepancy.loglik_noise_sd)
+MAX_NOISE_SD = 2.0
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -69,8 +74,26 @@ def _parser() -> argparse.ArgumentParser:
                    help="output folder (default results/discovery/)")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed of the fits (default 0)")
     p.add_argument("--quick", action="store_true", help="small budgets (tests, a first look)")
+    p.add_argument("--n-blocks", type=int, default=None, metavar="N",
+                   help="blocks per (design point, size class) in the fits (default 128 for "
+                        "crsp, 8 for dem; 32 / 4 with --quick). More blocks lower the "
+                        "simulation noise of the likelihood (reported per candidate) roughly "
+                        "as 1/sqrt(N), at proportional cost")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     return p
+
+
+def budget_for(model: str, quick: bool, n_blocks: int | None):
+    """The discovery budget of ``model`` (``calib.discrepancy.PRESETS``), with
+    ``n_blocks`` blocks per (design point, size class) if given."""
+    from calib.discrepancy import PRESETS
+
+    budget = PRESETS[model + ("-quick" if quick else "")]
+    if n_blocks is None:
+        return budget
+    if n_blocks < 2:
+        raise CliError(f"--n-blocks: {n_blocks}: expected an integer of at least 2")
+    return dataclasses.replace(budget, n_blocks=n_blocks)
 
 
 def _candidates(model: str, effects_arg: str | None, profile):
@@ -101,20 +124,21 @@ def _fit_section(f) -> dict:
             "q95": dict(zip(f.names, map(float, f.q95))),
             "best_design_point": dict(zip(f.names, map(float, f.best))),
             "ess": f.ess, "n_design": int(f.theta.shape[0]),
+            "loglik_noise_sd": f.loglik_noise_sd,
             "gap_by_size_class_m": [None if not np.isfinite(g) else float(g)
                                     for g in f.gap_by_class]}
 
 
 def _run(args) -> int:
     from calib import discovery_figures as figs
-    from calib.discrepancy import GAP_METRIC, PRESETS, discover
+    from calib.discrepancy import GAP_METRIC, discover
     from calib.fit import _Progress, _versions, _write_all, load_inputs
     from calib.scores import ELPD_MIN, Z_MIN
 
     t0 = time.perf_counter()
     obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
     cands = _candidates(args.model, args.effects, profile)
-    budget = PRESETS[args.model + ("-quick" if args.quick else "")]
+    budget = budget_for(args.model, args.quick, args.n_blocks)
     bar = _Progress(not args.no_progress, args.model.upper())
     d = discover(cands, obs, profile, jax.random.key(args.seed), budget, bar)
     bar.close()
@@ -143,8 +167,10 @@ def _run(args) -> int:
         "timings_s": {**d.timings_s, "total_s": time.perf_counter() - t0},
         "versions": _versions(),
     }
-    result["warnings"] = ess_warnings({e: (f.ess, int(f.theta.shape[0]))
-                                       for e, f in d.fits.items()})
+    result["warnings"] = (ess_warnings({e: (f.ess, int(f.theta.shape[0]))
+                                        for e, f in d.fits.items()})
+                          + noise_warnings({e: f.loglik_noise_sd for e, f in d.fits.items()},
+                                           budget.n_blocks))
     base = d.fits["none"]
     out_figs = {
         "residuals.png": figs.residuals(obs, d.where_before,
@@ -194,6 +220,23 @@ def ess_warnings(ess: dict, min_ess: float = MIN_ESS) -> list[str]:
             f"threshold with care, or rerun with a larger budget."]
 
 
+def noise_warnings(noise_sd: dict, n_blocks: int, max_sd: float = MAX_NOISE_SD) -> list[str]:
+    """Warnings for fits whose simulated log-likelihood is too noisy.
+
+    ``noise_sd``: effect -> Monte Carlo sd (nats) of the summed log-likelihood at
+    its best design point (nan: not measured).
+    """
+    high = {e: v for e, v in noise_sd.items() if np.isfinite(v) and v > max_sd}
+    if not high:
+        return []
+    listing = ", ".join(f"{e} {v:.1f}" for e, v in high.items())
+    return [f"simulation noise of the log-likelihood above {max_sd:g} nats (sd over independent "
+            f"block sets at the best design point): {listing}. With {n_blocks} blocks per "
+            f"size class the importance weights and the score gains are dominated by "
+            f"simulation noise of this size; rerun with --n-blocks {4 * n_blocks} "
+            f"(noise roughly halves, cost about x4) before trusting a gain of this order."]
+
+
 def _print_summary(r: dict, out: str) -> None:
     print(f"where the baseline ({r['model']}) disagrees with the {r['n_observations']} rows:")
     flagged = r["where"]["flagged"]
@@ -201,11 +244,15 @@ def _print_summary(r: dict, out: str) -> None:
         print(f"  - {line}")
     if len(flagged) > 6:
         print(f"  ... and {len(flagged) - 6} more (discovery.json: where)")
-    print(f"\n{'candidate':20} {'score':>9} {'gain':>8} {'± se':>6} {'gap m':>7}")
+    print(f"\n{'candidate':20} {'score':>9} {'gain':>8} {'± se':>6} {'gap m':>7} "
+          f"{'sim sd':>7}")
     for c in r["candidates"]:
         se = "-" if c["effect"] == "none" or c["se_delta"] is None else f"{c['se_delta']:.1f}"
+        noise = "-" if c.get("loglik_noise_sd") is None else f"{c['loglik_noise_sd']:.1f}"
         print(f"{c['effect']:20} {c['score']:9.1f} {c['delta_vs_none']:+8.1f} {se:>6} "
-              f"{c['gap']:7.2f}")
+              f"{c['gap']:7.2f} {noise:>7}")
+    print("(sim sd: Monte Carlo sd of the summed log-likelihood, nats, over independent "
+          "block sets)")
     print(f"\nnamed effect: {r['named_effect']}")
     if r["named_effect"] != "none":
         f = r["fits"][r["named_effect"]]

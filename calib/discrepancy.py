@@ -52,6 +52,7 @@ __all__ = [
     "discover",
     "fit_candidate",
     "gap",
+    "loglik_noise_sd",
     "size_classes",
 ]
 
@@ -72,6 +73,9 @@ class Budget:
         n_draws: posterior draws re-simulated for the predictive (fresh blocks).
         n_blocks_check: blocks per (draw, size class) of that predictive.
         k_folds: folds of the held-out score (leave-one-out below this many rows).
+        noise_reps: independent block sets at the best design point that measure
+            the Monte Carlo sd of the summed log-likelihood (``loglik_noise_sd``);
+            0 skips it (forward models without ``replicates``, e.g. the DEM's).
     """
 
     n_sobol: int = 128
@@ -81,6 +85,7 @@ class Budget:
     n_draws: int = 16
     n_blocks_check: int = 128
     k_folds: int = 5
+    noise_reps: int = 8
 
     @property
     def n_design(self) -> int:
@@ -91,9 +96,10 @@ PRESETS = {
     "crsp": Budget(),
     "crsp-quick": Budget(n_sobol=32, n_warm=32, n_refine=(32, 32), n_blocks=32, n_draws=8,
                          n_blocks_check=64),
-    "dem": Budget(n_sobol=0, n_warm=0, n_refine=(), n_blocks=8, n_draws=8, n_blocks_check=0),
+    "dem": Budget(n_sobol=0, n_warm=0, n_refine=(), n_blocks=8, n_draws=8, n_blocks_check=0,
+                  noise_reps=0),
     "dem-quick": Budget(n_sobol=0, n_warm=0, n_refine=(), n_blocks=4, n_draws=8,
-                        n_blocks_check=0),
+                        n_blocks_check=0, noise_reps=0),
 }
 
 
@@ -130,6 +136,9 @@ class CandidateFit:
             best: the design point of highest weight.
         samples: (C, M) posterior-predictive runouts per size class (fresh blocks).
         gap_by_class: (C,) mean CRPS per class, m; gap: their mean, m.
+        loglik_noise_sd: Monte Carlo sd of the summed log-likelihood at ``best``
+            over ``noise_reps`` independent block sets of the fit's size (nan if
+            not measured); see ``loglik_noise_sd``.
         seconds: wall time of the fit.
     """
 
@@ -148,6 +157,7 @@ class CandidateFit:
     samples: np.ndarray
     gap_by_class: np.ndarray
     gap: float
+    loglik_noise_sd: float
     seconds: float
 
 
@@ -305,9 +315,33 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     elpd = cv_elpd(ll, log_q, fold)
     samples = _predictive(cand, fw, theta, w, class_sizes_m, key, budget, rng)
     gap_c, gap_m = gap(samples, obs, row_class, rng)
+    best = theta[np.argmax(w)]
+    noise = float("nan")
+    if budget.noise_reps > 1 and hasattr(fw, "replicates"):
+        runs = fw.replicates(best, budget.noise_reps, jax.random.fold_in(key, 3))
+        noise = loglik_noise_sd(np.asarray(_loglik_design(jnp.asarray(runs), rc, y, sd, lo, hi,
+                                                          is_int)))
     return CandidateFit(cand.effect, box.names, theta, log_q, ll, w, float(1.0 / np.sum(w**2)),
-                        elpd, est, q05, q95, theta[np.argmax(w)], samples, gap_c, gap_m,
+                        elpd, est, q05, q95, best, samples, gap_c, gap_m, noise,
                         time.perf_counter() - t0)
+
+
+def loglik_noise_sd(loglik_reps: np.ndarray) -> float:
+    """Monte Carlo sd (nats) of the summed log-likelihood, from (R, n_obs)
+    pointwise values at one theta under R independent block sets.
+
+    The likelihood is a simulation estimate (``calib.likelihood``), so its
+    logarithm carries noise that grows with the number of rows and falls
+    roughly as 1 / sqrt(n_blocks). Importance weights are ratios of such
+    estimates: once the sd exceeds about 1.7 nats their spread is dominated by
+    the noise and the ESS collapses (Doucet, Pitt, Deligiannidis & Kohn 2015,
+    "Efficient implementation of Markov chain Monte Carlo when using an unbiased
+    likelihood estimator", Biometrika 102, 295-313: sd 1.0-1.7 is the efficient
+    range). The held-out score gains of two candidates carry noise of the same
+    order, which their data se does not include.
+    """
+    total = np.asarray(loglik_reps, float).sum(axis=1)
+    return float(np.std(total, ddof=1))
 
 
 def _mixture_log_q(z, counts, logpdfs):
@@ -377,7 +411,7 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
         d, se = (0.0, 0.0) if eff == "none" else elpd_difference(f.elpd, base.elpd)
         table.append({"effect": eff, "score": float(f.elpd.sum()), "delta_vs_none": d,
                       "se_delta": se, "gap": f.gap, "n_params": len(f.names),
-                      "ess": f.ess})
+                      "ess": f.ess, "loglik_noise_sd": f.loglik_noise_sd})
     table.sort(key=lambda r: -r["score"])
     named = "none"
     best = max((r for r in table if r["effect"] != "none"), key=lambda r: r["delta_vs_none"],

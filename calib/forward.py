@@ -165,6 +165,16 @@ class CrspForward:
             out.append(np.asarray(res.runout_m))
         return np.concatenate(out)[:n_tasks].reshape(n_t, n_s, self.n_blocks)
 
+    def replicates(self, theta, reps: int, key: jax.Array) -> np.ndarray:
+        """Runouts (reps, S, n_blocks), m, of ONE theta (p,) with ``reps``
+        independent block sets drawn from ``key`` (not the common random numbers):
+        the spread across them is the Monte Carlo error of anything computed from
+        ``n_blocks`` blocks per size."""
+        wide = dataclasses.replace(self, n_blocks=reps * self.n_blocks, key=key,
+                                   task_chunk=len(self.sizes_m))
+        r = wide.runouts(np.asarray(theta, float)[None])[0]  # (S, reps * n)
+        return r.reshape(len(self.sizes_m), reps, self.n_blocks).transpose(1, 0, 2)
+
     def design(self, n_design: int, seed: int):
         """Scrambled-Sobol design over the prior box.
 

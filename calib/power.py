@@ -59,6 +59,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="output folder (default results/power/)")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed of the fits (default 0)")
     p.add_argument("--quick", action="store_true", help="the workflow's small budget")
+    p.add_argument("--n-blocks", type=int, default=None, metavar="N",
+                   help="blocks per (design point, size class) in the fits (as calib.discover "
+                        "--n-blocks; default 128, 32 with --quick)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
@@ -110,8 +113,16 @@ def detection_table(runs: list[dict], effects=None) -> list[dict]:
                       if any(r["named"] == k for r in rows)},
             "median_gain_nats": float(np.median(g)) if g.size else None,
             "median_gain_se": float(np.median(z)) if z.size else None,
+            "median_noise_sd_none": _median([r.get("loglik_noise_sd", {}).get("none")
+                                             for r in rows]),
             "seeds": [r["seed"] for r in rows]})
     return table
+
+
+def _median(values) -> float | None:
+    v = np.array([x for x in values if x is not None], float)
+    v = v[np.isfinite(v)]
+    return float(np.median(v)) if v.size else None
 
 
 def _write_json_atomic(path: str, obj) -> None:
@@ -137,13 +148,14 @@ def _one_run(profile, effect, strength, n_obs, seed, sd_m, fit_seed, budget) -> 
             "gains": {r["effect"]: [float(r["delta_vs_none"]), float(r["se_delta"])]
                       for r in d.table if r["effect"] != "none"},
             "ess": {r["effect"]: float(r["ess"]) for r in d.table},
+            "loglik_noise_sd": {r["effect"]: float(r["loglik_noise_sd"]) for r in d.table},
             "seconds": time.perf_counter() - t0}
 
 
 def _run(args) -> int:
     import pandas as pd
 
-    from calib.discrepancy import PRESETS
+    from calib.discover import budget_for
     from calib.effects import EFFECT_NAMES
     from solvers._cli import write_csv_atomic
     from solvers.profile import load_profile
@@ -167,8 +179,9 @@ def _run(args) -> int:
         profile = load_profile(args.profile)
     except (OSError, ValueError) as e:
         raise CliError(f"{args.profile}: {e}") from None
-    budget_name = "crsp-quick" if args.quick else "crsp"
-    budget = PRESETS[budget_name]
+    budget = budget_for("crsp", args.quick, args.n_blocks)
+    budget_name = ("crsp-quick" if args.quick else "crsp") + \
+        ("" if args.n_blocks is None else f"-b{args.n_blocks}")
     grid = [(e, s if e != "none" else 1.0, n, k) for e in effects
             for s in (strengths if e != "none" else [1.0]) for n in n_list for k in seeds]
     grid = list(dict.fromkeys(grid))  # null data: strength does not apply
@@ -208,14 +221,16 @@ def _run(args) -> int:
                         "decision_rule": "calib.discover's: gain > 4 nats and > 2 se",
                         "cells": table, "runs": runs})
     print(f"\n{'effect':18} {'strength':>8} {'rows':>5} {'named right':>12} "
-          f"{'90 % interval':>14} {'median gain':>12}  named")
+          f"{'90 % interval':>14} {'median gain':>12} {'sim sd':>6}  named")
     for c in table:
         g = "-" if c["median_gain_nats"] is None else \
             f"{c['median_gain_nats']:+.1f} ({c['median_gain_se'] or 0:.1f} se)"
+        noise = "-" if c["median_noise_sd_none"] is None else f"{c['median_noise_sd_none']:.1f}"
         print(f"{c['effect']:18} {c['strength']:8g} {c['n_obs']:5d} "
               f"{c['named_right']:>5d} of {c['runs']:<4d} "
-              f"{c['rate_q05']:6.2f}-{c['rate_q95']:<6.2f} {g:>12}  "
+              f"{c['rate_q05']:6.2f}-{c['rate_q95']:<6.2f} {g:>12} {noise:>6}  "
               + ", ".join(f"{k} {v}" for k, v in c["named"].items()))
+    print("(sim sd: median Monte Carlo sd of the baseline's summed log-likelihood, nats)")
     print(f"wrote {os.path.join(args.out, 'power.csv')} and power.json")
     return 0
 

@@ -8,6 +8,7 @@ import os
 import subprocess
 import sys
 
+import jax
 import numpy as np
 import pytest
 from scipy import stats
@@ -150,9 +151,11 @@ def test_discover_names_a_strong_hidden_effect_and_shrinks_the_gap(discover_run)
               "warnings"):
         assert k in r
     low = [e for e, f in r["fits"].items() if f["ess"] < 10]
-    assert bool(r["warnings"]) == bool(low)
-    for e in low:
-        assert e in r["warnings"][0] and f"warning: {r['warnings'][0][:40]}" in proc.stdout
+    noisy = [e for e, f in r["fits"].items() if f["loglik_noise_sd"] > 2.0]
+    assert all(f["loglik_noise_sd"] > 0 for f in r["fits"].values())  # measured for CRSP
+    assert len(r["warnings"]) == bool(low) + bool(noisy)
+    for group, w in zip([g for g in (low, noisy) if g], r["warnings"]):
+        assert all(e in w for e in group) and f"warning: {w[:40]}" in proc.stdout
     assert {c["effect"] for c in r["candidates"]} == {
         "none", "size_dissipation", "fragmentation", "rolling_resistance", "vegetation_belt"}
     for c in r["candidates"]:
@@ -162,6 +165,34 @@ def test_discover_names_a_strong_hidden_effect_and_shrinks_the_gap(discover_run)
     # where: the residuals trend with size (big blocks further than the baseline says)
     assert r["where"]["size_trend"]["flag"] and r["where"]["size_trend"]["spearman_rho"] > 0
     assert "named effect: size_dissipation" in proc.stdout
+
+
+def test_loglik_noise_sd_is_the_spread_of_the_summed_rows():
+    from calib.discrepancy import loglik_noise_sd
+
+    reps = np.array([[-1.0, -2.0, -3.0], [-2.0, -2.0, -3.0], [-1.0, -1.0, -1.0]])
+    assert loglik_noise_sd(reps) == pytest.approx(np.std([-6.0, -7.0, -3.0], ddof=1))
+
+
+def test_crsp_replicates_are_independent_block_sets_of_the_fit_size():
+    from calib.forward import CrspForward
+
+    fw = CrspForward(PROFILE, np.array([0.5, 2.0]), 16, jax.random.key(0))
+    theta = np.array([0.41, 0.87, 0.5])
+    a = fw.replicates(theta, 3, jax.random.key(7))
+    assert a.shape == (3, 2, 16) and np.all(np.isfinite(a)) and np.all(a > 0)
+    assert not np.allclose(a[0], a[1]) and not np.allclose(a[1], a[2])
+    np.testing.assert_array_equal(a, fw.replicates(theta, 3, jax.random.key(7)))
+    assert not np.allclose(a[0], fw.runouts(theta[None])[0])  # not the common numbers
+
+
+def test_noise_warnings_name_the_noisy_fits_only():
+    from calib.discover import noise_warnings
+
+    assert noise_warnings({"none": 1.2, "fragmentation": float("nan")}, 128) == []
+    (w,) = noise_warnings({"none": 3.4, "fragmentation": 1.0, "vegetation_belt": 2.5}, 128)
+    assert "none 3.4" in w and "vegetation_belt 2.5" in w and "fragmentation" not in w
+    assert "--n-blocks 512" in w
 
 
 def test_ess_warnings_name_the_degenerate_fits_only():
@@ -179,6 +210,7 @@ def test_ess_warnings_name_the_degenerate_fits_only():
     (["data/postignano.csv", "--effects", "teleportation"], "--effects"),
     (["data/postignano.csv", "--model", "dem", "--effects", "vegetation_belt"], "--effects"),
     (["data/postignano.csv", "--profile", "no/profile.csv"], "no such profile"),
+    (["data/postignano.csv", "--n-blocks", "1"], "--n-blocks"),
 ])
 def test_discover_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, needle):
     out = tmp_path / "d"

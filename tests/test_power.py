@@ -61,6 +61,9 @@ def test_power_quick_run_writes_table_and_resumes(tmp_path):
     doc = json.loads((out / "power.json").read_text())
     assert doc["runs"][0]["named"] in ("none", "size_dissipation", "fragmentation",
                                        "rolling_resistance", "vegetation_belt")
+    noise = doc["runs"][0]["loglik_noise_sd"]
+    assert set(noise) == set(doc["runs"][0]["ess"]) and all(v > 0 for v in noise.values())
+    assert doc["cells"][0]["median_noise_sd_none"] == noise["none"]
     (rec,) = os.listdir(out / "runs")
     # a second call finds the finished run and does not redo it
     mtime = os.path.getmtime(out / "runs" / rec)
@@ -77,6 +80,7 @@ def test_power_quick_run_writes_table_and_resumes(tmp_path):
     (["--seeds", "9-1"], "--seeds"),
     (["--sd", "-1"], "--sd"),
     (["--profile", "nope.csv"], "nope.csv"),
+    (["--n-blocks", "0"], "--n-blocks"),
 ])
 def test_power_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, needle):
     out = tmp_path / "pw"
