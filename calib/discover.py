@@ -21,7 +21,6 @@ Writes into ``--out`` (atomically; nothing on error):
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import sys
@@ -32,7 +31,7 @@ import numpy as np
 
 from solvers._cli import CliError, OneLineParser, run_guarded
 
-__all__ = ["budget_for", "ess_warnings", "main", "noise_warnings"]
+__all__ = ["ess_warnings", "main", "noise_warnings"]
 
 PROG = "python -m calib.discover"
 # The DEM's fragmentation candidate (2 x 2 bonded fragments) is opt-in: on
@@ -41,10 +40,12 @@ DEM_DEFAULT = ("none", "size_dissipation")
 # below this importance-sampling ESS a fit's posterior rests on a handful of
 # design points (measured: ESS 1-14 with 180 rows at the default budget)
 MIN_ESS = 10.0
-# above this Monte Carlo sd of the summed log-likelihood (nats) importance
-# weights are dominated by simulation noise (Doucet et al. 2015: 1.0-1.7 is
-# the efficient range; calib.discrepancy.loglik_noise_sd)
+# above this Monte Carlo sd of the summed log-likelihood (nats) the fit and the
+# score gains carry simulation noise beyond the range that pseudo-marginal
+# methods find efficient (about 1.0-1.7: calib.discrepancy.loglik_noise_sd)
 MAX_NOISE_SD = 2.0
+# the sd that --n-blocks advice aims for
+TARGET_NOISE_SD = 1.5
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -76,24 +77,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="small budgets (tests, a first look)")
     p.add_argument("--n-blocks", type=int, default=None, metavar="N",
                    help="blocks per (design point, size class) in the fits (default 128 for "
-                        "crsp, 8 for dem; 32 / 4 with --quick). More blocks lower the "
-                        "simulation noise of the likelihood (reported per candidate) roughly "
-                        "as 1/sqrt(N), at proportional cost")
+                        "crsp, 8 for dem; 32 / 4 with --quick; the dem fragmentation candidate "
+                        "keeps its own 4). More blocks lower the simulation noise of the "
+                        "likelihood (reported per candidate) roughly as 1/sqrt(N), at "
+                        "proportional cost")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     return p
-
-
-def budget_for(model: str, quick: bool, n_blocks: int | None):
-    """The discovery budget of ``model`` (``calib.discrepancy.PRESETS``), with
-    ``n_blocks`` blocks per (design point, size class) if given."""
-    from calib.discrepancy import PRESETS
-
-    budget = PRESETS[model + ("-quick" if quick else "")]
-    if n_blocks is None:
-        return budget
-    if n_blocks < 2:
-        raise CliError(f"--n-blocks: {n_blocks}: expected an integer of at least 2")
-    return dataclasses.replace(budget, n_blocks=n_blocks)
 
 
 def _candidates(model: str, effects_arg: str | None, profile):
@@ -124,21 +113,24 @@ def _fit_section(f) -> dict:
             "q95": dict(zip(f.names, map(float, f.q95))),
             "best_design_point": dict(zip(f.names, map(float, f.best))),
             "ess": f.ess, "n_design": int(f.theta.shape[0]),
-            "loglik_noise_sd": f.loglik_noise_sd,
+            "loglik_noise_sd_nats": f.loglik_noise_sd_nats,
             "gap_by_size_class_m": [None if not np.isfinite(g) else float(g)
                                     for g in f.gap_by_class]}
 
 
 def _run(args) -> int:
     from calib import discovery_figures as figs
-    from calib.discrepancy import GAP_METRIC, discover
+    from calib.discrepancy import GAP_METRIC, discover, preset_budget
     from calib.fit import _Progress, _versions, _write_all, load_inputs
     from calib.scores import ELPD_MIN, Z_MIN
 
     t0 = time.perf_counter()
     obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
     cands = _candidates(args.model, args.effects, profile)
-    budget = budget_for(args.model, args.quick, args.n_blocks)
+    try:
+        budget = preset_budget(args.model, args.quick, args.n_blocks)
+    except ValueError as e:
+        raise CliError(f"--n-blocks: {e}") from None
     bar = _Progress(not args.no_progress, args.model.upper())
     d = discover(cands, obs, profile, jax.random.key(args.seed), budget, bar)
     bar.close()
@@ -169,7 +161,7 @@ def _run(args) -> int:
     }
     result["warnings"] = (ess_warnings({e: (f.ess, int(f.theta.shape[0]))
                                         for e, f in d.fits.items()})
-                          + noise_warnings({e: f.loglik_noise_sd for e, f in d.fits.items()},
+                          + noise_warnings({e: f.loglik_noise_sd_nats for e, f in d.fits.items()},
                                            budget.n_blocks))
     base = d.fits["none"]
     out_figs = {
@@ -224,17 +216,22 @@ def noise_warnings(noise_sd: dict, n_blocks: int, max_sd: float = MAX_NOISE_SD) 
     """Warnings for fits whose simulated log-likelihood is too noisy.
 
     ``noise_sd``: effect -> Monte Carlo sd (nats) of the summed log-likelihood at
-    its best design point (nan: not measured).
+    its best design point (nan: not measured). The advice scales ``n_blocks`` by
+    (largest sd / ``TARGET_NOISE_SD``)^2, rounded up to a power of two (noise
+    roughly as 1 / sqrt(n_blocks)).
     """
     high = {e: v for e, v in noise_sd.items() if np.isfinite(v) and v > max_sd}
     if not high:
         return []
     listing = ", ".join(f"{e} {v:.1f}" for e, v in high.items())
-    return [f"simulation noise of the log-likelihood above {max_sd:g} nats (sd over independent "
-            f"block sets at the best design point): {listing}. With {n_blocks} blocks per "
-            f"size class the importance weights and the score gains are dominated by "
-            f"simulation noise of this size; rerun with --n-blocks {4 * n_blocks} "
-            f"(noise roughly halves, cost about x4) before trusting a gain of this order."]
+    factor = (max(high.values()) / TARGET_NOISE_SD) ** 2
+    advice = int(2 ** np.ceil(np.log2(n_blocks * factor)))
+    return [f"simulation noise of the log-likelihood above {max_sd:g} nats (sd over "
+            f"independent block sets at the best design point): {listing}. With {n_blocks} "
+            f"blocks per size class, the posterior weights and score gains of a few nats "
+            f"may reflect simulation noise rather than the data; --n-blocks {advice} "
+            f"should bring the sd near {TARGET_NOISE_SD:g} nats (cost about "
+            f"x{advice / n_blocks:.0f})."]
 
 
 def _print_summary(r: dict, out: str) -> None:
@@ -248,11 +245,14 @@ def _print_summary(r: dict, out: str) -> None:
           f"{'sim sd':>7}")
     for c in r["candidates"]:
         se = "-" if c["effect"] == "none" or c["se_delta"] is None else f"{c['se_delta']:.1f}"
-        noise = "-" if c.get("loglik_noise_sd") is None else f"{c['loglik_noise_sd']:.1f}"
+        v = c.get("loglik_noise_sd_nats")
+        noise = "-" if v is None or not np.isfinite(v) else f"{v:.1f}"
         print(f"{c['effect']:20} {c['score']:9.1f} {c['delta_vs_none']:+8.1f} {se:>6} "
               f"{c['gap']:7.2f} {noise:>7}")
-    print("(sim sd: Monte Carlo sd of the summed log-likelihood, nats, over independent "
-          "block sets)")
+    if any(c.get("loglik_noise_sd_nats") is not None and np.isfinite(c["loglik_noise_sd_nats"])
+           for c in r["candidates"]):
+        print("(sim sd: Monte Carlo sd of the summed log-likelihood, nats, over independent "
+              "block sets)")
     print(f"\nnamed effect: {r['named_effect']}")
     if r["named_effect"] != "none":
         f = r["fits"][r["named_effect"]]

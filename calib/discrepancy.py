@@ -53,6 +53,7 @@ __all__ = [
     "fit_candidate",
     "gap",
     "loglik_noise_sd",
+    "preset_budget",
     "size_classes",
 ]
 
@@ -75,7 +76,8 @@ class Budget:
         k_folds: folds of the held-out score (leave-one-out below this many rows).
         noise_reps: independent block sets at the best design point that measure
             the Monte Carlo sd of the summed log-likelihood (``loglik_noise_sd``);
-            0 skips it (forward models without ``replicates``, e.g. the DEM's).
+            below 2 it is skipped, as it is for forward models without
+            ``replicates`` (the DEM's).
     """
 
     n_sobol: int = 128
@@ -101,6 +103,19 @@ PRESETS = {
     "dem-quick": Budget(n_sobol=0, n_warm=0, n_refine=(), n_blocks=4, n_draws=8,
                         n_blocks_check=0, noise_reps=0),
 }
+
+
+def preset_budget(model: str, quick: bool = False, n_blocks: int | None = None) -> Budget:
+    """The preset budget of ``model`` ("crsp" or "dem"; ``PRESETS``), with
+    ``n_blocks`` blocks per (design point, size class) if given (at least 2: the
+    kernel width needs a spread). Candidates with their own ``n_blocks`` (the
+    DEM's fragmentation) keep it."""
+    budget = PRESETS[model + ("-quick" if quick else "")]
+    if n_blocks is None:
+        return budget
+    if n_blocks < 2:
+        raise ValueError(f"expected an integer of at least 2, got {n_blocks}")
+    return dataclasses.replace(budget, n_blocks=n_blocks)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -136,9 +151,9 @@ class CandidateFit:
             best: the design point of highest weight.
         samples: (C, M) posterior-predictive runouts per size class (fresh blocks).
         gap_by_class: (C,) mean CRPS per class, m; gap: their mean, m.
-        loglik_noise_sd: Monte Carlo sd of the summed log-likelihood at ``best``
-            over ``noise_reps`` independent block sets of the fit's size (nan if
-            not measured); see ``loglik_noise_sd``.
+        loglik_noise_sd_nats: Monte Carlo sd of the summed log-likelihood at
+            ``best`` over ``noise_reps`` independent block sets of the fit's size
+            (nan if not measured); see ``loglik_noise_sd``.
         seconds: wall time of the fit.
     """
 
@@ -157,7 +172,7 @@ class CandidateFit:
     samples: np.ndarray
     gap_by_class: np.ndarray
     gap: float
-    loglik_noise_sd: float
+    loglik_noise_sd_nats: float
     seconds: float
 
 
@@ -332,13 +347,24 @@ def loglik_noise_sd(loglik_reps: np.ndarray) -> float:
 
     The likelihood is a simulation estimate (``calib.likelihood``), so its
     logarithm carries noise that grows with the number of rows and falls
-    roughly as 1 / sqrt(n_blocks). Importance weights are ratios of such
-    estimates: once the sd exceeds about 1.7 nats their spread is dominated by
-    the noise and the ESS collapses (Doucet, Pitt, Deligiannidis & Kohn 2015,
-    "Efficient implementation of Markov chain Monte Carlo when using an unbiased
-    likelihood estimator", Biometrika 102, 295-313: sd 1.0-1.7 is the efficient
-    range). The held-out score gains of two candidates carry noise of the same
-    order, which their data se does not include.
+    roughly as 1 / sqrt(n_blocks) (measured on 180 rows of null data at the
+    baseline's best point: 3.4 nats with 128 blocks, 1.7 with 512). With R = 8
+    the sd itself is uncertain by about 1 / sqrt(2 (R - 1)) = 27 %.
+
+    How large is too large, by analogy with pseudo-marginal MCMC (Doucet, Pitt,
+    Deligiannidis & Kohn 2015, "Efficient implementation of Markov chain Monte
+    Carlo when using an unbiased likelihood estimator", Biometrika 102,
+    295-313): there the cost-optimal sd of the log-likelihood estimator is
+    about 1.0-1.7 nats. Importance weights carrying independent log-normal noise
+    of sd s lose a factor exp(s^2) of their ESS (E[w^2] / E[w]^2 = exp(s^2) for
+    log-normal w). Within one fit
+    the design points share their blocks (common random numbers), so what
+    moves the weights is the noise of log-likelihood DIFFERENCES, small between
+    close points and up to sqrt(2) times this sd between distant ones; the
+    CRN surface is also rough (jumps of several nats between neighbouring
+    roughness values were measured at 180 rows). Candidates are fitted with
+    different block sets, so their score gains carry noise of this order that
+    the data se of the gain does not include.
     """
     total = np.asarray(loglik_reps, float).sum(axis=1)
     return float(np.std(total, ddof=1))
@@ -411,7 +437,7 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
         d, se = (0.0, 0.0) if eff == "none" else elpd_difference(f.elpd, base.elpd)
         table.append({"effect": eff, "score": float(f.elpd.sum()), "delta_vs_none": d,
                       "se_delta": se, "gap": f.gap, "n_params": len(f.names),
-                      "ess": f.ess, "loglik_noise_sd": f.loglik_noise_sd})
+                      "ess": f.ess, "loglik_noise_sd_nats": f.loglik_noise_sd_nats})
     table.sort(key=lambda r: -r["score"])
     named = "none"
     best = max((r for r in table if r["effect"] != "none"), key=lambda r: r["delta_vs_none"],

@@ -6,6 +6,8 @@ runouts are a deterministic function of theta for a fixed key, and differences
 between parameter vectors come from the parameters, not from the draws. That
 makes finite differences and emulator designs far less noisy (Glasserman &
 Yao 1992, "Some guidelines and guarantees for common random numbers").
+``CrspForward.replicates`` deliberately does not: it draws independent block
+sets at one theta, to measure the Monte Carlo error itself.
 
 * ``CrspForward``: theta = (Kn, Kt, roughness_m), one set for the whole slope;
   sphere radius d / 2 (``calib.observations``). One lane pool runs all

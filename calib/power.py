@@ -104,17 +104,16 @@ def detection_table(runs: list[dict], effects=None) -> list[dict]:
         ci = binomtest(hits, len(rows)).proportion_ci(confidence_level=0.9, method="exact")
         gains = [r["gains"].get(eff) for r in rows] if eff != "none" else []
         gains = [x for x in gains if x is not None and x[0] is not None]
-        g = np.array([x[0] for x in gains], float)
-        z = np.array([x[0] / x[1] for x in gains if x[1] is not None and x[1] > 0], float)
         table.append({
             "effect": eff, "strength": s, "n_obs": n, "runs": len(rows), "named_right": hits,
             "rate": hits / len(rows), "rate_q05": float(ci.low), "rate_q95": float(ci.high),
             "named": {k: sum(r["named"] == k for r in rows) for k in names
                       if any(r["named"] == k for r in rows)},
-            "median_gain_nats": float(np.median(g)) if g.size else None,
-            "median_gain_se": float(np.median(z)) if z.size else None,
-            "median_noise_sd_none": _median([r.get("loglik_noise_sd", {}).get("none")
-                                             for r in rows]),
+            "median_gain_nats": _median([x[0] for x in gains]),
+            "median_gain_se": _median([x[0] / x[1] for x in gains
+                                       if x[1] is not None and x[1] > 0]),
+            "median_loglik_noise_sd_none_nats": _median(
+                [r.get("loglik_noise_sd_nats", {}).get("none") for r in rows]),
             "seeds": [r["seed"] for r in rows]})
     return table
 
@@ -148,14 +147,15 @@ def _one_run(profile, effect, strength, n_obs, seed, sd_m, fit_seed, budget) -> 
             "gains": {r["effect"]: [float(r["delta_vs_none"]), float(r["se_delta"])]
                       for r in d.table if r["effect"] != "none"},
             "ess": {r["effect"]: float(r["ess"]) for r in d.table},
-            "loglik_noise_sd": {r["effect"]: float(r["loglik_noise_sd"]) for r in d.table},
+            "loglik_noise_sd_nats": {r["effect"]: float(r["loglik_noise_sd_nats"])
+                                     for r in d.table},
             "seconds": time.perf_counter() - t0}
 
 
 def _run(args) -> int:
     import pandas as pd
 
-    from calib.discover import budget_for
+    from calib.discrepancy import PRESETS, preset_budget
     from calib.effects import EFFECT_NAMES
     from solvers._cli import write_csv_atomic
     from solvers.profile import load_profile
@@ -179,9 +179,13 @@ def _run(args) -> int:
         profile = load_profile(args.profile)
     except (OSError, ValueError) as e:
         raise CliError(f"{args.profile}: {e}") from None
-    budget = budget_for("crsp", args.quick, args.n_blocks)
-    budget_name = ("crsp-quick" if args.quick else "crsp") + \
-        ("" if args.n_blocks is None else f"-b{args.n_blocks}")
+    budget_name = "crsp-quick" if args.quick else "crsp"
+    try:
+        budget = preset_budget("crsp", args.quick, args.n_blocks)
+    except ValueError as e:
+        raise CliError(f"--n-blocks: {e}") from None
+    if budget.n_blocks != PRESETS[budget_name].n_blocks:
+        budget_name += f"-b{budget.n_blocks}"
     grid = [(e, s if e != "none" else 1.0, n, k) for e in effects
             for s in (strengths if e != "none" else [1.0]) for n in n_list for k in seeds]
     grid = list(dict.fromkeys(grid))  # null data: strength does not apply
@@ -225,7 +229,8 @@ def _run(args) -> int:
     for c in table:
         g = "-" if c["median_gain_nats"] is None else \
             f"{c['median_gain_nats']:+.1f} ({c['median_gain_se'] or 0:.1f} se)"
-        noise = "-" if c["median_noise_sd_none"] is None else f"{c['median_noise_sd_none']:.1f}"
+        sd = c["median_loglik_noise_sd_none_nats"]
+        noise = "-" if sd is None else f"{sd:.1f}"
         print(f"{c['effect']:18} {c['strength']:8g} {c['n_obs']:5d} "
               f"{c['named_right']:>5d} of {c['runs']:<4d} "
               f"{c['rate_q05']:6.2f}-{c['rate_q95']:<6.2f} {g:>12} {noise:>6}  "

@@ -3,6 +3,7 @@ commands, ``python -m calib.synth`` and ``python -m calib.discover`` (quick)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -151,8 +152,8 @@ def test_discover_names_a_strong_hidden_effect_and_shrinks_the_gap(discover_run)
               "warnings"):
         assert k in r
     low = [e for e, f in r["fits"].items() if f["ess"] < 10]
-    noisy = [e for e, f in r["fits"].items() if f["loglik_noise_sd"] > 2.0]
-    assert all(f["loglik_noise_sd"] > 0 for f in r["fits"].values())  # measured for CRSP
+    noisy = [e for e, f in r["fits"].items() if f["loglik_noise_sd_nats"] > 2.0]
+    assert all(f["loglik_noise_sd_nats"] > 0 for f in r["fits"].values())  # measured (CRSP)
     assert len(r["warnings"]) == bool(low) + bool(noisy)
     for group, w in zip([g for g in (low, noisy) if g], r["warnings"]):
         assert all(e in w for e in group) and f"warning: {w[:40]}" in proc.stdout
@@ -184,6 +185,9 @@ def test_crsp_replicates_are_independent_block_sets_of_the_fit_size():
     assert not np.allclose(a[0], a[1]) and not np.allclose(a[1], a[2])
     np.testing.assert_array_equal(a, fw.replicates(theta, 3, jax.random.key(7)))
     assert not np.allclose(a[0], fw.runouts(theta[None])[0])  # not the common numbers
+    # replicate r is blocks r*16 .. r*16+15 of one 48-block set drawn from that key
+    wide = dataclasses.replace(fw, n_blocks=48, key=jax.random.key(7))
+    np.testing.assert_array_equal(a[1], wide.runouts(theta[None])[0][:, 16:32])
 
 
 def test_noise_warnings_name_the_noisy_fits_only():
@@ -192,7 +196,7 @@ def test_noise_warnings_name_the_noisy_fits_only():
     assert noise_warnings({"none": 1.2, "fragmentation": float("nan")}, 128) == []
     (w,) = noise_warnings({"none": 3.4, "fragmentation": 1.0, "vegetation_belt": 2.5}, 128)
     assert "none 3.4" in w and "vegetation_belt 2.5" in w and "fragmentation" not in w
-    assert "--n-blocks 512" in w
+    assert "--n-blocks 1024" in w  # 128 x (3.4 / 1.5)^2 = 658, up to a power of two
 
 
 def test_ess_warnings_name_the_degenerate_fits_only():

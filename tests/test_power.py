@@ -61,9 +61,10 @@ def test_power_quick_run_writes_table_and_resumes(tmp_path):
     doc = json.loads((out / "power.json").read_text())
     assert doc["runs"][0]["named"] in ("none", "size_dissipation", "fragmentation",
                                        "rolling_resistance", "vegetation_belt")
-    noise = doc["runs"][0]["loglik_noise_sd"]
+    noise = doc["runs"][0]["loglik_noise_sd_nats"]
     assert set(noise) == set(doc["runs"][0]["ess"]) and all(v > 0 for v in noise.values())
-    assert doc["cells"][0]["median_noise_sd_none"] == noise["none"]
+    assert doc["cells"][0]["median_loglik_noise_sd_none_nats"] == noise["none"]
+    assert doc["budget"] == "crsp-quick"  # the preset's own blocks: no suffix
     (rec,) = os.listdir(out / "runs")
     # a second call finds the finished run and does not redo it
     mtime = os.path.getmtime(out / "runs" / rec)
