@@ -2,7 +2,7 @@
 ``python -m calib.hazard._bench [--n 16384] [--draws 2]``.
 
 Both runs use the same work: 4 block sizes (0.2, 0.5, 1, 2 m) x ``n`` blocks as
-tasks of one CRSP lane pool (1024 lanes), Kn 0.41, Kt 0.87, roughness 2 m, 61
+tasks of one CRSP lane pool (``--pool`` lanes), Kn 0.41, Kt 0.87, roughness 2 m, 61
 stations every 5 m on the Postignano profile.
 
 * solver: ``solvers.crsp.simulate_tasks`` returning per-block results;
@@ -52,6 +52,7 @@ def main(argv=None) -> int:
     p = OneLineParser(prog="python -m calib.hazard._bench", description=__doc__.split("\n\n")[0])
     p.add_argument("--n", type=int, default=16384, help="blocks per size and draw")
     p.add_argument("--draws", type=int, default=2, help="draws in the pipeline run")
+    p.add_argument("--pool", type=int, default=1024, help="CRSP lanes (default 1024)")
     args = p.parse_args(argv)
     profile = load_profile(PROFILE)
     stations = np.arange(0.0, 301.0, 5.0)
@@ -63,9 +64,9 @@ def main(argv=None) -> int:
 
     def solver(key):
         return jax.block_until_ready(crsp.simulate_tasks(ps, bs, key, profile, st,
-                                                         n_per_task=args.n, pool=1024))
+                                                         n_per_task=args.n, pool=args.pool))
 
-    print(f"load before: {os.getloadavg()[0]:.2f}", flush=True)
+    print(f"pool {args.pool} lanes; load before: {os.getloadavg()[0]:.2f}", flush=True)
     solver(jax.random.key(1))
     t0 = time.perf_counter()
     res = solver(jax.random.key(2))
@@ -82,7 +83,7 @@ def main(argv=None) -> int:
     def pipeline(n_draws, seed):
         draws = draw_parameters(cal, n_draws, seed)
         return run_hazard(cal, draws, profile, SIZES_M, stations, args.n, seed,
-                          chunk_blocks=args.n)
+                          chunk_blocks=args.n, pool=args.pool)
 
     pipeline(1, 1)
     t0 = time.perf_counter()
