@@ -243,14 +243,13 @@ def _print_summary(r: dict, out: str) -> None:
         print(f"  ... and {len(flagged) - 6} more (discovery.json: where)")
     print(f"\n{'candidate':20} {'score':>9} {'gain':>8} {'± se':>6} {'gap m':>7} "
           f"{'sim sd':>7}")
-    for c in r["candidates"]:
+    noise = [c.get("loglik_noise_sd_nats") for c in r["candidates"]]
+    noise = ["-" if v is None or not np.isfinite(v) else f"{v:.1f}" for v in noise]
+    for c, sim in zip(r["candidates"], noise):
         se = "-" if c["effect"] == "none" or c["se_delta"] is None else f"{c['se_delta']:.1f}"
-        v = c.get("loglik_noise_sd_nats")
-        noise = "-" if v is None or not np.isfinite(v) else f"{v:.1f}"
         print(f"{c['effect']:20} {c['score']:9.1f} {c['delta_vs_none']:+8.1f} {se:>6} "
-              f"{c['gap']:7.2f} {noise:>7}")
-    if any(c.get("loglik_noise_sd_nats") is not None and np.isfinite(c["loglik_noise_sd_nats"])
-           for c in r["candidates"]):
+              f"{c['gap']:7.2f} {sim:>7}")
+    if set(noise) != {"-"}:
         print("(sim sd: Monte Carlo sd of the summed log-likelihood, nats, over independent "
               "block sets)")
     print(f"\nnamed effect: {r['named_effect']}")
