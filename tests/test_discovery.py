@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from calib.discover import noise_warnings
 from calib.discrepancy import _proposal, size_classes
 from calib.observations import Observations
 from calib.residuals import locate
@@ -152,11 +153,15 @@ def test_discover_names_a_strong_hidden_effect_and_shrinks_the_gap(discover_run)
               "warnings"):
         assert k in r
     low = [e for e, f in r["fits"].items() if f["ess"] < 10]
-    noisy = [e for e, f in r["fits"].items() if f["loglik_noise_sd_nats"] > 2.0]
     assert all(f["loglik_noise_sd_nats"] > 0 for f in r["fits"].values())  # measured (CRSP)
-    assert len(r["warnings"]) == bool(low) + bool(noisy)
-    for group, w in zip([g for g in (low, noisy) if g], r["warnings"]):
-        assert all(e in w for e in group) and f"warning: {w[:40]}" in proc.stdout
+    noisy = noise_warnings(r["candidates"], r["budget"]["n_blocks"])
+    assert len(r["warnings"]) == bool(low) + len(noisy)
+    if noisy:
+        assert r["warnings"][-1] == noisy[0]
+    if low:
+        assert all(e in r["warnings"][0] for e in low)
+    for w in r["warnings"]:
+        assert f"warning: {w[:40]}" in proc.stdout
     assert {c["effect"] for c in r["candidates"]} == {
         "none", "size_dissipation", "fragmentation", "rolling_resistance", "vegetation_belt"}
     for c in r["candidates"]:
@@ -190,13 +195,26 @@ def test_crsp_replicates_are_independent_block_sets_of_the_fit_size():
     np.testing.assert_array_equal(a[1], wide.runouts(theta[None])[0][:, 16:32])
 
 
-def test_noise_warnings_name_the_noisy_fits_only():
+def _row(effect, gain, se, sd):
+    return {"effect": effect, "delta_vs_none": gain, "se_delta": se, "loglik_noise_sd_nats": sd}
+
+
+def test_noise_warning_only_when_noise_could_flip_the_verdict():
     from calib.discover import noise_warnings
 
-    assert noise_warnings({"none": 1.2, "fragmentation": float("nan")}, 128) == []
-    (w,) = noise_warnings({"none": 3.4, "fragmentation": 1.0, "vegetation_belt": 2.5}, 128)
-    assert "none 3.4" in w and "vegetation_belt 2.5" in w and "fragmentation" not in w
-    assert "--n-blocks 1024" in w  # 128 x (3.4 / 1.5)^2 = 658, up to a power of two
+    base = _row("none", 0.0, 0.0, 2.2)
+    # null seed 5004 (60 rows): fragmentation +5.1 +- 2.4 against 4.8, noise hypot(8.5, 2.2)
+    (w,) = noise_warnings([base, _row("fragmentation", 5.1, 2.4, 8.5),
+                           _row("vegetation_belt", 1.0, 2.0, 6.9)], 128)
+    assert "fragmentation gains +5.1" in w and "threshold of 4.8" in w and "8.8 nats" in w
+    assert "vegetation_belt" not in w and "--n-blocks 512" in w
+    # a gain far beyond the threshold, or a loss far below it: no warning
+    assert noise_warnings([base, _row("rolling_resistance", 846.0, 290.0, 60.0)], 128) == []
+    assert noise_warnings([base, _row("size_dissipation", -30.0, 3.0, 1.0)], 128) == []
+    # not measured (the DEM), or no effect candidate: no warning
+    assert noise_warnings([_row("none", 0.0, 0.0, float("nan")),
+                           _row("size_dissipation", 4.1, 0.1, float("nan"))], 8) == []
+    assert noise_warnings([base], 128) == []
 
 
 def test_ess_warnings_name_the_degenerate_fits_only():
