@@ -217,19 +217,17 @@ def noise_warnings(candidates: list[dict], n_blocks: int) -> list[str]:
     score is a held-out average over the posterior, not the likelihood at one
     point). If |g - T| < 2 s the verdict may change with other simulated blocks.
     """
-    from calib.scores import ELPD_MIN, Z_MIN
+    from calib.scores import best_effect, naming_threshold
 
     rows = {c["effect"]: c for c in candidates}
-    effects = [c for c in candidates if c["effect"] != "none"]
-    if "none" not in rows or not effects:
+    best = best_effect(candidates)
+    if "none" not in rows or best is None:
         return []
-    best = max(effects, key=lambda c: c["delta_vs_none"])
     sds = [rows["none"].get("loglik_noise_sd_nats"), best.get("loglik_noise_sd_nats")]
     if any(v is None or not np.isfinite(v) for v in sds):
         return []
     noise = float(np.hypot(*sds))
-    gain, se = best["delta_vs_none"], best["se_delta"]
-    threshold = max(ELPD_MIN, Z_MIN * se) if se is not None and np.isfinite(se) else ELPD_MIN
+    gain, threshold = best["delta_vs_none"], naming_threshold(best["se_delta"])
     if abs(gain - threshold) >= 2 * noise:
         return []
     return [f"the verdict may change with other simulated blocks: {best['effect']} gains "

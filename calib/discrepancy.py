@@ -41,7 +41,14 @@ from scipy.stats import qmc
 from calib.likelihood import log_likelihood, silverman_width_m
 from calib.priors import Box
 from calib.residuals import locate, point_view
-from calib.scores import ELPD_MIN, Z_MIN, crps_ensemble, cv_elpd, elpd_difference, folds
+from calib.scores import (
+    best_effect,
+    crps_ensemble,
+    cv_elpd,
+    elpd_difference,
+    folds,
+    naming_threshold,
+)
 
 __all__ = [
     "GAP_METRIC",
@@ -357,11 +364,10 @@ def loglik_noise_sd(loglik_reps: np.ndarray) -> float:
     295-313): there the cost-optimal sd of the log-likelihood estimator is
     about 1.0-1.7 nats. Importance weights carrying independent log-normal noise
     of sd s lose a factor exp(s^2) of their ESS (E[w^2] / E[w]^2 = exp(s^2) for
-    log-normal w). Within one fit
-    the design points share their blocks (common random numbers), so what
-    moves the weights is the noise of log-likelihood DIFFERENCES, small between
-    close points and up to sqrt(2) times this sd between distant ones; the
-    CRN surface is also rough (jumps of several nats between neighbouring
+    log-normal w). Within one fit the design points share their blocks (common
+    random numbers), so what moves the weights is the noise of log-likelihood
+    DIFFERENCES, small between close points and up to sqrt(2) times this sd
+    between distant ones; the CRN surface is also rough (jumps of several nats between neighbouring
     roughness values were measured at 180 rows). Candidates are fitted with
     different block sets, so their score gains carry noise of this order that
     the data se of the gain does not include.
@@ -440,12 +446,9 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
                       "ess": f.ess, "loglik_noise_sd_nats": f.loglik_noise_sd_nats})
     table.sort(key=lambda r: -r["score"])
     named = "none"
-    best = max((r for r in table if r["effect"] != "none"), key=lambda r: r["delta_vs_none"],
-               default=None)
-    if best is not None:
-        gain, se = best["delta_vs_none"], best["se_delta"]
-        if gain > ELPD_MIN and (not np.isfinite(se) or gain > Z_MIN * se):
-            named = best["effect"]
+    best = best_effect(table)
+    if best is not None and best["delta_vs_none"] > naming_threshold(best["se_delta"]):
+        named = best["effect"]
     for r in table:
         r["clear_gain"] = r["effect"] == named and named != "none"
     where_after = None if named == "none" else locate(

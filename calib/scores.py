@@ -35,10 +35,12 @@ from scipy.special import logsumexp
 __all__ = [
     "ELPD_MIN",
     "Z_MIN",
+    "best_effect",
     "crps_ensemble",
     "cv_elpd",
     "elpd_difference",
     "folds",
+    "naming_threshold",
 ]
 
 ELPD_MIN = 4.0
@@ -102,3 +104,18 @@ def elpd_difference(elpd_a: np.ndarray, elpd_b: np.ndarray) -> tuple[float, floa
     n = d.size
     se = float(np.sqrt(n * np.var(d, ddof=1))) if n > 1 else float("nan")
     return float(d.sum()), se
+
+
+def naming_threshold(se_delta: float | None) -> float:
+    """The gain (nats) an effect must exceed to be named: max(``ELPD_MIN``,
+    ``Z_MIN`` se), or ``ELPD_MIN`` when the se is unknown (None or not finite)."""
+    if se_delta is None or not np.isfinite(se_delta):
+        return ELPD_MIN
+    return max(ELPD_MIN, Z_MIN * se_delta)
+
+
+def best_effect(table: list[dict]) -> dict | None:
+    """The row the naming rule looks at: the effect (not ``none``) with the
+    largest ``delta_vs_none``; None if there is no effect."""
+    return max((r for r in table if r["effect"] != "none"), key=lambda r: r["delta_vs_none"],
+               default=None)
