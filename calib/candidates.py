@@ -17,8 +17,9 @@ from calib.forward import CrspForward
 __all__ = ["crsp_candidates"]
 
 
-def _crsp_forward(profile, effect, sizes_m, n_blocks, key):
-    return CrspForward(profile, sizes_m, n_blocks, key, effect=effect)
+def _crsp_forward(profile, effect, sizes_m, n_blocks, key, stations_x_m=()):
+    return CrspForward(profile, sizes_m, n_blocks, key, effect=effect,
+                       stations_x_m=tuple(stations_x_m))
 
 
 def crsp_candidates(profile, effects=CRSP_EFFECTS) -> list[Candidate]:

@@ -8,6 +8,10 @@ DEM size_dissipation and fragmentation), locates the baseline's disagreement
 candidates by held-out log predictive density and names an effect only when
 its gain over the baseline exceeds 4 nats and 2 standard errors (else
 ``none``). The workflow and its sources: ``calib/discrepancy.py``.
+``--velocities FILE`` adds passage speeds at stations
+(``calib.observations.load_velocities``), scored with the runouts by every
+candidate (CRSP only): runouts alone cannot tell a forest belt from a lower
+tangential restitution, a speed measured above the belt can.
 
 Writes into ``--out`` (atomically; nothing on error):
 
@@ -75,6 +79,11 @@ def _parser() -> argparse.ArgumentParser:
                         "keeps its own 4). More blocks lower the simulation noise of the "
                         "likelihood (reported per candidate) roughly as 1/sqrt(N), at "
                         "proportional cost")
+    p.add_argument("--velocities", default=None, metavar="FILE",
+                   help="passage speeds at stations, CSV with columns station_x_m, "
+                        "block_size_m, velocity_m_s, velocity_sd_m_s[, source] (e.g. from "
+                        "video of induced rockfalls; calib.synth --velocity-stations writes "
+                        "one); scored with the runouts by every candidate; crsp only")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     return p
 
@@ -120,13 +129,14 @@ def _run(args) -> int:
 
     t0 = time.perf_counter()
     obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
+    velocities = _load_velocities(args.velocities, args.model, profile)
     cands = _candidates(args.model, args.effects, profile)
     try:
         budget = preset_budget(args.model, args.quick, args.n_blocks)
     except ValueError as e:
         raise CliError(f"--n-blocks: {e}") from None
     bar = _Progress(not args.no_progress, args.model.upper())
-    d = discover(cands, obs, profile, jax.random.key(args.seed), budget, bar)
+    d = discover(cands, obs, profile, jax.random.key(args.seed), budget, bar, velocities)
     bar.close()
     named_fit = d.fits[d.named_effect]
     result = {
@@ -134,6 +144,10 @@ def _run(args) -> int:
         "command": " ".join([PROG] + sys.argv[1:]),
         "data_csv": args.data, "profile_csv": profile_path, "model": args.model,
         "seed": args.seed, "quick": bool(args.quick), "n_observations": obs.n_obs,
+        "velocities_csv": args.velocities,
+        "n_velocity_observations": 0 if velocities is None else velocities.n_obs,
+        "velocity_stations_m": ([] if velocities is None
+                                else [float(x) for x in velocities.stations_m]),
         "named_effect": d.named_effect,
         "decision_rule": f"name the candidate with the largest held-out score gain over the "
                          f"baseline if the gain exceeds {ELPD_MIN:g} nats and {Z_MIN:g} "
@@ -171,6 +185,28 @@ def _run(args) -> int:
     _write_all(args.out, {"discovery.json": text}, out_figs)
     _print_summary(result, args.out)
     return 0
+
+
+def _load_velocities(path, model: str, profile):
+    """Passage speeds of ``--velocities`` (None without it); a bad file, a DEM run
+    or a station off the profile is a one-line error."""
+    if path is None:
+        return None
+    from calib.observations import ObservationError, load_velocities
+
+    if model != "crsp":
+        raise CliError("--velocities: passage speeds are scored with the crsp model only")
+    try:
+        vel = load_velocities(path)
+    except ObservationError as e:
+        raise CliError(str(e)) from None
+    x0, x1 = float(profile.x_m[0]), float(profile.x_m[-1])
+    off = np.flatnonzero((vel.station_x_m <= x0) | (vel.station_x_m >= x1))
+    if off.size:
+        i = int(off[0])
+        raise CliError(f"{path}: line {i + 2}, column 'station_x_m': expected an abscissa "
+                       f"inside the profile ({x0:g} to {x1:g} m), got {vel.station_x_m[i]:g}")
+    return vel
 
 
 def _clean(v):
@@ -244,6 +280,9 @@ def _print_summary(r: dict, out: str) -> None:
         print(f"  - {line}")
     if len(flagged) > 6:
         print(f"  ... and {len(flagged) - 6} more (discovery.json: where)")
+    if r["n_velocity_observations"]:
+        print(f"  (and {r['n_velocity_observations']} passage speeds at "
+              f"{', '.join(f'{x:g}' for x in r['velocity_stations_m'])} m, scored with them)")
     print(f"\n{'candidate':20} {'score':>9} {'gain':>8} {'± se':>6} {'gap m':>7} "
           f"{'sim sd':>7}")
     noise = [c.get("loglik_noise_sd_nats") for c in r["candidates"]]
@@ -255,6 +294,10 @@ def _print_summary(r: dict, out: str) -> None:
     if set(noise) != {"-"}:
         print("(sim sd: Monte Carlo sd of the summed log-likelihood, nats, over independent "
               "block sets)")
+    if r["n_velocity_observations"]:
+        parts = ", ".join(f"{c['effect']} {c['delta_velocity_rows']:+.1f}"
+                          for c in r["candidates"] if c["effect"] != "none")
+        print(f"(of the gains, from the passage speeds: {parts})")
     print(f"\nnamed effect: {r['named_effect']}")
     if r["named_effect"] != "none":
         f = r["fits"][r["named_effect"]]

@@ -14,7 +14,9 @@ candidate effect, name the one that clearly predicts better, show the gap shrink
    q_mix(theta_k)`` target the posterior under the uniform prior. Runouts are
    simulated with common random numbers (``calib.forward``), and the
    likelihood is ``calib.likelihood`` with the predictive smoothed by a
-   Silverman kernel (the width enters as extra variance).
+   Silverman kernel (the width enters as extra variance). Optional passage
+   speeds at stations (``calib.observations.Velocities``) add rows scored by
+   ``calib.likelihood.velocity_log_likelihood`` from the same simulations.
 2. The baseline's posterior predictive (``n_draws`` posterior draws re-simulated
    with fresh blocks) gives quantile residuals, tested against block size and
    stop position (``calib.residuals``): WHERE it fails, with p-values.
@@ -38,7 +40,7 @@ import numpy as np
 from scipy.special import logsumexp
 from scipy.stats import qmc
 
-from calib.likelihood import log_likelihood, silverman_width_m
+from calib.likelihood import log_likelihood, silverman_width_m, velocity_log_likelihood
 from calib.priors import Box
 from calib.residuals import locate, point_view
 from calib.scores import (
@@ -130,7 +132,9 @@ class Candidate:
     """A model to fit: its effect name, prior box and forward-model factory.
 
     ``forward(sizes_m, n_blocks, key)`` returns an object whose ``runouts(theta)``
-    maps (T, p) parameters to (T, S, n_blocks) runouts (``calib.forward``).
+    maps (T, p) parameters to (T, S, n_blocks) runouts (``calib.forward``);
+    with passage velocities the call gets ``stations_x_m=`` too and the object's
+    ``simulate(theta)`` must also give the speeds there (``CrspForward``).
     ``design`` (optional) replaces the adaptive design by a fixed one: a
     callable ``design() -> (N, p)`` (the DEM's grids). ``n_blocks`` (optional)
     overrides the budget's blocks per (design point, size) for this candidate.
@@ -150,10 +154,11 @@ class CandidateFit:
     Attributes:
         effect, names: the effect and its parameter names.
         theta: (N, p) design points; log_q: (N,) proposal / prior density.
-        loglik: (N, n_obs) pointwise log-likelihood at the design points.
+        loglik: (N, n_rows) pointwise log-likelihood at the design points: the
+            runout rows, then the passage-velocity rows (if any).
         weights: (N,) posterior weights (all rows).
         ess: effective sample size of the weights.
-        elpd: (n_obs,) held-out log predictive density of each row.
+        elpd: (n_rows,) held-out log predictive density of each row (same order).
         estimate, q05, q95: weighted posterior mean and 90 % interval per parameter;
             best: the design point of highest weight.
         samples: (C, M) posterior-predictive runouts per size class (fresh blocks).
@@ -211,6 +216,34 @@ def _loglik_design(runs, row_class, y, sd, lo, hi, is_interval):
         return log_likelihood(samples, y, sd, lo, hi, is_interval, (h**2)[:, None])
 
     return jax.vmap(one)(runs)
+
+
+@dataclasses.dataclass(frozen=True)
+class VelocityRows:
+    """Passage-velocity rows prepared for the fits (``calib.observations.Velocities``).
+
+    Attributes:
+        stations_m: (K,) distinct station abscissae, m.
+        station: (n_v,) station index of each row; size_class: (n_v,) its size class.
+        v_m_s, sd_m_s: (n_v,) observed speed and tolerance, m/s.
+    """
+
+    stations_m: np.ndarray
+    station: np.ndarray
+    size_class: np.ndarray
+    v_m_s: np.ndarray
+    sd_m_s: np.ndarray
+
+    @property
+    def n_obs(self) -> int:
+        return int(self.v_m_s.shape[0])
+
+
+@jax.jit
+def _vel_loglik_design(speeds, size_class, station, v, sd):
+    """(N, n_v) log-likelihood of every velocity row at every design point,
+    from speeds (N, C, K, n)."""
+    return jax.vmap(lambda u: velocity_log_likelihood(u[size_class, station], v, sd))(speeds)
 
 
 def _obs_arrays(obs):
@@ -277,24 +310,37 @@ def gap(samples: np.ndarray, obs, row_class: np.ndarray, rng: np.random.Generato
 
 def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array,
                   budget: Budget, fold: np.ndarray, progress=None,
-                  warm: tuple[np.ndarray, np.ndarray] | None = None) -> CandidateFit:
+                  warm: tuple[np.ndarray, np.ndarray] | None = None,
+                  velocities: VelocityRows | None = None) -> CandidateFit:
     """Fit one candidate by adaptive importance sampling; score it (see module doc).
 
     ``warm``: (mean, cov) in unit coordinates of the first parameters (the
-    baseline's posterior), used for the warm stage.
+    baseline's posterior), used for the warm stage. ``velocities``: passage-
+    velocity rows scored with the runout rows (``fold`` then covers both).
     """
     t0 = time.perf_counter()
     box = cand.box
     dim = box.dim
     rng = np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel()[-1])
+    vel = velocities if velocities is not None and velocities.n_obs else None
+    st_kw = {} if vel is None else {"stations_x_m": tuple(map(float, vel.stations_m))}
     fw = cand.forward(class_sizes_m, cand.n_blocks or budget.n_blocks,
-                      jax.random.fold_in(key, 1))
+                      jax.random.fold_in(key, 1), **st_kw)
     y, sd, lo, hi, is_int = _obs_arrays(obs)
     rc = jnp.asarray(row_class)
 
+    def loglik(runs, speeds):
+        ll = np.asarray(_loglik_design(jnp.asarray(runs), rc, y, sd, lo, hi, is_int))
+        if vel is None:
+            return ll
+        lv = _vel_loglik_design(jnp.asarray(speeds), jnp.asarray(vel.size_class),
+                                jnp.asarray(vel.station), jnp.asarray(vel.v_m_s),
+                                jnp.asarray(vel.sd_m_s))
+        return np.concatenate([ll, np.asarray(lv)], axis=1)
+
     def simulate(z):
-        runs = fw.runouts(box.from_unit(z))
-        return np.asarray(_loglik_design(jnp.asarray(runs), rc, y, sd, lo, hi, is_int))
+        theta = box.from_unit(z)
+        return loglik(*fw.simulate(theta)) if vel else loglik(fw.runouts(theta), None)
 
     if cand.design is not None:  # fixed design (grids): uniform over the box
         z = box.to_unit(np.atleast_2d(cand.design()))
@@ -339,10 +385,9 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     gap_c, gap_m = gap(samples, obs, row_class, rng)
     best = theta[np.argmax(w)]
     noise = float("nan")
-    if budget.noise_reps > 1 and hasattr(fw, "replicates"):
-        runs = fw.replicates(best, budget.noise_reps, jax.random.fold_in(key, 3))
-        noise = loglik_noise_sd(np.asarray(_loglik_design(jnp.asarray(runs), rc, y, sd, lo, hi,
-                                                          is_int)))
+    if budget.noise_reps > 1 and hasattr(fw, "replicate_sims"):
+        noise = loglik_noise_sd(loglik(*fw.replicate_sims(best, budget.noise_reps,
+                                                          jax.random.fold_in(key, 3))))
     return CandidateFit(cand.effect, box.names, theta, log_q, ll, w, float(1.0 / np.sum(w**2)),
                         elpd, est, q05, q95, best, samples, gap_c, gap_m, noise,
                         time.perf_counter() - t0)
@@ -415,21 +460,37 @@ class Discovery:
 
 
 def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: Budget,
-             progress=None) -> Discovery:
+             progress=None, velocities=None) -> Discovery:
     """Run the whole workflow on observations ``obs`` (see module docstring).
 
-    ``candidates[0]`` must be the baseline (effect ``none``).
+    ``candidates[0]`` must be the baseline (effect ``none``). ``velocities``
+    (optional, ``calib.observations.Velocities``): passage speeds at stations,
+    scored with the runouts by every candidate (forward models with
+    ``simulate``, i.e. CRSP); the gap metric and the residuals stay on runouts.
     """
     if candidates[0].effect != "none":
         raise ValueError("the first candidate must be the baseline (effect 'none')")
-    class_sizes, row_class = size_classes(obs.block_size_m)
-    fold = folds(row_class, budget.k_folds, seed=0)
+    n_run = obs.n_obs
+    vel = None
+    if velocities is not None and velocities.n_obs:
+        class_sizes, all_class = size_classes(np.concatenate([obs.block_size_m,
+                                                              velocities.block_size_m]))
+        row_class = all_class[:n_run]
+        vel = VelocityRows(velocities.stations_m, velocities.station_index, all_class[n_run:],
+                           velocities.velocity_m_s, velocities.velocity_sd_m_s)
+        # velocity rows are their own fold strata (after the runout rows' strata,
+        # so the runout rows keep the folds they have without velocities)
+        fold = folds(np.concatenate([all_class[:n_run], all_class[n_run:] + class_sizes.size]),
+                     budget.k_folds, seed=0)
+    else:
+        class_sizes, row_class = size_classes(obs.block_size_m)
+        fold = folds(row_class, budget.k_folds, seed=0)
     fits, timings = {}, {}
     warm = None
     for i, cand in enumerate(candidates):
         fits[cand.effect] = fit_candidate(cand, obs, class_sizes, row_class,
                                           jax.random.fold_in(key, i), budget, fold, progress,
-                                          warm=warm)
+                                          warm=warm, velocities=vel)
         timings[cand.effect] = fits[cand.effect].seconds
         if i == 0 and cand.design is None:  # the baseline's posterior seeds the effects
             b = fits["none"]
@@ -444,6 +505,8 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
         table.append({"effect": eff, "score": float(f.elpd.sum()), "delta_vs_none": d,
                       "se_delta": se, "gap": f.gap, "n_params": len(f.names),
                       "ess": f.ess, "loglik_noise_sd_nats": f.loglik_noise_sd_nats})
+        if vel is not None:  # the part of the gain that the speeds carry
+            table[-1]["delta_velocity_rows"] = float((f.elpd - base.elpd)[n_run:].sum())
     table.sort(key=lambda r: -r["score"])
     named = "none"
     best = best_effect(table)

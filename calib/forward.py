@@ -108,6 +108,7 @@ class CrspForward:
         effect: a candidate effect of ``calib.effects`` switched on ("none": plain
             CRSP); its parameters follow (Kn, Kt, roughness_m) in theta, and the
             box becomes ``calib.effects.full_box``.
+        stations_x_m: abscissae (m) at which ``simulate`` records passage speeds.
     """
 
     profile: Profile
@@ -118,6 +119,7 @@ class CrspForward:
     task_chunk: int = 96
     box: Box = CRSP_BOX
     effect: str = "none"
+    stations_x_m: tuple[float, ...] = ()
 
     def __post_init__(self):
         if self.effect != "none":
@@ -142,7 +144,12 @@ class CrspForward:
         return p._replace(**{k: jnp.asarray(v, jnp.float64) for k, v in extra.items()})
 
     def runouts(self, theta) -> np.ndarray:
-        """Runouts (T, S, n_blocks), m, for theta (T, 3).
+        """Runouts (T, S, n_blocks), m, for theta (T, 3 + k)."""
+        return self.simulate(theta)[0]
+
+    def simulate(self, theta) -> tuple[np.ndarray, np.ndarray]:
+        """Runouts (T, S, n_blocks), m, and passage speeds (T, S, n_stations,
+        n_blocks), m/s (NaN where a block did not pass), for theta (T, 3 + k).
 
         Tasks (theta, size) run in chunks of ``task_chunk`` (the last one padded by
         repeating a task), so every call with the same ``n_blocks`` reuses one
@@ -157,25 +164,38 @@ class CrspForward:
         pad = (-n_tasks) % chunk
         rep = np.concatenate([rep, np.repeat(rep[-1:], pad, axis=0)])
         radius = np.concatenate([radius, np.repeat(radius[-1:], pad)])
-        out = []
+        stations = jnp.asarray(np.asarray(self.stations_x_m, float).reshape(-1), jnp.float64)
+        runs, speeds = [], []
         for c0 in range(0, rep.shape[0], chunk):
             params = self.params(rep[c0:c0 + chunk])
             blocks = _stack([crsp.make_block(float(r)) for r in radius[c0:c0 + chunk]])
-            res = crsp.simulate_tasks(params, blocks, self.key, self.profile,
-                                      jnp.zeros((0,), jnp.float64), n_per_task=self.n_blocks,
+            res = crsp.simulate_tasks(params, blocks, self.key, self.profile, stations,
+                                      n_per_task=self.n_blocks,
                                       pool=min(self.pool, chunk * self.n_blocks))
-            out.append(np.asarray(res.runout_m))
-        return np.concatenate(out)[:n_tasks].reshape(n_t, n_s, self.n_blocks)
+            runs.append(np.asarray(res.runout_m))
+            v = np.asarray(res.stations.velocity_m_s)  # (chunk, n, K)
+            speeds.append(np.where(np.asarray(res.stations.passed), v, np.nan))
+        n_st = stations.shape[0]
+        r = np.concatenate(runs)[:n_tasks].reshape(n_t, n_s, self.n_blocks)
+        v = np.concatenate(speeds)[:n_tasks].reshape(n_t, n_s, self.n_blocks, n_st)
+        return r, np.moveaxis(v, 3, 2)
 
     def replicates(self, theta, reps: int, key: jax.Array) -> np.ndarray:
         """Runouts (reps, S, n_blocks), m, of ONE theta (p,) with ``reps``
         independent block sets drawn from ``key`` (not the common random numbers):
         the spread across them is the Monte Carlo error of anything computed from
         ``n_blocks`` blocks per size."""
+        return self.replicate_sims(theta, reps, key)[0]
+
+    def replicate_sims(self, theta, reps: int, key: jax.Array) -> tuple[np.ndarray, np.ndarray]:
+        """``simulate`` of ONE theta (p,) with ``reps`` independent block sets
+        (``replicates``): runouts (reps, S, n) and speeds (reps, S, n_stations, n)."""
         wide = dataclasses.replace(self, n_blocks=reps * self.n_blocks, key=key,
                                    task_chunk=len(self.sizes_m))
-        r = wide.runouts(np.asarray(theta, float)[None])[0]  # (S, reps * n)
-        return r.reshape(len(self.sizes_m), reps, self.n_blocks).transpose(1, 0, 2)
+        r, v = wide.simulate(np.asarray(theta, float)[None])
+        r = r[0].reshape(len(self.sizes_m), reps, self.n_blocks).transpose(1, 0, 2)
+        v = v[0].reshape(len(self.sizes_m), -1, reps, self.n_blocks).transpose(2, 0, 1, 3)
+        return r, v
 
     def design(self, n_design: int, seed: int):
         """Scrambled-Sobol design over the prior box.

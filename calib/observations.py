@@ -10,6 +10,20 @@ Schema (CSV, one row per observation; ``data/README.md``)::
   it). A row that gives both uses the interval.
 * ``source``: free text (where the number comes from); optional column.
 
+A second, optional table holds PASSAGE VELOCITIES at stations (``load_velocities``)::
+
+    station_x_m, block_size_m, velocity_m_s, velocity_sd_m_s, source
+
+* one row per block seen passing the abscissa ``station_x_m`` (m, profile
+  coordinates) with speed ``velocity_m_s`` (speed of the centre of mass at its
+  first downslope passage, ``solvers.stations``), tolerance ``velocity_sd_m_s``
+  > 0. Such speeds come from video or radar tracking of natural or induced
+  rockfalls (e.g. the induced-rockfall campaigns of Dorren et al. 2006, Volkwein
+  et al. 2018, whose blocks were filmed through a forest and an instrumented
+  slope). Runouts and sizes alone cannot tell a lower tangential restitution
+  from a belt of trees that brakes blocks lower down; a speed measured ABOVE the
+  belt can (``README.md``, "Vegetation belt").
+
 Block-size mapping, used everywhere (CRSP, DEM, hazard, discrepancy):
 
 * CRSP sphere radius r = d / 2.
@@ -28,8 +42,8 @@ import os
 import numpy as np
 import pandas as pd
 
-__all__ = ["ObservationError", "Observations", "crsp_radius_m", "dem_side_m",
-           "load_observations"]
+__all__ = ["ObservationError", "Observations", "Velocities", "crsp_radius_m", "dem_side_m",
+           "load_observations", "load_velocities"]
 
 REQUIRED = ("block_size_m",)
 OPTIONAL = ("runout_m", "runout_sd_m", "runout_min_m", "runout_max_m", "source")
@@ -102,6 +116,40 @@ class Observations:
                             np.zeros(n, bool), tuple(source or ("synthetic",) * n))
 
 
+@dataclasses.dataclass(frozen=True)
+class Velocities:
+    """Validated passage-velocity observations (NumPy arrays of length n_obs).
+
+    Attributes:
+        station_x_m: abscissa of the station, m.
+        block_size_m: average diameter d, m.
+        velocity_m_s, velocity_sd_m_s: observed speed and its tolerance, m/s.
+        source: provenance text per row.
+        path: file the rows came from.
+    """
+
+    station_x_m: np.ndarray
+    block_size_m: np.ndarray
+    velocity_m_s: np.ndarray
+    velocity_sd_m_s: np.ndarray
+    source: tuple[str, ...]
+    path: str = "<memory>"
+
+    @property
+    def n_obs(self) -> int:
+        return int(self.block_size_m.shape[0])
+
+    @property
+    def stations_m(self) -> np.ndarray:
+        """Distinct station abscissae, ascending (the solver records each once)."""
+        return np.unique(self.station_x_m)
+
+    @property
+    def station_index(self) -> np.ndarray:
+        """Index of each row's station in ``stations_m``."""
+        return np.searchsorted(self.stations_m, self.station_x_m)
+
+
 def _number(df: pd.DataFrame, col: str, path: str) -> np.ndarray:
     """Column as floats; a non-number names its file line and column."""
     out = np.full(len(df), np.nan)
@@ -118,6 +166,20 @@ def _number(df: pd.DataFrame, col: str, path: str) -> np.ndarray:
     return out
 
 
+def _read_table(path: str, header: str) -> pd.DataFrame:
+    """The CSV at ``path`` as strings; a missing, empty or unreadable file raises."""
+    if not os.path.isfile(path):
+        raise ObservationError(f"{path}: no such file")
+    try:
+        df = pd.read_csv(path, dtype=str, keep_default_na=False, comment="#")
+    except pd.errors.EmptyDataError:
+        raise ObservationError(f"{path}: empty file (expected a header '{header}')") from None
+    except (pd.errors.ParserError, UnicodeDecodeError) as e:
+        raise ObservationError(f"{path}: not a readable CSV ({e})") from None
+    df.columns = [c.strip() for c in df.columns]
+    return df
+
+
 def load_observations(path: str | os.PathLike) -> Observations:
     """Read and validate an observation CSV.
 
@@ -128,16 +190,7 @@ def load_observations(path: str | os.PathLike) -> Observations:
             The message names the file, line (header = line 1) and column.
     """
     path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise ObservationError(f"{path}: no such file")
-    try:
-        df = pd.read_csv(path, dtype=str, keep_default_na=False, comment="#")
-    except pd.errors.EmptyDataError:
-        raise ObservationError(f"{path}: empty file (expected a header "
-                               f"'block_size_m,runout_m,runout_sd_m,...')") from None
-    except (pd.errors.ParserError, UnicodeDecodeError) as e:
-        raise ObservationError(f"{path}: not a readable CSV ({e})") from None
-    df.columns = [c.strip() for c in df.columns]
+    df = _read_table(path, "block_size_m,runout_m,runout_sd_m,...")
     for col in REQUIRED:
         if col not in df.columns:
             raise ObservationError(f"{path}: line 1: missing column {col!r} (columns: "
@@ -184,3 +237,41 @@ def load_observations(path: str | os.PathLike) -> Observations:
     src = tuple(df["source"].tolist()) if "source" in df.columns else ("",) * len(df)
     return Observations(d, np.where(is_int, np.nan, y), np.where(is_int, np.nan, sd),
                         lo, hi, is_int, src, path)
+
+
+VELOCITY_COLUMNS = ("station_x_m", "block_size_m", "velocity_m_s", "velocity_sd_m_s")
+
+
+def load_velocities(path: str | os.PathLike) -> Velocities:
+    """Read and validate a passage-velocity CSV (schema in the module docstring).
+
+    Raises:
+        ObservationError: missing file, empty table, missing column, or a row
+            whose station is not a finite number, whose size or tolerance is not
+            positive, or whose speed is negative. The message names the file,
+            line (header = line 1) and column.
+    """
+    path = os.fspath(path)
+    df = _read_table(path, ",".join(VELOCITY_COLUMNS))
+    for col in VELOCITY_COLUMNS:
+        if col not in df.columns:
+            raise ObservationError(f"{path}: line 1: missing column {col!r} (columns: "
+                                   f"{', '.join(df.columns)})")
+    if len(df) == 0:
+        raise ObservationError(f"{path}: no observation rows after the header")
+    x, d, v, sd = (_number(df, c, path) for c in VELOCITY_COLUMNS)
+    checks = (("station_x_m", x, lambda a: np.isfinite(a), "an abscissa in metres"),
+              ("block_size_m", d, lambda a: np.isfinite(a) & (a > 0),
+               "a positive size in metres"),
+              ("velocity_m_s", v, lambda a: np.isfinite(a) & (a >= 0),
+               "a speed >= 0 m/s"),
+              ("velocity_sd_m_s", sd, lambda a: np.isfinite(a) & (a > 0),
+               "a positive tolerance in m/s"))
+    for col, a, ok, what in checks:
+        bad = np.flatnonzero(~ok(a))
+        if bad.size:
+            i = int(bad[0])
+            raise ObservationError(f"{path}: line {i + 2}, column {col!r}: expected {what}, "
+                                   f"got {df[col][i]!r}")
+    src = tuple(df["source"].tolist()) if "source" in df.columns else ("",) * len(df)
+    return Velocities(x, d, v, sd, src, path)

@@ -62,6 +62,13 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--n-blocks", type=int, default=None, metavar="N",
                    help="blocks per (design point, size class) in the fits (as calib.discover "
                         "--n-blocks; default 128, 32 with --quick)")
+    p.add_argument("--velocity-stations", default=None, metavar="X[,X...]",
+                   help="also make passage speeds at these abscissae, m, and score them (as "
+                        "calib.synth --velocity-stations and calib.discover --velocities)")
+    p.add_argument("--n-velocity", type=int, default=30,
+                   help="passage-speed rows per run with --velocity-stations (default 30)")
+    p.add_argument("--velocity-sd", type=float, default=1.0,
+                   help="noise and tolerance of each speed, m/s (default 1)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
@@ -131,18 +138,28 @@ def _write_json_atomic(path: str, obj) -> None:
     write_text_atomic(path, json.dumps(_clean(obj), indent=1, allow_nan=False) + "\n")
 
 
-def _one_run(profile, effect, strength, n_obs, seed, sd_m, fit_seed, budget) -> dict:
+def _one_run(profile, effect, strength, n_obs, seed, sd_m, fit_seed, budget,
+             speeds=None) -> dict:
+    """One synth + discover run; ``speeds``: None or (stations_m, n_rows, sd_m_s)."""
     import jax
 
     from calib.candidates import crsp_candidates
     from calib.discrepancy import discover
-    from calib.synthetic import synthesize_effect
+    from calib.synthetic import synthesize_effect, synthesize_velocities
 
     t0 = time.perf_counter()
     obs, _ = synthesize_effect(profile, effect, strength, n_obs, seed, sd_m=sd_m)
-    d = discover(crsp_candidates(profile), obs, profile, jax.random.key(fit_seed), budget)
+    vel = None if speeds is None else synthesize_velocities(
+        profile, effect, strength, speeds[1], seed, speeds[0], speeds[2])
+    d = discover(crsp_candidates(profile), obs, profile, jax.random.key(fit_seed), budget,
+                 velocities=vel)
+    extra = {} if vel is None else {
+        "velocity_stations_m": [float(x) for x in speeds[0]], "n_velocity": speeds[1],
+        "velocity_sd_m_s": speeds[2],
+        "velocity_gains": {r["effect"]: float(r["delta_velocity_rows"])
+                           for r in d.table if r["effect"] != "none"}}
     return {"effect": effect, "strength": strength, "n_obs": n_obs, "seed": seed,
-            "sd_m": sd_m, "fit_seed": fit_seed, "named": d.named_effect,
+            "sd_m": sd_m, "fit_seed": fit_seed, "named": d.named_effect, **extra,
             "gap_before": d.gap_before, "gap_after": d.gap_after,
             "gains": {r["effect"]: [float(r["delta_vs_none"]), float(r["se_delta"])]
                       for r in d.table if r["effect"] != "none"},
@@ -186,6 +203,21 @@ def _run(args) -> int:
         raise CliError(f"--n-blocks: {e}") from None
     if budget.n_blocks != PRESETS[budget_name].n_blocks:
         budget_name += f"-b{budget.n_blocks}"
+    speeds, speed_tag = None, ""
+    if args.velocity_stations is not None:
+        stations = parse_floats(args.velocity_stations, "--velocity-stations")
+        x0, x1 = float(profile.x_m[0]), float(profile.x_m[-1])
+        if not stations or any(not x0 < x < x1 for x in stations):
+            raise CliError(f"--velocity-stations: expected abscissae inside the profile "
+                           f"({x0:g} to {x1:g} m), got {args.velocity_stations!r}")
+        if args.n_velocity < 1:
+            raise CliError(f"--n-velocity: expected at least 1 row, got {args.n_velocity}")
+        if not (np.isfinite(args.velocity_sd) and args.velocity_sd > 0):
+            raise CliError(f"--velocity-sd: expected a positive number of m/s, got "
+                           f"{args.velocity_sd}")
+        speeds = (stations, args.n_velocity, args.velocity_sd)
+        speed_tag = (f"_v{args.n_velocity}at{'+'.join(f'{x:g}' for x in stations)}"
+                     f"sd{args.velocity_sd:g}")
     grid = [(e, s if e != "none" else 1.0, n, k) for e in effects
             for s in (strengths if e != "none" else [1.0]) for n in n_list for k in seeds]
     grid = list(dict.fromkeys(grid))  # null data: strength does not apply
@@ -198,12 +230,12 @@ def _run(args) -> int:
     runs = []
     for e, s, n, k in grid:
         path = os.path.join(runs_dir, f"{e}_s{s:g}_n{n}_seed{k}_fit{args.seed}_{budget_name}"
-                                      f"_sd{args.sd:g}.json")
+                                      f"_sd{args.sd:g}{speed_tag}.json")
         if os.path.exists(path):
             with open(path) as f:
                 rec = json.load(f)
         else:
-            rec = _one_run(profile, e, s, n, k, args.sd, args.seed, budget)
+            rec = _one_run(profile, e, s, n, k, args.sd, args.seed, budget, speeds)
             rec["budget"] = budget_name
             _write_json_atomic(path, rec)
         runs.append(rec)
@@ -222,6 +254,9 @@ def _run(args) -> int:
     _write_json_atomic(os.path.join(args.out, "power.json"),
                        {"schema": "rockfall-power/1", "command": " ".join([PROG] + sys.argv[1:]),
                         "budget": budget_name, "profile_csv": args.profile,
+                        "passage_speeds": None if speeds is None else {
+                            "stations_m": speeds[0], "rows_per_run": speeds[1],
+                            "sd_m_s": speeds[2]},
                         "decision_rule": "calib.discover's: gain > 4 nats and > 2 se",
                         "cells": table, "runs": runs})
     print(f"\n{'effect':18} {'strength':>8} {'rows':>5} {'named right':>12} "

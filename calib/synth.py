@@ -10,6 +10,10 @@ data whose missing physics is known. Three files are written, atomically:
   the seed and the noise (kept out of the CSV so the workflow cannot see it).
 * ``<OUT stem>_profile.csv``, ``<OUT stem>_materials.csv``: copies of the slope
   profile used and its materials, where ``calib.discover`` looks by default.
+* with ``--velocity-stations X[,X...]``: ``<OUT stem>_velocities.csv``,
+  ``--n-velocity`` passage speeds at those abscissae (schema of
+  ``calib.observations.load_velocities``; noise and tolerance ``--velocity-sd``
+  m/s), for ``calib.discover --velocities``. CRSP only.
 
 Rows: ``--n-obs`` blocks spread over the sizes 0.2, 0.4, 0.7, 1.0, 1.4, 2.0 m;
 each runout is one simulated block plus Gaussian noise of ``--sd`` m, which is
@@ -59,6 +63,13 @@ def _parser() -> argparse.ArgumentParser:
                    "and the noise (default 0)")
     p.add_argument("--sd", type=float, default=5.0,
                    help="measurement noise and stated tolerance of each row, m (default 5)")
+    p.add_argument("--velocity-stations", default=None, metavar="X[,X...]",
+                   help="also write passage speeds at these abscissae, m (e.g. 110, the "
+                        "foot of the steep slope on Postignano); CRSP only")
+    p.add_argument("--n-velocity", type=int, default=30,
+                   help="number of passage-speed rows with --velocity-stations (default 30)")
+    p.add_argument("--velocity-sd", type=float, default=1.0,
+                   help="noise and stated tolerance of each speed, m/s (default 1)")
     p.add_argument("--profile", default=DEFAULT_PROFILE,
                    help="slope profile CSV (default: data/postignano_profile.csv)")
     p.add_argument("--out", required=True, help="observations CSV to write")
@@ -86,6 +97,23 @@ def _check(args) -> None:
         raise CliError(f"--out {args.out}: folder {parent} does not exist")
     if not os.path.isfile(args.profile):
         raise CliError(f"{args.profile}: no such profile file")
+    args.stations_m = None
+    if args.velocity_stations is not None:
+        if args.model != "crsp":
+            raise CliError("--velocity-stations: passage speeds are made with CRSP only")
+        try:
+            args.stations_m = [float(x) for x in args.velocity_stations.split(",")]
+        except ValueError:
+            raise CliError(f"--velocity-stations {args.velocity_stations}: expected "
+                           f"comma-separated abscissae in metres") from None
+        if not all(map(lambda x: x == x and abs(x) < 1e6, args.stations_m)):
+            raise CliError(f"--velocity-stations {args.velocity_stations}: expected "
+                           f"finite abscissae in metres")
+        if args.n_velocity < 1 or args.n_velocity > 100_000:
+            raise CliError(f"--n-velocity: expected 1 to 100000 rows, got {args.n_velocity}")
+        if not (args.velocity_sd > 0 and args.velocity_sd < 1e3):
+            raise CliError(f"--velocity-sd: expected a positive number of m/s, got "
+                           f"{args.velocity_sd:g}")
 
 
 def _run(args) -> int:
@@ -100,6 +128,28 @@ def _run(args) -> int:
     obs, truth = synthesize_effect(profile, args.effect, args.strength, args.n_obs,
                                    args.seed, args.model, args.sd)
     stem = args.out[:-4]
+    files = {}
+    if args.stations_m is not None:
+        from calib.synthetic import synthesize_velocities
+
+        x0, x1 = float(profile.x_m[0]), float(profile.x_m[-1])
+        bad = [x for x in args.stations_m if not x0 < x < x1]
+        if bad:
+            raise CliError(f"--velocity-stations: {bad[0]:g} m is not inside the profile "
+                           f"({x0:g} to {x1:g} m)")
+        try:
+            vel = synthesize_velocities(profile, args.effect, args.strength, args.n_velocity,
+                                        args.seed, args.stations_m, args.velocity_sd)
+        except ValueError as e:
+            raise CliError(f"--velocity-stations: {e}") from None
+        vlines = ["station_x_m,block_size_m,velocity_m_s,velocity_sd_m_s,source"]
+        vlines += [f"{x:g},{d:g},{v:.3f},{s:g},synthetic: calib.synth seed {args.seed}"
+                   for x, d, v, s in zip(vel.station_x_m, vel.block_size_m, vel.velocity_m_s,
+                                         vel.velocity_sd_m_s)]
+        files[stem + "_velocities.csv"] = text_writer("\n".join(vlines) + "\n")
+        truth.update({"velocities_csv": stem + "_velocities.csv",
+                      "velocity_stations_m": args.stations_m, "n_velocity": args.n_velocity,
+                      "velocity_sd_m_s": args.velocity_sd})
     truth.update({"observations_csv": args.out, "profile_csv": stem + "_profile.csv",
                   "profile_source": args.profile, "command": " ".join([PROG] + sys.argv[1:]),
                   "note": "the truth is kept out of the observations on purpose"})
@@ -112,9 +162,13 @@ def _run(args) -> int:
         stem + "_profile.csv": lambda p: shutil.copyfile(args.profile, p),
         stem + "_materials.csv":
             lambda p: shutil.copyfile(default_materials_path(args.profile), p),
+        **files,
     })
     print(f"wrote {len(lines) - 1} rows to {args.out} (truth in {stem}.truth.json, "
           f"profile in {stem}_profile.csv and {stem}_materials.csv)")
+    if files:
+        print(f"wrote {args.n_velocity} passage speeds to {stem}_velocities.csv (use "
+              f"calib.discover --velocities {stem}_velocities.csv)")
     return 0
 
 

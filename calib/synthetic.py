@@ -14,9 +14,9 @@ import jax
 import numpy as np
 
 from calib.forward import CrspForward, DemForward
-from calib.observations import Observations
+from calib.observations import Observations, Velocities
 
-__all__ = ["SYNTH_SIZES_M", "synthesize", "synthesize_effect"]
+__all__ = ["SYNTH_SIZES_M", "synthesize", "synthesize_effect", "synthesize_velocities"]
 
 # size classes of synthetic data with hidden effects (0.2-2.0 m, the paper's range)
 SYNTH_SIZES_M = (0.2, 0.4, 0.7, 1.0, 1.4, 2.0)
@@ -90,3 +90,52 @@ def synthesize_effect(profile, effect: str, strength: float, n_obs: int, seed: i
     truth = {"effect": effect, "strength": float(strength), "model": model, "seed": seed,
              "sd_m": sd_m, "parameters": dict(zip(names, map(float, theta)))}
     return obs, truth
+
+
+def synthesize_velocities(profile, effect: str, strength: float, n_obs: int, seed: int,
+                          stations_x_m, sd_m_s: float = 1.0) -> Velocities:
+    """Passage speeds made with a candidate effect switched on (CRSP).
+
+    ``n_obs`` rows spread round-robin over (station, size) pairs, sizes
+    ``SYNTH_SIZES_M``. Each row is the speed of one simulated block at its first
+    passage of the station plus N(0, sd_m_s^2) noise (clipped at 0), the
+    tolerance being ``sd_m_s``. Only blocks that pass are observed (a speed
+    needs a passage), as ``calib.likelihood.velocity_log_likelihood`` assumes.
+    The blocks use the key ``fold_in(key(seed), 7927)``: other blocks than the
+    runout rows' (7919) and than any fit's.
+
+    Raises:
+        ValueError: a station that too few simulated blocks of some size reach.
+    """
+    from calib import effects
+
+    if n_obs < 1:
+        raise ValueError(f"n_obs must be at least 1, got {n_obs}")
+    stations = np.unique(np.asarray(stations_x_m, float).reshape(-1))
+    if stations.size == 0:
+        raise ValueError("expected at least one station")
+    theta = effects.truth(effect, strength, profile)
+    k_blocks, k_noise = jax.random.split(jax.random.fold_in(jax.random.key(seed), 7927))
+    sizes = np.asarray(SYNTH_SIZES_M, float)
+    pairs = [(k, i) for k in range(stations.size) for i in range(sizes.size)]
+    rows = [pairs[r % len(pairs)] for r in range(n_obs)]
+    need = -(-n_obs // len(pairs))
+    fw = CrspForward(profile, sizes, 4 * need + 16, k_blocks, effect=effect,
+                     stations_x_m=tuple(stations))
+    speeds = fw.simulate(theta[None])[1][0]  # (S, K, n)
+    taken = {}
+    v = np.empty(n_obs)
+    for r, (k, i) in enumerate(rows):
+        passed = speeds[i, k][np.isfinite(speeds[i, k])]
+        j = taken.get((k, i), 0)
+        if j >= passed.size:
+            raise ValueError(f"only {passed.size} of {speeds.shape[-1]} simulated blocks of "
+                             f"{sizes[i]:g} m pass the station at {stations[k]:g} m; choose "
+                             f"a station that blocks reach")
+        v[r] = passed[j]
+        taken[(k, i)] = j + 1
+    noise = sd_m_s * np.asarray(jax.random.normal(k_noise, (n_obs,)))
+    x = np.array([stations[k] for k, _ in rows])
+    d = np.array([sizes[i] for _, i in rows])
+    return Velocities(x, d, np.maximum(v + noise, 0.0), np.full(n_obs, float(sd_m_s)),
+                      (f"synthetic (crsp, effect {effect}, seed {seed})",) * n_obs)
