@@ -324,8 +324,14 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     rng = np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel()[-1])
     vel = velocities if velocities is not None and velocities.n_obs else None
     st_kw = {} if vel is None else {"stations_x_m": tuple(map(float, vel.stations_m))}
-    fw = cand.forward(class_sizes_m, cand.n_blocks or budget.n_blocks,
-                      jax.random.fold_in(key, 1), **st_kw)
+    try:
+        fw = cand.forward(class_sizes_m, cand.n_blocks or budget.n_blocks,
+                          jax.random.fold_in(key, 1), **st_kw)
+    except TypeError:
+        if vel is None:
+            raise
+        raise ValueError(f"candidate {cand.effect!r}: its forward model cannot record "
+                         f"passage speeds (CRSP candidates can)") from None
     y, sd, lo, hi, is_int = _obs_arrays(obs)
     rc = jnp.asarray(row_class)
 

@@ -149,3 +149,16 @@ def test_discover_bad_velocities_is_one_line_exit_2(tmp_path, extra, body, needl
     assert proc.returncode == 2
     assert needle in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
     assert not out.exists()
+
+
+def test_discover_refuses_speeds_for_a_model_that_cannot_record_them():
+    from calib.dem_candidates import dem_candidates
+    from calib.discrepancy import PRESETS, discover
+    from calib.observations import Observations, Velocities
+
+    obs = Observations.points(np.array([0.5, 2.0]), np.array([120.0, 200.0]), 10.0)
+    vel = Velocities(np.array([110.0]), np.array([1.0]), np.array([20.0]), np.array([1.0]),
+                     ("x",))
+    with pytest.raises(ValueError, match="cannot record passage speeds"):
+        discover(dem_candidates(PROFILE, ["none"]), obs, PROFILE, jax.random.key(0),
+                 PRESETS["dem-quick"], velocities=vel)
