@@ -174,6 +174,7 @@ def _run(args) -> int:
 
     from calib.discrepancy import PRESETS, preset_budget
     from calib.effects import EFFECT_NAMES
+    from calib.synth import speed_design
     from solvers._cli import write_csv_atomic
     from solvers.profile import load_profile
 
@@ -203,20 +204,9 @@ def _run(args) -> int:
         raise CliError(f"--n-blocks: {e}") from None
     if budget.n_blocks != PRESETS[budget_name].n_blocks:
         budget_name += f"-b{budget.n_blocks}"
-    speeds, speed_tag = None, ""
-    if args.velocity_stations is not None:
-        stations = parse_floats(args.velocity_stations, "--velocity-stations")
-        x0, x1 = float(profile.x_m[0]), float(profile.x_m[-1])
-        if not stations or any(not x0 < x < x1 for x in stations):
-            raise CliError(f"--velocity-stations: expected abscissae inside the profile "
-                           f"({x0:g} to {x1:g} m), got {args.velocity_stations!r}")
-        if args.n_velocity < 1:
-            raise CliError(f"--n-velocity: expected at least 1 row, got {args.n_velocity}")
-        if not (np.isfinite(args.velocity_sd) and args.velocity_sd > 0):
-            raise CliError(f"--velocity-sd: expected a positive number of m/s, got "
-                           f"{args.velocity_sd}")
-        speeds = (stations, args.n_velocity, args.velocity_sd)
-        speed_tag = (f"_v{args.n_velocity}at{'+'.join(f'{x:g}' for x in stations)}"
+    speeds, speed_tag = speed_design(args, profile), ""
+    if speeds is not None:
+        speed_tag = (f"_v{speeds[1]}at{'+'.join(f'{x:g}' for x in speeds[0])}"
                      f"sd{args.velocity_sd:g}")
     grid = [(e, s if e != "none" else 1.0, n, k) for e in effects
             for s in (strengths if e != "none" else [1.0]) for n in n_list for k in seeds]

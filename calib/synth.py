@@ -29,9 +29,16 @@ import os
 import shutil
 import sys
 
-from solvers._cli import CliError, OneLineParser, run_guarded, text_writer, write_all_atomic
+from solvers._cli import (
+    CliError,
+    OneLineParser,
+    parse_stations,
+    run_guarded,
+    text_writer,
+    write_all_atomic,
+)
 
-__all__ = ["main"]
+__all__ = ["main", "speed_design"]
 
 PROG = "python -m calib.synth"
 DEFAULT_PROFILE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
@@ -97,23 +104,23 @@ def _check(args) -> None:
         raise CliError(f"--out {args.out}: folder {parent} does not exist")
     if not os.path.isfile(args.profile):
         raise CliError(f"{args.profile}: no such profile file")
-    args.stations_m = None
-    if args.velocity_stations is not None:
-        if args.model != "crsp":
-            raise CliError("--velocity-stations: passage speeds are made with CRSP only")
-        try:
-            args.stations_m = [float(x) for x in args.velocity_stations.split(",")]
-        except ValueError:
-            raise CliError(f"--velocity-stations {args.velocity_stations}: expected "
-                           f"comma-separated abscissae in metres") from None
-        if not all(map(lambda x: x == x and abs(x) < 1e6, args.stations_m)):
-            raise CliError(f"--velocity-stations {args.velocity_stations}: expected "
-                           f"finite abscissae in metres")
-        if args.n_velocity < 1 or args.n_velocity > 100_000:
-            raise CliError(f"--n-velocity: expected 1 to 100000 rows, got {args.n_velocity}")
-        if not (args.velocity_sd > 0 and args.velocity_sd < 1e3):
-            raise CliError(f"--velocity-sd: expected a positive number of m/s, got "
-                           f"{args.velocity_sd:g}")
+    if args.velocity_stations is not None and args.model != "crsp":
+        raise CliError("--velocity-stations: passage speeds are made with CRSP only")
+
+
+def speed_design(args, profile):
+    """(stations_m, rows, sd_m_s) of ``--velocity-stations``, ``--n-velocity`` and
+    ``--velocity-sd`` (shared with ``calib.power``), or None without stations;
+    a bad value is a ``CliError`` naming its option."""
+    if args.velocity_stations is None:
+        return None
+    stations = parse_stations(args.velocity_stations, profile.x_range_m, "--velocity-stations")
+    if args.n_velocity < 1 or args.n_velocity > 100_000:
+        raise CliError(f"--n-velocity: expected 1 to 100000 rows, got {args.n_velocity}")
+    if not (args.velocity_sd > 0 and args.velocity_sd < 1e3):
+        raise CliError(f"--velocity-sd: expected a positive number of m/s, got "
+                       f"{args.velocity_sd:g}")
+    return stations, args.n_velocity, args.velocity_sd
 
 
 def _run(args) -> int:
@@ -129,17 +136,13 @@ def _run(args) -> int:
                                    args.seed, args.model, args.sd)
     stem = args.out[:-4]
     files = {}
-    if args.stations_m is not None:
+    speeds = speed_design(args, profile)
+    if speeds is not None:
         from calib.synthetic import synthesize_velocities
 
-        x0, x1 = float(profile.x_m[0]), float(profile.x_m[-1])
-        bad = [x for x in args.stations_m if not x0 < x < x1]
-        if bad:
-            raise CliError(f"--velocity-stations: {bad[0]:g} m is not inside the profile "
-                           f"({x0:g} to {x1:g} m)")
         try:
-            vel = synthesize_velocities(profile, args.effect, args.strength, args.n_velocity,
-                                        args.seed, args.stations_m, args.velocity_sd)
+            vel = synthesize_velocities(profile, args.effect, args.strength, speeds[1],
+                                        args.seed, speeds[0], speeds[2])
         except ValueError as e:
             raise CliError(f"--velocity-stations: {e}") from None
         vlines = ["station_x_m,block_size_m,velocity_m_s,velocity_sd_m_s,source"]
@@ -148,7 +151,7 @@ def _run(args) -> int:
                                          vel.velocity_sd_m_s)]
         files[stem + "_velocities.csv"] = text_writer("\n".join(vlines) + "\n")
         truth.update({"velocities_csv": stem + "_velocities.csv",
-                      "velocity_stations_m": args.stations_m, "n_velocity": args.n_velocity,
+                      "velocity_stations_m": speeds[0], "n_velocity": args.n_velocity,
                       "velocity_sd_m_s": args.velocity_sd})
     truth.update({"observations_csv": args.out, "profile_csv": stem + "_profile.csv",
                   "profile_source": args.profile, "command": " ".join([PROG] + sys.argv[1:]),

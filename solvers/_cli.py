@@ -72,8 +72,10 @@ def parse_floats(text: str, name: str) -> list[float]:
     return out
 
 
-def parse_stations(text: str | None, x_range_m: tuple[float, float]) -> list[float]:
-    """Stations as ``"110,230"`` or a range ``"start:stop:step"`` (stop included).
+def parse_stations(text: str | None, x_range_m: tuple[float, float],
+                   name: str = "--stations") -> list[float]:
+    """Stations as ``"110,230"`` or a range ``"start:stop:step"`` (stop included);
+    errors name the option ``name``.
 
     Raises:
         CliError: on malformed text or stations outside the profile.
@@ -83,18 +85,18 @@ def parse_stations(text: str | None, x_range_m: tuple[float, float]) -> list[flo
     if ":" in text:
         parts = text.split(":")
         if len(parts) != 3:
-            raise CliError(f"--stations: expected start:stop:step, got {text!r}")
-        start, stop, step = parse_floats(",".join(parts), "--stations")
+            raise CliError(f"{name}: expected start:stop:step, got {text!r}")
+        start, stop, step = parse_floats(",".join(parts), name)
         if step <= 0 or stop < start:
-            raise CliError(f"--stations: need step > 0 and stop >= start, got {text!r}")
+            raise CliError(f"{name}: need step > 0 and stop >= start, got {text!r}")
         n = int(np.floor((stop - start) / step + 1e-9)) + 1
         stations = [start + i * step for i in range(n)]
     else:
-        stations = parse_floats(text, "--stations")
+        stations = parse_floats(text, name)
     lo, hi = x_range_m
     bad = [s for s in stations if not (lo <= s <= hi)]
     if bad:
-        raise CliError(f"--stations: station(s) {', '.join(f'{b:g}' for b in bad)} m lie outside "
+        raise CliError(f"{name}: station(s) {', '.join(f'{b:g}' for b in bad)} m lie outside "
                        f"the profile x range [{lo:g}, {hi:g}] m")
     return stations
 

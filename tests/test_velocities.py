@@ -109,7 +109,7 @@ def test_synth_writes_speeds_that_hide_the_effect(belt_with_speeds):
 
 
 @pytest.mark.parametrize("args, needle", [
-    (["--velocity-stations", "400"], "not inside the profile"),
+    (["--velocity-stations", "400"], "outside the profile"),
     (["--velocity-stations", "x"], "--velocity-stations"),
     (["--velocity-stations", "110", "--n-velocity", "0"], "--n-velocity"),
     (["--velocity-stations", "110", "--model", "dem"], "CRSP only"),
