@@ -32,8 +32,9 @@ gets a finite, very low density instead of minus infinity:
 
 with m the number of passing samples, h_v = 0.9 sd m^(-1/5) from the sd of
 their speeds (Silverman's rule without its IQR branch, which would need a
-percentile over a varying subset; at least 0.1 m/s), eps = 1e-3 and V_MAX = 100 m/s (faster than any rockfall
-on record); with m = 0 only the uniform term is left (log p = -11.5).
+percentile over a varying subset; at least 0.1 m/s), eps = 1e-3 and
+V_MAX = 100 m/s (faster than any rockfall on record); with m = 0 only the
+uniform term is left (log p = -11.5).
 
 Assumptions: rows are independent given theta (distinct blocks); every
 observed block is a random draw from the release conditions the solver uses;
