@@ -36,6 +36,8 @@ PROG = "python -m calib.power"
 
 
 def _parser() -> argparse.ArgumentParser:
+    from calib.synth import add_speed_options
+
     p = OneLineParser(
         prog=PROG, description=__doc__.split("\n\n")[0] + " Runs synth + discover over a "
         "grid and writes power.csv / power.json with detection rates and their exact 90 % "
@@ -62,13 +64,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--n-blocks", type=int, default=None, metavar="N",
                    help="blocks per (design point, size class) in the fits (as calib.discover "
                         "--n-blocks; default 128, 32 with --quick)")
-    p.add_argument("--velocity-stations", default=None, metavar="X[,X...]",
-                   help="also make passage speeds at these abscissae, m, and score them (as "
-                        "calib.synth --velocity-stations and calib.discover --velocities)")
-    p.add_argument("--n-velocity", type=int, default=30,
-                   help="passage-speed rows per run with --velocity-stations (default 30)")
-    p.add_argument("--velocity-sd", type=float, default=1.0,
-                   help="noise and tolerance of each speed, m/s (default 1)")
+    add_speed_options(p, "also make passage speeds at these abscissae, m, and score them "
+                         "(as calib.synth --velocity-stations and calib.discover --velocities)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 

@@ -38,7 +38,7 @@ from solvers._cli import (
     write_all_atomic,
 )
 
-__all__ = ["main", "speed_design"]
+__all__ = ["add_speed_options", "main", "speed_design"]
 
 PROG = "python -m calib.synth"
 DEFAULT_PROFILE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
@@ -70,13 +70,8 @@ def _parser() -> argparse.ArgumentParser:
                    "and the noise (default 0)")
     p.add_argument("--sd", type=float, default=5.0,
                    help="measurement noise and stated tolerance of each row, m (default 5)")
-    p.add_argument("--velocity-stations", default=None, metavar="X[,X...]",
-                   help="also write passage speeds at these abscissae, m (e.g. 110, the "
-                        "foot of the steep slope on Postignano); CRSP only")
-    p.add_argument("--n-velocity", type=int, default=30,
-                   help="number of passage-speed rows with --velocity-stations (default 30)")
-    p.add_argument("--velocity-sd", type=float, default=1.0,
-                   help="noise and stated tolerance of each speed, m/s (default 1)")
+    add_speed_options(p, "also write passage speeds at these abscissae, m (e.g. 110, the "
+                         "foot of the steep slope on Postignano); CRSP only")
     p.add_argument("--profile", default=DEFAULT_PROFILE,
                    help="slope profile CSV (default: data/postignano_profile.csv)")
     p.add_argument("--out", required=True, help="observations CSV to write")
@@ -106,6 +101,17 @@ def _check(args) -> None:
         raise CliError(f"{args.profile}: no such profile file")
     if args.velocity_stations is not None and args.model != "crsp":
         raise CliError("--velocity-stations: passage speeds are made with CRSP only")
+
+
+def add_speed_options(p: argparse.ArgumentParser, stations_help: str) -> None:
+    """``--velocity-stations``, ``--n-velocity``, ``--velocity-sd`` (read back by
+    ``speed_design``); shared with ``calib.power``."""
+    p.add_argument("--velocity-stations", default=None, metavar="X[,X...]",
+                   help=stations_help)
+    p.add_argument("--n-velocity", type=int, default=30,
+                   help="number of passage-speed rows with --velocity-stations (default 30)")
+    p.add_argument("--velocity-sd", type=float, default=1.0,
+                   help="noise and stated tolerance of each speed, m/s (default 1)")
 
 
 def speed_design(args, profile):
