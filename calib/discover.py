@@ -200,7 +200,7 @@ def _load_velocities(path, model: str, profile):
         vel = load_velocities(path)
     except ObservationError as e:
         raise CliError(str(e)) from None
-    x0, x1 = float(profile.x_m[0]), float(profile.x_m[-1])
+    x0, x1 = profile.x_range_m
     off = np.flatnonzero((vel.station_x_m <= x0) | (vel.station_x_m >= x1))
     if off.size:
         i = int(off[0])

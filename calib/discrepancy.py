@@ -335,13 +335,14 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     y, sd, lo, hi, is_int = _obs_arrays(obs)
     rc = jnp.asarray(row_class)
 
+    vel_arrays = None if vel is None else tuple(
+        jnp.asarray(a) for a in (vel.size_class, vel.station, vel.v_m_s, vel.sd_m_s))
+
     def loglik(runs, speeds):
         ll = np.asarray(_loglik_design(jnp.asarray(runs), rc, y, sd, lo, hi, is_int))
         if vel is None:
             return ll
-        lv = _vel_loglik_design(jnp.asarray(speeds), jnp.asarray(vel.size_class),
-                                jnp.asarray(vel.station), jnp.asarray(vel.v_m_s),
-                                jnp.asarray(vel.sd_m_s))
+        lv = _vel_loglik_design(jnp.asarray(speeds), *vel_arrays)
         return np.concatenate([ll, np.asarray(lv)], axis=1)
 
     def simulate(z):
