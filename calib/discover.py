@@ -35,7 +35,7 @@ import numpy as np
 
 from solvers._cli import CliError, OneLineParser, run_guarded
 
-__all__ = ["ess_warnings", "main", "noise_warnings"]
+__all__ = ["concentration_warnings", "ess_warnings", "main", "noise_warnings"]
 
 PROG = "python -m calib.discover"
 # The DEM's fragmentation candidate (2 x 2 bonded fragments) is opt-in: on
@@ -169,7 +169,10 @@ def _run(args) -> int:
     }
     result["warnings"] = (ess_warnings({e: (f.ess, int(f.theta.shape[0]))
                                         for e, f in d.fits.items()})
-                          + noise_warnings(d.table, budget.n_blocks))
+                          + noise_warnings(d.table, budget.n_blocks)
+                          + concentration_warnings(d.table, obs.block_size_m,
+                                                   None if velocities is None
+                                                   else velocities.block_size_m))
     base = d.fits["none"]
     out_figs = {
         "residuals.png": figs.residuals(obs, d.where_before,
@@ -271,6 +274,47 @@ def noise_warnings(candidates: list[dict], n_blocks: int) -> list[str]:
             f"noise of that gain is about {noise:.1f} nats (sd of the summed log-likelihood of "
             f"{best['effect']} and of the baseline, combined; {n_blocks} blocks per size "
             f"class). --n-blocks {4 * n_blocks} roughly halves the noise (cost about x4)."]
+
+
+def concentration_warnings(candidates: list[dict], runout_sizes_m: np.ndarray,
+                           speed_sizes_m: np.ndarray | None = None) -> list[str]:
+    """A warning when the best effect gains more than ``ELPD_MIN`` but is not
+    named because few rows carry its gain.
+
+    ``candidates``: rows of the ranked table (``effect``, ``delta_vs_none``,
+    ``se_delta``, ``effective_rows``, ``carrying_rows``). The 2-se bar asks that
+    a gain rest on more than ``rows_needed(n)`` effective rows (3.8 of 60), so a
+    gain of hundreds of nats from three rows is not named (the normal
+    approximation behind the se is least trustworthy there: Sivula, Magnusson,
+    Matamoros & Vehtari, arXiv:2008.10296). The warning names the sizes of the
+    rows that carry the gain: more observations of those sizes settle it, and
+    one or two aberrant rows could also be the cause.
+    """
+    from calib.scores import ELPD_MIN, Z_MIN, best_effect, naming_threshold, rows_needed
+
+    best = best_effect(candidates)
+    if best is None or "effective_rows" not in best:
+        return []
+    gain = best["delta_vs_none"]
+    if not gain > ELPD_MIN or gain > naming_threshold(best["se_delta"]):
+        return []
+    runs = np.asarray(runout_sizes_m, float)
+    speeds = np.zeros(0) if speed_sizes_m is None else np.asarray(speed_sizes_m, float)
+    n = runs.size + speeds.size
+    rows = np.asarray(best["carrying_rows"], int)
+    parts = []
+    for kind, idx, sizes in (("runout", rows[rows < runs.size], runs),
+                             ("speed", rows[rows >= runs.size] - runs.size, speeds)):
+        if idx.size:
+            vals, counts = np.unique(sizes[idx], return_counts=True)
+            what = ", ".join(f"{v:g} m x{c}" for v, c in zip(vals, counts))
+            parts.append(f"{kind} rows of {what}" if speeds.size else what)
+    return [f"{best['effect']} gains {gain:+.1f} nats ({gain / best['se_delta']:.2f} se) but is "
+            f"not named: {rows.size} of the {n} rows carry 90 % of the gain "
+            f"({'; '.join(parts)}), {best['effective_rows']:.1f} effective rows, and the "
+            f"{Z_MIN:g}-se bar needs more than {rows_needed(n):.1f}. More observations of "
+            f"blocks of those sizes would show whether the effect is real; one or two aberrant "
+            f"rows could also give such a gain."]
 
 
 def _print_summary(r: dict, out: str) -> None:

@@ -23,6 +23,10 @@ candidate effect, name the one that clearly predicts better, show the gap shrink
 3. The candidates are compared by their K-fold held-out log predictive density
    (``calib.scores``); an effect is named only when its gain over the baseline
    exceeds ``ELPD_MIN`` = 4 and ``Z_MIN`` = 2 standard errors, else ``none``.
+   Each effect's row of the table also gives ``effective_rows``, the number of
+   rows that effectively carry its gain (the 2-se bar is a bar on it, see
+   ``calib.scores.effective_rows``), and ``carrying_rows``, the indices of the
+   rows that carry 90 % of it (runout rows in file order, then speed rows).
 4. The gap metric (``GAP_METRIC``) is computed for every candidate from its own
    posterior predictive; gap_before is the baseline's, gap_after the named
    model's (re-fitted on all rows, which its design already is).
@@ -45,8 +49,10 @@ from calib.priors import Box
 from calib.residuals import locate, point_view
 from calib.scores import (
     best_effect,
+    carrying_rows,
     crps_ensemble,
     cv_elpd,
+    effective_rows,
     elpd_difference,
     folds,
     naming_threshold,
@@ -512,6 +518,9 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
         table.append({"effect": eff, "score": float(f.elpd.sum()), "delta_vs_none": d,
                       "se_delta": se, "gap": f.gap, "n_params": len(f.names),
                       "ess": f.ess, "loglik_noise_sd_nats": f.loglik_noise_sd_nats})
+        if eff != "none":  # how many rows carry the gain (the 2-se rule is a bar on it)
+            table[-1]["effective_rows"] = effective_rows(f.elpd - base.elpd)
+            table[-1]["carrying_rows"] = [int(i) for i in carrying_rows(f.elpd - base.elpd)]
         if vel is not None:  # the part of the gain that the speeds carry
             table[-1]["delta_velocity_rows"] = float((f.elpd - base.elpd)[n_run:].sum())
     table.sort(key=lambda r: -r["score"])

@@ -160,6 +160,8 @@ def _one_run(profile, effect, strength, n_obs, seed, sd_m, fit_seed, budget,
             "gap_before": d.gap_before, "gap_after": d.gap_after,
             "gains": {r["effect"]: [float(r["delta_vs_none"]), float(r["se_delta"])]
                       for r in d.table if r["effect"] != "none"},
+            "effective_rows": {r["effect"]: float(r["effective_rows"])
+                               for r in d.table if r["effect"] != "none"},
             "ess": {r["effect"]: float(r["ess"]) for r in d.table},
             "loglik_noise_sd_nats": {r["effect"]: float(r["loglik_noise_sd_nats"])
                                      for r in d.table},

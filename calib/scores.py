@@ -19,7 +19,8 @@ difference of two models is ``sum_i (elpd_i^A - elpd_i^B)`` with standard error
 ``sqrt(n var_i(elpd_i^A - elpd_i^B))``; Sivula et al. call differences below
 about 4 small. The discrepancy workflow names an effect only when its gain over
 the baseline exceeds both 4 and twice its standard error (``ELPD_MIN``,
-``Z_MIN``), fixed before any workflow run.
+``Z_MIN``), fixed before any workflow run. The 2-se bar depends only on how
+many rows carry the gain (``effective_rows``; ``rows_needed``), not on its size.
 
 CRPS (Gneiting & Raftery 2007, "Strictly proper scoring rules, prediction, and
 estimation", JASA 102, 359-378, eq. 21): for a predictive ensemble X_1..X_m and
@@ -36,11 +37,14 @@ __all__ = [
     "ELPD_MIN",
     "Z_MIN",
     "best_effect",
+    "carrying_rows",
     "crps_ensemble",
     "cv_elpd",
+    "effective_rows",
     "elpd_difference",
     "folds",
     "naming_threshold",
+    "rows_needed",
 ]
 
 ELPD_MIN = 4.0
@@ -104,6 +108,39 @@ def elpd_difference(elpd_a: np.ndarray, elpd_b: np.ndarray) -> tuple[float, floa
     n = d.size
     se = float(np.sqrt(n * np.var(d, ddof=1))) if n > 1 else float("nan")
     return float(d.sum()), se
+
+
+def effective_rows(diff: np.ndarray) -> float:
+    """Effective number of rows carrying a score difference: ``(sum d)^2 / sum d^2``.
+
+    n for n equal gains, 1 when one row carries everything, small too when the
+    rows disagree and cancel; nan for an all-zero difference. The 2-se rule is a
+    rule on this number alone: with ``se = sqrt(n var(d))`` (ddof 1) one has
+    ``(sum d / se)^2 = (n - 1) n_eff / (n - n_eff)``, so a positive gain exceeds
+    z standard errors exactly when ``n_eff > rows_needed(n, z)``, whatever its
+    size in nats.
+    """
+    d = np.asarray(diff, float)
+    ss = float(np.sum(d * d))
+    return float(d.sum() ** 2 / ss) if ss > 0 else float("nan")
+
+
+def rows_needed(n: int, z: float = Z_MIN) -> float:
+    """The effective rows (``effective_rows``) a positive gain over n rows needs to
+    exceed z standard errors: ``z^2 n / (n - 1 + z^2)`` (3.8 for n = 60, z = 2)."""
+    return z * z * n / (n - 1 + z * z)
+
+
+def carrying_rows(diff: np.ndarray, share: float = 0.9) -> np.ndarray:
+    """Indices of the fewest rows, largest difference first, whose differences sum
+    to at least ``share`` of the total; empty when the total is not positive."""
+    d = np.asarray(diff, float)
+    total = d.sum()
+    if not total > 0:
+        return np.zeros(0, int)
+    order = np.argsort(-d, kind="stable")
+    k = int(np.searchsorted(np.cumsum(d[order]), share * total)) + 1
+    return order[:min(k, d.size)]
 
 
 def naming_threshold(se_delta: float | None) -> float:

@@ -18,7 +18,16 @@ from calib.discover import noise_warnings
 from calib.discrepancy import _proposal, size_classes
 from calib.observations import Observations
 from calib.residuals import locate
-from calib.scores import crps_ensemble, cv_elpd, elpd_difference, folds
+from calib.scores import (
+    Z_MIN,
+    carrying_rows,
+    crps_ensemble,
+    cv_elpd,
+    effective_rows,
+    elpd_difference,
+    folds,
+    rows_needed,
+)
 from solvers.profile import load_profile
 
 PROFILE = load_profile("data/postignano_profile.csv")
@@ -155,7 +164,7 @@ def test_discover_names_a_strong_hidden_effect_and_shrinks_the_gap(discover_run)
     low = [e for e, f in r["fits"].items() if f["ess"] < 10]
     assert all(f["loglik_noise_sd_nats"] > 0 for f in r["fits"].values())  # measured (CRSP)
     noisy = noise_warnings(r["candidates"], r["budget"]["n_blocks"])
-    assert len(r["warnings"]) == bool(low) + len(noisy)
+    assert len(r["warnings"]) == bool(low) + len(noisy)  # named: no concentration warning
     if noisy:
         assert r["warnings"][-1] == noisy[0]
     if low:
@@ -167,6 +176,13 @@ def test_discover_names_a_strong_hidden_effect_and_shrinks_the_gap(discover_run)
     for c in r["candidates"]:
         assert {"effect", "score", "gap"} <= set(c)
     assert r["named_effect"] == "size_dissipation"
+    n = r["n_observations"]
+    for c in r["candidates"]:
+        if c["effect"] != "none":
+            assert 0 < c["effective_rows"] <= n
+            assert all(0 <= i < n for i in c["carrying_rows"])
+    named = next(c for c in r["candidates"] if c["effect"] == "size_dissipation")
+    assert named["effective_rows"] > rows_needed(n)  # the 2-se bar, restated
     assert r["gap_after"] < r["gap_before"]
     # where: the residuals trend with size (big blocks further than the baseline says)
     assert r["where"]["size_trend"]["flag"] and r["where"]["size_trend"]["spearman_rho"] > 0
@@ -225,6 +241,53 @@ def test_ess_warnings_name_the_degenerate_fits_only():
                          "vegetation_belt": (8.0, 512)})
     assert "none 1.5 of 384" in w and "vegetation_belt 8.0 of 512" in w
     assert "fragmentation" not in w
+
+
+def test_the_two_se_bar_is_a_bar_on_the_effective_rows():
+    rng = np.random.default_rng(1)
+    for n in (5, 60, 180):
+        for k in range(20):
+            d = rng.standard_normal(n) * 0.5 + 0.3
+            d[:k % 5] += rng.exponential(50.0, k % 5)  # a few rows carrying most of it
+            gain, se = elpd_difference(d, np.zeros(n))
+            ne = effective_rows(d)
+            assert (gain / se) ** 2 == pytest.approx((n - 1) * ne / (n - ne), rel=1e-9)
+            if gain > 0:
+                assert (gain > Z_MIN * se) == (ne > rows_needed(n))
+    assert rows_needed(60) == pytest.approx(240 / 63)
+    assert effective_rows(np.full(7, 2.0)) == pytest.approx(7.0)
+    assert effective_rows(np.r_[9.0, np.zeros(9)]) == pytest.approx(1.0)
+    assert np.isnan(effective_rows(np.zeros(3)))
+    # rows carrying 90 % of the gain, largest first; none for a loss
+    np.testing.assert_array_equal(carrying_rows(np.r_[0.1, 50.0, -0.2, 30.0, 0.1]), [1, 3])
+    np.testing.assert_array_equal(carrying_rows(np.r_[1.0, 1.0, 1.0]), [0, 1, 2])
+    assert carrying_rows(np.r_[-1.0, 0.5]).size == 0
+
+
+def test_concentration_warning_names_the_sizes_that_carry_an_unnamed_gain():
+    from calib.discover import concentration_warnings
+
+    sizes = np.tile([0.2, 0.4, 0.7, 1.0, 1.4, 2.0], 10)
+    # rolling resistance, seed 8003 (60 runout rows): +393.1 +- 210.3 from four 0.2 m rows
+    rr = {**_row("rolling_resistance", 393.1, 210.3, 4.0), "effective_rows": 3.36,
+          "carrying_rows": [0, 6, 12, 18]}
+    base = _row("none", 0.0, 0.0, 27.9)
+    (w,) = concentration_warnings([base, rr, {**_row("size_dissipation", 164.8, 98.4, 28.7),
+                                              "effective_rows": 2.9, "carrying_rows": [1]}],
+                                  sizes)
+    assert w.startswith("rolling_resistance gains +393.1 nats (1.87 se) but is not named")
+    assert "4 of the 60 rows" in w and "(0.2 m x4)" in w and "more than 3.8" in w
+    assert "size_dissipation" not in w
+    # speed rows follow the runout rows and are labelled as such
+    (w,) = concentration_warnings([base, {**rr, "carrying_rows": [0, 60, 61]}], sizes,
+                                  np.r_[2.0, 2.0, 0.2])
+    assert "runout rows of 0.2 m x1; speed rows of 2 m x2" in w and "of the 63 rows" in w
+    # named (gain > 2 se), a small gain, or a record without the fields: no warning
+    assert concentration_warnings([base, {**rr, "se_delta": 150.0}], sizes) == []
+    assert concentration_warnings([base, {**rr, "delta_vs_none": 3.9, "se_delta": 2.5}],
+                                  sizes) == []
+    assert concentration_warnings([base, _row("rolling_resistance", 393.1, 210.3, 4.0)],
+                                  sizes) == []
 
 
 @pytest.mark.parametrize("args, needle", [

@@ -64,6 +64,7 @@ def test_power_quick_run_writes_table_and_resumes(tmp_path):
     noise = doc["runs"][0]["loglik_noise_sd_nats"]
     assert set(noise) == set(doc["runs"][0]["ess"]) and all(v > 0 for v in noise.values())
     assert doc["cells"][0]["median_loglik_noise_sd_none_nats"] == noise["none"]
+    assert set(doc["runs"][0]["effective_rows"]) == set(doc["runs"][0]["gains"])
     assert doc["budget"] == "crsp-quick"  # the preset's own blocks: no suffix
     (rec,) = os.listdir(out / "runs")
     # a second call finds the finished run and does not redo it
