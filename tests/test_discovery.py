@@ -327,4 +327,5 @@ def test_notebook_03_discrepancy_runs_at_small_size(tmp_path):
     text = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code"
                    for o in c.get("outputs", []))
     assert "hidden: rolling_resistance | named:" in text
+    assert "of which from the speeds" in text  # section 2: runouts and passage speeds
     assert "size_dissipation" in text and "named:" in text
