@@ -514,15 +514,16 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
     where_before = locate(obs, row_class, class_sizes, base.samples, profile, rng)
     table = []
     for eff, f in fits.items():
+        gains = f.elpd - base.elpd  # per row
         d, se = (0.0, 0.0) if eff == "none" else elpd_difference(f.elpd, base.elpd)
         table.append({"effect": eff, "score": float(f.elpd.sum()), "delta_vs_none": d,
                       "se_delta": se, "gap": f.gap, "n_params": len(f.names),
                       "ess": f.ess, "loglik_noise_sd_nats": f.loglik_noise_sd_nats})
         if eff != "none":  # how many rows carry the gain (the 2-se rule is a bar on it)
-            table[-1]["effective_rows"] = effective_rows(f.elpd - base.elpd)
-            table[-1]["carrying_rows"] = [int(i) for i in carrying_rows(f.elpd - base.elpd)]
+            table[-1]["effective_rows"] = effective_rows(gains)
+            table[-1]["carrying_rows"] = [int(i) for i in carrying_rows(gains)]
         if vel is not None:  # the part of the gain that the speeds carry
-            table[-1]["delta_velocity_rows"] = float((f.elpd - base.elpd)[n_run:].sum())
+            table[-1]["delta_velocity_rows"] = float(gains[n_run:].sum())
     table.sort(key=lambda r: -r["score"])
     named = "none"
     best = best_effect(table)
