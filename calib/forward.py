@@ -109,6 +109,7 @@ class CrspForward:
             CRSP); its parameters follow (Kn, Kt, roughness_m) in theta, and the
             box becomes ``calib.effects.full_box``.
         stations_x_m: abscissae (m) at which ``simulate`` records passage speeds.
+        settings: CRSP solver settings (event budget, search window).
     """
 
     profile: Profile
@@ -120,6 +121,7 @@ class CrspForward:
     box: Box = CRSP_BOX
     effect: str = "none"
     stations_x_m: tuple[float, ...] = ()
+    settings: crsp.Settings = crsp.Settings()
 
     def __post_init__(self):
         if self.effect != "none":
@@ -171,7 +173,8 @@ class CrspForward:
             blocks = _stack([crsp.make_block(float(r)) for r in radius[c0:c0 + chunk]])
             res = crsp.simulate_tasks(params, blocks, self.key, self.profile, stations,
                                       n_per_task=self.n_blocks,
-                                      pool=min(self.pool, chunk * self.n_blocks))
+                                      pool=min(self.pool, chunk * self.n_blocks),
+                                      settings=self.settings)
             runs.append(np.asarray(res.runout_m))
             v = np.asarray(res.stations.velocity_m_s)  # (chunk, n, K)
             speeds.append(np.where(np.asarray(res.stations.passed), v, np.nan))
