@@ -130,6 +130,68 @@ def test_reach_and_exceedance_equal_per_block_fractions(small_run):
                 s, got, exact)
 
 
+# ------------------------------------------------- blocks that leave or do not finish
+
+def test_left_profile_and_unfinished_fractions_equal_a_direct_count(tmp_path):
+    """The Postignano profile cut at x = 116 m (on the full one the 2 m blocks stop
+    around 110-123 m, so here many leave its end still moving): per row,
+    ``p_left_profile`` is the fraction of the blocks of a direct solver run with
+    the same keys whose status is LEFT_PROFILE, ``p_unfinished`` the fraction
+    not finished, and the exceedance counts finished blocks only. Same sizes,
+    block count and station count as ``small_run``: no new compilation."""
+    from solvers.status import LEFT_PROFILE, finished
+
+    (tmp_path / "cut_profile.csv").write_text(
+        "x_m,z_m,zone\n0.000,135.526,cliff\n8.038,105.526,talus\n110.000,19.970,lower\n"
+        "116.000,19.339,\n")
+    (tmp_path / "cut_materials.csv").write_text(
+        "zone,Kn,Kt,roughness_m,rolling_friction_deg,phi_deg\ncliff,0.41,0.87,2.0,30,30\n"
+        "talus,0.41,0.87,2.0,30,30\nlower,0.41,0.87,2.0,30,30\n")
+    path = write_calibration(tmp_path, profile=str(tmp_path / "cut_profile.csv"))
+    stations = np.linspace(0.0, 115.0, 31)
+    cal, profile, c = _run(path, 1, 400, [0.5, 2.0], stations, seed=4)
+    table = hazard_table(c, profile)
+    params = crsp.params_from_profile(profile, Kn=0.41, Kt=0.87, roughness_m=2.0)
+    for size in c.sizes_m:
+        res = crsp.run_blocks(params, crsp.make_block(size / 2), draw_key(4, 0), c.n_blocks,
+                              profile, stations_x_m=stations)
+        status = np.asarray(res.status)
+        ok = finished(status)
+        rows = table[table.block_size_m == size].sort_values("x_m")
+        left, unfinished = np.mean(status == LEFT_PROFILE), np.mean(~ok)
+        np.testing.assert_array_equal(rows.p_left_profile.to_numpy(), left)
+        np.testing.assert_array_equal(rows.p_unfinished.to_numpy(), unfinished)
+        beyond = ((res.stop_x_m[:, None] > stations[None, :]) & ok[:, None]).mean(axis=0)
+        np.testing.assert_array_equal(rows.p_exceed_mean.to_numpy(), beyond)
+        if size == 2.0:
+            assert 0.1 < left < 0.9, left  # the case has blocks that leave and that stop
+
+
+def test_chunk_counts_read_the_status():
+    """``reduce_chunk`` on hand-made blocks: BUDGET and INVALID are unfinished and
+    never exceed a station; LEFT_PROFILE is finished and counted apart; an
+    invalid block's passages are not counted, a budget-stopped block's are;
+    padding (valid False) counts for nothing."""
+    from calib.hazard._stats import reduce_chunk
+    from solvers.status import BUDGET, INVALID, LEFT_PROFILE, STOPPED
+
+    status = np.array([[STOPPED, LEFT_PROFILE, BUDGET, INVALID, STOPPED, BUDGET]])
+    stop_x = np.array([[50.0, 100.0, 80.0, 90.0, 5.0, 99.0]])
+    stations = np.array([10.0, 60.0])
+    passed = np.array([[[True, False], [True, True], [True, True], [True, True],
+                        [False, False], [True, True]]])
+    e = np.where(passed, 50.0, np.nan)
+    valid = np.array([True, True, True, True, True, False])
+    out = jax.device_get(jax.jit(reduce_chunk)(stop_x, status,
+                                               passed, e, e, e, valid, stations))
+    assert int(out.n_blocks) == 5
+    np.testing.assert_array_equal(out.n_unfinished, [2])
+    np.testing.assert_array_equal(out.n_left_profile, [1])
+    np.testing.assert_array_equal(out.exceed, [[2, 1]])  # stopped at 50, left at 100
+    np.testing.assert_array_equal(out.reach, [[3, 2]])  # not the invalid, not the padding
+    np.testing.assert_array_equal(out.e30, [[3, 2]])
+
+
 # ---------------------------------------------------------------- 1/sqrt(N) bands
 
 def test_bands_shrink_as_one_over_sqrt_n(tmp_path):

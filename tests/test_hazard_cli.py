@@ -73,7 +73,8 @@ def test_cli_writes_tables_figures_and_summary(run_a):
                 "energy_p99_kJ",
                 "bounce_height_p95_m", "velocity_p95_m_s", "p_E_gt_30kJ_given_reach",
                 "p_E_gt_300kJ_given_reach", "intensity_class", "freq_reach_per_yr",
-                "freq_E_gt_30kJ_per_yr", "freq_E_gt_300kJ_per_yr", "hazard_level"):
+                "freq_E_gt_30kJ_per_yr", "freq_E_gt_300kJ_per_yr", "hazard_level",
+                "p_left_profile", "p_unfinished"):
         assert col in table.columns, col
     assert set(table.x_m) >= {230.0}
     assert "P(reach road)" in r.stdout and "1 device(s)" in r.stdout

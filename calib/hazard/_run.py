@@ -56,7 +56,9 @@ class HazardCounts:
         n_blocks: blocks per draw and size.
         draws: the ``Draws``.
         exceed, reach, e30, e300: (D, T, S) counts per draw.
-        n_unfinished: (D, T) blocks still moving at the budget.
+        n_unfinished: (D, T) blocks that did not finish (still moving at the
+            budget, or invalid: ``solvers.status``).
+        n_left_profile: (D, T) blocks that left the profile.
         hist: quantity -> (T, S, B) counts pooled over draws.
         energy_p95_per_draw_kJ: (D, T, S) E p95 of each draw's passers.
     """
@@ -72,6 +74,7 @@ class HazardCounts:
     e30: np.ndarray
     e300: np.ndarray
     n_unfinished: np.ndarray
+    n_left_profile: np.ndarray
     hist: dict
     energy_p95_per_draw_kJ: np.ndarray
 
@@ -137,6 +140,7 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
     shape = (n_draws, n_sizes, n_st)
     acc = {k: np.zeros(shape, np.int64) for k in ("exceed", "reach", "e30", "e300")}
     n_unfinished = np.zeros((n_draws, n_sizes), np.int64)
+    n_left_profile = np.zeros((n_draws, n_sizes), np.int64)
     hist = {q: np.zeros((n_sizes, n_st, b.n), np.int64) for q, b in BINS.items()}
     e_bins = BINS["energy_kJ"]
     draw_hist = {}
@@ -149,6 +153,7 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
         for k in acc:
             acc[k][d, t_sl] += getattr(out, k)
         n_unfinished[d, t_sl] += out.n_unfinished
+        n_left_profile[d, t_sl] += out.n_left_profile
         for q in hist:
             hist[q][t_sl] += getattr(out, f"hist_{q}")
         dh = draw_hist.setdefault(d, np.zeros((n_sizes, n_st, e_bins.n), np.int64))
@@ -170,7 +175,8 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
     run_units(units, on_result, devices=devices)
     return HazardCounts(model=cal.model, sizes_m=sizes_m, stations_x_m=stations,
                         release_x_m=release_x, n_blocks=n_blocks, draws=draws,
-                        n_unfinished=n_unfinished, hist=hist, energy_p95_per_draw_kJ=e95,
+                        n_unfinished=n_unfinished, n_left_profile=n_left_profile,
+                        hist=hist, energy_p95_per_draw_kJ=e95,
                         **acc)
 
 

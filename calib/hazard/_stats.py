@@ -7,7 +7,17 @@ is reduced, on the device and in integers, to
 
 * counts per station: blocks whose final position lies beyond x (runout
   exceedance), blocks that passed x (reach), passers with E > 30 and > 300 kJ;
-* log-binned histograms of energy, velocity and bounce height of the passers.
+* log-binned histograms of energy, velocity and bounce height of the passers;
+* counts per size of the blocks that left the profile and of the unfinished ones.
+
+Block status (``solvers.status``). Only a finished block (stopped, or left the
+profile) has a final position, so only finished blocks count towards the
+exceedance; an unfinished one (still moving at the budget, or invalid) is
+counted as unfinished instead. A block that left the profile counts as beyond
+every station it passed (its final abscissa is the profile's end). Passages
+count towards reach and the histograms for every block except an INVALID one:
+a block stopped by the budget really passed the stations it passed, while an
+invalid state (below the ground, non-finite) makes its records meaningless.
 
 Counts add up exactly whatever the chunking or device, so tables are
 bit-for-bit reproducible. Quantiles are read from the histograms: a value
@@ -24,6 +34,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from solvers.status import INVALID, LEFT_PROFILE, finished
 
 __all__ = ["BINS", "Bins", "ChunkStats", "hist_quantile", "reduce_chunk"]
 
@@ -69,15 +81,19 @@ class ChunkStats(NamedTuple):
 
     Attributes:
         n_blocks: () blocks counted per task.
-        n_unfinished: (T,) blocks still moving when the event/step budget ran out.
-        exceed: (T, S) blocks whose final abscissa is beyond the station.
-        reach: (T, S) blocks that passed the station moving downslope.
+        n_unfinished: (T,) blocks that did not finish: still moving when the
+            event/step budget ran out, or invalid (``solvers.status``).
+        n_left_profile: (T,) blocks that left the profile still moving.
+        exceed: (T, S) finished blocks whose final abscissa is beyond the station.
+        reach: (T, S) blocks that passed the station moving downslope (invalid
+            blocks excluded).
         e30, e300: (T, S) passers with E > 30 kJ / E > 300 kJ.
         hist_energy_kJ, hist_velocity_m_s, hist_bounce_height_m: (T, S, B) counts.
     """
 
     n_blocks: jax.Array
     n_unfinished: jax.Array
+    n_left_profile: jax.Array
     exceed: jax.Array
     reach: jax.Array
     e30: jax.Array
@@ -96,13 +112,13 @@ def _hist(values, mask, bins: Bins):
     return out.reshape(t, s, bins.n)
 
 
-def reduce_chunk(stop_x_m, unfinished, passed, energy_kJ, velocity_m_s, bounce_height_m,
+def reduce_chunk(stop_x_m, status, passed, energy_kJ, velocity_m_s, bounce_height_m,
                  valid, stations_x_m) -> ChunkStats:
     """Reduce per-block results of one chunk to ``ChunkStats`` (pure, jit-able).
 
     Args:
         stop_x_m: (T, n) final abscissa of each block, m.
-        unfinished: (T, n) bool, still moving at the end of the budget.
+        status: (T, n) final status of each block (``solvers.status`` codes).
         passed: (T, n, S) bool, the block passed the station.
         energy_kJ, velocity_m_s, bounce_height_m: (T, n, S) values at first
             passage (NaN where not passed).
@@ -114,12 +130,15 @@ def reduce_chunk(stop_x_m, unfinished, passed, energy_kJ, velocity_m_s, bounce_h
     """
     v = valid[None, :]
     vs = valid[None, :, None]
-    ok = passed & vs
+    done = finished(status)  # (T, n): the final abscissa is a result
+    ok = passed & vs & (status != INVALID)[..., None]
     i32 = jnp.int32
     return ChunkStats(
         n_blocks=jnp.sum(valid.astype(i32)),
-        n_unfinished=jnp.sum((unfinished & v).astype(i32), axis=1),
-        exceed=jnp.sum(((stop_x_m[..., None] > stations_x_m) & vs).astype(i32), axis=1),
+        n_unfinished=jnp.sum((~done & v).astype(i32), axis=1),
+        n_left_profile=jnp.sum(((status == LEFT_PROFILE) & v).astype(i32), axis=1),
+        exceed=jnp.sum(((stop_x_m[..., None] > stations_x_m) & (done & v)[..., None]
+                        ).astype(i32), axis=1),
         reach=jnp.sum(ok.astype(i32), axis=1),
         e30=jnp.sum((ok & (energy_kJ > 30.0)).astype(i32), axis=1),
         e300=jnp.sum((ok & (energy_kJ > 300.0)).astype(i32), axis=1),

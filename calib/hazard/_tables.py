@@ -3,13 +3,22 @@ bands, per-station design values, intensity classes and annual frequencies.
 
 Definitions (station x, block size D; draws d = 1..M, N blocks each):
 
-* runout exceedance of draw d: p_d(x) = #{blocks with final abscissa > x} / N.
-  Posterior mean = mean_d p_d; bands = 5/50/95 % quantiles of p_d over draws
+* runout exceedance of draw d: p_d(x) = #{finished blocks with final abscissa
+  > x} / N. Posterior mean = mean_d p_d; bands = 5/50/95 % quantiles of p_d over draws
   (NumPy's linear interpolation). The bands hold the calibration's parameter
-  uncertainty plus each draw's Monte Carlo noise, sqrt(p (1 - p) / N).
+  uncertainty plus each draw's Monte Carlo noise, sqrt(p (1 - p) / N). An
+  unfinished block has no final abscissa and is not counted, so the true
+  exceedance lies between p and p + p_unfinished.
 * reach probability: the fraction of blocks that passed x moving downslope
-  (the solvers' station records; ``solvers.stations``). Undefined (NaN) at
-  stations at or upslope of the release point, where blocks start.
+  (the solvers' station records; ``solvers.stations``), invalid blocks left
+  out. Undefined (NaN) at stations at or upslope of the release point, where
+  blocks start.
+* ``p_left_profile``: the fraction of the blocks of this size (all draws) that
+  left the profile still moving (finished, their final abscissa censored at the
+  profile's end: they exceed every station short of it); ``p_unfinished``: the
+  fraction that did not finish, still moving when the solver's budget ran out
+  or invalid (below the ground, non-finite), status BUDGET or INVALID of
+  ``solvers.status``. Both are per size, repeated on each station row.
 * energy p50/p95/p99, bounce-height p95 and velocity p95 of the blocks that
   pass x: quantiles of the posterior predictive distribution (the passers of
   all draws pooled), read from histograms (``_stats``: error < 1.2 %). Energies
@@ -104,6 +113,7 @@ def hazard_table(c: HazardCounts, profile: Profile,
     rows = []
     for t, size in enumerate(c.sizes_m):
         unfinished = c.n_unfinished[:, t].sum() / (n_draws * c.n_blocks)
+        left = c.n_left_profile[:, t].sum() / (n_draws * c.n_blocks)
         pq = _draw_quantiles(p_ex[:, t])
         rq = _draw_quantiles(reach[:, t]) if np.any(downslope) else None
         for s, x in enumerate(c.stations_x_m):
@@ -134,6 +144,7 @@ def hazard_table(c: HazardCounts, profile: Profile,
                 "p_E_gt_30kJ_given_reach": float(p30[t, s]) if ok else np.nan,
                 "p_E_gt_300kJ_given_reach": float(p300[t, s]) if ok else np.nan,
                 "intensity_class": intensity_class(e95),
+                "p_left_profile": float(left),
                 "p_unfinished": float(unfinished),
             }
             if release_rate_per_year is not None:
@@ -172,7 +183,10 @@ def summary_text(c: HazardCounts, table: pd.DataFrame, road_x_m: float,
         if release_rate_per_year is not None:
             line += (f"; {r.freq_reach_per_yr:.3g} blocks/yr reach it, level "
                      f"{r.hazard_level}")
+        if r.p_left_profile > 0:
+            line += f"; {r.p_left_profile:.2%} of blocks left the profile"
         if r.p_unfinished > 0:
-            line += f" ({r.p_unfinished:.2%} of blocks unfinished at the event budget)"
+            line += (f"; {r.p_unfinished:.2%} of blocks unfinished (still moving at the "
+                     f"solver's budget, or invalid), not counted as runouts")
         lines.append(line)
     return "\n".join(lines)

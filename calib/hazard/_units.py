@@ -9,6 +9,9 @@ between sizes come from the size, not from the draws), draws are independent.
 A block's key does not depend on the chunk it runs in or on the device, so the
 tables do not depend on chunking or on the number of devices.
 
+Both solvers report a block's end as a ``solvers.status`` code; ``_stats``
+reads it (finished, left the profile, unfinished).
+
 CRSP: all sizes of a draw run as tasks of one lane pool
 (``solvers.crsp.simulate_tasks``, with the chunk's block offset).
 DEM: one size per unit, ``jax.vmap`` of ``solvers.dem.simulate``. The 2D DEM
@@ -28,9 +31,8 @@ import jax
 import jax.numpy as jnp
 
 from calib.hazard._stats import ChunkStats, reduce_chunk
-from solvers.crsp import MAX_EVENTS, Settings, simulate_tasks
+from solvers.crsp import Settings, simulate_tasks
 from solvers.dem import simulate as dem_simulate
-from solvers.dem._params import MAX_STEPS, NONFINITE, RUNNING
 
 __all__ = ["crsp_chunk", "dem_chunk", "draw_key"]
 
@@ -62,7 +64,7 @@ def crsp_chunk(params, blocks, key, profile, stations_x_m, offset, n_valid, *, n
                          pool=pool, settings=settings, offset=offset)
     st = res.stations
     valid = jnp.arange(n_chunk) < n_valid
-    return reduce_chunk(res.stop_x_m, res.status == MAX_EVENTS, st.passed, st.energy_kJ,
+    return reduce_chunk(res.stop_x_m, res.status, st.passed, st.energy_kJ,
                         st.velocity_m_s, st.bounce_height_m, valid, stations_x_m)
 
 
@@ -85,9 +87,8 @@ def dem_chunk(params, block, key, offset, n_valid, *, n_chunk: int, options) -> 
     keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(idx)
     res = jax.vmap(lambda k: dem_simulate(params, block, k, options))(keys)
     st = res.stations  # fields (n, 1, S): one fragment
-    unfinished = (res.status == MAX_STEPS) | (res.status == NONFINITE) | (res.status == RUNNING)
     valid = jnp.arange(n_chunk) < n_valid
     energy_kJ = st.energy_kJ[None, :, 0] * block.size_m  # per metre -> per block (cube)
-    return reduce_chunk(res.stop_x_m[None, :, 0], unfinished[None], st.passed[None, :, 0],
+    return reduce_chunk(res.stop_x_m[None, :, 0], res.status[None], st.passed[None, :, 0],
                         energy_kJ, st.velocity_m_s[None, :, 0],
                         st.bounce_height_m[None, :, 0], valid, block.stations_x_m)
