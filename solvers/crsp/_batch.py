@@ -114,7 +114,6 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
     stations_z_m = ground_z(profile, stations_x_m)
     n_st = stations_x_m.shape[0]
     tables = jax.vmap(segment_table, in_axes=(None, 0, 0))(profile, params, block)
-    max_events = settings.max_events
 
     def task_of(t):
         return jax.tree_util.tree_map(lambda a: a[t], (params, block, tables))
@@ -124,13 +123,13 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
         p, b, _ = task_of(t)
         gi = (j + offset).astype(jnp.uint32)
         release_key, event_key = jax.random.split(jax.random.fold_in(key, gi))
-        s = init(p, b, release_key, profile, n_st)
+        s = init(p, b, release_key, profile, n_st, settings)
         return s, key_words(event_key)
 
     def lane_step(s, words, t):
         p, b, table = task_of(t)
         new = step(s, p, b, words, profile, table, stations_x_m, stations_z_m, settings)
-        go = _moving(s) & (s.n_events < max_events)
+        go = _moving(s) & (s.n_events < s.budget)
         return jax.tree_util.tree_map(lambda a, c: jnp.where(go, a, c), new, s)
 
     finalize = result_from_state
@@ -150,7 +149,7 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
         task = idx // n_per_task
         states = jax.lax.fori_loop(
             0, refill_every, lambda _, s: jax.vmap(lane_step)(s, words, task), states)
-        done = active & ~(_moving(states) & (states.n_events < max_events))
+        done = active & ~(_moving(states) & (states.n_events < states.budget))
         res = jax.vmap(finalize)(states, x0)
         target = jnp.where(done, idx, n_items)  # out of bounds: dropped
         out = jax.tree_util.tree_map(lambda o, r: o.at[target].set(r, mode="drop"), out, res)

@@ -29,6 +29,7 @@ __all__ = ["FlightHit", "next_impact"]
 
 _T_MIN_S = 1e-9
 _X_TOL_M = 1e-9
+_H_TOL_M = 1e-9
 
 
 class FlightHit(NamedTuple):
@@ -85,7 +86,9 @@ def next_impact(
     xt = x_m + vx_m_s * t
     valid = in_range & (disc >= 0.0) & (t > _T_MIN_S) & (xt >= xa - _X_TOL_M) & (
         xt <= xb + _X_TOL_M)
-    t_valid = jnp.where(valid, t, jnp.inf)
+    at_once = in_range & (h0 <= _H_TOL_M) & (b < 0.0) & (x_m >= xa - _X_TOL_M) & (
+        x_m <= xb + _X_TOL_M)
+    t_valid = jnp.where(at_once, 0.0, jnp.where(valid, t, jnp.inf))
     k = jnp.argmin(t_valid)
     hit = jnp.isfinite(t_valid[k])
 

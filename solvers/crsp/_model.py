@@ -4,28 +4,44 @@ The rock is a lumped mass with a radius (for roughness and rotational inertia)
 moving along a 2D height-field profile. Its history is a sequence of events,
 each solved in closed form:
 
-* FLIGHT: exact parabola to the next impact (``_flight.next_impact``), then the
-  CRSP impact law on a roughness-tilted facet (``_impact.crsp_impact``). If the
-  rebound's normal speed relative to the mean segment is below
-  ``rolling_threshold_m_s`` the rock stays on the ground (CONTACT).
-* CONTACT: rolling/sliding with Coulomb resistance along the segment to its end,
-  to rest, or to the next roughness asperity one radius further (where a CRSP
-  impact on a new random facet follows, as a pending impact) (``_contact``);
-  launch into flight at convex breaks.
+* FLIGHT: exact parabola to the next impact (``_flight.next_impact``). A
+  landing whose speed into the mean segment is below ``rolling_threshold_m_s``
+  is a touch-down: the rock goes on rolling with the velocity's component
+  along the segment (no impact law, no random draw). Any faster landing is a
+  CRSP impact on a roughness-tilted facet (``_impact.crsp_impact``); if the
+  rebound's normal speed relative to the mean segment is below the threshold
+  the rock stays on the ground (CONTACT).
+* CONTACT: rolling with Coulomb resistance and the mean asperity loss of the
+  rough surface, in closed form, to the segment's end or to rest
+  (``_contact``). At a vertex (our own treatment, see ``vertex_transition``):
+  collinear segments continue; a concave break whose normal speed reaches the
+  threshold is a CRSP impact on the next segment, a gentler one keeps the
+  tangential component; a convex break launches the rock only when it
+  physically separates from the edge (centripetal condition) and the hop is a
+  real one (its landing speed into the next segment reaches the threshold);
+  otherwise the rock rounds the edge and rolls on.
 * STOPPED: at rest where rest is possible (``tan|beta| <= mu``).
 * LEFT_PROFILE: passed either end of the profile (not a stop).
 
-The loop is a ``lax.while_loop`` bounded by ``Settings.max_events``: event-
-driven motion has no fixed step count, and a vmapped while_loop stops when the
-slowest lane of the batch is done. A block still moving at the bound is flagged
-(status ``MAX_EVENTS``), never counted as stopped. This forward model is not
+Status codes are those of ``solvers.status``. After every event the block must
+lie on or above the ground (``z >= ground - GROUND_TOL_M``) with finite values;
+otherwise its status is ``INVALID`` (an error, never a stop or a passage).
+
+The loop is a ``lax.while_loop`` bounded by a per-block event budget
+(``event_budget``: it grows with the number of segments and with the slope
+length over the block radius). A block still moving at the bound is flagged
+``BUDGET``, never counted as stopped. This forward model is not
 reverse-differentiated (calibration uses common-random-number objectives; see
 ``calib``).
 
 Randomness: ``key`` is split into a release key (release jitter) and an event
-key; the i-th event draws its roughness from a counter-based hash of the event
-key's words and i (``solvers._rng``; threefry per event dominated run time). A block's
-history depends only on its own key, whatever the batch it runs in.
+key; the i-th CRSP impact (not the i-th event) draws its roughness from a
+counter-based hash of the event key's words and i (``solvers._rng``). Events
+that draw nothing (window hops of a long flight, segment ends while rolling,
+touch-downs) do not consume draws, so inserting collinear vertices into a
+profile leaves every block's impact sequence, and so its result, unchanged
+up to round-off. A block's history depends only on its own key, whatever the
+batch it runs in.
 """
 
 from __future__ import annotations
@@ -39,16 +55,19 @@ import jax.numpy as jnp
 import numpy as np
 
 from solvers._rng import key_words, uniform_from_counter
-from solvers.crsp._contact import contact_move
+from solvers.crsp._contact import asperity_loss, contact_move, speed2_after
 from solvers.crsp._effects import breaks, in_belt, size_scaled
 from solvers.crsp._flight import next_impact
 from solvers.crsp._impact import crsp_impact, roughness_tilt
 from solvers.profile import Profile, ground_z, segment_index
 from solvers.stations import StationRecord, empty_record, record_passage
+from solvers.status import BUDGET, GROUND_TOL_M, INVALID, LEFT_PROFILE, STOPPED
 
 __all__ = [
+    "BUDGET",
     "CONTACT",
     "FLIGHT",
+    "INVALID",
     "LEFT_PROFILE",
     "MAX_EVENTS",
     "STOPPED",
@@ -57,15 +76,17 @@ __all__ = [
     "Result",
     "Settings",
     "State",
+    "event_budget",
     "make_block",
     "params_from_profile",
     "result_from_state",
     "simulate",
 ]
 
-# modes (State.mode) and final status (Result.status)
-FLIGHT, CONTACT, STOPPED, LEFT_PROFILE = 0, 1, 2, 3
-MAX_EVENTS = 4  # status only: still moving when the event budget ran out
+# modes of a moving block (State.mode); a block that is not moving holds its
+# final status (solvers.status: STOPPED, LEFT_PROFILE, INVALID) in the same field
+FLIGHT, CONTACT = 0, 1
+MAX_EVENTS = BUDGET  # former name of the budget status, kept for old imports
 
 _INERTIA_RATIO = {"sphere": 0.4, "cylinder": 0.5, "disc": 0.5}
 
@@ -206,13 +227,42 @@ class Settings:
 
     Attributes:
         g_m_s2: gravitational acceleration, m/s^2.
-        max_events: bound on flight + contact events per block.
+        max_events: a fixed bound on flight + contact events per block, or None
+            (default) for the per-block budget of ``event_budget``.
         window: segments tested per flight event (local search).
     """
 
     g_m_s2: float = 9.81
-    max_events: int = 5000
+    max_events: int | None = None
     window: int = 4
+
+
+# per-block event budget (``event_budget``); see its docstring for the measurements
+_BUDGET_BASE = 200
+_BUDGET_PER_SEGMENT = 4
+_BUDGET_PER_RADIUS = 1.0
+
+
+def event_budget(profile: Profile, radius_m: jax.Array, settings: Settings) -> jax.Array:
+    """Event budget of one block: ``Settings.max_events`` if given, else
+
+        ``200 + 4 n_segments + L / r``
+
+    with L the profile's slope length and r the block radius. Rolling costs one
+    event per segment passed (a rock may roll back and forth a few times),
+    a long flight one event per ``window`` segments, and bouncing about one
+    event per impact; small rocks on rough ground bounce at most every few
+    radii. The constants leave a wide margin over the event counts measured on
+    the prior box of the calibration (see ``tests/test_crsp_invariants.py``:
+    no block of 0.1-2 m diameter reaches the budget).
+    """
+    if settings.max_events is not None:
+        return jnp.asarray(settings.max_events, jnp.int32)
+    n_seg = profile.x_m.shape[0] - 1
+    length_m = jnp.sum(jnp.hypot(jnp.diff(profile.x_m), jnp.diff(profile.z_m)))
+    per_radius = jnp.ceil(_BUDGET_PER_RADIUS * length_m / radius_m)
+    budget = _BUDGET_BASE + _BUDGET_PER_SEGMENT * n_seg + jnp.minimum(per_radius, 2.0**30)
+    return budget.astype(jnp.int32)
 
 
 class State(NamedTuple):
@@ -223,14 +273,17 @@ class State(NamedTuple):
         vx_m_s, vz_m_s: velocity, m/s.
         spin_rad_s: rolling-positive spin, rad/s.
         seg: segment under the block.
-        mode: FLIGHT, CONTACT, STOPPED or LEFT_PROFILE.
+        mode: FLIGHT or CONTACT while moving; then the final status
+            (``solvers.status``: STOPPED, LEFT_PROFILE or INVALID).
         n_events: events so far.
-        n_impacts: impacts so far.
-        pending: bool, the last rebound points into the mean slope: the next
-            event is an immediate new impact (no flight).
+        n_impacts: CRSP impacts so far (the counter of the roughness draws).
+        pending: bool, the next event is an immediate CRSP impact on ``seg``
+            (a rebound into the mean slope, or a rolling rock meeting a
+            concave break fast enough).
         stations: first-passage records, fields of shape (n_stations,).
         radius_m: current radius (the fragment's after a break), m.
         fragmented: bool, the block has broken (``_effects``).
+        budget: int, the event budget of this block (``event_budget``).
     """
 
     x_m: jax.Array
@@ -246,6 +299,7 @@ class State(NamedTuple):
     stations: StationRecord
     radius_m: jax.Array
     fragmented: jax.Array
+    budget: jax.Array
 
 
 class Result(NamedTuple):
@@ -253,10 +307,11 @@ class Result(NamedTuple):
 
     Attributes:
         runout_m: horizontal distance from the release point to the final
-            position, m (for blocks not stopped: to where they were at the end).
+            position, m (for blocks not stopped: to where they were at the end;
+            never a runout unless ``solvers.status.finished(status)``).
         stop_x_m, stop_z_m: final position, m.
         stopped: bool, at rest where rest is possible.
-        status: STOPPED, LEFT_PROFILE or MAX_EVENTS.
+        status: ``solvers.status`` code: STOPPED, LEFT_PROFILE, BUDGET or INVALID.
         n_events, n_impacts: counts.
         release_x_m: the release abscissa actually used, m.
         stations: ``StationRecord`` with fields of shape (n_stations,).
@@ -280,6 +335,13 @@ def _segment_geometry(profile: Profile, seg):
     return xa, xb, za, zb, beta
 
 
+def _line_z(profile: Profile, seg, x_m):
+    """Height of segment ``seg``'s line at ``x_m``."""
+    xa, xb = profile.x_m[seg], profile.x_m[seg + 1]
+    za, zb = profile.z_m[seg], profile.z_m[seg + 1]
+    return za + (zb - za) * (x_m - xa) / (xb - xa)
+
+
 class SegmentTable(NamedTuple):
     """Per-segment constants, computed once per block outside the event loop
     (transcendentals inside the loop dominated its cost on CPU). Shapes (S,).
@@ -290,9 +352,11 @@ class SegmentTable(NamedTuple):
     sin: jax.Array
     mu: jax.Array
     theta_max: jax.Array
+    drag: jax.Array
     Kn: jax.Array
     Kt: jax.Array
     theta_max_frag: jax.Array
+    drag_frag: jax.Array
     Kn_frag: jax.Array
     Kt_frag: jax.Array
     mass_frag_kg: jax.Array
@@ -301,22 +365,27 @@ class SegmentTable(NamedTuple):
 
 def segment_table(profile: Profile, params: Params, block: Block) -> SegmentTable:
     """Angles, their cos/sin, rolling resistance ``tan(phi_r) + Delta-mu``, the
-    roughness angle ``theta_max = arctan(S / R)`` (see ``_impact.roughness_tilt``)
-    and the (size-scaled, ``_effects``) restitution per segment, for the block and
-    for a fragment of it."""
+    roughness angle ``theta_max = arctan(S / R)`` (see ``_impact.roughness_tilt``),
+    the rolling asperity loss rate ``lambda(theta_max) / R`` (``_contact``) and the
+    (size-scaled, ``_effects``) restitution per segment, for the block and for a
+    fragment of it."""
     dx = jnp.diff(profile.x_m)
     dz = jnp.diff(profile.z_m)
     beta = jnp.arctan2(dz, dx)
     zone = profile.zone_id
-    r_frag = block.radius_m * params.frag_radius_ratio
+    r = block.radius_m
+    r_frag = r * params.frag_radius_ratio
     gamma = params.restitution_size_exponent
     Kn, Kt = params.Kn[zone], params.Kt[zone]
+    theta = roughness_tilt(1.0, params.roughness_m[zone], r)
+    theta_frag = roughness_tilt(1.0, params.roughness_m[zone], r_frag)
+    k = block.inertia_ratio
     return SegmentTable(
         beta=beta, cos=jnp.cos(beta), sin=jnp.sin(beta),
         mu=jnp.tan(jnp.deg2rad(params.rolling_friction_deg[zone])) + params.rolling_resistance,
-        theta_max=roughness_tilt(1.0, params.roughness_m[zone], block.radius_m),
-        Kn=size_scaled(Kn, block.radius_m, gamma), Kt=size_scaled(Kt, block.radius_m, gamma),
-        theta_max_frag=roughness_tilt(1.0, params.roughness_m[zone], r_frag),
+        theta_max=theta, drag=asperity_loss(theta, k) / r,
+        Kn=size_scaled(Kn, r, gamma), Kt=size_scaled(Kt, r, gamma),
+        theta_max_frag=theta_frag, drag_frag=asperity_loss(theta_frag, k) / r_frag,
         Kn_frag=size_scaled(Kn, r_frag, gamma), Kt_frag=size_scaled(Kt, r_frag, gamma),
         mass_frag_kg=block.mass_kg * params.frag_radius_ratio**3,
         belt_keep=jnp.sqrt(1.0 - params.belt_loss),
@@ -324,7 +393,7 @@ def segment_table(profile: Profile, params: Params, block: Block) -> SegmentTabl
 
 
 def init(params: Params, block: Block, key: jax.Array, profile: Profile,
-         n_stations: int) -> State:
+         n_stations: int, settings: Settings = Settings()) -> State:
     """Initial state at the release point (``key``: release key).
 
     The block starts in flight, or in ground contact when it is released on the
@@ -349,6 +418,7 @@ def init(params: Params, block: Block, key: jax.Array, profile: Profile,
         n_events=jnp.asarray(0, jnp.int32), n_impacts=jnp.asarray(0, jnp.int32),
         pending=jnp.asarray(False), stations=empty_record(n_stations),
         radius_m=zero + block.radius_m, fragmented=jnp.asarray(False),
+        budget=event_budget(profile, block.radius_m, settings),
     )
 
 
@@ -358,7 +428,7 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
     g = settings.g_m_s2
     x, z, vx, vz = state.x_m, state.z_m, state.vx_m_s, state.vz_m_s
     fh = next_impact(profile, state.seg, x, z, vx, vz, g, settings.window)
-    # a rebound into the mean slope hits the rough surface again at once
+    # a pending impact happens at once on state.seg (no flight)
     fh = fh._replace(t_s=jnp.where(state.pending, 0.0, fh.t_s),
                      hit=fh.hit | state.pending,
                      seg=jnp.where(state.pending, state.seg, fh.seg),
@@ -380,20 +450,27 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
     energy = 0.5 * m * (speed2 + k * (r * state.spin_rad_s) ** 2) / 1000.0
     rec = record_passage(state.stations, crossed, energy, jnp.sqrt(speed2), zs - stations_z_m)
 
-    # impact on the hit segment (used only if fh.hit)
     seg = fh.seg
     xa, xb = profile.x_m[seg], profile.x_m[seg + 1]
     za, zb = profile.z_m[seg], profile.z_m[seg + 1]
     beta, cb, sb = table.beta[seg], table.cos[seg], table.sin[seg]
+    thr = params.rolling_threshold_m_s
+    # speed into the mean segment at landing: a touch-down below the threshold
+    vn_in = vx * sb - vz1 * cb
+    touch = fh.hit & (vn_in < thr)
+    impact = fh.hit & ~touch
+    u_touch = vx * cb + vz1 * sb
+
+    # CRSP impact on the hit segment (used only if ``impact``)
     frag = state.fragmented
     theta_max = jnp.where(frag, table.theta_max_frag[seg], table.theta_max[seg])
-    tilt = uniform_from_counter(key, state.n_events) * theta_max
+    tilt = uniform_from_counter(key, state.n_impacts) * theta_max
     imp = crsp_impact(vx, vz1, state.spin_rad_s, beta, tilt,
                       jnp.where(frag, table.Kn_frag[seg], table.Kn[seg]),
                       jnp.where(frag, table.Kt_frag[seg], table.Kt[seg]),
                       r, k, slope_cos=cb, slope_sin=sb)
     # optional effects (_effects): a break on a hard impact, a vegetation belt
-    brk = fh.hit & breaks(m, vx * sb - vz1 * cb, params.frag_energy_kJ, frag)
+    brk = impact & breaks(m, vn_in, params.frag_energy_kJ, frag)
     r_new = jnp.where(brk, r * params.frag_radius_ratio, r)
     f = jnp.where(in_belt(x1, params.belt_start_m, params.belt_end_m), table.belt_keep, 1.0)
     f_spin = f * jnp.where(brk, params.frag_speed_ratio / params.frag_radius_ratio, 1.0)
@@ -401,9 +478,9 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
     imp = imp._replace(vx_m_s=f * imp.vx_m_s, vz_m_s=f * imp.vz_m_s,
                        spin_rad_s=f_spin * imp.spin_rad_s)
     vn_mean = -imp.vx_m_s * sb + imp.vz_m_s * cb
-    roll = jnp.abs(vn_mean) < params.rolling_threshold_m_s
-    into_slope = vn_mean <= -params.rolling_threshold_m_s
-    u_t = imp.vx_m_s * cb + imp.vz_m_s * sb
+    roll = touch | (jnp.abs(vn_mean) < thr)
+    into_slope = vn_mean <= -thr
+    u_t = jnp.where(touch, u_touch, imp.vx_m_s * cb + imp.vz_m_s * sb)
     z_line = za + (zb - za) * (x1 - xa) / (xb - xa)
 
     hit = fh.hit
@@ -419,12 +496,112 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
         seg=seg,
         mode=mode,
         n_events=state.n_events + 1,
-        n_impacts=state.n_impacts + hit.astype(jnp.int32),
-        pending=hit & into_slope,
+        n_impacts=state.n_impacts + impact.astype(jnp.int32),
+        pending=impact & ~roll & into_slope,
         stations=rec,
         radius_m=r_new,
         fragmented=frag | brk,
+        budget=state.budget,
     )
+
+
+_COLLINEAR_RAD = 1e-9  # |turn angle| below this: a collinear vertex (round-off)
+
+
+class VertexTransition(NamedTuple):
+    """What a rolling rock does at a vertex (see ``vertex_transition``).
+
+    Attributes:
+        launch: bool, it separates and flies (a real hop).
+        impact: bool, a concave break hit fast enough for a CRSP impact.
+        u_next_m_s: speed (>= 0) with which it rolls on along the next segment
+            when neither.
+        launch_rad: inclination of the launch direction below the horizontal,
+            in the direction of motion, rad.
+        rest: bool, the rock is at rest in a pit (a local low vertex).
+    """
+
+    launch: jax.Array
+    impact: jax.Array
+    u_next_m_s: jax.Array
+    launch_rad: jax.Array
+    rest: jax.Array
+
+
+_PIT_REST_HEIGHT_M = 1e-3  # a rock in a pit that could rise less than this is at rest
+
+
+def vertex_transition(speed_m_s, direction, beta, beta_next, radius_m, inertia_ratio,
+                      threshold_m_s, g_m_s2: float) -> VertexTransition:
+    """A rolling rock of speed v reaching a vertex (this toolkit's treatment).
+
+    With ``a1 = -d beta`` and ``a2 = -d beta_next`` the inclinations of the two
+    segments below the horizontal in the direction of motion d, the path turns
+    by ``delta = a2 - a1``:
+
+    * ``|delta| <= 1e-9`` rad: collinear (a resampled straight line): the rock
+      rolls on with its speed.
+    * concave (delta < 0): the rock meets the next segment with normal speed
+      ``v sin|delta|``. At or above the rolling threshold that is a CRSP
+      impact on the next segment; below it a touch-down that keeps the
+      tangential component ``v cos(delta)`` (second order in delta, so a
+      refined smooth curve converges).
+    * convex (delta > 0): a rigid body pivoting over an edge keeps contact
+      while the normal force ``m (g cos(psi) - v^2 / r) >= 0``, psi the
+      inclination of the contact normal (the particle-on-a-sphere condition;
+      e.g. Meriam & Kraige, Engineering Mechanics: Dynamics, normal and
+      tangential coordinates). It leaves at once when ``v^2 >= g r cos(a1)``;
+      else, rolling without slip with energy conserved, at
+      ``cos(psi*) = ((1 + k) v^2 / (g r) + 2 cos(a1)) / (3 + k)`` (10/17 from
+      rest for a sphere), if ``psi* < a2``. A rock that separates leaves along
+      the path's tangent at psi* and would land back on the next segment with
+      normal speed ``v sin(a2 - psi*)``: only when that reaches the rolling
+      threshold is it a real hop (a flight with its own landing); otherwise it
+      touches down at once and rolls on with ``v cos(a2 - psi*)``. A rock that
+      does not separate rounds the edge and rolls on with its speed.
+
+    * a pit (the rock arrives going down, a1 >= 0, and the next segment rises,
+      a2 < 0): both segments push the rock back to the vertex, so rest there is
+      statically admissible whatever the slopes. A rock that could rise there
+      by less than 1 mm (``v^2 < 2 g 1 mm``) is at rest at the vertex: its
+      remaining back-and-forth converges to the vertex in finite time (a Zeno
+      sequence that an event loop cannot end by itself).
+
+    The lumped mass stays at the contact point, so the drop of the rock's
+    centre over the edge, ``r (cos(a1) - cos(a2))``, is not added: no event
+    at a vertex ever creates energy.
+
+    Args:
+        speed_m_s: v >= 0 at the vertex, m/s. direction: +1 or -1.
+        beta, beta_next: segment angles (to +x), rad.
+        radius_m: r, m. inertia_ratio: k. threshold_m_s: rolling threshold, m/s.
+        g_m_s2: gravity.
+
+    Returns:
+        ``VertexTransition``.
+    """
+    v = speed_m_s
+    a1 = -direction * beta
+    a2 = -direction * beta_next
+    delta = a2 - a1
+    concave = delta < -_COLLINEAR_RAD
+    convex = delta > _COLLINEAR_RAD
+    k = inertia_ratio
+    # concave
+    impact = concave & (v * jnp.sin(-delta) >= threshold_m_s)
+    # convex: where the rock leaves the edge
+    ratio = v * v / (g_m_s2 * radius_m)
+    cos_a1 = jnp.cos(a1)
+    at_once = ratio >= cos_a1
+    cos_psi = ((1.0 + k) * ratio + 2.0 * cos_a1) / (3.0 + k)
+    psi = jnp.where(at_once, a1, jnp.arccos(jnp.clip(cos_psi, -1.0, 1.0)))
+    separates = convex & (at_once | (psi < a2))
+    turn = jnp.where(separates, a2 - psi, 0.0)
+    launch = separates & (v * jnp.sin(turn) >= threshold_m_s)
+    u_next = jnp.where(concave, v * jnp.cos(delta), jnp.where(separates, v * jnp.cos(turn), v))
+    rest = (a1 >= 0.0) & (a2 < 0.0) & (v * v < 2.0 * g_m_s2 * _PIT_REST_HEIGHT_M)
+    return VertexTransition(launch=launch & ~rest, impact=impact & ~rest, u_next_m_s=u_next,
+                            launch_rad=psi, rest=rest)
 
 
 def _contact_event(state: State, params: Params, block: Block, profile: Profile,
@@ -437,60 +614,75 @@ def _contact_event(state: State, params: Params, block: Block, profile: Profile,
     beta, cb, sb = table.beta[seg], table.cos[seg], table.sin[seg]
     x = state.x_m
     r = state.radius_m
+    k = block.inertia_ratio
     mu = table.mu[seg] + jnp.where(in_belt(x, params.belt_start_m, params.belt_end_m),
                                    params.belt_loss, 0.0)
+    drag = jnp.where(state.fragmented, table.drag_frag[seg], table.drag[seg])
     u = state.vx_m_s * cb + state.vz_m_s * sb
-    rough = table.theta_max[seg] > 0.0
     mv = contact_move(u, cb, sb, mu, jnp.maximum((xb - x) / cb, 0.0),
-                      jnp.maximum((x - xa) / cb, 0.0), block.inertia_ratio, g,
-                      dist_kick_m=jnp.where(rough, r, jnp.inf))
-    x1 = jnp.clip(x + mv.dist_m * cb, xa, xb)
-    z1 = za + (zb - za) * (x1 - xa) / (xb - xa)
+                      jnp.maximum((x - xa) / cb, 0.0), k, g, drag)
+    # a move to the segment's end ends exactly on its vertex (no round-off)
+    x_end = jnp.where(mv.direction > 0, xb, xa)
+    x1 = jnp.where(mv.at_end, x_end, jnp.clip(x + mv.dist_m * cb, xa, xb))
+    z1 = jnp.where(mv.at_end, jnp.where(mv.direction > 0, zb, za),
+                   za + (zb - za) * (x1 - xa) / (xb - xa))
 
     # first passages while rolling downslope
-    k = block.inertia_ratio
     m = jnp.where(state.fragmented, table.mass_frag_kg, block.mass_kg)
     crossed = (mv.direction > 0) & (stations_x_m > x) & (stations_x_m <= x1)
-    d_s = (stations_x_m - x) / cb
-    v2 = jnp.maximum(u * u + 2.0 * mv.accel_m_s2 * mv.direction * d_s, 0.0)
+    d_s = jnp.maximum((stations_x_m - x) / cb, 0.0)
+    v2 = speed2_after(u * u, mv.accel_m_s2, mv.drag_per_m, d_s)
     energy = 0.5 * m * (1.0 + k) * v2 / 1000.0
     rec = record_passage(state.stations, crossed, energy, jnp.sqrt(v2), jnp.zeros_like(v2))
 
-    # transition at the segment's end
+    # what happens at the segment's end
     step = mv.direction.astype(jnp.int32)
     nxt = seg + step
     off_end = (nxt < 0) | (nxt >= n_seg)
     nxt_c = jnp.clip(nxt, 0, n_seg - 1)
-    beta2, c2, s2 = table.beta[nxt_c], table.cos[nxt_c], table.sin[nxt_c]
-    convex = jnp.where(step > 0, beta2 < beta, beta2 > beta)
-    u_end = mv.u_end_m_s
-    u2 = u_end * (c2 * cb + s2 * sb)  # u cos(beta2 - beta)
-
+    c2, s2 = table.cos[nxt_c], table.sin[nxt_c]
+    speed = jnp.abs(mv.u_end_m_s)
+    vt = vertex_transition(speed, mv.direction, beta, table.beta[nxt_c], r, k,
+                           params.rolling_threshold_m_s, g)
     at_end = mv.at_end
-    mode = jnp.where(mv.stopped, STOPPED,
-                     jnp.where(at_end & off_end, LEFT_PROFILE,
-                               jnp.where((at_end & convex) | mv.kicked, FLIGHT,
-                                         CONTACT))).astype(jnp.int32)
     switch = at_end & ~off_end
-    vx_new = jnp.where(switch & ~convex, u2 * c2, u_end * cb)
-    vz_new = jnp.where(switch & ~convex, u2 * s2, u_end * sb)
-    speed_along = jnp.where(switch & ~convex, u2, u_end)
+    launch = switch & vt.launch
+    impact = switch & vt.impact
+    pit_rest = switch & vt.rest
+    roll_on = switch & ~vt.launch & ~vt.impact & ~vt.rest
+    mode = jnp.where(mv.stopped | pit_rest, STOPPED,
+                     jnp.where(at_end & off_end, LEFT_PROFILE,
+                               jnp.where(launch | impact, FLIGHT, CONTACT))).astype(jnp.int32)
+    d = mv.direction
+    u_next = d * vt.u_next_m_s
+    v_launch_x = speed * d * jnp.cos(vt.launch_rad)
+    v_launch_z = -speed * jnp.sin(vt.launch_rad)
+    vx_new = jnp.where(roll_on, u_next * c2,
+                       jnp.where(launch, v_launch_x, mv.u_end_m_s * cb))
+    vz_new = jnp.where(roll_on, u_next * s2,
+                       jnp.where(launch, v_launch_z, mv.u_end_m_s * sb))
+    speed_along = jnp.where(roll_on, vt.u_next_m_s, speed)
     stopped = mode == STOPPED
     return State(
         x_m=x1,
         z_m=z1,
         vx_m_s=jnp.where(stopped, 0.0, vx_new),
         vz_m_s=jnp.where(stopped, 0.0, vz_new),
-        spin_rad_s=jnp.where(stopped, 0.0, speed_along / r),
+        spin_rad_s=jnp.where(stopped, 0.0, d * speed_along / r),
         seg=jnp.where(switch, nxt_c, seg).astype(jnp.int32),
         mode=mode,
         n_events=state.n_events + 1,
         n_impacts=state.n_impacts,
-        pending=mv.kicked,
+        pending=impact,
         stations=rec,
         radius_m=r,
         fragmented=state.fragmented,
+        budget=state.budget,
     )
+
+
+def _moving(mode) -> jax.Array:
+    return (mode == FLIGHT) | (mode == CONTACT)
 
 
 def step(state: State, params: Params, block: Block, key: jax.Array, profile: Profile,
@@ -498,12 +690,20 @@ def step(state: State, params: Params, block: Block, key: jax.Array, profile: Pr
          settings: Settings) -> State:
     """One event: a flight to the next impact, or a contact move (pure).
 
-    ``key`` is the event key's two uint32 words (``solvers._rng.key_words``)."""
+    Afterwards the block must be on or above the ground of its segment
+    (``z >= ground - GROUND_TOL_M``) with finite values, else its mode becomes
+    ``INVALID``. ``key`` is the event key's two uint32 words
+    (``solvers._rng.key_words``)."""
     fl = _flight_event(state, params, block, key, profile, table, stations_x_m, stations_z_m,
                        settings)
     co = _contact_event(state, params, block, profile, table, stations_x_m, settings)
     in_flight = state.mode == FLIGHT
-    return jax.tree_util.tree_map(lambda a, b: jnp.where(in_flight, a, b), fl, co)
+    new = jax.tree_util.tree_map(lambda a, b: jnp.where(in_flight, a, b), fl, co)
+    ground = _line_z(profile, new.seg, new.x_m)
+    finite = (jnp.isfinite(new.x_m) & jnp.isfinite(new.z_m) & jnp.isfinite(new.vx_m_s)
+              & jnp.isfinite(new.vz_m_s))
+    bad = ~finite | (new.z_m < ground - GROUND_TOL_M)
+    return new._replace(mode=jnp.where(bad, INVALID, new.mode).astype(jnp.int32))
 
 
 def simulate(
@@ -533,10 +733,10 @@ def simulate(
     stations_x_m = jnp.asarray(stations_x_m, jnp.float64)
     stations_z_m = ground_z(profile, stations_x_m)
     release_key, event_key = jax.random.split(key)
-    state0 = init(params, block, release_key, profile, stations_x_m.shape[0])
+    state0 = init(params, block, release_key, profile, stations_x_m.shape[0], settings)
 
     def cond(s: State):
-        return ((s.mode == FLIGHT) | (s.mode == CONTACT)) & (s.n_events < settings.max_events)
+        return _moving(s.mode) & (s.n_events < s.budget)
 
     body = functools.partial(step, params=params, block=block, key=key_words(event_key),
                              profile=profile, table=segment_table(profile, params, block),
@@ -548,14 +748,14 @@ def simulate(
 
 def result_from_state(final: State, release_x_m: jax.Array) -> Result:
     """The ``Result`` of a block whose loop has ended in state ``final``; a block
-    still moving (event budget spent) gets status ``MAX_EVENTS``."""
-    moving = (final.mode == FLIGHT) | (final.mode == CONTACT)
+    still moving (event budget spent) gets status ``BUDGET``."""
+    moving = _moving(final.mode)
     return Result(
         runout_m=final.x_m - release_x_m,
         stop_x_m=final.x_m,
         stop_z_m=final.z_m,
         stopped=final.mode == STOPPED,
-        status=jnp.where(moving, MAX_EVENTS, final.mode).astype(jnp.int32),
+        status=jnp.where(moving, BUDGET, final.mode).astype(jnp.int32),
         n_events=final.n_events,
         n_impacts=final.n_impacts,
         release_x_m=release_x_m,
