@@ -43,6 +43,7 @@ __all__ = [
     "ground_z",
     "load_profile",
     "make_profile",
+    "refine",
     "segment_index",
 ]
 
@@ -296,6 +297,43 @@ def load_profile(path: str, materials_path: str | None = None) -> Profile:
             raise ProfileError(f"{path}: line {line}: column 'zone': unknown zone {zone!r}; "
                                f"{materials_path} defines {', '.join(materials) or '(none)'}")
     return make_profile(x, z, [zn for _, zn in zones], materials, source=path)
+
+
+def refine(profile: Profile, step_m: float, z_noise_m: float = 0.0,
+           seed: int = 0) -> Profile:
+    """The same slope with extra vertices every ``step_m`` (collinear with the
+    segment they split), each keeping its segment's zone.
+
+    A surveyed profile is the same ground sampled more finely: the solvers'
+    results must not depend on it (issue 15), which the tests check with this.
+    ``z_noise_m`` adds Gaussian noise of that standard deviation to the new
+    and old inner vertices (seeded), to mimic survey noise; the end vertices
+    stay put.
+
+    Args:
+        profile: the slope.
+        step_m: spacing of the inserted vertices, m (> 0).
+        z_noise_m: standard deviation of the vertical noise, m (>= 0).
+        seed: NumPy seed of the noise.
+
+    Returns:
+        A new ``Profile`` with the same materials.
+    """
+    if not (math.isfinite(step_m) and step_m > 0):
+        raise ProfileError(f"refine: step must be a positive number of metres, got {step_m}")
+    x = np.asarray(profile.x_m)
+    z = np.asarray(profile.z_m)
+    xs = np.unique(np.concatenate([x, np.arange(x[0], x[-1], step_m)]))
+    zs = np.interp(xs, x, z)
+    if z_noise_m > 0:
+        noise = np.random.default_rng(seed).normal(0.0, z_noise_m, xs.shape)
+        noise[0] = noise[-1] = 0.0
+        zs = zs + noise
+    zone = profile.segment_zone_names()
+    seg = np.clip(np.searchsorted(x, xs[:-1], side="right") - 1, 0, len(zone) - 1)
+    mats = {zn: {c: float(getattr(profile, c)[i]) for c in MATERIAL_COLUMNS}
+            for i, zn in enumerate(profile.zone_names)}
+    return make_profile(xs, zs, [zone[i] for i in seg], mats, source="refine")
 
 
 def segment_index(profile: Profile, x_m: jax.Array) -> jax.Array:

@@ -350,6 +350,7 @@ class SegmentTable(NamedTuple):
     beta: jax.Array
     cos: jax.Array
     sin: jax.Array
+    length: jax.Array
     mu: jax.Array
     theta_max: jax.Array
     drag: jax.Array
@@ -381,7 +382,7 @@ def segment_table(profile: Profile, params: Params, block: Block) -> SegmentTabl
     theta_frag = roughness_tilt(1.0, params.roughness_m[zone], r_frag)
     k = block.inertia_ratio
     return SegmentTable(
-        beta=beta, cos=jnp.cos(beta), sin=jnp.sin(beta),
+        beta=beta, cos=jnp.cos(beta), sin=jnp.sin(beta), length=jnp.hypot(dx, dz),
         mu=jnp.tan(jnp.deg2rad(params.rolling_friction_deg[zone])) + params.rolling_resistance,
         theta_max=theta, drag=asperity_loss(theta, k) / r,
         Kn=size_scaled(Kn, r, gamma), Kt=size_scaled(Kt, r, gamma),
@@ -532,7 +533,8 @@ _PIT_REST_HEIGHT_M = 1e-3  # a rock in a pit that could rise less than this is a
 
 
 def vertex_transition(speed_m_s, direction, beta, beta_next, radius_m, inertia_ratio,
-                      threshold_m_s, g_m_s2: float) -> VertexTransition:
+                      threshold_m_s, g_m_s2: float,
+                      next_length_m=jnp.inf) -> VertexTransition:
     """A rolling rock of speed v reaching a vertex (this toolkit's treatment).
 
     With ``a1 = -d beta`` and ``a2 = -d beta_next`` the inclinations of the two
@@ -554,11 +556,18 @@ def vertex_transition(speed_m_s, direction, beta, beta_next, radius_m, inertia_r
       else, rolling without slip with energy conserved, at
       ``cos(psi*) = ((1 + k) v^2 / (g r) + 2 cos(a1)) / (3 + k)`` (10/17 from
       rest for a sphere), if ``psi* < a2``. A rock that separates leaves along
-      the path's tangent at psi* and would land back on the next segment with
-      normal speed ``v sin(a2 - psi*)``: only when that reaches the rolling
-      threshold is it a real hop (a flight with its own landing); otherwise it
-      touches down at once and rolls on with ``v cos(a2 - psi*)``. A rock that
-      does not separate rounds the edge and rolls on with its speed.
+      the path's tangent at psi*, at the angle ``phi = a2 - psi*`` above the
+      next segment. It is launched into a flight (whose landing is found by
+      ``next_impact`` and may be a touch-down) when that is a real hop: when
+      it would land back on the next segment with a normal speed
+      ``v sin(phi)`` at or above the rolling threshold, or when its hop
+      length over that segment's line, ``s = v cos(phi) t + g sin(a2) t^2 / 2``
+      with ``t = 2 v sin(phi) / (g cos(a2))``, exceeds the segment's length
+      (the ground beyond falls away further: on a finely sampled convex
+      curve of radius rho this launches when ``v^2 > g rho cos(a) / 2``
+      whatever the sampling step, so refining the curve converges).
+      Otherwise it touches down at once and rolls on with ``v cos(phi)``. A
+      rock that does not separate rounds the edge and rolls on with its speed.
 
     * a pit (the rock arrives going down, a1 >= 0, and the next segment rises,
       a2 < 0): both segments push the rock back to the vertex, so rest there is
@@ -575,7 +584,7 @@ def vertex_transition(speed_m_s, direction, beta, beta_next, radius_m, inertia_r
         speed_m_s: v >= 0 at the vertex, m/s. direction: +1 or -1.
         beta, beta_next: segment angles (to +x), rad.
         radius_m: r, m. inertia_ratio: k. threshold_m_s: rolling threshold, m/s.
-        g_m_s2: gravity.
+        g_m_s2: gravity. next_length_m: slope length of the next segment, m.
 
     Returns:
         ``VertexTransition``.
@@ -597,7 +606,10 @@ def vertex_transition(speed_m_s, direction, beta, beta_next, radius_m, inertia_r
     psi = jnp.where(at_once, a1, jnp.arccos(jnp.clip(cos_psi, -1.0, 1.0)))
     separates = convex & (at_once | (psi < a2))
     turn = jnp.where(separates, a2 - psi, 0.0)
-    launch = separates & (v * jnp.sin(turn) >= threshold_m_s)
+    cos_a2 = jnp.cos(a2)
+    t_hop = 2.0 * v * jnp.sin(turn) / (g_m_s2 * jnp.where(cos_a2 > 1e-6, cos_a2, 1e-6))
+    s_hop = v * jnp.cos(turn) * t_hop + 0.5 * g_m_s2 * jnp.sin(a2) * t_hop * t_hop
+    launch = separates & ((v * jnp.sin(turn) >= threshold_m_s) | (s_hop > next_length_m))
     u_next = jnp.where(concave, v * jnp.cos(delta), jnp.where(separates, v * jnp.cos(turn), v))
     rest = (a1 >= 0.0) & (a2 < 0.0) & (v * v < 2.0 * g_m_s2 * _PIT_REST_HEIGHT_M)
     return VertexTransition(launch=launch & ~rest, impact=impact & ~rest, u_next_m_s=u_next,
@@ -643,7 +655,7 @@ def _contact_event(state: State, params: Params, block: Block, profile: Profile,
     c2, s2 = table.cos[nxt_c], table.sin[nxt_c]
     speed = jnp.abs(mv.u_end_m_s)
     vt = vertex_transition(speed, mv.direction, beta, table.beta[nxt_c], r, k,
-                           params.rolling_threshold_m_s, g)
+                           params.rolling_threshold_m_s, g, table.length[nxt_c])
     at_end = mv.at_end
     switch = at_end & ~off_end
     launch = switch & vt.launch
