@@ -19,7 +19,7 @@ def _runouts(diameter_m, **kw):
     p = crsp.params_from_profile(PROFILE, **{**BASE, **kw})
     r = crsp.simulate_pooled(p, crsp.make_block(diameter_m / 2), jax.random.key(3), PROFILE,
                              jnp.zeros((0,)), n_blocks=N, pool=128)
-    assert np.all(np.asarray(r.status) != crsp.MAX_EVENTS)
+    assert np.all(np.asarray(r.status) != crsp.BUDGET)
     return np.asarray(r.runout_m)
 
 

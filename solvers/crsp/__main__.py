@@ -12,8 +12,7 @@ import time
 import numpy as np
 
 from solvers._cli import CliError, OneLineParser, fail, parse_stations, write_csv_atomic
-
-STATUS_NAMES = {2: "stopped", 3: "left_profile", 4: "max_events"}
+from solvers.status import STATUS_NAMES, finished
 
 
 def build_parser() -> OneLineParser:
@@ -50,8 +49,9 @@ def build_parser() -> OneLineParser:
                    help="initial horizontal velocity, m/s (default 1)")
     p.add_argument("--stations", help="analysis stations: '110,230' or 'start:stop:step' (m)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--max-events", type=int, default=5000,
-                   help="event budget per block; blocks still moving are flagged (default 5000)")
+    p.add_argument("--max-events", type=int, default=None,
+                   help="event budget per block; blocks still moving get status 'budget' "
+                        "(default: 200 + 4 x segments + slope length / radius)")
     p.add_argument("--out", required=True, help="output CSV, one row per block")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
         fail(prog, f"--n-blocks must be positive, got {args.n_blocks}")
     if not (args.radius_m > 0 and np.isfinite(args.radius_m)):
         fail(prog, f"--radius-m must be a positive number, got {args.radius_m}")
-    if args.max_events <= 0:
+    if args.max_events is not None and args.max_events <= 0:
         fail(prog, f"--max-events must be positive, got {args.max_events}")
     if args.release_spread_m < 0:
         fail(prog, f"--release-spread-m must be >= 0, got {args.release_spread_m}")
@@ -127,14 +127,20 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as exc:
         fail(prog, f"cannot write {args.out}: {exc.strerror or exc}")
 
-    ro = res.runout_m
-    n_stop = int(res.stopped.sum())
+    done = finished(res.status)
+    ro = res.runout_m[done]
+    counts = {STATUS_NAMES[int(c)]: int(np.sum(res.status == c)) for c in np.unique(res.status)}
+    stats = (f"runout median {np.median(ro):.1f} m, p90 {np.percentile(ro, 90):.1f} m, "
+             f"max {ro.max():.1f} m" if ro.size else "no block finished")
     print(f"CRSP: {args.n_blocks} blocks, radius {args.radius_m:g} m, seed {args.seed}: "
-          f"runout median {np.median(ro):.1f} m, p90 {np.percentile(ro, 90):.1f} m, "
-          f"max {ro.max():.1f} m; stopped {n_stop}/{args.n_blocks}"
-          + (f" ({args.n_blocks - n_stop} flagged: left the profile or out of events)"
-             if n_stop < args.n_blocks else "")
+          f"{stats} (finished blocks); status "
+          + ", ".join(f"{k} {v}" for k, v in counts.items())
+          + f"; mean {res.n_events.mean():.1f} events/block"
           + f"; {args.n_blocks / wall:,.0f} blocks/s incl. compile ({wall:.2f} s)")
+    if not done.all():
+        print(f"warning: {int((~done).sum())} blocks did not finish (status budget or "
+              "invalid); their rows are in the CSV but not in the statistics above",
+              file=sys.stderr)
     for j, xs in enumerate(stations):
         passed = res.stations.passed[:, j]
         e = res.stations.energy_kJ[passed, j]
