@@ -25,6 +25,7 @@ from solvers.dem import (
 )
 from solvers.dem._integrate import simulate_batch
 from solvers.profile import ground_z, load_profile, make_profile
+from solvers.status import BUDGET
 
 G = 9.81
 PROFILE_CSV = "data/postignano_profile.csv"
@@ -138,6 +139,70 @@ def test_normal_impact_restitution(alpha):
     assert e == pytest.approx(math.sqrt((1 - alpha) / (1 + alpha)), rel=0.03)
 
 
+def _flat_impact(params, alpha=0.0, size_m=0.5, theta=0.0, v=5.0):
+    """Face-down (theta 0) or corner-down (theta pi/4) impact on a flat wall
+    without gravity; returns the outgoing / incoming normal speed."""
+    block = make_block(size_m, alpha=alpha)
+    dt = float(stable_dt(params, block))
+    k = params.kn * params.stiffness_scale * size_m
+    t_c = math.pi * math.sqrt(params.rho * size_m ** 2 / k)
+    reach = 0.5 * size_m * (math.cos(theta) + math.sin(theta))
+    n = int((0.02 / v + 3 * t_c) / dt)
+    c, h = run_traj(params, block, pose1(0.0, reach + 0.02, theta=theta, vz=-v), n // 10, 10)
+    assert float(h.pos[-1, 0, 1]) > reach  # separated
+    return float(h.vel[-1, 0, 1]) / v
+
+
+@pytest.mark.parametrize("e", [0.23, 0.5, 0.73])
+def test_viscous_normal_impact_restitution(e):
+    """Viscous mode, flat face-down impact without gravity at dt_frac 0.02:
+    outgoing / incoming speed = the target e (linear spring-dashpot, zeta =
+    -ln e / sqrt(pi^2 + ln^2 e), c = 2 zeta sqrt(m_eff k)) within 3 %. At the
+    default dt_frac 0.1 the measured e is 0.207 / 0.483 / 0.731 (the dashpot
+    sees the half-step velocity): documented, not tested."""
+    params = make_params(incline(0.0), damping="viscous", restitution=e, gravity=0.0,
+                         dt_frac=0.02, stiffness_scale=0.01)
+    assert _flat_impact(params, alpha=0.9) == pytest.approx(e, rel=0.03)  # alpha ignored
+
+
+def test_viscous_corner_impact_restitution_differs():
+    """A corner-down impact has effective mass m, not the m/2 the dashpot is
+    set for, so it is under-damped: e ~ 0.61 for target 0.5 (documented in
+    solvers/dem/_contact.py). Guards the documentation."""
+    params = make_params(incline(0.0), damping="viscous", restitution=0.5, gravity=0.0,
+                         dt_frac=0.02, stiffness_scale=0.01)
+    assert _flat_impact(params, theta=math.pi / 4) == pytest.approx(0.61, abs=0.02)
+
+
+def test_viscous_restitution_from_alpha_and_free_fall():
+    """Without a restitution the viscous mode takes e = sqrt((1 - alpha) /
+    (1 + alpha)) per fragment, and local damping is off: free fall at g."""
+    params = make_params(incline(0.0), damping="viscous", gravity=0.0, dt_frac=0.02,
+                         stiffness_scale=0.01)
+    alpha = 0.43
+    assert _flat_impact(params, alpha=alpha) == pytest.approx(
+        math.sqrt((1 - alpha) / (1 + alpha)), rel=0.03)
+    fall = make_params(incline(0.0), damping="viscous", dt_s=1e-3)
+    c, h = run_traj(fall, make_block(1.0, alpha=0.9), pose1(0.0, 100.0), 10, 100)
+    t = np.arange(1, 11) * 0.1
+    np.testing.assert_allclose(np.asarray(h.pos[:, 0, 1]), 100.0 - 0.5 * G * t ** 2, atol=1e-9)
+
+
+def test_make_params_damping_validation():
+    prof = incline(0.0)
+    for bad in (0.0, -0.2, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="restitution"):
+            make_params(prof, damping="viscous", restitution=bad)
+    with pytest.raises(ValueError, match="restitution"):
+        make_params(prof, damping="unbalanced", restitution=0.5)
+    with pytest.raises(ValueError, match="damping"):
+        make_params(prof, damping="rayleigh")
+    from solvers.dem import contact_damping_ratio
+    assert float(contact_damping_ratio(1.0)) == 0.0
+    zeta = float(contact_damping_ratio(0.5))
+    assert math.exp(-zeta * math.pi / math.sqrt(1 - zeta ** 2)) == pytest.approx(0.5, rel=1e-12)
+
+
 def test_second_order_convergence_in_dt():
     """Smooth contact, no damping: error of z(T) through an impact falls ~4x per
     halving of dt (central difference, diffrax test_ode_order style)."""
@@ -198,6 +263,80 @@ def test_energy_never_created():
     tol = m * np.sqrt(2 * e0 / m + 2 * G * 300) * G * dt
     assert np.all(e[clear] <= e0 + tol)
     assert e[-1] < e0  # friction dissipated something
+
+
+def _energy_history(params, block, pose, t_end_s):
+    """Energy (J/m) after every step of a fixed rollout, and the constants."""
+    from solvers.dem import init, mechanical_energy
+    n = int(t_end_s / float(stable_dt(params, block)))
+    c, h = run_traj(params, block, pose, n, 1)
+    _, s0 = init(params, block, jax.random.key(0), Options(), pose)
+    seq = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), s0, h)
+    cur, nxt = (jax.tree.map(lambda a: a[:-1], seq), jax.tree.map(lambda a: a[1:], seq))
+    e = jax.jit(jax.vmap(lambda a, b: mechanical_energy(params, c, a, b, block.n_side)))(cur, nxt)
+    return c, h, np.asarray(e.total_J)
+
+
+def _switch_tolerance(c, h):
+    """Energy error of one corner switching contact on within a step: the spring
+    energy of one step's penetration at the fastest speed, kn l_c (v dt)^2 / 2
+    (the central-difference energy is otherwise exact for linear springs)."""
+    v = np.sqrt(np.sum(np.asarray(h.vel) ** 2, -1)) + np.abs(np.asarray(h.omega)) * float(
+        c.half) * math.sqrt(2)
+    return 0.5 * float(c.kn_c) * (float(v.max()) * float(c.dt)) ** 2
+
+
+@pytest.mark.parametrize("mode,alpha", [("unbalanced", 0.3), ("unbalanced", 0.9),
+                                        ("contact", 0.3), ("viscous", 0.0)])
+def test_energy_never_increases_with_damping(mode, alpha):
+    """Kinetic + potential + elastic energy of a block bouncing and sliding down
+    a 35 deg slope (phi 30) never rises above its running minimum by more than
+    one contact switch's error (``_switch_tolerance``), with local damping
+    alpha > 0 or contact dashpots (e = 0.5)."""
+    kw = {"restitution": 0.5} if mode == "viscous" else {}
+    params = make_params(incline(35.0, 30.0), damping=mode, stiffness_scale=0.01, **kw)
+    block = make_block(0.5, alpha=alpha)
+    c, h, e = _energy_history(params, block, pose1(0.0, 3.0, theta=0.3, vx=2.0), 3.0)
+    rise = e - np.minimum.accumulate(e)
+    assert rise.max() <= _switch_tolerance(c, h), (rise.max(), _switch_tolerance(c, h))
+    assert e[-1] < e[0] - 0.1 * abs(e[0])  # it did lose energy
+
+
+def _breaking_block(vx):
+    params = make_params(incline(35.0), stiffness_scale=0.01, t_joint_pa=0.05e6,
+                         c_joint_pa=0.05e6)
+    block = make_block(1.0, alpha=0.3, n_fragments=4)
+    pos = jnp.array([[-0.25, 2.75], [0.25, 2.75], [-0.25, 3.25], [0.25, 3.25]])
+    pose = Pose(pos, jnp.zeros(4), jnp.zeros((4, 2)).at[:, 0].set(vx), jnp.zeros(4))
+    return _energy_history(params, block, pose, 1.5)
+
+
+def test_energy_never_increases_when_bonds_break():
+    """A 2 x 2 block (alpha 0.3, c = t = 0.05 MPa) dropped flat on a 35 deg
+    slope breaks all its joints; every break removes the joint's stored energy
+    and the total never rises above its running minimum beyond one contact
+    switch's error."""
+    c, h, e = _breaking_block(0.0)
+    intact = np.asarray(h.intact).sum(1)
+    assert intact[-1] == 0
+    breaks = np.nonzero(np.diff(intact) < 0)[0] + 1
+    assert all(e[b + 1] < e[b] for b in breaks)
+    rise = e - np.minimum.accumulate(e)
+    assert rise.max() <= _switch_tolerance(c, h), (rise.max(), _switch_tolerance(c, h))
+
+
+@pytest.mark.xfail(strict=True, reason="measured: +354 J/m in one step (0.5 % of E0 = 73860 "
+                   "J/m, 5.5x the contact-switch tolerance of 64 J/m), when the elastic energy "
+                   "of a corner-to-corner overlap of two diagonal fragments jumps from 165 to 709"
+                   " J/m: the pair contact takes the face of j that faces i's centre, "
+                   "which flips near the diagonal, and the penetration measure jumps with it "
+                   "(solvers/dem/_contact.py, pre-existing geometry)")
+def test_energy_never_increases_when_bonds_break_thrown():
+    """The same block thrown at 2 m/s: after the joints break, two diagonal
+    fragments overlap corner to corner."""
+    c, h, e = _breaking_block(2.0)
+    rise = e - np.minimum.accumulate(e)
+    assert rise.max() <= _switch_tolerance(c, h), (rise.max(), _switch_tolerance(c, h))
 
 
 def test_momentum_conserved_fragment_collision():
@@ -322,7 +461,7 @@ def test_same_key_same_result_and_keys_differ():
 def test_unstopped_block_is_flagged():
     params, block, _ = _small()
     r = simulate(params, block, jax.random.key(0), Options(max_steps=1000))
-    assert int(r.status) == 3 and not bool(r.stopped[0])
+    assert int(r.status) == BUDGET and not bool(r.stopped[0])
 
 
 def test_stable_dt_formula():
@@ -362,6 +501,13 @@ BAD_ARGS = [
     ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--n-blocks", "0", "--out", "x.csv"],
     ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--stations", "500", "--out", "x.csv"],
     ["--profile", PROFILE_CSV, "--block-size-m", "abc", "--out", "x.csv"],
+    ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--restitution", "0.5",
+     "--out", "x.csv"],                                                 # not viscous
+    ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--damping", "viscous",
+     "--restitution", "0", "--out", "x.csv"],
+    ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--damping", "rayleigh",
+     "--out", "x.csv"],
+    ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--batch-size", "0", "--out", "x.csv"],
 ]
 
 
@@ -387,3 +533,21 @@ def test_cli_writes_rows(tmp_path):
     for col in ("runout_m", "stop_x_m", "stop_z_m", "stopped", "block_id", "fragment_id"):
         assert col in df.columns
     assert len(p.stdout.strip().splitlines()) == 1
+
+
+def test_cli_viscous_batches(tmp_path):
+    """--damping viscous with a restitution, run in batches of one block: one
+    row per block, statuses are the shared names."""
+    import pandas as pd
+
+    from solvers.status import STATUS_NAMES
+    out = tmp_path / "dem.csv"
+    p = subprocess.run([sys.executable, "-m", "solvers.dem", "--profile", PROFILE_CSV,
+                        "--block-size-m", "0.9", "--n-blocks", "2", "--damping", "viscous",
+                        "--restitution", "0.5", "--stiffness-scale", "0.01",
+                        "--max-time-s", "3", "--batch-size", "1", "--seed", "0",
+                        "--out", str(out)], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    assert "damping=viscous" in p.stdout
+    df = pd.read_csv(out)
+    assert len(df) == 2 and set(df["status"]) <= set(STATUS_NAMES.values())

@@ -1,8 +1,12 @@
-"""Smooth-contact rigid-block DEM in JAX, in the spirit of UDEC (issue 3).
+"""Smooth-contact rigid-block DEM in JAX, in the spirit of UDEC (issues 3, 15).
 
 Rigid squares (optionally pre-split into n x n bonded fragments) fall down a
 2D slope polyline; penalty contacts with Mohr-Coulomb friction (paper eqs.
-1-2), Cundall local damping (eq. 3), central-difference integration.
+1-2), Cundall local damping (eq. 3; the paper's UDEC) or, as a second mode of
+our own, contact dashpots set from a restitution (``damping="viscous"``),
+central-difference integration. Rest only where statically admissible; status
+codes are ``solvers.status``'s. ``deposit_check`` relaxes a resting state with
+damping off; ``mechanical_energy`` gives the energy of a state.
 
 Usage::
 
@@ -17,11 +21,13 @@ References:
 """
 
 from solvers.dem._alpha_law import DEFAULT_ALPHA_LAW, AlphaLawError, parse_alpha_law
+from solvers.dem._diagnostics import DepositCheck, Energy, deposit_check, mechanical_energy
 from solvers.dem._integrate import (
     Pose,
     Result,
     State,
     init,
+    rollout,
     simulate,
     simulate_batch,
     step,
@@ -33,6 +39,7 @@ from solvers.dem._params import (
     Block,
     Options,
     Params,
+    contact_damping_ratio,
     make_block,
     make_params,
     stable_dt,
@@ -44,15 +51,21 @@ __all__ = [
     "STATUS_NAMES",
     "AlphaLawError",
     "Block",
+    "DepositCheck",
+    "Energy",
     "Options",
     "Params",
     "Pose",
     "Result",
     "State",
+    "contact_damping_ratio",
+    "deposit_check",
     "init",
     "make_block",
     "make_params",
+    "mechanical_energy",
     "parse_alpha_law",
+    "rollout",
     "simulate",
     "simulate_batch",
     "stable_dt",

@@ -3,40 +3,58 @@
 
 Writes one row per block or fragment (runout_m, stop_x_m, stop_z_m, stopped,
 exited, status, block_id, fragment_id, plus station columns) and prints one
-summary line. Bad arguments: one line on stderr, exit status 2.
+summary line. Blocks run in batches of ``--batch-size`` (a progress bar on a
+terminal); block i uses the key fold_in(key(seed), i), so results do not
+depend on the batch size. Bad arguments: one line on stderr, exit status 2.
 """
 
 from __future__ import annotations
 
+import argparse
 import math
 import sys
 import time
 
+from tqdm import tqdm
+
 from solvers._cli import CliError, OneLineParser, fail, parse_stations, write_csv_atomic
+from solvers.dem._params import DAMPING_MODES
 
 
 def _parser() -> OneLineParser:
     p = OneLineParser(prog="python -m solvers.dem",
-                      description="Rigid-block DEM rockfall runs (UDEC-style) on a 2D profile.")
+                      description="Rigid-block DEM rockfall runs (UDEC-style) on a 2D profile.",
+                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--profile", required=True, help="profile CSV (x_m,z_m,zone)")
-    p.add_argument("--materials", default=None, help="materials CSV (default: next to profile)")
+    p.add_argument("--materials", default=None,
+                   help="materials CSV (None: the one next to the profile)")
     p.add_argument("--block-size-m", type=float, required=True, help="block side L, m")
-    p.add_argument("--n-blocks", type=int, default=256)
+    p.add_argument("--n-blocks", type=int, default=256, help="blocks to release")
+    p.add_argument("--batch-size", type=int, default=256,
+                   help="blocks per vmapped batch (memory / progress granularity only)")
     p.add_argument("--alpha", type=float, default=None,
-                   help="local damping for every fragment (default: from --alpha-law)")
+                   help="local damping for every fragment (None: from --alpha-law)")
     p.add_argument("--alpha-law", default=None,
-                   help='alpha as a function of the fragment side L, e.g. "0.40*L**-0.5"')
+                   help='alpha as a function of the fragment side L, e.g. "0.40*L**-0.5" '
+                        "(None: that law)")
     p.add_argument("--fragments", type=int, default=1, help="1, 4, 16, 64, ... (n x n)")
-    p.add_argument("--damping", choices=["unbalanced", "contact"], default="unbalanced",
-                   help="force damped by local damping (UDEC: unbalanced, gravity included)")
+    p.add_argument("--damping", choices=list(DAMPING_MODES), default="unbalanced",
+                   help="unbalanced: Cundall local damping of the whole unbalanced force, "
+                        "gravity included (UDEC, the paper); contact: local damping of the "
+                        "contact forces only; viscous: no local damping, a dashpot at every "
+                        "contact set from --restitution")
+    p.add_argument("--restitution", type=float, default=None,
+                   help="viscous mode: target normal restitution e in (0, 1] of the "
+                        "dashpots (None: e = sqrt((1 - alpha) / (1 + alpha)) per fragment)")
     p.add_argument("--stiffness-scale", type=float, default=1.0,
-                   help="multiply kn = ks = 50 GPa/m by this (0, 1]")
+                   help="multiply kn = ks = 50 GPa/m by this (0, 1]; joint strengths are "
+                        "scaled by its square root")
     p.add_argument("--smooth", action="store_true", help="softplus contact, tanh signs")
     p.add_argument("--max-time-s", type=float, default=200.0, help="simulated-time bound, s")
     p.add_argument("--stations", default=None, help='station abscissae "110,230" or a:b:step')
     p.add_argument("--release-x-m", type=float, default=None,
-                   help="release abscissa (default: first profile vertex)")
-    p.add_argument("--seed", type=int, default=0)
+                   help="release abscissa (None: first profile vertex)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the release keys")
     p.add_argument("--out", required=True, help="output CSV")
     return p
 
@@ -46,6 +64,13 @@ def _check(args) -> None:
         raise CliError(f"--block-size-m: expected a positive size in m, got {args.block_size_m}")
     if args.n_blocks < 1:
         raise CliError(f"--n-blocks: expected at least 1, got {args.n_blocks}")
+    if args.batch_size < 1:
+        raise CliError(f"--batch-size: expected at least 1, got {args.batch_size}")
+    if args.restitution is not None:
+        if args.damping != "viscous":
+            raise CliError("--restitution: only used with --damping viscous")
+        if not (math.isfinite(args.restitution) and 0.0 < args.restitution <= 1.0):
+            raise CliError(f"--restitution: expected a value in (0, 1], got {args.restitution}")
     n = math.isqrt(max(args.fragments, 0))
     if args.fragments < 1 or n * n != args.fragments:
         raise CliError(f"--fragments: expected a perfect square (1, 4, 16, 64), got "
@@ -86,13 +111,19 @@ def main(argv: list[str] | None = None) -> int:
             raise CliError(str(exc)) from None
     except CliError as exc:
         fail(prog, str(exc))
-    params = make_params(profile, damping=args.damping, stiffness_scale=args.stiffness_scale)
+    params = make_params(profile, damping=args.damping, restitution=args.restitution,
+                         stiffness_scale=args.stiffness_scale)
     dt = float(stable_dt(params, block))
-    options = Options(max_steps=int(math.ceil(args.max_time_s / dt)))
+    options = Options(max_steps=int(math.ceil(args.max_time_s / dt)), smooth=args.smooth)
     keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.key(args.seed), i))(
         np.arange(args.n_blocks))
     t0 = time.perf_counter()
-    res = jax.block_until_ready(simulate_batch(params, block, keys, options))
+    parts = []
+    starts = range(0, args.n_blocks, args.batch_size)
+    for a in tqdm(starts, desc="dem batches", unit="batch", disable=None, file=sys.stderr):
+        parts.append(jax.block_until_ready(
+            simulate_batch(params, block, keys[a:a + args.batch_size], options)))
+    res = jax.tree.map(lambda *x: np.concatenate([np.asarray(v) for v in x]), *parts)
     wall = time.perf_counter() - t0
     n_frag = block.n_fragments
     from solvers.dem import STATUS_NAMES

@@ -15,7 +15,17 @@ alpha = pi D) acts per degree of freedom (x, z, rotation):
 where F_i is the whole unbalanced force including gravity (Cundall's classic
 form, used by Itasca's codes: ``damp_gravity = 1``) or the contact force only
 (``damp_gravity = 0``). In the classic form a block in free flight with
-alpha = 0.9 falls at 0.1 g and rises against 1.9 g.
+alpha = 0.9 falls at 0.1 g and rises against 1.9 g. The "viscous" mode turns
+local damping off and puts dashpots at the contacts instead (``_contact``).
+
+Rest (our rule, see ``Params``): a fragment is held while it is slow, none of
+its wall contacts slips, and its contacts lie inside the Coulomb cone with a
+margin or it has moved less than ``rest_disp_m`` since the hold began; it is
+at rest after ``stop_hold_s`` of being held. Status codes are
+``solvers.status``'s: a block whose fragments are all at rest is ``STOPPED``
+(``LEFT_PROFILE`` if one passed the profile end), still running after
+``max_steps`` is ``BUDGET``, and a non-finite position or a fragment centre
+below the ground line (tunnelled through the wall) is ``INVALID``.
 
 Loop: ``lax.while_loop`` over chunks of ``Options.chunk`` steps (a
 ``fori_loop``), ending when every fragment has stopped or left the profile, or
@@ -50,20 +60,17 @@ from solvers.dem._geometry import (
     segment_table,
 )
 from solvers.dem._params import (
-    EXITED,
-    MAX_STEPS,
-    NONFINITE,
-    RUNNING,
-    STOPPED,
     Block,
     Options,
     Params,
+    contact_damping_ratio,
     stable_dt,
 )
 from solvers.profile import ground_z
 from solvers.stations import StationRecord, empty_record, record_passage
+from solvers.status import BUDGET, INVALID, LEFT_PROFILE, RUNNING, STOPPED
 
-__all__ = ["Consts", "Pose", "Result", "State", "init", "result", "simulate",
+__all__ = ["Consts", "Pose", "Result", "State", "init", "result", "rollout", "simulate",
            "simulate_batch", "step", "trajectory"]
 
 
@@ -89,6 +96,10 @@ class Consts(NamedTuple):
     alpha: jax.Array         # (N,)
     kn_c: jax.Array          # kn l_c, N/m per m
     ks_c: jax.Array
+    c_c: jax.Array           # joint cohesion x l_c (scaled, see Params), N/m
+    t_c: jax.Array           # joint tensile strength x l_c (scaled), N/m
+    cn_wall: jax.Array       # (N,) wall-corner dashpot, N s/m per m (0: none)
+    cn_pair: jax.Array       # (N,) fragment's share of a pair/joint dashpot
     width: jax.Array         # softplus width, m
     seg: SegmentTable
     x_end: jax.Array
@@ -101,8 +112,10 @@ class State(NamedTuple):
 
     pos (N,2) float64 m at t; theta (N,) rad; vel (N,2) and omega (N,) at
     t - dt/2; fs (N,4) wall shear force per corner (N/m); intact (J,) joints;
-    slow_s (N,) time spent below the stop speed; exited (N,) left the profile
-    end; rec StationRecord with (N,S) fields; n_steps, status scalars.
+    slow_s (N,) time held by the rest test (s; the name predates the test);
+    anchor (N,3) pose (x, z, theta) at the start of the hold; exited (N,) left
+    the profile end; rec StationRecord with (N,S) fields; n_steps, status
+    scalars.
     """
 
     pos: jax.Array
@@ -112,6 +125,7 @@ class State(NamedTuple):
     fs: jax.Array
     intact: jax.Array
     slow_s: jax.Array
+    anchor: jax.Array
     exited: jax.Array
     rec: StationRecord
     n_steps: jax.Array
@@ -143,6 +157,9 @@ class Result(NamedTuple):
 
 
 def _consts(params: Params, block: Block) -> Consts:
+    """Per-block constants. Dashpots (``_contact``): c = 2 zeta sqrt(m_eff kn l_c)
+    with m_eff = m/2 at a wall corner and m/4 at a fragment-fragment corner or
+    joint point; zeta from ``params.restitution`` (or each fragment's alpha)."""
     n = block.n_side
     s = block.size_m / n
     mass = params.rho * s * s
@@ -150,9 +167,16 @@ def _consts(params: Params, block: Block) -> Consts:
     kn_c = params.kn * params.stiffness_scale * l_c
     ks_c = params.ks * params.stiffness_scale * l_c
     width = params.smooth_width * mass * params.gravity / (2.0 * kn_c)
+    strength = params.stiffness_scale ** params.joint_strength_exponent * l_c
+    e_alpha = jnp.sqrt((1.0 - block.alpha) / (1.0 + block.alpha))
+    e = jnp.where(params.restitution < 0.0, e_alpha, params.restitution)
+    zeta = contact_damping_ratio(jnp.clip(e, 1e-6, 1.0))
     return Consts(
         dt=stable_dt(params, block), mass=mass, inertia=mass * s * s / 6.0, half=0.5 * s,
-        alpha=block.alpha, kn_c=kn_c, ks_c=ks_c, width=width,
+        alpha=block.alpha * params.local_damping, kn_c=kn_c, ks_c=ks_c,
+        c_c=params.c_joint_pa * strength, t_c=params.t_joint_pa * strength,
+        cn_wall=2.0 * zeta * jnp.sqrt(0.5 * mass * kn_c),
+        cn_pair=2.0 * zeta * jnp.sqrt(0.25 * mass * kn_c), width=width,
         seg=segment_table(params.profile), x_end=params.profile.x_m[-1],
         x_release=block.release_x_m,
         ground_at_stations=ground_z(params.profile, block.stations_x_m))
@@ -175,8 +199,21 @@ def _release(params: Params, block: Block, key: jax.Array) -> Pose:
     return Pose(pos, zeros + theta0, jnp.stack([zeros + v0, zeros], axis=-1), zeros)
 
 
+class ContactInfo(NamedTuple):
+    """Per-fragment contact flags of one step (N,) bool, for the rest test.
+
+    touching: in contact with the wall or a free fragment (intact joints do not
+    count); near_limit: one of those contacts has |F_s| > (1 - margin)
+    tan(phi) max(F_n, 0); slipped: one of its wall contacts slid this step.
+    """
+
+    touching: jax.Array
+    near_limit: jax.Array
+    slipped: jax.Array
+
+
 def _forces(st: State, params: Params, c: Consts, nbr, options: Options, n_side: int):
-    """Contact forces (N,2), torques (N,), new wall shear, new joint flags, corners."""
+    """Contact forces (N,2), torques (N,), new wall shear, new joint flags, ContactInfo."""
     cs, sn = jnp.cos(st.theta), jnp.sin(st.theta)
     r = rotate(corner_offsets(c.half)[None], cs[:, None], sn[:, None])      # (N,4,2)
     p = st.pos[:, None, :] + r
@@ -185,40 +222,51 @@ def _forces(st: State, params: Params, c: Consts, nbr, options: Options, n_side:
         seg = _lookup_all(c.seg, p, params)
     else:
         seg = segment_lookup(c.seg, p[..., 0])
-    fw, fs, _ = wall_forces(p, vp, st.fs, seg, c.kn_c, c.ks_c, c.dt, c.width, options.smooth)
+    margin = params.rest_cone_margin
+    wall = wall_forces(p, vp, st.fs, seg, c.kn_c, c.ks_c, c.dt, c.width, options.smooth,
+                       cn=c.cn_wall[:, None], margin=margin)
+    fw, fs = wall.force, wall.fs
     force = fw.sum(axis=1)
     torque = cross2(r, fw).sum(axis=1)
+    touching = jnp.any(wall.touching, axis=1)
+    near = jnp.any(wall.near_limit, axis=1)
+    slipped = jnp.any(wall.slipped, axis=1)
     intact = st.intact
     if n_side > 1:
         joints = joints_of(n_side)
         tan_j = jnp.tan(jnp.deg2rad(params.phi_joint_deg))
-        l_c = c.half
         with_joints = options.pair_search == "knn" or len(nbr) < 4 or nbr[3]
         if with_joints:
+            cj = 0.5 * (c.cn_pair[joints.a] + c.cn_pair[joints.b])[:, None, None]
             fj, tj, intact = joint_forces(st.pos, cs, sn, joints, st.intact, c.half, c.kn_c,
-                                          c.ks_c, params.c_joint_pa * l_c,
-                                          params.t_joint_pa * l_c, tan_j)
+                                          c.ks_c, c.c_c, c.t_c, tan_j, st.vel, st.omega, cj)
         else:  # every joint already broken (chunk-level switch in ``simulate``)
             fj, tj = jnp.zeros_like(force), jnp.zeros_like(torque)
         if options.pair_search == "knn":
             n_frag = n_side * n_side
             bonded = (jnp.zeros((n_frag, n_frag), bool).at[joints.a, joints.b].set(intact)
                       .at[joints.b, joints.a].set(intact))
-            fp, tp = pair_forces(st.pos, cs, sn, st.vel, st.omega, r, nbr, bonded,
-                                 ~st.exited, c.half, c.kn_c, tan_j,
-                                 params.sign_eps_m_s * 10.0, c.width, options.smooth)
+            cn = (0.5 * (c.cn_pair[:, None] + c.cn_pair[nbr]))[..., None]
+            fp, tp, p_touch, p_near = pair_forces(
+                st.pos, cs, sn, st.vel, st.omega, r, nbr, bonded, ~st.exited, c.half, c.kn_c,
+                tan_j, params.sign_eps_m_s * 10.0, c.width, options.smooth, cn=cn,
+                margin=margin, info=True)
         elif nbr[0].shape[0] == 0:  # no pair near enough to touch in this chunk
             fp, tp = jnp.zeros_like(force), jnp.zeros_like(torque)
+            p_touch = p_near = jnp.zeros_like(touching)
         else:
             pi, pj, jid = nbr[:3]
             free = jnp.concatenate([~intact, jnp.ones((1,), bool)])[jid]
             ok = free & ~st.exited[pi] & ~st.exited[pj]
-            fp, tp = pair_list_forces(st.pos, cs, sn, st.vel, st.omega, pi, pj, ok, c.half,
-                                      c.kn_c, tan_j, params.sign_eps_m_s * 10.0, c.width,
-                                      options.smooth)
+            fp, tp, p_touch, p_near = pair_list_forces(
+                st.pos, cs, sn, st.vel, st.omega, pi, pj, ok, c.half, c.kn_c, tan_j,
+                params.sign_eps_m_s * 10.0, c.width, options.smooth,
+                cn=0.5 * (c.cn_pair[pi] + c.cn_pair[pj]), margin=margin, info=True)
         force = force + fj + fp
         torque = torque + tj + tp
-    return force, torque, fs, intact, p
+        touching = touching | p_touch
+        near = near | p_near
+    return force, torque, fs, intact, ContactInfo(touching, near, slipped)
 
 
 def _lookup_all(table: SegmentTable, p, params: Params):
@@ -318,7 +366,10 @@ def init(params: Params, block: Block, key: jax.Array, options: Options = Option
     st = State(pos=jnp.asarray(pose.pos, jnp.float64), theta=jnp.asarray(pose.theta),
                vel=jnp.asarray(pose.vel), omega=jnp.asarray(pose.omega),
                fs=jnp.zeros((n_frag, 4)), intact=jnp.ones((n_joint,), bool),
-               slow_s=jnp.zeros((n_frag,)), exited=jnp.zeros((n_frag,), bool),
+               slow_s=jnp.zeros((n_frag,)),
+               anchor=jnp.concatenate([jnp.asarray(pose.pos, jnp.float64),
+                                       jnp.asarray(pose.theta)[:, None]], axis=-1),
+               exited=jnp.zeros((n_frag,), bool),
                rec=jax.tree.map(lambda a: jnp.broadcast_to(a, (n_frag,) + a.shape),
                                 empty_record(block.stations_x_m.shape[0])),
                n_steps=jnp.asarray(0, jnp.int32), status=jnp.asarray(RUNNING, jnp.int32))
@@ -333,8 +384,13 @@ def init(params: Params, block: Block, key: jax.Array, options: Options = Option
 
 
 def step(st: State, params: Params, c: Consts, nbr, options: Options, n_side: int) -> State:
-    """One central-difference step (pure). Frozen once ``status`` != RUNNING."""
-    force, torque, fs, intact, corners = _forces(st, params, c, nbr, options, n_side)
+    """One central-difference step (pure). Frozen once ``status`` != RUNNING.
+
+    Also advances the rest test (``Params``: held = slow and no wall slip and
+    (contacts inside the Coulomb cone with margin, or moved < rest_disp_m
+    since the hold began)) and sets the status (``solvers.status`` codes).
+    """
+    force, torque, fs, intact, info = _forces(st, params, c, nbr, options, n_side)
     g = jnp.array([0.0, -1.0]) * (c.mass * params.gravity)
     f_unbal = force + g
     f_base = force + params.damp_gravity * g
@@ -363,18 +419,31 @@ def step(st: State, params: Params, c: Consts, nbr, options: Options, n_side: in
     rec = st.rec  # stations are recorded by _step_with_stations
     exited = st.exited | (pos[:, 0] > c.x_end)
     radius = c.half * math.sqrt(2.0)
+    # rest test (our rule; see Params and the module docstring)
     speed2 = jnp.sum(vel * vel, axis=-1) + (omega * radius) ** 2
-    slow_s = jnp.where(speed2 < params.stop_speed_m_s ** 2, st.slow_s + c.dt, 0.0)
+    slow = speed2 < params.stop_speed_m_s ** 2
+    stuck = info.touching & ~info.near_limit
+    moved = (jnp.sqrt(jnp.sum((pos - st.anchor[:, :2]) ** 2, axis=-1))
+             + radius * jnp.abs(theta - st.anchor[:, 2]))
+    held = slow & ~info.slipped & (stuck | (moved < params.rest_disp_m))
+    slow_s = jnp.where(held, st.slow_s + c.dt, 0.0)
+    anchor = jnp.where(held[:, None], st.anchor,
+                       jnp.concatenate([pos, theta[:, None]], axis=-1))
     slow_s = jnp.where(move, slow_s, st.slow_s)
+    anchor = jnp.where(move[:, None], anchor, st.anchor)
     finished = jnp.all((slow_s >= params.stop_hold_s) | exited)
-    bad = ~jnp.all(jnp.isfinite(pos))
+    # invalid: a non-finite value, or a fragment centre below the ground line
+    xa, za, tx, tz, _ = segment_lookup(c.seg, pos[:, 0])
+    below = (tx * (pos[:, 1] - za) - tz * (pos[:, 0] - xa)) < 0.0
+    bad = ~jnp.all(jnp.isfinite(pos)) | ~jnp.all(jnp.isfinite(vel)) | jnp.any(below & ~exited)
     n_steps = st.n_steps + running.astype(jnp.int32)
-    new_status = jnp.where(bad, NONFINITE,
-                           jnp.where(finished, jnp.where(jnp.any(exited), EXITED, STOPPED),
-                                     jnp.where(n_steps >= options.max_steps, MAX_STEPS,
+    new_status = jnp.where(bad, INVALID,
+                           jnp.where(finished, jnp.where(jnp.any(exited), LEFT_PROFILE, STOPPED),
+                                     jnp.where(n_steps >= options.max_steps, BUDGET,
                                                RUNNING)))
     status = jnp.where(running, new_status, st.status).astype(jnp.int32)
-    return State(pos, theta, vel, omega, fs, intact, slow_s, exited, rec, n_steps, status)
+    return State(pos, theta, vel, omega, fs, intact, slow_s, anchor, exited, rec, n_steps,
+                 status)
 
 
 def _lowest_z(st: State, c: Consts) -> jax.Array:
@@ -415,7 +484,8 @@ def _step_with_stations(st, params, c, nbr, options, block):
 
 
 def result(st: State, c: Consts) -> Result:
-    stopped = ~st.exited & ((st.status == STOPPED) | (st.status == EXITED))
+    """``Result`` of a final state (per-fragment fields (N,))."""
+    stopped = ~st.exited & ((st.status == STOPPED) | (st.status == LEFT_PROFILE))
     broken = (1.0 - jnp.mean(st.intact.astype(jnp.float64))) if st.intact.shape[0] else \
         jnp.asarray(0.0)
     return Result(stop_x_m=st.pos[:, 0], stop_z_m=st.pos[:, 1],
@@ -438,14 +508,23 @@ def simulate(params: Params, block: Block, key: jax.Array, options: Options = Op
     Returns:
         ``Result`` with per-fragment stop positions, runouts and flags.
     """
-    n = block.n_side
-    n_frag = n * n
-    c, st = init(params, block, key, options, pose)
-    k_nb = min(options.n_neighbors, n_frag - 1)
+    c, st = rollout(params, block, key, options, pose)
+    return result(st, c)
 
+
+def rollout(params: Params, block: Block, key: jax.Array, options: Options = Options(),
+            pose: Pose | None = None) -> tuple[Consts, State]:
+    """``simulate`` returning the constants and the final ``State`` (pure; vmap it).
+
+    The final state carries what a ``Result`` drops (velocities, wall shear
+    springs, broken joints), e.g. for ``deposit_check``.
+    """
+    n = block.n_side
+    c, st = init(params, block, key, options, pose)
+    k_nb = min(options.n_neighbors, n * n - 1)
     st = lax.while_loop(lambda s: s.status == RUNNING,
                         lambda s: _chunk(s, params, c, options, block, k_nb), st)
-    return result(st, c)
+    return c, st
 
 
 def simulate_batch(params: Params, block: Block, keys: jax.Array,

@@ -24,28 +24,40 @@ import numpy as np
 
 from solvers.dem._alpha_law import DEFAULT_ALPHA_LAW, AlphaLawError, parse_alpha_law
 from solvers.profile import Profile
+from solvers.status import BUDGET, INVALID, LEFT_PROFILE, RUNNING, STATUS_NAMES, STOPPED
 
 __all__ = [
+    "BUDGET",
     "DAMPING_MODES",
+    "INVALID",
+    "LEFT_PROFILE",
+    "RUNNING",
+    "STATUS_NAMES",
+    "STOPPED",
     "Block",
     "Options",
     "Params",
-    "STATUS_NAMES",
+    "contact_damping_ratio",
     "make_block",
     "make_params",
     "stable_dt",
 ]
 
-# Status values (failures are values, not exceptions).
-RUNNING, STOPPED, EXITED, MAX_STEPS, NONFINITE = 0, 1, 2, 3, 4
-STATUS_NAMES = {RUNNING: "running", STOPPED: "stopped", EXITED: "left_profile",
-                MAX_STEPS: "max_steps", NONFINITE: "nonfinite"}
+# Status values: the one set shared with CRSP (``solvers.status``; failures are
+# values, not exceptions). The old DEM names stay importable as aliases until
+# every consumer imports ``solvers.status`` (calib/hazard/_units.py).
+EXITED, MAX_STEPS, NONFINITE = LEFT_PROFILE, BUDGET, INVALID
 
-# Local-damping modes: which force enters F_d = -alpha |F| sign(v).
-#   "unbalanced": the whole unbalanced force, gravity included (Cundall's
-#                 classic form; Itasca's codes, UDEC included) -- the default.
-#   "contact":    contact forces only; a block in flight falls at g.
-DAMPING_MODES = {"unbalanced": 1.0, "contact": 0.0}
+# Damping modes (``make_params(damping=...)``):
+#   "unbalanced": Cundall local damping F_d = -alpha |F| sign(v) on the whole
+#                 unbalanced force, gravity included (the classic form; Itasca's
+#                 codes, UDEC included; the paper's model) -- the default.
+#   "contact":    local damping on the contact forces only; a block in flight
+#                 falls at g.
+#   "viscous":    no local damping (alpha ignored); a linear dashpot in parallel
+#                 with every contact spring, set from a target restitution e
+#                 (``contact_damping_ratio``). Our addition, not the paper's.
+DAMPING_MODES = ("unbalanced", "contact", "viscous")
 
 
 class Params(NamedTuple):
@@ -59,18 +71,50 @@ class Params(NamedTuple):
             raises the stable dt by 1/sqrt(s) and penetrations by 1/s.
         phi_joint_deg: friction angle of fragment-fragment contacts and joints.
         c_joint_pa, t_joint_pa: cohesion and tensile strength of intact joints
-            between fragments, Pa (eq. 2). Zero after a joint breaks.
+            between fragments, Pa (eq. 2), at the paper's stiffness. Zero after
+            a joint breaks. Under the stiffness shortcut the strengths used are
+            c, t x stiffness_scale ** joint_strength_exponent (see below).
+        joint_strength_exponent: 0.5 (default) scales the joint strengths with
+            sqrt(stiffness_scale) so that breakage does not change with the
+            shortcut. Why: a penalty contact hit at speed v peaks at
+            F = v sqrt(k m_eff) (linear spring), so every impact force, and the
+            joint forces it drives, scale as sqrt(k); scaling the strengths the
+            same way keeps the ratio load / strength of an impact. Static loads
+            (self-weight) do not scale with k, so under the shortcut a joint
+            resists static loads sqrt(stiffness_scale) times less (x0.1 at
+            0.01): our choice, exact for impacts only. 0 = unscaled strengths
+            (the behaviour before issue 15).
         gravity: m/s2.
         dt_frac: dt = dt_frac * 2 sqrt(m_eff / k_eff) (UDEC uses ~0.1).
         dt_s: if > 0, overrides the computed dt (tests of convergence).
         damp_gravity: 1 = damp the whole unbalanced force (UDEC), 0 = damp
             contact forces only. Values between blend the two.
+        local_damping: multiplies every fragment's alpha (1 = Cundall local
+            damping on, 0 = off; the "viscous" mode sets 0).
+        restitution: target normal restitution e of the contact dashpots
+            (``contact_damping_ratio``); 1 = no dashpot (the local-damping
+            modes); a value < 0 takes each fragment's e from its alpha,
+            e = sqrt((1 - alpha) / (1 + alpha)), the restitution local damping
+            gives a one-degree-of-freedom normal impact (NOTES.md), so that the
+            two modes dissipate alike at a normal impact.
         smooth_width: softplus width of the smooth contact law as a fraction
             of the static penetration m g / (kn l_c) (``Options.smooth``).
         sign_eps_m_s: velocity scale of tanh(v / eps) replacing sign(v) in the
             smooth mode and in fragment-fragment friction.
-        stop_speed_m_s: a fragment is "slow" when sqrt(v^2 + (omega R)^2) is
-            below this; it has stopped after ``stop_hold_s`` of being slow.
+        stop_speed_m_s, stop_hold_s, rest_cone_margin, rest_disp_m: the rest
+            test. A fragment is *held* in a step when it is slow,
+            sqrt(v^2 + (omega R)^2) < stop_speed_m_s, none of its wall contacts
+            slipped in that step (the trial shear force stayed inside the
+            Coulomb limit), and either (a) it touches the wall or another
+            fragment and every such contact transmits a force inside the
+            Coulomb cone with a margin, |F_s| <= (1 - rest_cone_margin)
+            tan(phi) F_n, or (b) it has moved less than rest_disp_m (centre
+            displacement plus R times rotation) since the hold began. It is at
+            rest after ``stop_hold_s`` of being held without a break; the
+            block has stopped when all its fragments are at rest. A block
+            sliding where tan(beta) > tan(phi) keeps its wall contacts at the
+            limit and slipping, so it is never at rest, however slowly local
+            damping lets it slide (issue 15). Our rule, not UDEC's.
         release_jitter_m, release_speed_m_s: random release offset (uniform in
             [0, jitter] downslope of the cliff edge) and initial horizontal
             speed (uniform in [0, speed]); the orientation is uniform in
@@ -86,14 +130,19 @@ class Params(NamedTuple):
     phi_joint_deg: float = 30.0
     c_joint_pa: float = 0.2e6
     t_joint_pa: float = 0.1e6
+    joint_strength_exponent: float = 0.5
     gravity: float = 9.81
     dt_frac: float = 0.1
     dt_s: float = 0.0
     damp_gravity: float = 1.0
+    local_damping: float = 1.0
+    restitution: float = 1.0
     smooth_width: float = 0.05
     sign_eps_m_s: float = 1e-3
     stop_speed_m_s: float = 0.05
     stop_hold_s: float = 1.0
+    rest_cone_margin: float = 0.05
+    rest_disp_m: float = 1e-3
     release_jitter_m: float = 0.5
     release_speed_m_s: float = 1.0
     release_gap_m: float = 0.01
@@ -128,7 +177,7 @@ class Options(NamedTuple):
 
     Attributes:
         max_steps: bound on the number of steps; a block still moving then is
-            flagged ``max_steps`` (not stopped).
+            flagged ``BUDGET`` (not stopped).
         chunk: steps per iteration of the outer while loop; the fragment
             neighbour list is rebuilt once per chunk.
         n_neighbors: fragments tested against each fragment (nearest by centre).
@@ -155,11 +204,67 @@ class Options(NamedTuple):
     adaptive: bool = True
 
 
-def make_params(profile: Profile, *, damping: str = "unbalanced", **kw) -> Params:
-    """Params with paper defaults; ``damping`` is "unbalanced" (UDEC) or "contact"."""
+def make_params(profile: Profile, *, damping: str = "unbalanced",
+                restitution: float | None = None, **kw) -> Params:
+    """Params with paper defaults and one of the damping modes.
+
+    Args:
+        profile: the slope.
+        damping: "unbalanced" (Cundall local damping of the whole unbalanced
+            force, UDEC's form and the paper's; default), "contact" (local
+            damping of the contact forces only) or "viscous" (local damping
+            off, a dashpot at every contact; our addition).
+        restitution: "viscous" only: target normal restitution e in (0, 1] of
+            the dashpots; None (default) takes e from each fragment's alpha,
+            e = sqrt((1 - alpha) / (1 + alpha)).
+        **kw: any other ``Params`` field.
+
+    Raises:
+        ValueError: on an unknown mode, a restitution outside (0, 1], or a
+            restitution given with a local-damping mode.
+    """
     if damping not in DAMPING_MODES:
         raise ValueError(f"damping: expected one of {', '.join(DAMPING_MODES)}, got {damping!r}")
-    return Params(profile=profile, damp_gravity=DAMPING_MODES[damping], **kw)
+    if damping != "viscous":
+        if restitution is not None:
+            raise ValueError(f"restitution: only used with damping='viscous', not {damping!r}")
+        return Params(profile=profile, damp_gravity=1.0 if damping == "unbalanced" else 0.0,
+                      local_damping=1.0, restitution=1.0, **kw)
+    if restitution is not None and not (math.isfinite(restitution) and 0.0 < restitution <= 1.0):
+        raise ValueError(f"restitution: expected a value in (0, 1], got {restitution}")
+    return Params(profile=profile, damp_gravity=0.0, local_damping=0.0,
+                  restitution=-1.0 if restitution is None else float(restitution), **kw)
+
+
+def contact_damping_ratio(e):
+    """Damping ratio zeta of a linear spring-dashpot contact of restitution e.
+
+    zeta = -ln(e) / sqrt(pi^2 + ln(e)^2); the dashpot is c = 2 zeta sqrt(m_eff k).
+    For the linear spring-dashpot m x'' + c x' + k x = 0 started at the touch
+    (x = 0) and ended when the overlap returns to 0, the restitution is
+    e = exp(-zeta pi / sqrt(1 - zeta^2)), whose inverse is this formula.
+
+    The relation holds only if the dashpot may pull at the end of the contact
+    (total normal force k x + c x' < 0 while x > 0): ending the contact when
+    the force reaches zero instead raises e (0.5 -> 0.55, 0.23 -> 0.35;
+    Schwager & Poeschel 2007). We keep the classic unclipped law so that the
+    target e is what a normal impact gives; the friction limit uses
+    max(F_n, 0).
+
+    Args:
+        e: restitution in (0, 1] (any shape).
+
+    Returns:
+        zeta, dimensionless, same shape (0 at e = 1).
+
+    References:
+        Cundall & Strack (1979) Geotechnique 29(1) 47-65 (spring-dashpot
+        contacts); Tsuji, Tanaka & Ishida (1992) Powder Technol. 71 239-250
+        (damping from a restitution); Schwager & Poeschel (2007) Granular
+        Matter 9 465-469 (the force-zero end of contact).
+    """
+    le = jnp.log(e)
+    return -le / jnp.sqrt(jnp.pi ** 2 + le * le)
 
 
 def make_block(size_m: float, *, alpha: float | None = None, n_fragments: int = 1,
