@@ -9,8 +9,16 @@ carries the material constants both solvers read:
   in (0, 1] (Pfeiffer & Bowen 1989; Jones et al. 2000, CRSP 4.0 manual).
 * ``roughness_m``: CRSP slope roughness S (m), the largest deviation perpendicular
   to the mean slope within a slope distance equal to the rock radius.
-* ``rolling_friction_deg``: Coulomb resistance angle of the rolling/sliding phase
-  of the lumped-mass model (tan of it is the rolling-resistance coefficient).
+* ``rolling_friction_deg``: Coulomb resistance angle phi_r of the rolling phase
+  of the lumped-mass model; ``mu = tan(phi_r)`` is the rolling-resistance
+  coefficient (``solvers.crsp._contact``). A site parameter, to calibrate or to
+  take from published values: tan(phi_r) = 0.30 for carbonate rock, lava and
+  intrusive rock, 0.35-0.40 for clastic deposits, marl, flysch and schists,
+  0.65 for anthropic, landslide and glacial deposits, 0.80 for alluvial and
+  colluvial deposits (STONE, Guzzetti et al. 2002, Computers & Geosciences
+  28, 1079-1093, its table as given in the r.stone documentation); PlatRock's
+  default rolling coefficient is 0.2; RocFall's lumped-mass method offers
+  phi = arctan((1 - Rt) / Rt), 8.5 deg at Rt = 0.87. That is, about 8-40 deg.
 * ``phi_deg``: Mohr-Coulomb friction angle of DEM block-wall contacts.
 
 File formats (CSV, header row required):
