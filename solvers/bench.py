@@ -1,15 +1,20 @@
 """Throughput benchmarks: ``python -m solvers.bench [--json] [--quick]``.
 
-CRSP: the Postignano scenario (sphere r = 0.5 m, Kn 0.41, Kt 0.87, roughness
-2 m) at N = 1e3, 1e4, 1e5 blocks; blocks per second (compiled, steady state) and
-the compile time, reported separately; peak resident memory after each N.
-Optionally a side-by-side run of PyRockfall 0.1.2 at N = 1e3 (roughness 0, the
-setting where it is valid) from its own virtual environment, never a project
-dependency: ``--pyrockfall-python .bench-venv/bin/python``.
+CRSP (issue 15): the Postignano profile, Kn 0.41, Kt 0.87, roughness S = 2 m,
+spheres of diameter 0.2, 0.5, 1 and 2 m, N = 1e5 blocks each, without stations
+and with 61 stations (every 5 m from 0 to 300 m): blocks per second (compiled,
+steady state: a warm-up call on the same chunk shape first), mean and maximum
+events per block, median runout, status counts and peak resident memory.
+``--quick`` runs N = 1e4. Optionally a side-by-side run of PyRockfall 0.1.2 at
+N = 1e3 (roughness 0, the setting where it is valid) from its own virtual
+environment, never a project dependency: ``--pyrockfall-python
+.bench-venv/bin/python``.
 
 DEM: figures from ``solvers.dem._bench.run_benchmarks`` when the DEM is present.
 
 A benchmark, not a test: it asserts nothing; compare runs of the same command.
+Targets (issue 15, 2 CPU cores): >= 100,000 blocks/s for 1 m blocks and >=
+50,000 for 0.2 m blocks, with stations.
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ import numpy as np
 
 from solvers import crsp, load_profile
 from solvers._cli import OneLineParser
+from solvers.status import status_counts
 
 PROFILE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
                        "data", "postignano_profile.csv")
@@ -35,8 +41,12 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+BENCH_DIAMETERS_M = (0.2, 0.5, 1.0, 2.0)
+BENCH_STATIONS_M = tuple(float(x) for x in np.arange(0.0, 300.0 + 1e-9, 5.0))  # 61
+
+
 def crsp_throughput(n_blocks: int, roughness_m: float = 2.0, radius_m: float = 0.5,
-                    seed: int = 0) -> dict:
+                    seed: int = 0, stations_x_m=None, pool: int | None = None) -> dict:
     """Compile time and steady-state blocks/s for one N (the run is repeated
     after a warm-up call on the same chunk shape)."""
     prof = load_profile(PROFILE).with_materials(Kn=0.41, Kt=0.87, roughness_m=roughness_m)
@@ -44,26 +54,31 @@ def crsp_throughput(n_blocks: int, roughness_m: float = 2.0, radius_m: float = 0
     block = crsp.make_block(radius_m)
     key = jax.random.key(seed)
     chunk = min(16384, n_blocks)
+    kw = {} if pool is None else {"pool": pool}
     t0 = time.perf_counter()
     warm = crsp.run_blocks(params, block, jax.random.key(seed + 1), chunk, prof,
-                           chunk_size=chunk)
+                           stations_x_m=stations_x_m, chunk_size=chunk, **kw)
     first = time.perf_counter() - t0
     t0 = time.perf_counter()
-    crsp.run_blocks(params, block, jax.random.key(seed + 1), chunk, prof, chunk_size=chunk)
+    crsp.run_blocks(params, block, jax.random.key(seed + 1), chunk, prof,
+                    stations_x_m=stations_x_m, chunk_size=chunk, **kw)
     second = time.perf_counter() - t0
     del warm
     t0 = time.perf_counter()
-    res = crsp.run_blocks(params, block, key, n_blocks, prof, chunk_size=chunk)
+    res = crsp.run_blocks(params, block, key, n_blocks, prof, stations_x_m=stations_x_m,
+                          chunk_size=chunk, **kw)
     wall = time.perf_counter() - t0
     return {
         "n": n_blocks,
+        "diameter_m": 2.0 * radius_m,
+        "stations": 0 if stations_x_m is None else len(stations_x_m),
         "blocks_per_s": n_blocks / wall,
         "wall_s": wall,
         "compile_s": max(first - second, 0.0),
         "median_runout_m": float(np.median(res.runout_m)),
         "mean_events": float(res.n_events.mean()),
         "max_events": int(res.n_events.max()),
-        "stopped_fraction": float(res.stopped.mean()),
+        "status": status_counts(res.status),
         "peak_rss_mb": _peak_rss_mb(),
     }
 
@@ -81,19 +96,20 @@ def pyrockfall_anchor(python: str, n_blocks: int = 1000) -> dict:
 def main(argv=None) -> int:
     p = OneLineParser(prog="python -m solvers.bench", description=__doc__.split("\n\n")[0])
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--quick", action="store_true", help="N = 1e3 and 1e4 only, quick DEM")
+    p.add_argument("--quick", action="store_true", help="N = 1e4 instead of 1e5, quick DEM")
+    p.add_argument("--pool", type=int, default=None,
+                   help="lanes of the CRSP pool (default: run_blocks' default)")
     p.add_argument("--pyrockfall-python", help="python of a venv with pyrockfall 0.1.2 "
                    "(default: .bench-venv/bin/python if it exists)")
     p.add_argument("--no-dem", action="store_true", help="skip the DEM benchmarks")
     args = p.parse_args(argv)
 
-    sizes = [1000, 10000] if args.quick else [1000, 10000, 100000]
-    rows = [crsp_throughput(n) for n in sizes]
+    n = 10000 if args.quick else 100000
+    rows = [crsp_throughput(n, radius_m=0.5 * d, stations_x_m=st, pool=args.pool)
+            for st in (None, BENCH_STATIONS_M) for d in BENCH_DIAMETERS_M]
     out = {
         "device": str(jax.devices()[0]),
         "cpu_count": os.cpu_count(),
-        "crsp_blocks_per_s": {str(r["n"]): round(r["blocks_per_s"], 1) for r in rows},
-        "crsp_compile_s": round(max(r["compile_s"] for r in rows), 3),
         "crsp_runs": rows,
     }
     anchor_py = args.pyrockfall_python
@@ -121,12 +137,16 @@ def main(argv=None) -> int:
         print(json.dumps(out, indent=1, default=float))
         return 0
     print(f"device: {out['device']}, {out['cpu_count']} CPU cores")
-    print(f"{'N':>8} {'blocks/s':>12} {'wall s':>8} {'compile s':>10} {'mean ev':>8} "
-          f"{'max ev':>7} {'median m':>9} {'RSS MB':>8}")
+    print("CRSP, Postignano profile, Kn 0.41, Kt 0.87, S 2 m (steady state, compile excluded)")
+    print(f"{'N':>7} {'diam m':>6} {'stations':>8} {'blocks/s':>10} {'wall s':>7} "
+          f"{'compile s':>9} {'mean ev':>7} {'max ev':>6} {'median m':>8} {'unfinished':>10} "
+          f"{'RSS MB':>7}")
     for r in rows:
-        print(f"{r['n']:>8} {r['blocks_per_s']:>12,.0f} {r['wall_s']:>8.2f} "
-              f"{r['compile_s']:>10.2f} {r['mean_events']:>8.1f} {r['max_events']:>7} "
-              f"{r['median_runout_m']:>9.1f} {r['peak_rss_mb']:>8.0f}")
+        unfinished = r["status"]["budget"] + r["status"]["invalid"]
+        print(f"{r['n']:>7} {r['diameter_m']:>6.1f} {r['stations']:>8} "
+              f"{r['blocks_per_s']:>10,.0f} {r['wall_s']:>7.2f} {r['compile_s']:>9.2f} "
+              f"{r['mean_events']:>7.1f} {r['max_events']:>6} {r['median_runout_m']:>8.1f} "
+              f"{unfinished:>10} {r['peak_rss_mb']:>7.0f}")
     if "pyrockfall_1e3_roughness0" in out:
         t = out["pyrockfall_1e3_roughness0"]
         o = out["crsp_1e3_roughness0"]

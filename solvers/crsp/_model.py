@@ -425,7 +425,7 @@ def init(params: Params, block: Block, key: jax.Array, profile: Profile,
 
 def _flight_event(state: State, params: Params, block: Block, key, profile: Profile,
                   table: SegmentTable, stations_x_m, stations_z_m,
-                  settings: Settings) -> State:
+                  settings: Settings) -> tuple[State, tuple]:
     g = settings.g_m_s2
     x, z, vx, vz = state.x_m, state.z_m, state.vx_m_s, state.vz_m_s
     fh = next_impact(profile, state.seg, x, z, vx, vz, g, settings.window)
@@ -449,7 +449,7 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
     speed2 = vx * vx + vzs * vzs
     zs = z + vz * ts - 0.5 * g * ts * ts
     energy = 0.5 * m * (speed2 + k * (r * state.spin_rad_s) ** 2) / 1000.0
-    rec = record_passage(state.stations, crossed, energy, jnp.sqrt(speed2), zs - stations_z_m)
+    passage = (crossed, energy, jnp.sqrt(speed2), zs - stations_z_m)
 
     seg = fh.seg
     xa, xb = profile.x_m[seg], profile.x_m[seg + 1]
@@ -499,11 +499,11 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
         n_events=state.n_events + 1,
         n_impacts=state.n_impacts + impact.astype(jnp.int32),
         pending=impact & ~roll & into_slope,
-        stations=rec,
+        stations=state.stations,
         radius_m=r_new,
         fragmented=frag | brk,
         budget=state.budget,
-    )
+    ), passage
 
 
 _COLLINEAR_RAD = 1e-9  # |turn angle| below this: a collinear vertex (round-off)
@@ -617,7 +617,7 @@ def vertex_transition(speed_m_s, direction, beta, beta_next, radius_m, inertia_r
 
 
 def _contact_event(state: State, params: Params, block: Block, profile: Profile,
-                   table: SegmentTable, stations_x_m, settings: Settings) -> State:
+                   table: SegmentTable, stations_x_m, settings: Settings) -> tuple[State, tuple]:
     g = settings.g_m_s2
     n_seg = profile.x_m.shape[0] - 1
     seg = state.seg
@@ -645,7 +645,7 @@ def _contact_event(state: State, params: Params, block: Block, profile: Profile,
     d_s = jnp.maximum((stations_x_m - x) / cb, 0.0)
     v2 = speed2_after(u * u, mv.accel_m_s2, mv.drag_per_m, d_s)
     energy = 0.5 * m * (1.0 + k) * v2 / 1000.0
-    rec = record_passage(state.stations, crossed, energy, jnp.sqrt(v2), jnp.zeros_like(v2))
+    passage = (crossed, energy, jnp.sqrt(v2), jnp.zeros_like(v2))
 
     # what happens at the segment's end
     step = mv.direction.astype(jnp.int32)
@@ -686,11 +686,11 @@ def _contact_event(state: State, params: Params, block: Block, profile: Profile,
         n_events=state.n_events + 1,
         n_impacts=state.n_impacts,
         pending=impact,
-        stations=rec,
+        stations=state.stations,
         radius_m=r,
         fragmented=state.fragmented,
         budget=state.budget,
-    )
+    ), passage
 
 
 def _moving(mode) -> jax.Array:
@@ -706,11 +706,14 @@ def step(state: State, params: Params, block: Block, key: jax.Array, profile: Pr
     (``z >= ground - GROUND_TOL_M``) with finite values, else its mode becomes
     ``INVALID``. ``key`` is the event key's two uint32 words
     (``solvers._rng.key_words``)."""
-    fl = _flight_event(state, params, block, key, profile, table, stations_x_m, stations_z_m,
-                       settings)
-    co = _contact_event(state, params, block, profile, table, stations_x_m, settings)
+    fl, fl_pass = _flight_event(state, params, block, key, profile, table, stations_x_m,
+                                stations_z_m, settings)
+    co, co_pass = _contact_event(state, params, block, profile, table, stations_x_m, settings)
     in_flight = state.mode == FLIGHT
     new = jax.tree_util.tree_map(lambda a, b: jnp.where(in_flight, a, b), fl, co)
+    # one station update per event, from the passage of the branch taken
+    passage = [jnp.where(in_flight, a, b) for a, b in zip(fl_pass, co_pass)]
+    new = new._replace(stations=record_passage(state.stations, *passage))
     ground = _line_z(profile, new.seg, new.x_m)
     finite = (jnp.isfinite(new.x_m) & jnp.isfinite(new.z_m) & jnp.isfinite(new.vx_m_s)
               & jnp.isfinite(new.vz_m_s))
