@@ -20,6 +20,11 @@ Stages (each timed; ``Budget`` sets the sizes, ``QUICK`` / ``DEFAULT`` the prese
 3. Check: the point estimate is re-simulated with fresh random numbers
    (``n_check`` blocks per size) and every observation gets its fit quality:
    simulated 5/50/95 % runouts, its PIT value P(R <= y) and log-likelihood.
+
+Unfinished blocks (NaN runouts from the forward model, ``calib.unfinished``)
+are left out of every stage and counted per stage (design, gradient, check):
+``ModelFit.unfinished``; one ``UnfinishedBlocksWarning`` per fit when some
+(parameter point, block size) has more than ``UNFINISHED_WARN_FRACTION`` of them.
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ from calib.emulator import fit_emulator, holdout_error
 from calib.gradient import GradientFit, fit_gradient
 from calib.likelihood import log_likelihood
 from calib.observations import Observations
+from calib.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
 
 __all__ = ["Budget", "ModelFit", "calibrate", "fit_quality", "presets"]
 
@@ -80,7 +86,8 @@ def presets(model: str, quick: bool) -> Budget:
 
 @dataclasses.dataclass
 class ModelFit:
-    """Everything one model's calibration produced."""
+    """Everything one model's calibration produced (``unfinished``: the counts of
+    unfinished blocks per stage and the warning, ``calib.unfinished.unfinished_record``)."""
 
     names: tuple[str, ...]
     estimate: np.ndarray
@@ -93,6 +100,7 @@ class ModelFit:
     check_runouts: np.ndarray
     timings_s: dict
     budget: Budget
+    unfinished: dict | None = None
 
 
 def _obs_arrays(obs: Observations):
@@ -129,30 +137,36 @@ def fit_quality(obs: Observations, runouts: np.ndarray) -> list[dict]:
     """Per-observation fit: simulated 5/50/95 % runouts, PIT and log-likelihood.
 
     Args:
-        runouts: (S, n) runouts per distinct size (``obs.sizes_m``), m.
+        runouts: (S, n) runouts per distinct size (``obs.sizes_m``), m; NaN for
+            an unfinished block (left out).
 
     PIT = P(R + e <= y), e ~ N(0, sd^2), for a point (the predictive CDF of the
     OBSERVED value, tolerance included) (about uniform on [0, 1] if the model is right;
     below 0.05 or above 0.95 means the observation lies outside the simulated
-    90 % band) and P(a <= R <= b) for an interval.
+    90 % band) and P(a <= R <= b) for an interval; all over the finished blocks
+    (``sim_n_finished`` of them). With none, the simulated values are None.
     """
     ll = np.asarray(_loglik_of_runouts(obs)(jnp.asarray(runouts)[None]))[0]
     out = []
     for i in range(obs.n_obs):
         r = runouts[obs.size_index[i]]
-        q05, q50, q95 = np.quantile(r, [0.05, 0.5, 0.95])
+        r = r[np.isfinite(r)]
+        some = r.size > 0
+        q05, q50, q95 = (map(float, np.quantile(r, [0.05, 0.5, 0.95])) if some
+                         else (None,) * 3)
         row = {"row": i + 1, "block_size_m": float(obs.block_size_m[i]),
-               "sim_q05_m": float(q05), "sim_median_m": float(q50), "sim_q95_m": float(q95),
-               "loglik": float(ll[i])}
+               "sim_q05_m": q05, "sim_median_m": q50, "sim_q95_m": q95,
+               "sim_n_finished": int(r.size),
+               "loglik": float(ll[i]) if np.isfinite(ll[i]) else None}
         if obs.is_interval[i]:
             a, b = obs.runout_min_m[i], obs.runout_max_m[i]
             row.update(observed_min_m=float(a), observed_max_m=float(b),
-                       p_in_interval=float(np.mean((r >= a) & (r <= b))))
+                       p_in_interval=float(np.mean((r >= a) & (r <= b))) if some else None)
         else:
             y, sd = obs.runout_m[i], obs.runout_sd_m[i]
-            pit = float(np.mean(ndtr((y - r) / sd)))
+            pit = float(np.mean(ndtr((y - r) / sd))) if some else None
             row.update(observed_m=float(y), observed_sd_m=float(obs.runout_sd_m[i]), pit=pit,
-                       in_90_band=bool(0.05 <= pit <= 0.95))
+                       in_90_band=bool(some and 0.05 <= pit <= 0.95))
         out.append(row)
     return out
 
@@ -194,6 +208,12 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     timings, posterior, gfit, emu_check = {}, None, None, None
     loglik_runs = _loglik_of_runouts(obs)
     box = forward.box
+    sizes = np.unique(np.concatenate([obs.sizes_m, np.asarray(extra_sizes_m, float)]))
+    tallies = {}
+
+    def tally(stage, runouts, theta=None, sizes_m=forward.sizes_m):
+        t = tallies.setdefault(stage, UnfinishedTally(tuple(map(float, sizes_m))))
+        t.add(runouts, theta, tuple(box.names))
 
     if "bayes" in methods:
         t0 = time.perf_counter()
@@ -201,6 +221,7 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
         x, r = forward.design(budget.n_design, seed=int(jax.random.randint(k_design, (), 0,
                                                                               2**31 - 1)))
         tick("design", 1, 1)
+        tally("design", r)
         timings["design_s"] = time.perf_counter() - t0
         ibox = forward.input_box
         if budget.n_design2 > 0:
@@ -211,6 +232,7 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
             tick("design2", 0, 1)
             r2 = forward.runouts(x2)
             tick("design2", 1, 1)
+            tally("design", r2, x2)
             x, r = np.concatenate([x, np.asarray(forward.to_input(x2))]), np.concatenate([r, r2])
             timings["design2_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
@@ -233,7 +255,9 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
         grad_forward = dataclasses.replace(forward, n_blocks=budget.n_blocks_grad, key=k_grad)
 
         def objective(theta):
-            return -np.asarray(loglik_runs(jnp.asarray(grad_forward.runouts(theta)))).sum(1)
+            runs = grad_forward.runouts(theta)
+            tally("gradient", runs, theta)
+            return -np.asarray(loglik_runs(jnp.asarray(runs))).sum(1)
 
         from scipy.stats import qmc
 
@@ -251,11 +275,13 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     else:
         estimate, source = posterior.map, "posterior_mode"
     t0 = time.perf_counter()
-    sizes = np.unique(np.concatenate([obs.sizes_m, np.asarray(extra_sizes_m, float)]))
     check_forward = dataclasses.replace(forward, sizes_m=sizes, n_blocks=budget.n_check,
                                         key=k_check)
     check = check_forward.runouts(estimate[None])[0]
+    tally("check", check[None], estimate[None], sizes)
     quality = fit_quality(obs, check[np.searchsorted(sizes, obs.sizes_m)])
     timings["check_s"] = time.perf_counter() - t0
+    record = unfinished_record(tallies, f"{type(forward).__name__} calibration")
+    warn_unfinished(record)
     return ModelFit(tuple(box.names), np.asarray(estimate), source, posterior, gfit, emu_check,
-                    quality, sizes, check, timings, budget)
+                    quality, sizes, check, timings, budget, record)

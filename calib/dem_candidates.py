@@ -11,7 +11,8 @@ A block of size d is a square of side L = d (``calib.observations``).
   fragments whose joints have cohesion = tensile strength = 10^s Pa (theta =
   (alpha, s)); joints break by the DEM's Mohr-Coulomb joint law (``solvers.dem``,
   paper eq. 2) and the fragments travel on. The runout of a block is that of
-  its furthest fragment (the extent a survey of the deposit records).
+  its furthest fragment (the extent a survey of the deposit records); NaN
+  when the block did not finish (``calib.unfinished``).
 
 Each is fitted on a fixed grid design (``GRID``): the DEM is too expensive for
 adaptive designs on two cores; the fragmented candidate, about 30 times dearer
@@ -32,6 +33,7 @@ from calib.discrepancy import Candidate
 from calib.effects import DEM_EFFECTS, effect_box
 from calib.forward import DemForward, _dem_lanes, _stack
 from calib.observations import dem_side_m
+from calib.unfinished import mask_unfinished
 from solvers.profile import Profile
 
 __all__ = ["DemEffectForward", "dem_candidates"]
@@ -45,8 +47,9 @@ FRAG_BLOCKS = 4
 
 @dataclasses.dataclass
 class DemEffectForward:
-    """DEM runouts (T, S, n_blocks) of a candidate for theta (T, p); common random
-    numbers (block j of every theta and size uses ``fold_in(key, j)``)."""
+    """DEM runouts (T, S, n_blocks) of a candidate for theta (T, p), NaN for a
+    block that did not finish; common random numbers (block j of every theta and
+    size uses ``fold_in(key, j)``)."""
 
     profile: Profile
     sizes_m: np.ndarray
@@ -93,7 +96,7 @@ class DemEffectForward:
         keys = jax.vmap(lambda j: jax.random.fold_in(self.key, j))(
             jnp.asarray(np.tile(np.arange(self.n_blocks), len(blocks)), jnp.uint32))
         res = _dem_lanes(params, _stack(lanes), keys, options)
-        furthest = np.max(np.asarray(res.runout_m), axis=-1)
+        furthest = mask_unfinished(np.max(np.asarray(res.runout_m), axis=-1), res.status)
         return furthest.reshape(len(blocks), self.n_blocks)
 
 

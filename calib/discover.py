@@ -16,8 +16,9 @@ tangential restitution, a speed measured above the belt can.
 Writes into ``--out`` (atomically; nothing on error):
 
 * ``discovery.json``: named_effect, candidates [{effect, score, gap, ...}],
-  gap_metric, gap_before, gap_after, where (the baseline's disagreement), the
-  named model's fit, budgets, timings, seed;
+  gap_metric, gap_before, gap_after, where (the baseline's disagreement), each
+  candidate's fit (with its unfinished blocks, ``calib.unfinished``), warnings,
+  budgets, timings, seed;
 * ``residuals.png`` (where the baseline fails), ``candidates.png`` (scores),
   ``before_after.png`` (the gap before and after).
 """
@@ -29,6 +30,7 @@ import json
 import os
 import sys
 import time
+import warnings
 
 import jax
 import numpy as np
@@ -117,6 +119,7 @@ def _fit_section(f) -> dict:
             "best_design_point": dict(zip(f.names, map(float, f.best))),
             "ess": f.ess, "n_design": int(f.theta.shape[0]),
             "loglik_noise_sd_nats": f.loglik_noise_sd_nats,
+            "unfinished_blocks": f.unfinished,
             "gap_by_size_class_m": [None if not np.isfinite(g) else float(g)
                                     for g in f.gap_by_class]}
 
@@ -126,6 +129,7 @@ def _run(args) -> int:
     from calib.discrepancy import GAP_METRIC, discover, preset_budget
     from calib.fit import _Progress, _versions, _write_all, load_inputs
     from calib.scores import ELPD_MIN, Z_MIN
+    from calib.unfinished import UnfinishedBlocksWarning
 
     t0 = time.perf_counter()
     obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
@@ -136,7 +140,9 @@ def _run(args) -> int:
     except ValueError as e:
         raise CliError(f"--n-blocks: {e}") from None
     bar = _Progress(not args.no_progress, args.model.upper())
-    d = discover(cands, obs, profile, jax.random.key(args.seed), budget, bar, velocities)
+    with warnings.catch_warnings():  # reported in the summary and discovery.json
+        warnings.simplefilter("ignore", UnfinishedBlocksWarning)
+        d = discover(cands, obs, profile, jax.random.key(args.seed), budget, bar, velocities)
     bar.close()
     named_fit = d.fits[d.named_effect]
     result = {
@@ -172,7 +178,9 @@ def _run(args) -> int:
                           + noise_warnings(d.table, budget.n_blocks)
                           + concentration_warnings(d.table, obs.block_size_m,
                                                    None if velocities is None
-                                                   else velocities.block_size_m))
+                                                   else velocities.block_size_m)
+                          + [f.unfinished["warning"] for f in d.fits.values()
+                             if f.unfinished and f.unfinished["warning"]])
     base = d.fits["none"]
     out_figs = {
         "residuals.png": figs.residuals(obs, d.where_before,

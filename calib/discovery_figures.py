@@ -9,6 +9,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from calib.unfinished import nan_quantile  # noqa: E402
+
 __all__ = ["before_after", "candidates", "residuals"]
 
 
@@ -62,7 +64,7 @@ def candidates(table: list[dict], named: str, min_gain: float):
 
 def before_after(obs, class_sizes, row_class, before, after, named: str, gaps):
     """Observed runouts per size class with the 5-95 % predictive bands of the
-    baseline and of the model with the named effect."""
+    baseline and of the model with the named effect (finished blocks)."""
     fig, ax = plt.subplots(figsize=(8, 5.2))
     x = np.asarray(class_sizes)
     for samples, label, color, off in ((before, f"baseline (gap {gaps[0]:.1f} m)", "C0", -0.02),
@@ -70,7 +72,7 @@ def before_after(obs, class_sizes, row_class, before, after, named: str, gaps):
                                         0.02)):
         if samples is None:
             continue
-        lo, med, hi = np.percentile(samples, [5, 50, 95], axis=1)
+        lo, med, hi = nan_quantile(samples, [0.05, 0.5, 0.95], axis=1)  # finished blocks
         ax.errorbar(x * (1 + off), med, yerr=[med - lo, hi - med], fmt="s", color=color,
                     capsize=4, label=label + ", median and 5-95 %")
     y = np.where(obs.is_interval, 0.5 * (obs.runout_min_m + obs.runout_max_m), obs.runout_m)

@@ -30,6 +30,12 @@ candidate effect, name the one that clearly predicts better, show the gap shrink
 4. The gap metric (``GAP_METRIC``) is computed for every candidate from its own
    posterior predictive; gap_before is the baseline's, gap_after the named
    model's (re-fitted on all rows, which its design already is).
+
+Unfinished blocks (NaN runouts and speeds from the forward models,
+``calib.unfinished``) are left out of the likelihood, the predictive and the
+gap; each fit counts them (design, predictive and noise simulations,
+``CandidateFit.unfinished``) and warns once (``UnfinishedBlocksWarning``) when
+some (design point, size class) has more than 1 % of them.
 """
 
 from __future__ import annotations
@@ -57,6 +63,7 @@ from calib.scores import (
     folds,
     naming_threshold,
 )
+from calib.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
 
 __all__ = [
     "GAP_METRIC",
@@ -173,6 +180,8 @@ class CandidateFit:
             ``best`` over ``noise_reps`` independent block sets of the fit's size
             (nan if not measured); see ``loglik_noise_sd``.
         seconds: wall time of the fit.
+        unfinished: counts of unfinished blocks per stage (design, predictive,
+            noise) and the warning text (``calib.unfinished.unfinished_record``).
     """
 
     effect: str
@@ -192,6 +201,7 @@ class CandidateFit:
     gap: float
     loglik_noise_sd_nats: float
     seconds: float
+    unfinished: dict | None = None
 
 
 def size_classes(sizes_m: np.ndarray, max_classes: int = 8):
@@ -303,15 +313,21 @@ def _proposal(mean, cov, rng, n, dim):
 
 
 def gap(samples: np.ndarray, obs, row_class: np.ndarray, rng: np.random.Generator):
-    """The gap metric (``GAP_METRIC``): (per-class mean CRPS (C,), their mean), m."""
+    """The gap metric (``GAP_METRIC``): (per-class mean CRPS (C,), their mean), m,
+    over the finished blocks (NaN samples left out; a class with none: NaN)."""
     y, sd = point_view(obs)
-    per_row = np.array([crps_ensemble(samples[row_class[i]] + sd[i] * rng.standard_normal(
+    per_row = np.array([_crps_finished(samples[row_class[i]] + sd[i] * rng.standard_normal(
         samples.shape[1]), y[i]) for i in range(obs.n_obs)])
     classes = np.unique(row_class)
     by_class = np.full(samples.shape[0], np.nan)
     for c in classes:
         by_class[c] = per_row[row_class == c].mean()
     return by_class, float(np.nanmean(by_class))
+
+
+def _crps_finished(samples: np.ndarray, y: float) -> float:
+    x = samples[np.isfinite(samples)]
+    return crps_ensemble(x, y) if x.size else float("nan")
 
 
 def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array,
@@ -351,9 +367,13 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
         lv = _vel_loglik_design(jnp.asarray(speeds), *vel_arrays)
         return np.concatenate([ll, np.asarray(lv)], axis=1)
 
+    tallies = {"design": UnfinishedTally(tuple(map(float, class_sizes_m)))}
+
     def simulate(z):
         theta = box.from_unit(z)
-        return loglik(*fw.simulate(theta)) if vel else loglik(fw.runouts(theta), None)
+        runs, speeds = fw.simulate(theta) if vel else (fw.runouts(theta), None)
+        tallies["design"].add(runs, theta, box.names)
+        return loglik(runs, speeds)
 
     if cand.design is not None:  # fixed design (grids): uniform over the box
         z = box.to_unit(np.atleast_2d(cand.design()))
@@ -394,16 +414,21 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     q05 = np.array([_weighted_quantile(theta[:, j], w, 0.05) for j in range(dim)])
     q95 = np.array([_weighted_quantile(theta[:, j], w, 0.95) for j in range(dim)])
     elpd = cv_elpd(ll, log_q, fold)
-    samples = _predictive(cand, fw, theta, w, class_sizes_m, key, budget, rng)
+    samples = _predictive(cand, fw, theta, w, class_sizes_m, key, budget, rng, tallies)
     gap_c, gap_m = gap(samples, obs, row_class, rng)
     best = theta[np.argmax(w)]
     noise = float("nan")
     if budget.noise_reps > 1 and hasattr(fw, "replicate_sims"):
-        noise = loglik_noise_sd(loglik(*fw.replicate_sims(best, budget.noise_reps,
-                                                          jax.random.fold_in(key, 3))))
+        reps = fw.replicate_sims(best, budget.noise_reps, jax.random.fold_in(key, 3))
+        tallies["noise"] = UnfinishedTally(tuple(map(float, class_sizes_m)))
+        tallies["noise"].add(reps[0], np.broadcast_to(best, (budget.noise_reps, dim)),
+                             box.names)
+        noise = loglik_noise_sd(loglik(*reps))
+    record = unfinished_record(tallies, f"candidate {cand.effect!r}")
+    warn_unfinished(record)
     return CandidateFit(cand.effect, box.names, theta, log_q, ll, w, float(1.0 / np.sum(w**2)),
                         elpd, est, q05, q95, best, samples, gap_c, gap_m, noise,
-                        time.perf_counter() - t0)
+                        time.perf_counter() - t0, record)
 
 
 def loglik_noise_sd(loglik_reps: np.ndarray) -> float:
@@ -441,16 +466,19 @@ def _mixture_log_q(z, counts, logpdfs):
     return logsumexp(np.stack(terms), axis=0) - np.log(sum(counts))
 
 
-def _predictive(cand, fw, theta, w, class_sizes_m, key, budget, rng):
+def _predictive(cand, fw, theta, w, class_sizes_m, key, budget, rng, tallies):
     """(C, M) posterior-predictive runouts: ``n_draws`` systematic-resampled
-    posterior draws, each simulated with fresh blocks (a key the fit never used).
-    With ``n_blocks_check`` = 0 the design's own simulations are resampled."""
+    posterior draws, each simulated with fresh blocks (a key the fit never used;
+    their unfinished blocks are counted in ``tallies["predictive"]``). With
+    ``n_blocks_check`` = 0 the design's own simulations are resampled."""
     m = budget.n_draws
     u = (rng.uniform() + np.arange(m)) / m
     idx = np.minimum(np.searchsorted(np.cumsum(w), u), len(w) - 1)
     if budget.n_blocks_check > 0:
         fresh = cand.forward(class_sizes_m, budget.n_blocks_check, jax.random.fold_in(key, 2))
         runs = fresh.runouts(theta[idx])  # (M, C, n)
+        tallies["predictive"] = UnfinishedTally(tuple(map(float, class_sizes_m)))
+        tallies["predictive"].add(runs, theta[idx], cand.box.names)
     else:
         runs = fw.runouts(theta[idx])
     return np.moveaxis(runs, 1, 0).reshape(len(class_sizes_m), -1)

@@ -18,6 +18,10 @@ with Adam (optax), all GPs at once (vmap). Prediction gives the posterior mean
 measurement variance, so a poorly emulated region is not over-trusted.
 
 ``holdout_error`` fits on part of the design and reports the error on the rest.
+
+Unfinished blocks (NaN runouts, ``calib.unfinished``) are left out of every
+quantile and of its bootstrap; a design point where some size has no finished
+block at all has no quantiles and is left out of the fit.
 """
 
 from __future__ import annotations
@@ -28,6 +32,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+
+from calib.unfinished import nan_quantile
 
 __all__ = ["QuantileEmulator", "fit_emulator", "holdout_error", "quantile_levels"]
 
@@ -125,13 +131,32 @@ def _bootstrap_var(runouts: np.ndarray, levels: np.ndarray, n_boot: int = 64) ->
     rng = np.random.default_rng(0)
     n_blocks = runouts.shape[-1]
     idx = rng.integers(0, n_blocks, (n_boot, n_blocks))
-    boot = np.quantile(runouts[..., idx], levels, axis=-1)  # (K, n, S, n_boot)
-    return np.moveaxis(boot.var(axis=-1), 0, -1)
+    boot = nan_quantile(runouts[..., idx], levels, axis=-1)  # (K, n, S, n_boot)
+    # a resample that drew no finished block has no quantile: the variance is
+    # over the resamples that have one
+    return np.moveaxis(_nanvar(boot), 0, -1)
+
+
+def _nanvar(a: np.ndarray) -> np.ndarray:
+    """Variance over the last axis of the finite values (0 with fewer than 2)."""
+    ok = np.isfinite(a)
+    if ok.all():
+        return a.var(axis=-1)
+    n = ok.sum(axis=-1)
+    mean = np.where(ok, a, 0.0).sum(axis=-1) / np.maximum(n, 1)
+    ss = np.where(ok, (np.where(ok, a, 0.0) - mean[..., None]) ** 2, 0.0).sum(axis=-1)
+    return np.where(n >= 2, ss / np.maximum(n, 1), 0.0)
 
 
 def _quantiles(runouts: np.ndarray, levels: np.ndarray) -> np.ndarray:
-    """(n, S, n_blocks) -> (n, S, K)."""
-    return np.moveaxis(np.quantile(runouts, levels, axis=-1), 0, -1)
+    """(n, S, n_blocks) -> (n, S, K), over the finished blocks (NaN: none)."""
+    return np.moveaxis(nan_quantile(runouts, levels, axis=-1), 0, -1)
+
+
+def _usable(x: np.ndarray, runouts: np.ndarray):
+    """The design points whose every size has a finished block."""
+    keep = np.all(np.any(np.isfinite(runouts), axis=-1), axis=-1)
+    return np.asarray(x)[keep], np.asarray(runouts)[keep]
 
 
 def fit_emulator(x: np.ndarray, runouts: np.ndarray, lo, hi, n_levels: int = 10
@@ -140,11 +165,13 @@ def fit_emulator(x: np.ndarray, runouts: np.ndarray, lo, hi, n_levels: int = 10
 
     Args:
         x: (n, d) design inputs.
-        runouts: (n, S, n_blocks) simulated runouts at the design, m.
+        runouts: (n, S, n_blocks) simulated runouts at the design, m (NaN: an
+            unfinished block, left out).
         lo, hi: (d,) input box (for scaling).
         n_levels: K quantile levels.
     """
     levels = quantile_levels(n_levels)
+    x, runouts = _usable(x, runouts)
     q = _quantiles(runouts, levels)  # (n, S, K)
     lo, hi = jnp.asarray(lo, jnp.float64), jnp.asarray(hi, jnp.float64)
     xu = (jnp.asarray(x) - lo) / (hi - lo)
@@ -185,6 +212,7 @@ def holdout_error(x: np.ndarray, runouts: np.ndarray, lo, hi, n_levels: int = 10
         over outputs), ``z_rms`` (RMS of error / predictive sd including that
         noise; about 1 when the GP's uncertainty is honest), ``n_test``, ``n_train``.
     """
+    x, runouts = _usable(x, runouts)
     n = x.shape[0]
     n_test = max(2, int(round(frac * n)))
     idx = np.arange(n)

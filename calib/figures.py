@@ -2,7 +2,7 @@
 
 * ``runout_vs_size``: observed runouts (points with +-1 sd, or intervals)
   against block size, with each model's simulated median and 5-95 % band at
-  the point estimate.
+  the point estimate (over the finished blocks).
 * ``alpha_law``: the fitted damping law alpha(L) with its 90 % posterior band,
   against the paper's Table 1.
 * ``pairs``: posterior pair plot (scatter below the diagonal, histograms on it).
@@ -17,6 +17,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from calib.observations import Observations  # noqa: E402
+from calib.unfinished import nan_quantile  # noqa: E402
 
 __all__ = ["TABLE1", "alpha_law", "pairs", "runout_vs_size"]
 
@@ -30,7 +31,7 @@ def runout_vs_size(obs: Observations, predictive: dict) -> plt.Figure:
     """predictive: model -> (sizes_m (S,), runouts (S, n)) at the point estimate."""
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
     for model, (sizes, runs) in predictive.items():
-        q05, q50, q95 = np.quantile(runs, [0.05, 0.5, 0.95], axis=1)
+        q05, q50, q95 = nan_quantile(runs, [0.05, 0.5, 0.95], axis=1)  # finished blocks
         c = _COLORS.get(model, "k")
         ax.fill_between(sizes, q05, q95, color=c, alpha=0.2, label=f"{model.upper()} 5-95 %")
         ax.plot(sizes, q50, "o-", color=c, label=f"{model.upper()} median")

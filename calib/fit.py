@@ -9,7 +9,8 @@ temporary name and renamed, so a failure leaves no half-written file):
 
 * ``calibration.json``: point estimates and 90 % intervals, the damping law and
   alpha at L = 0.2, 0.9, 1.8 m, per-observation fit quality, diagnostics,
-  emulator checks, stage timings, seed and package versions;
+  emulator checks, unfinished blocks per stage (``unfinished_blocks``, see
+  ``calib.unfinished``), stage timings, seed and package versions;
 * ``crsp_posterior.csv``, ``dem_posterior.csv``: posterior draws;
 * ``runout_vs_size.png``, ``alpha_law.png``, ``crsp_pairs.png``, ``dem_pairs.png``.
 
@@ -28,6 +29,7 @@ import os
 import platform
 import sys
 import time
+import warnings
 
 import jax
 import numpy as np
@@ -131,10 +133,17 @@ class _Progress:
             self.bar.close()
 
 
+def _finite(v) -> float | None:
+    """A float for JSON; None for a non-finite value (an objective of +inf where
+    some size had no finished block)."""
+    return float(v) if np.isfinite(v) else None
+
+
 def _model_section(name, fit, forward, law_form=None) -> dict:
     post = fit.posterior
     sec = {"parameters": list(fit.names), "estimate_source": fit.estimate_source,
-           "fit_quality": fit.quality, "timings_s": fit.timings_s,
+           "fit_quality": fit.quality, "unfinished_blocks": fit.unfinished,
+           "timings_s": fit.timings_s,
            "budget": {k: v for k, v in vars(fit.budget).items()},
            "n_blocks_check": int(fit.check_runouts.shape[-1]),
            "common_random_numbers": True,
@@ -147,8 +156,8 @@ def _model_section(name, fit, forward, law_form=None) -> dict:
         sec["gradient"] = {
             "estimate": dict(zip(fit.names, map(float, g.theta))),
             "starts_final": [dict(zip(fit.names, map(float, t))) for t in g.theta_starts],
-            "objective_final": [float(v) for v in g.objective_final],
-            "objective_history": [[float(v) for v in row] for row in g.history]}
+            "objective_final": [_finite(v) for v in g.objective_final],
+            "objective_history": [[_finite(v) for v in row] for row in g.history]}
     if post is not None:
         sec["bayes"] = {
             "summary": post.summary(), "ok": post.ok, "problems": post.problems,
@@ -193,6 +202,7 @@ def load_inputs(data: str, profile_arg: str | None, out: str):
 def _run(args) -> int:
     from calib.calibrate import calibrate, presets
     from calib.forward import CrspForward, DemForward, alpha_of
+    from calib.unfinished import UnfinishedBlocksWarning
 
     t_start = time.perf_counter()
     obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
@@ -225,8 +235,10 @@ def _run(args) -> int:
         # the check also simulates a grid of sizes for the runout-vs-size figure
         extra = (np.geomspace(0.2, 2.0, 6) if model == "crsp" else
                  [0.2, 0.9, 2.0] if args.quick else [0.2, 0.5, 0.9, 1.4, 2.0])
-        fit = calibrate(forward, obs, jax.random.fold_in(mkey, 2), methods, budget, bar,
-                        extra_sizes_m=extra)
+        with warnings.catch_warnings():  # reported below, in the summary and the json
+            warnings.simplefilter("ignore", UnfinishedBlocksWarning)
+            fit = calibrate(forward, obs, jax.random.fold_in(mkey, 2), methods, budget, bar,
+                            extra_sizes_m=extra)
         bar.close()
         t0 = time.perf_counter()
         sec = _model_section(model, fit, forward, args.alpha_law if model == "dem" else None)
@@ -298,9 +310,17 @@ def _print_summary(result: dict, models, out: str) -> None:
             o = (f"{q['observed_m']:.0f} ± {q['observed_sd_m']:.0f}" if "observed_m" in q
                  else f"[{q['observed_min_m']:.0f}, {q['observed_max_m']:.0f}]")
             pit = q.get("pit", q.get("p_in_interval"))
+            if q["sim_median_m"] is None:  # no simulated block of this size finished
+                print(f"{model:5} {q['block_size_m']:6.2f} {o:>14} {'-':>10} {'-':>15} "
+                      f"{'-':>5}  no finished block")
+                continue
             flag = "" if q.get("in_90_band", True) else "  outside 90% band"
             print(f"{model:5} {q['block_size_m']:6.2f} {o:>14} {q['sim_median_m']:10.1f} "
                   f"{q['sim_q05_m']:6.1f}-{q['sim_q95_m']:<6.1f} {pit:5.2f}{flag}")
+    for model in models:
+        w = result[model]["unfinished_blocks"]["warning"]
+        if w:
+            print(f"\n!!! {w}.", file=sys.stderr)
     for model in models:
         b = result[model].get("bayes")
         if b is not None and not b["ok"]:

@@ -16,6 +16,11 @@ sets at one theta, to measure the Monte Carlo error itself.
   single square of side L = d with alpha(L). The DEM runout of one size depends
   on theta only through alpha(L), so the emulator design runs each size on a
   grid of alpha values (``runouts_at_alpha``).
+
+Unfinished blocks (status BUDGET or INVALID, ``solvers.status``) have no
+runout: both return NaN for them, as runout and as passage speed, and every
+consumer weights the finished blocks only (``calib.unfinished``). A block that
+left the profile is finished; its runout is the one at the profile's end.
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ import numpy as np
 import solvers.crsp as crsp
 from calib.observations import crsp_radius_m, dem_side_m
 from calib.priors import CRSP_BOX, DEM_BOXES, Box
+from calib.unfinished import mask_unfinished
 from solvers.profile import Profile
 
 __all__ = ["ALPHA_MAX", "CrspForward", "DemForward", "alpha_of", "default_lanes"]
@@ -146,12 +152,15 @@ class CrspForward:
         return p._replace(**{k: jnp.asarray(v, jnp.float64) for k, v in extra.items()})
 
     def runouts(self, theta) -> np.ndarray:
-        """Runouts (T, S, n_blocks), m, for theta (T, 3 + k)."""
+        """Runouts (T, S, n_blocks), m, for theta (T, 3 + k); NaN for a block
+        that did not finish (module docstring)."""
         return self.simulate(theta)[0]
 
     def simulate(self, theta) -> tuple[np.ndarray, np.ndarray]:
         """Runouts (T, S, n_blocks), m, and passage speeds (T, S, n_stations,
         n_blocks), m/s (NaN where a block did not pass), for theta (T, 3 + k).
+        Both are NaN for every block that did not finish (status BUDGET or
+        INVALID): its runout and its passages are not results.
 
         Tasks (theta, size) run in chunks of ``task_chunk`` (the last one padded by
         repeating a task), so every call with the same ``n_blocks`` reuses one
@@ -175,9 +184,10 @@ class CrspForward:
                                       n_per_task=self.n_blocks,
                                       pool=min(self.pool, chunk * self.n_blocks),
                                       settings=self.settings)
-            runs.append(np.asarray(res.runout_m))
-            v = np.asarray(res.stations.velocity_m_s)  # (chunk, n, K)
-            speeds.append(np.where(np.asarray(res.stations.passed), v, np.nan))
+            status = np.asarray(res.status)  # (chunk, n)
+            runs.append(mask_unfinished(res.runout_m, status))
+            v = np.where(np.asarray(res.stations.passed), res.stations.velocity_m_s, np.nan)
+            speeds.append(mask_unfinished(v, status))  # (chunk, n, K)
         n_st = stations.shape[0]
         r = np.concatenate(runs)[:n_tasks].reshape(n_t, n_s, self.n_blocks)
         v = np.concatenate(speeds)[:n_tasks].reshape(n_t, n_s, self.n_blocks, n_st)
@@ -294,7 +304,8 @@ class DemForward:
         return self._fn
 
     def runouts_at_alpha(self, alpha) -> np.ndarray:
-        """Runouts (T, S, n_blocks), m, for per-size damping alpha (T, S)."""
+        """Runouts (T, S, n_blocks), m, for per-size damping alpha (T, S); NaN for
+        a block that did not finish (status BUDGET or INVALID)."""
         from solvers.dem import make_block
 
         alpha = np.asarray(alpha, float)
@@ -317,7 +328,8 @@ class DemForward:
             blocks = _stack(lanes[c0:c0 + self.lane_batch])
             k = jax.vmap(lambda j: jax.random.fold_in(self.key, j))(
                 jnp.asarray(keys[c0:c0 + self.lane_batch], jnp.uint32))
-            out.append(np.asarray(fn(blocks, k).runout_m))
+            res = fn(blocks, k)  # runout_m (lanes, 1 fragment), status (lanes,)
+            out.append(mask_unfinished(np.asarray(res.runout_m)[:, 0], res.status))
         return np.concatenate(out)[:n_lanes].reshape(n_t, n_s, self.n_blocks)
 
     def alphas(self, theta) -> np.ndarray:

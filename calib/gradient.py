@@ -71,16 +71,29 @@ def smoothed_gradient(objective: Callable[[np.ndarray], np.ndarray], u: np.ndarr
         (g, j_mean, se): g (S, d) the estimate; j_mean (S,) the mean of the 2 k
         perturbed values (an estimate of J_sigma(u)); se (S, d) the standard
         error of g (spread of the k per-direction terms / sqrt(k)).
+
+    A direction whose two values are not both finite (a point where some block
+    size has no finished block has log-likelihood -inf, ``calib.likelihood``) is
+    left out of g and se; with none left g is 0 and se infinite.
     """
     u = np.atleast_2d(np.asarray(u, float))
     n_s, d = u.shape
     eps = _directions(key, n_s, k, d)
     pts = np.concatenate([u[:, None] + sigma * eps, u[:, None] - sigma * eps], axis=1)
     vals = np.asarray(objective(pts.reshape(-1, d)), float).reshape(n_s, 2 * k)
-    diff = (vals[:, :k] - vals[:, k:]) / (2 * sigma)
-    terms = diff[..., None] * eps  # (S, k, d)
-    g = terms.mean(axis=1)
-    se = terms.std(axis=1, ddof=1) / np.sqrt(k) if k > 1 else np.full_like(g, np.inf)
+    fin = np.isfinite(vals[:, :k]) & np.isfinite(vals[:, k:])  # (S, k)
+    if fin.all():
+        diff = (vals[:, :k] - vals[:, k:]) / (2 * sigma)
+        terms = diff[..., None] * eps  # (S, k, d)
+        g = terms.mean(axis=1)
+        se = terms.std(axis=1, ddof=1) / np.sqrt(k) if k > 1 else np.full_like(g, np.inf)
+        return g, vals.mean(axis=1), se
+    plus, minus = np.where(fin, vals[:, :k], 0.0), np.where(fin, vals[:, k:], 0.0)
+    terms = ((plus - minus) / (2 * sigma))[..., None] * eps * fin[..., None]
+    m = fin.sum(axis=1)[:, None]  # (S, 1) usable directions
+    g = terms.sum(axis=1) / np.maximum(m, 1)
+    var = ((terms - g[:, None]) ** 2 * fin[..., None]).sum(axis=1) / np.maximum(m - 1, 1)
+    se = np.where(m > 1, np.sqrt(var / np.maximum(m, 1)), np.inf)
     return g, vals.mean(axis=1), se
 
 

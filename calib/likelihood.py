@@ -19,6 +19,11 @@ with h a kernel width (Silverman's rule on the samples, at least 0.5 m) that
 turns the empirical distribution into a smooth one, and v_j an extra variance
 per sample (the emulator's predictive variance; 0 for raw simulations).
 
+Unfinished blocks (``calib.unfinished``) come as NaN samples and are left out:
+the sums run over the n finished samples of the row, the kernel width comes
+from them, and a row with no finished sample has log p = -inf (the parameters
+produce no runout of that size at all).
+
 Passage velocity v_i of a block of size d_i seen at station x_s (``calib.
 observations.Velocities``): the kernel density of the simulated speeds of the
 blocks of that size that passed x_s, i.e. the distribution CONDITIONAL on
@@ -54,12 +59,14 @@ _LOG_2PI = 1.8378770664093453
 
 
 def silverman_width_m(samples: jax.Array, floor_m: float = 0.5) -> jax.Array:
-    """Kernel width h = 0.9 min(sd, IQR/1.34) n^(-1/5) (Silverman 1986), >= floor_m."""
-    n = samples.shape[-1]
-    sd = jnp.std(samples, axis=-1)
-    q75, q25 = jnp.percentile(samples, jnp.array([75.0, 25.0]), axis=-1)
+    """Kernel width h = 0.9 min(sd, IQR/1.34) n^(-1/5) (Silverman 1986), >= floor_m,
+    over the finite samples (n of them; ``floor_m`` where n < 2)."""
+    n = jnp.isfinite(samples).sum(axis=-1)
+    sd = jnp.nanstd(samples, axis=-1)
+    q75, q25 = jnp.nanpercentile(samples, jnp.array([75.0, 25.0]), axis=-1)
     spread = jnp.minimum(sd, (q75 - q25) / 1.34)
-    return jnp.maximum(0.9 * spread * n ** (-0.2), floor_m)
+    h = jnp.maximum(0.9 * spread * jnp.maximum(n, 1) ** (-0.2), floor_m)
+    return jnp.where(n >= 2, h, floor_m)
 
 
 def _log_diff_ndtr(hi: jax.Array, lo: jax.Array) -> jax.Array:
@@ -77,7 +84,8 @@ def log_likelihood(samples: jax.Array, y_m: jax.Array, sd_m: jax.Array, lo_m: ja
     """Pointwise log-likelihood of observations given simulated runout samples.
 
     Args:
-        samples: (n_obs, n) simulated runouts for each row's block size, m.
+        samples: (n_obs, n) simulated runouts for each row's block size, m; NaN
+            for an unfinished block (left out).
         y_m, sd_m: (n_obs,) point value and tolerance (ignored for intervals).
         lo_m, hi_m: (n_obs,) interval ends (ignored for points).
         is_interval: (n_obs,) bool.
@@ -87,20 +95,22 @@ def log_likelihood(samples: jax.Array, y_m: jax.Array, sd_m: jax.Array, lo_m: ja
         (n_obs,) log p(y_i | theta) (points, a density in 1/m) or log P_i(theta)
         (intervals, a probability), following the module docstring.
     """
-    n = samples.shape[-1]
+    ok = jnp.isfinite(samples)  # finished blocks (NaN: unfinished, left out)
+    log_n = jnp.log(jnp.maximum(ok.sum(axis=-1), 1))
+    h = silverman_width_m(samples)[:, None]
+    r = jnp.where(ok, samples, 0.0)
     extra = jnp.broadcast_to(jnp.asarray(extra_var_m2, samples.dtype), samples.shape)
     # points: Gaussian kernel with the measurement tolerance
     y = jnp.where(is_interval, 0.0, y_m)[:, None]
     var = jnp.where(is_interval, 1.0, sd_m)[:, None] ** 2 + extra
-    lp = -0.5 * ((y - samples) ** 2 / var + jnp.log(var) + _LOG_2PI)
-    point = logsumexp(lp, axis=-1) - jnp.log(n)
+    lp = -0.5 * ((y - r) ** 2 / var + jnp.log(var) + _LOG_2PI)
+    point = logsumexp(jnp.where(ok, lp, -jnp.inf), axis=-1) - log_n
     # intervals: probability mass of the kernel-smoothed distribution
-    h = silverman_width_m(samples)[:, None]
     w = jnp.sqrt(h**2 + extra)
     lo = jnp.where(is_interval, lo_m, 0.0)[:, None]
     hi = jnp.where(is_interval, hi_m, 1.0)[:, None]
-    li = _log_diff_ndtr((hi - samples) / w, (lo - samples) / w)
-    interval = logsumexp(li, axis=-1) - jnp.log(n)
+    li = _log_diff_ndtr((hi - r) / w, (lo - r) / w)
+    interval = logsumexp(jnp.where(ok, li, -jnp.inf), axis=-1) - log_n
     return jnp.where(is_interval, interval, point)
 
 

@@ -138,18 +138,23 @@ def _write_json_atomic(path: str, obj) -> None:
 def _one_run(profile, effect, strength, n_obs, seed, sd_m, fit_seed, budget,
              speeds=None) -> dict:
     """One synth + discover run; ``speeds``: None or (stations_m, n_rows, sd_m_s)."""
+    import warnings
+
     import jax
 
     from calib.candidates import crsp_candidates
     from calib.discrepancy import discover
     from calib.synthetic import synthesize_effect, synthesize_velocities
+    from calib.unfinished import UnfinishedBlocksWarning
 
     t0 = time.perf_counter()
     obs, _ = synthesize_effect(profile, effect, strength, n_obs, seed, sd_m=sd_m)
     vel = None if speeds is None else synthesize_velocities(
         profile, effect, strength, speeds[1], seed, speeds[0], speeds[2])
-    d = discover(crsp_candidates(profile), obs, profile, jax.random.key(fit_seed), budget,
-                 velocities=vel)
+    with warnings.catch_warnings():  # recorded in the run's "warnings"
+        warnings.simplefilter("ignore", UnfinishedBlocksWarning)
+        d = discover(crsp_candidates(profile), obs, profile, jax.random.key(fit_seed), budget,
+                     velocities=vel)
     extra = {} if vel is None else {
         "velocity_stations_m": [float(x) for x in speeds[0]], "n_velocity": speeds[1],
         "velocity_sd_m_s": speeds[2],
@@ -165,6 +170,8 @@ def _one_run(profile, effect, strength, n_obs, seed, sd_m, fit_seed, budget,
             "ess": {r["effect"]: float(r["ess"]) for r in d.table},
             "loglik_noise_sd_nats": {r["effect"]: float(r["loglik_noise_sd_nats"])
                                      for r in d.table},
+            "warnings": [f.unfinished["warning"] for f in d.fits.values()
+                         if f.unfinished and f.unfinished["warning"]],
             "seconds": time.perf_counter() - t0}
 
 

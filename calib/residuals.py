@@ -20,6 +20,9 @@ Two covariates are tested:
 
 Every test gives a two-sided p-value and its Bonferroni adjustment over all
 tests made (``p_adj``); a place is flagged when ``p_adj < 0.05``.
+
+The predictive samples are NaN for unfinished blocks (``calib.unfinished``);
+every probability here is over the finished ones.
 """
 
 from __future__ import annotations
@@ -41,12 +44,21 @@ def point_view(obs):
 
 
 def quantile_residuals(obs, row_class: np.ndarray, samples: np.ndarray):
-    """(PIT, q) of each row given predictive runout samples per class (C, m)."""
+    """(PIT, q) of each row given predictive runout samples per class (C, m)
+    (NaN: an unfinished block, left out; a class with none finished gives PIT 0.5)."""
     y, sd = point_view(obs)
-    pit = np.array([np.mean(stats.norm.cdf((y[i] - samples[row_class[i]]) / sd[i]))
-                    for i in range(obs.n_obs)])
+    pit = np.array([_mean_or(stats.norm.cdf((y[i] - _finite(samples[row_class[i]])) / sd[i]),
+                             0.5) for i in range(obs.n_obs)])
     q = stats.norm.ppf(np.clip(pit, 1e-6, 1 - 1e-6))
     return pit, q
+
+
+def _finite(x: np.ndarray) -> np.ndarray:
+    return x[np.isfinite(x)]
+
+
+def _mean_or(x: np.ndarray, empty: float) -> float:
+    return float(np.mean(x)) if x.size else empty
 
 
 def slope_parts(profile) -> list[tuple[float, float, str]]:
@@ -72,7 +84,8 @@ def locate(obs, row_class: np.ndarray, class_sizes_m: np.ndarray, samples: np.nd
         obs: ``Observations``.
         row_class: (n_obs,) size class of each row.
         class_sizes_m: (C,) representative size of each class, m.
-        samples: (C, m) posterior-predictive runouts per class (without noise), m.
+        samples: (C, m) posterior-predictive runouts per class (without noise), m;
+            NaN for an unfinished block (left out).
         profile: the slope (release at its first vertex).
         rng: NumPy generator (measurement noise of the predictive stop positions).
 
@@ -103,9 +116,11 @@ def locate(obs, row_class: np.ndarray, class_sizes_m: np.ndarray, samples: np.nd
     by_part = []
     probs = np.zeros((obs.n_obs, len(parts)))
     for i in range(obs.n_obs):
-        s = x0 + samples[row_class[i]] + sd[i] * rng.standard_normal(samples.shape[1])
+        noise = sd[i] * rng.standard_normal(samples.shape[1])  # drawn for every block
+        s = x0 + samples[row_class[i]] + noise
+        s = s[np.isfinite(s)]
         idx = np.clip(np.searchsorted(edges, s, side="right") - 1, 0, len(parts) - 1)
-        probs[i] = np.bincount(idx, minlength=len(parts)) / s.size
+        probs[i] = np.bincount(idx, minlength=len(parts)) / max(s.size, 1)
     obs_idx = np.clip(np.searchsorted(edges, stop_obs, side="right") - 1, 0, len(parts) - 1)
     for b, (a, e, zone) in enumerate(parts):
         o = int(np.sum(obs_idx == b))

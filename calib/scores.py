@@ -91,12 +91,20 @@ def cv_elpd(loglik: np.ndarray, log_q: np.ndarray, fold: np.ndarray) -> np.ndarr
 
     Returns:
         (n_obs,) elpd_i.
+
+    A design point where some row has log p = -inf (no finished block of its
+    size, ``calib.likelihood``) gets its training weight from the training rows
+    directly, so -inf on a held-out row does not make the weight undefined.
     """
     out = np.empty(loglik.shape[1])
     total = loglik.sum(axis=1)
+    fin = np.isfinite(total)
     for f in np.unique(fold):
         held = fold == f
-        logw = total - loglik[:, held].sum(axis=1) - log_q
+        train = np.empty_like(total)
+        train[fin] = total[fin] - loglik[fin][:, held].sum(axis=1)
+        train[~fin] = loglik[~fin][:, ~held].sum(axis=1)
+        logw = train - log_q
         logw = logw - logsumexp(logw)
         out[held] = logsumexp(logw[:, None] + loglik[:, held], axis=0)
     return out

@@ -6,9 +6,13 @@ plus Gaussian measurement noise of standard deviation ``sd_m`` (and the row's
 tolerance is that sd), so the rows follow exactly the observation model of
 ``calib.likelihood``. The generating key must differ from any key the fit uses
 (the fit's common random numbers would otherwise replay the data's blocks).
+Only finished blocks make rows (``calib.unfinished``): an unfinished block is
+replaced by the next finished one of its size.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import jax
 import numpy as np
@@ -20,6 +24,32 @@ __all__ = ["SYNTH_SIZES_M", "synthesize", "synthesize_effect", "synthesize_veloc
 
 # size classes of synthetic data with hidden effects (0.2-2.0 m, the paper's range)
 SYNTH_SIZES_M = (0.2, 0.4, 0.7, 1.0, 1.4, 2.0)
+
+
+def _finished_runouts(fw, theta, n: int) -> np.ndarray:
+    """(S, n) runouts of the first n finished blocks of each size at ``theta``.
+
+    Block j is the same block whatever the forward model's block count (its key
+    is fold_in(key, j), ``calib.forward``), so with every block finished these
+    are blocks 0 .. n - 1, as ``fw.runouts`` gives them; otherwise up to 8 n
+    blocks are simulated to replace the unfinished ones.
+
+    Raises:
+        ValueError: fewer than n of 8 n blocks of some size finished.
+    """
+    m = n
+    while True:
+        runs = (fw if m == n else dataclasses.replace(fw, n_blocks=m)).runouts(
+            np.asarray(theta, float)[None])[0]
+        ok = np.isfinite(runs)
+        if np.all(ok.sum(axis=-1) >= n):
+            return np.stack([r[k][:n] for r, k in zip(runs, ok)])
+        if m >= 8 * n:
+            s = int(np.argmin(ok.sum(axis=-1)))
+            raise ValueError(f"only {int(ok[s].sum())} of {m} simulated blocks of "
+                             f"{float(fw.sizes_m[s]):g} m finished at the truth; raise the "
+                             f"solver's budget")
+        m *= 2
 
 
 def synthesize(forward_cls, profile, truth, sizes_m, n_per_size: int, sd_m: float,
@@ -41,7 +71,7 @@ def synthesize(forward_cls, profile, truth, sizes_m, n_per_size: int, sd_m: floa
     k_blocks, k_noise = jax.random.split(key)
     sizes = np.asarray(sizes_m, float)
     fw = forward_cls(profile, sizes, n_per_size, k_blocks, **forward_kw)
-    runs = fw.runouts(np.asarray(truth, float)[None])[0]  # (S, n)
+    runs = _finished_runouts(fw, truth, n_per_size)  # (S, n)
     noise = sd_m * np.asarray(jax.random.normal(k_noise, runs.shape))
     y = np.maximum(runs + noise, 0.0)
     return Observations.points(np.repeat(sizes, n_per_size), y.reshape(-1), sd_m,
@@ -78,7 +108,7 @@ def synthesize_effect(profile, effect: str, strength: float, n_obs: int, seed: i
     else:
         fw = CrspForward(profile, sizes, per, k_blocks, effect=effect)
         names = fw.names
-    runs = fw.runouts(theta[None])[0]  # (S, per)
+    runs = _finished_runouts(fw, theta, per)  # (S, per)
     rows = np.arange(n_obs)
     size_i, block_j = rows % sizes.size, rows // sizes.size
     noise = sd_m * np.asarray(jax.random.normal(k_noise, (n_obs,)))
