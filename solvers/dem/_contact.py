@@ -70,7 +70,8 @@ class WallContact(NamedTuple):
 
     force (..., 2) N/m on the corner; fs new shear force N/m; delta penetration
     m; fn normal force N/m (spring + dashpot); touching bool; slipped bool (the
-    trial shear exceeded the Coulomb limit and was clipped: the contact slid);
+    trial shear exceeded the Coulomb limit by more than ``slip_tol`` and was
+    clipped: the contact slid);
     near_limit bool (|F_s| > (1 - margin) tan(phi) max(F_n, 0)).
     """
 
@@ -84,7 +85,7 @@ class WallContact(NamedTuple):
 
 
 def wall_forces(p, vp, fs_old, seg, kn_c, ks_c, dt, width, smooth: bool, cn=0.0,
-                margin=0.05) -> WallContact:
+                margin=0.05, slip_tol=0.0) -> WallContact:
     """Corner-to-wall contact forces.
 
     Normal: F_n = kn l_c delta - c_n v_n (v_n = corner velocity along the
@@ -100,6 +101,8 @@ def wall_forces(p, vp, fs_old, seg, kn_c, ks_c, dt, width, smooth: bool, cn=0.0,
         dt: time step, s. width: softplus width, m.
         cn: normal dashpot coefficient, N s/m per m (broadcasts with the corners).
         margin: Coulomb-cone margin of the ``near_limit`` flag.
+        slip_tol: excess of the trial shear over the limit, N/m, below which the
+            contact is not flagged ``slipped`` (ks l_c x slip rate x dt).
 
     Returns:
         ``WallContact``.
@@ -115,7 +118,7 @@ def wall_forces(p, vp, fs_old, seg, kn_c, ks_c, dt, width, smooth: bool, cn=0.0,
     f_max = jnp.maximum(fn, 0.0) * tan_phi
     fs = _clip_shear(fs_trial, f_max, smooth)
     force = jnp.stack([fn * nx + fs * tx, fn * nz + fs * tz], axis=-1)
-    slipped = touching & (jnp.abs(fs_trial) > f_max)
+    slipped = touching & (jnp.abs(fs_trial) - f_max > slip_tol)
     near_limit = touching & (jnp.abs(fs) > (1.0 - margin) * f_max)
     return WallContact(force, fs, delta, fn, touching, slipped, near_limit)
 

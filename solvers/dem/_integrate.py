@@ -19,9 +19,10 @@ alpha = 0.9 falls at 0.1 g and rises against 1.9 g. The "viscous" mode turns
 local damping off and puts dashpots at the contacts instead (``_contact``).
 
 Rest (our rule, see ``Params``): a fragment is held while it is slow, none of
-its wall contacts slips, and its contacts lie inside the Coulomb cone with a
-margin or it has moved less than ``rest_disp_m`` since the hold began; it is
-at rest after ``stop_hold_s`` of being held. Status codes are
+its wall contacts slips (faster than ``rest_slip_m_s``), and its contacts lie
+inside the Coulomb cone with a margin or it has moved less than
+``rest_disp_m`` since the hold began; it is at rest after ``stop_hold_s`` of
+being held. Status codes are
 ``solvers.status``'s: a block whose fragments are all at rest is ``STOPPED``
 (``LEFT_PROFILE`` if one passed the profile end), still running after
 ``max_steps`` is ``BUDGET``, and a non-finite position or a fragment centre
@@ -224,7 +225,8 @@ def _forces(st: State, params: Params, c: Consts, nbr, options: Options, n_side:
         seg = segment_lookup(c.seg, p[..., 0])
     margin = params.rest_cone_margin
     wall = wall_forces(p, vp, st.fs, seg, c.kn_c, c.ks_c, c.dt, c.width, options.smooth,
-                       cn=c.cn_wall[:, None], margin=margin)
+                       cn=c.cn_wall[:, None], margin=margin,
+                       slip_tol=c.ks_c * params.rest_slip_m_s * c.dt)
     fw, fs = wall.force, wall.fs
     force = fw.sum(axis=1)
     torque = cross2(r, fw).sum(axis=1)

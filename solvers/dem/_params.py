@@ -101,20 +101,27 @@ class Params(NamedTuple):
             of the static penetration m g / (kn l_c) (``Options.smooth``).
         sign_eps_m_s: velocity scale of tanh(v / eps) replacing sign(v) in the
             smooth mode and in fragment-fragment friction.
-        stop_speed_m_s, stop_hold_s, rest_cone_margin, rest_disp_m: the rest
-            test. A fragment is *held* in a step when it is slow,
-            sqrt(v^2 + (omega R)^2) < stop_speed_m_s, none of its wall contacts
-            slipped in that step (the trial shear force stayed inside the
-            Coulomb limit), and either (a) it touches the wall or another
-            fragment and every such contact transmits a force inside the
-            Coulomb cone with a margin, |F_s| <= (1 - rest_cone_margin)
-            tan(phi) F_n, or (b) it has moved less than rest_disp_m (centre
-            displacement plus R times rotation) since the hold began. It is at
-            rest after ``stop_hold_s`` of being held without a break; the
-            block has stopped when all its fragments are at rest. A block
+        stop_speed_m_s, stop_hold_s, rest_cone_margin, rest_disp_m,
+            rest_slip_m_s: the rest test (our rule, not UDEC's). A fragment is
+            *held* in a step when
+            (1) it is slow, sqrt(v^2 + (omega R)^2) < stop_speed_m_s;
+            (2) none of its wall contacts slid in that step: the trial shear
+                force did not exceed the Coulomb limit by more than
+                ks l_c rest_slip_m_s dt (a slip rate of rest_slip_m_s; the
+                tolerance keeps rounding from flagging as sliding a contact
+                that sits at the limit while a neighbour holds the fragment);
+            (3) either (a) it touches the wall or another fragment and every
+                such contact transmits a force inside the Coulomb cone with a
+                margin, |F_s| <= (1 - rest_cone_margin) tan(phi) max(F_n, 0),
+                or (b) it has moved less than rest_disp_m (centre displacement
+                plus R times rotation) since the hold began.
+            It is at rest after ``stop_hold_s`` of being held without a break;
+            the block has stopped when all its fragments are at rest. A block
             sliding where tan(beta) > tan(phi) keeps its wall contacts at the
             limit and slipping, so it is never at rest, however slowly local
-            damping lets it slide (issue 15). Our rule, not UDEC's.
+            damping lets it slide (issue 15), unless it slips slower than
+            rest_slip_m_s for the whole hold (beta within ~5e-5 deg of phi at
+            alpha 0.9). Intact joints do not count as contacts in (a).
         release_jitter_m, release_speed_m_s: random release offset (uniform in
             [0, jitter] downslope of the cliff edge) and initial horizontal
             speed (uniform in [0, speed]); the orientation is uniform in
@@ -143,6 +150,7 @@ class Params(NamedTuple):
     stop_hold_s: float = 1.0
     rest_cone_margin: float = 0.05
     rest_disp_m: float = 1e-3
+    rest_slip_m_s: float = 1e-6
     release_jitter_m: float = 0.5
     release_speed_m_s: float = 1.0
     release_gap_m: float = 0.01
