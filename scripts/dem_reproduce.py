@@ -1,12 +1,18 @@
-"""Reproduce the paper's DEM findings (issue 3, items 1-4) and print a table.
+"""Reproduce the paper's DEM findings (issues 3 and 15) and print a table.
 
     python scripts/dem_reproduce.py --out figures/ [--n-blocks 64] [--skip-full-stiffness]
+        [--sections table1,one_alpha,fragments,damping,stiffness,deposits,breakage]
 
 1. single blocks L = 0.2, 0.9, 1.8 m with Table 1 alphas 0.90, 0.43, 0.30;
 2. the same blocks with one alpha (0.43) for all sizes;
 3. the 1.8 m block in 4, 16, 64 fragments, alpha per fragment from 0.40*L**-0.5;
 4. final fragment positions on the profile (like the paper's Figs. 5 and 6), PNG;
-plus the damping-mode difference and the stiffness-scaling check.
+plus the damping-mode difference and the stiffness-scaling check;
+"deposits" (issue 15): the 16- and 64-fragment deposits under local damping
+(the paper's) and contact dashpots, each relaxed for 5 s with every damping
+off (``deposit_check``): how far the fragments move;
+"breakage" (issue 15): joint breakage of the 1.8 m block in 4 fragments, c = t
+= 1 MPa, at stiffness x1 and x0.01 with unscaled and sqrt-scaled strengths.
 """
 
 from __future__ import annotations
@@ -22,9 +28,19 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from solvers.dem import Options, make_block, make_params, stable_dt  # noqa: E402
-from solvers.dem._integrate import simulate_batch  # noqa: E402
+from solvers.dem import (  # noqa: E402
+    STATUS_NAMES,
+    Options,
+    deposit_check,
+    make_block,
+    make_params,
+    rollout,
+    stable_dt,
+)
+from solvers.dem._integrate import result, simulate_batch  # noqa: E402
 from solvers.profile import load_profile  # noqa: E402
+
+SECTIONS = ("table1", "one_alpha", "fragments", "damping", "stiffness", "deposits", "breakage")
 
 
 def run(params, block, n, seed, max_time_s):
@@ -100,6 +116,61 @@ def figure(profile, res, title, path, paper_range_m=None):
     plt.close(fig)
 
 
+def deposits(prof, scale, max_time_s, relax_s, seeds, out_dir):
+    """16- and 64-fragment deposits under both damping modes, and the deposit
+    check (every damping off for ``relax_s``). One block per seed, key(seed)."""
+    print(f"deposits: L=1.8 m, alpha = 0.40*L**-0.5 per fragment, kn x {scale}, seeds "
+          f"{list(seeds)}; deposit check: {relax_s:g} s with alpha = 0 and no dashpot "
+          "(paper: 16 -> 110-160 m, 64 -> 40-110 m)")
+    for mode in ("unbalanced", "viscous"):
+        params = make_params(prof, stiffness_scale=scale, damping=mode)
+        for nf in (16, 64):
+            blk = make_block(1.8, n_fragments=nf)
+            opts = Options(max_steps=int(max_time_s / float(stable_dt(params, blk))))
+            roll = jax.jit(lambda k, p=params, b=blk, o=opts: rollout(p, b, k, o))
+            check = jax.jit(lambda st, p=params, b=blk: deposit_check(p, b, st, relax_s))
+            for seed in seeds:
+                t0 = time.perf_counter()
+                c, st = jax.block_until_ready(roll(jax.random.key(seed)))
+                wall = time.perf_counter() - t0
+                res = result(st, c)
+                r = np.asarray(res.runout_m)
+                chk = check(st)
+                d = np.asarray(chk.disp_m)
+                print(f"   {mode:10s} {nf:2d} fragments, seed {seed}: "
+                      f"{STATUS_NAMES[int(res.status)]} at {float(res.time_s):.1f} s, "
+                      f"broken {float(res.joints_broken):.0%}; runout median "
+                      f"{np.median(r):.1f} m, p10-p90 {np.percentile(r, 10):.1f}-"
+                      f"{np.percentile(r, 90):.1f}, min-max {r.min():.1f}-{r.max():.1f}, "
+                      f"at rest {int(np.sum(res.stopped))}/{nf}; deposit check: max "
+                      f"{float(chk.max_disp_m):.3g} m, mean {float(chk.mean_disp_m):.3g} m, "
+                      f"median {np.median(d):.3g} m, > 1 cm {int(np.sum(d > 0.01))}/{nf}, "
+                      f"left profile {int(chk.n_left)}  (wall {wall:.0f} s incl. compile)",
+                      flush=True)
+                if seed == seeds[0]:
+                    res1 = jax.tree.map(lambda a: a[None], res)
+                    figure(prof, res1, f"L = 1.8 m block in {nf} fragments, damping {mode}, "
+                           f"seed {seed}", os.path.join(out_dir, f"dem_deposit_{mode}_{nf}.png"),
+                           (110.0, 160.0) if nf == 16 else (40.0, 110.0))
+
+
+def breakage(prof, n, time_s):
+    """Joint breakage of the 1.8 m block in 4 fragments (c = t = 1 MPa) within the
+    first ``time_s`` of the fall, x1 against x0.01 with and without strength scaling."""
+    print(f"breakage: L=1.8 m in 4 fragments, c = t = 1 MPa, {n} blocks, first {time_s:g} s "
+          "(key(0) split); mean fraction of joints broken (standard error)")
+    keys = jax.random.split(jax.random.key(0), n)
+    for scale, expo in ((1.0, 0.5), (0.01, 0.0), (0.01, 0.5)):
+        p = make_params(prof, stiffness_scale=scale, c_joint_pa=1e6, t_joint_pa=1e6,
+                        joint_strength_exponent=expo)
+        blk = make_block(1.8, n_fragments=4)
+        res = simulate_batch(p, blk, keys, Options(max_steps=int(time_s / float(
+            stable_dt(p, blk)))))
+        b = np.asarray(res.joints_broken)
+        print(f"   x{scale:g}, strengths x scale^{expo:g}: broken {b.mean():.3f} "
+              f"({b.std(ddof=1) / math.sqrt(n):.3f})", flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", required=True)
@@ -108,21 +179,44 @@ def main():
     ap.add_argument("--max-time-s", type=float, default=400.0)
     ap.add_argument("--fragment-seeds", type=int, default=2)
     ap.add_argument("--skip-full-stiffness", action="store_true")
+    ap.add_argument("--sections", default=",".join(SECTIONS),
+                    help=f"comma-separated subset of {','.join(SECTIONS)}")
+    ap.add_argument("--deposit-seeds", default="0", help="seeds of the deposit runs, e.g. 0,1")
+    ap.add_argument("--relax-s", type=float, default=5.0, help="deposit-check time, s")
     args = ap.parse_args()
+    sections = set(args.sections.split(","))
+    if not sections <= set(SECTIONS):
+        ap.error(f"--sections: unknown {sorted(sections - set(SECTIONS))}")
     os.makedirs(args.out, exist_ok=True)
     prof = load_profile("data/postignano_profile.csv")
     p = make_params(prof, stiffness_scale=args.stiffness_scale)
     n = args.n_blocks
     print(f"kn = ks = 50 GPa/m x {args.stiffness_scale}; damping = unbalanced (UDEC); "
           f"{n} blocks per row; runout = x_stop - x_release (m); observed band 110-220 m")
-    print("1. Table 1 alphas")
-    for L, a in ((0.2, 0.90), (0.9, 0.43), (1.8, 0.30)):
-        res, w = run(p, make_block(L, alpha=a), n, 0, args.max_time_s)
-        print(f"   L={L:3.1f} alpha={a:.2f}: {summary(res)}  ({w:.0f} s)", flush=True)
-    print("2. one alpha (0.43) for all sizes")
-    for L in (0.2, 0.9, 1.8):
-        res, w = run(p, make_block(L, alpha=0.43), n, 0, args.max_time_s)
-        print(f"   L={L:3.1f} alpha=0.43: {summary(res)}  ({w:.0f} s)", flush=True)
+    if "deposits" in sections:
+        deposits(prof, args.stiffness_scale, args.max_time_s, args.relax_s,
+                 [int(v) for v in args.deposit_seeds.split(",")], args.out)
+    if "breakage" in sections:
+        breakage(prof, 16, 6.0)
+    if "table1" in sections:
+        print("1. Table 1 alphas")
+        for L, a in ((0.2, 0.90), (0.9, 0.43), (1.8, 0.30)):
+            res, w = run(p, make_block(L, alpha=a), n, 0, args.max_time_s)
+            print(f"   L={L:3.1f} alpha={a:.2f}: {summary(res)}  ({w:.0f} s)", flush=True)
+    if "one_alpha" in sections:
+        print("2. one alpha (0.43) for all sizes")
+        for L in (0.2, 0.9, 1.8):
+            res, w = run(p, make_block(L, alpha=0.43), n, 0, args.max_time_s)
+            print(f"   L={L:3.1f} alpha=0.43: {summary(res)}  ({w:.0f} s)", flush=True)
+    if "fragments" in sections:
+        fragments(prof, p, args)
+    if "damping" in sections:
+        damping(prof, args, n)
+    if "stiffness" in sections and not args.skip_full_stiffness:
+        stiffness(prof, args, n)
+
+
+def fragments(prof, p, args):
     print("3. L=1.8 m in fragments, alpha = 0.40*L**-0.5 per fragment "
           "(paper: 16 -> 110-160 m, 64 -> 40-110 m)")
     for nf in (4, 16, 64):
@@ -138,26 +232,31 @@ def main():
                    f"(cf. paper Fig. {5 if nf == 16 else 6})",
                    os.path.join(args.out, f"dem_fragments_{nf}.png"),
                    (110.0, 160.0) if nf == 16 else (40.0, 110.0))
-    print("damping mode, L=0.9 alpha=0.43")
-    for mode in ("unbalanced", "contact"):
+
+
+def damping(prof, args, n):
+    print("damping mode, L=0.9 alpha=0.43 (viscous: e = sqrt((1 - alpha)/(1 + alpha)))")
+    for mode in ("unbalanced", "contact", "viscous"):
         pm = make_params(prof, stiffness_scale=args.stiffness_scale, damping=mode)
         res, w = run(pm, make_block(0.9, alpha=0.43), n, 0, args.max_time_s)
         print(f"   {mode:10s}: {summary(res)}", flush=True)
-    if not args.skip_full_stiffness:
-        print("stiffness scaling check, L=0.9 alpha=0.43 (same keys)")
-        meds = {}
-        for s in (1.0, 0.1, args.stiffness_scale):
-            ps = make_params(prof, stiffness_scale=s)
-            blk = make_block(0.9, alpha=0.43)
-            res, w = run(ps, blk, n, 0, args.max_time_s)
-            r = np.asarray(res.runout_m).ravel()
-            meds[s] = r
-            print(f"   scale {s:g}: dt {float(stable_dt(ps, blk)):.2e} s  mean {r.mean():6.1f} "
-                  f"(se {r.std(ddof=1) / math.sqrt(r.size):.1f})  {summary(res)}  wall {w:.0f} s",
-                  flush=True)
-        d = meds[1.0].mean() - meds[args.stiffness_scale].mean()
-        se = math.sqrt(meds[1.0].var(ddof=1) / n + meds[args.stiffness_scale].var(ddof=1) / n)
-        print(f"   mean difference full - scaled: {d:+.1f} m = {d / se:+.2f} standard errors")
+
+
+def stiffness(prof, args, n):
+    print("stiffness scaling check, L=0.9 alpha=0.43 (same keys)")
+    meds = {}
+    for s in (1.0, 0.1, args.stiffness_scale):
+        ps = make_params(prof, stiffness_scale=s)
+        blk = make_block(0.9, alpha=0.43)
+        res, w = run(ps, blk, n, 0, args.max_time_s)
+        r = np.asarray(res.runout_m).ravel()
+        meds[s] = r
+        print(f"   scale {s:g}: dt {float(stable_dt(ps, blk)):.2e} s  mean {r.mean():6.1f} "
+              f"(se {r.std(ddof=1) / math.sqrt(r.size):.1f})  {summary(res)}  wall {w:.0f} s",
+              flush=True)
+    d = meds[1.0].mean() - meds[args.stiffness_scale].mean()
+    se = math.sqrt(meds[1.0].var(ddof=1) / n + meds[args.stiffness_scale].var(ddof=1) / n)
+    print(f"   mean difference full - scaled: {d:+.1f} m = {d / se:+.2f} standard errors")
 
 
 if __name__ == "__main__":
