@@ -488,7 +488,7 @@ def _step_with_stations(st, params, c, nbr, options, block):
 def result(st: State, c: Consts) -> Result:
     """``Result`` of a final state (per-fragment fields (N,))."""
     stopped = ~st.exited & ((st.status == STOPPED) | (st.status == LEFT_PROFILE))
-    broken = (1.0 - jnp.mean(st.intact.astype(jnp.float64))) if st.intact.shape[0] else \
+    broken = jnp.mean((~st.intact).astype(jnp.float64)) if st.intact.shape[0] else \
         jnp.asarray(0.0)
     return Result(stop_x_m=st.pos[:, 0], stop_z_m=st.pos[:, 1],
                   runout_m=st.pos[:, 0] - c.x_release, stopped=stopped, exited=st.exited,
