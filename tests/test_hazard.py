@@ -43,24 +43,45 @@ def _run(cal_path, n_posterior, n_blocks, sizes, stations, seed=0, **kw):
 def test_exceedance_is_a_step_at_the_analytic_runout(tmp_path):
     """Roughness 0 and no release spread: CRSP is deterministic. A sphere
     released on the ground at 1 m/s rolls down a 25 deg incline (rolling
-    resistance 20 deg: it accelerates), keeps u cos(25 deg) at the concave break
-    and decelerates on the flat:
-        (1 + k) du/dt = g sin(b) - tan(phi) g cos(b)   (k = 2/5),
-    so x_stop = 20 + u2^2 (1 + k) / (2 g tan(phi)). Every block stops there, so
-    P(runout > x) is 1 before and 0 after, in every draw."""
+    resistance 20 deg: it accelerates),
+        (1 + k) du/dt = g sin(b) - tan(phi) g cos(b)   (k = 2/5).
+    At the concave break its normal speed into the flat, u1 sin(25 deg), is far
+    above the rolling threshold (0.5 m/s), so it makes a CRSP impact on the flat
+    (facet tilt 0, slip Vt - w r, w r = u1 while rolling):
+        Vn2 = Kn Vn1 / (1 + (Vn1 / 9.144)^2),
+        Vt2 = sqrt((k (w r)^2 + Vt1^2) FF SF / (1 + k)),
+        FF = Kt + (1 - Kt) / (((Vt1 - w r) / 6.096)^2 + 1.2),
+        SF = Kt / ((Vn1 / (76.2 Kn))^2 + 1),
+    hops 2 Vn2 Vt2 / g on the flat while Vn2 >= 0.5 m/s, lands again with the
+    same speeds (spin kept in flight), and rolls out the rest:
+    x_stop = x_last + Vt^2 (1 + k) / (2 g tan(phi)). Every block stops there
+    (the mass and radius cancel), so P(runout > x) is 1 before and 0 after, in
+    every draw."""
     beta, phi, k = math.radians(25.0), math.radians(20.0), 0.4
+    kn, kt, threshold = 0.4, 0.8, 0.5
     (tmp_path / "ramp_profile.csv").write_text(
         f"x_m,z_m,zone\n0,{20 * math.tan(beta):.12f},ramp\n20,0,flat\n60,0,\n")
     (tmp_path / "ramp_materials.csv").write_text(
         "zone,Kn,Kt,roughness_m,rolling_friction_deg,phi_deg\n"
         "ramp,0.4,0.8,0,20,30\nflat,0.4,0.8,0,20,30\n")
-    path = write_calibration(tmp_path, crsp=(0.4, 0.8, 0.0),
+    path = write_calibration(tmp_path, crsp=(kn, kt, 0.0),
                              profile=str(tmp_path / "ramp_profile.csv"))
+
+    def impact(vn, vt, wr):
+        ff = kt + (1 - kt) / (((vt - wr) / 6.096) ** 2 + 1.2)
+        sf = kt / ((vn / (76.2 * kn)) ** 2 + 1)
+        return kn * vn / (1 + (vn / 9.144) ** 2), math.sqrt((k * wr**2 + vt**2) * ff * sf
+                                                              / (1 + k))
+
     u0 = math.cos(beta)  # release velocity (1, 0) m/s projected on the incline
     a1 = G * (math.sin(beta) - math.tan(phi) * math.cos(beta)) / (1 + k)
     u1 = math.sqrt(u0**2 + 2 * a1 * 20.0 / math.cos(beta))
-    u2 = u1 * math.cos(beta)
-    x_stop = 20.0 + u2**2 * (1 + k) / (2 * G * math.tan(phi))
+    x_stop = 20.0
+    vn, vt = impact(u1 * math.sin(beta), u1 * math.cos(beta), u1)
+    while vn >= threshold:
+        x_stop += vt * 2 * vn / G
+        vn, vt = impact(vn, vt, vt)
+    x_stop += vt**2 * (1 + k) / (2 * G * math.tan(phi))
     stations = np.round(np.arange(21.0, 28.01, 0.25), 2)
     _, _, c = _run(path, 3, 16, [0.5, 1.0], stations)
     exc = exceedance_table(c)

@@ -16,8 +16,10 @@ from solvers.crsp._batch import (
 )
 from solvers.crsp._impact import ImpactOut, crsp_impact, roughness_tilt
 from solvers.crsp._model import (
+    BUDGET,
     CONTACT,
     FLIGHT,
+    INVALID,
     LEFT_PROFILE,
     MAX_EVENTS,
     STOPPED,
@@ -32,8 +34,10 @@ from solvers.crsp._model import (
 )
 
 __all__ = [
+    "BUDGET",
     "CONTACT",
     "FLIGHT",
+    "INVALID",
     "LEFT_PROFILE",
     "MAX_EVENTS",
     "STOPPED",
