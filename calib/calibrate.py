@@ -10,8 +10,10 @@ Stages (each timed; ``Budget`` sets the sizes, ``QUICK`` / ``DEFAULT`` the prese
       second design of ``n_design2`` points drawn from a pilot posterior, so the
       emulator is accurate where the posterior lives (sequential design, as in
       history matching: Vernon et al. 2010);
-   c. hold-out check of the emulator; its predictive variance is inflated by
-      max(1, z_rms^2) so held-out errors have unit RMS in predictive sd;
+   c. hold-out check of the emulator; its predictive variance is inflated by the
+      factor c >= 1 that gives held-out errors unit mean square against the
+      variance the likelihood uses (the median kernel variance of the rows plus
+      c times the emulator's; ``calib.emulator.variance_inflation``);
    d. NUTS (``calib.bayes``).
 2. Gradient (``method`` includes "gradient"): Adam on the smoothed CRN
    objective of the SIMULATOR itself (``calib.gradient``) from several starts:
@@ -107,6 +109,13 @@ def _obs_arrays(obs: Observations):
     f = lambda a: jnp.asarray(np.nan_to_num(a, nan=0.0))  # noqa: E731
     return (f(obs.runout_m), f(obs.runout_sd_m), f(obs.runout_min_m), f(obs.runout_max_m),
             jnp.asarray(obs.is_interval))
+
+
+def _median_kernel_var_m2(obs: Observations) -> float:
+    """Median over rows of the kernel variance the likelihood gives one sample:
+    the tolerance sd^2 of a point row, the smallest kernel width h^2 (0.5 m) of
+    an interval row (``calib.likelihood``)."""
+    return float(np.median(np.where(obs.is_interval, 0.5**2, np.nan_to_num(obs.runout_sd_m)**2)))
 
 
 def _loglik_of_runouts(obs: Observations):
@@ -236,9 +245,9 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
             x, r = np.concatenate([x, np.asarray(forward.to_input(x2))]), np.concatenate([r, r2])
             timings["design2_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        emu_check = holdout_error(x, r, ibox.lo, ibox.hi, budget.n_levels)
-        inflation = max(1.0, emu_check["z_rms"] ** 2)
-        emu_check["variance_inflation"] = inflation
+        emu_check = holdout_error(x, r, ibox.lo, ibox.hi, budget.n_levels,
+                                  kernel_var_m2=_median_kernel_var_m2(obs))
+        inflation = emu_check["variance_inflation"]
         emu_check["n_design"] = int(x.shape[0])
         emu_check["n_blocks_per_point"] = int(r.shape[-1])
         emu = fit_emulator(x, r, ibox.lo, ibox.hi, budget.n_levels)

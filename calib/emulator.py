@@ -35,7 +35,8 @@ import optax
 
 from calib.unfinished import nan_quantile
 
-__all__ = ["QuantileEmulator", "fit_emulator", "holdout_error", "quantile_levels"]
+__all__ = ["QuantileEmulator", "fit_emulator", "holdout_error", "quantile_levels",
+           "variance_inflation"]
 
 
 def quantile_levels(k: int) -> np.ndarray:
@@ -199,18 +200,56 @@ def _fit_all(xu, y_sk, nv_sk):
     return hyp, chol, alpha
 
 
+def variance_inflation(err_m: np.ndarray, latent_var_m2: np.ndarray, noise_var_m2: np.ndarray,
+                       kernel_var_m2: float) -> float:
+    """The factor c >= 1 on the emulator's latent variance that makes held-out
+    errors consistent with the variance the likelihood gives each emulated
+    quantile:
+
+        mean_i e_i^2 / (s^2 + n_i + c v_i) = 1,
+
+    with e_i the held-out error, v_i the latent variance, n_i the Monte Carlo
+    noise of the held-out quantile and s^2 the likelihood's kernel variance (the
+    rows' measurement tolerance, ``calib.likelihood``). The left side falls
+    monotonically in c; c = 1 when it is already <= 1 at c = 1. Our own choice:
+    an error much smaller than the tolerance cannot mislead the likelihood, so it
+    must not inflate the variance (the pure z-score mean(e^2 / (n + v)) does:
+    where many blocks stop at one point, e.g. at the foot of a talus, n and v are
+    ~1e-6 m^2 and a 0.2 m error scores z = 80).
+    """
+    e2 = np.asarray(err_m, float) ** 2
+    v = np.asarray(latent_var_m2, float)
+    base = kernel_var_m2 + np.asarray(noise_var_m2, float) + 1e-6
+
+    def excess(c):
+        return float(np.mean(e2 / (base + c * v))) - 1.0
+
+    if excess(1.0) <= 0.0:
+        return 1.0
+    lo, hi = 1.0, 2.0
+    while excess(hi) > 0.0 and hi < 1e12:
+        lo, hi = hi, hi * 4.0
+    for _ in range(100):  # bisection in log c
+        mid = float(np.sqrt(lo * hi))
+        lo, hi = (mid, hi) if excess(mid) > 0.0 else (lo, mid)
+    return hi
+
+
 def holdout_error(x: np.ndarray, runouts: np.ndarray, lo, hi, n_levels: int = 10,
-                  frac: float = 0.2, per_size_inputs=None) -> dict:
+                  frac: float = 0.2, per_size_inputs=None, kernel_var_m2: float = 0.0) -> dict:
     """Fit on (1 - frac) of the design, predict the rest.
 
     Args:
         per_size_inputs: callable x_row -> (S, d) inputs (default: the row for every size).
+        kernel_var_m2: the likelihood's kernel variance s^2 (``variance_inflation``).
 
     Returns:
         dict with ``rmse_m`` (root-mean-square error of the held-out quantiles),
         ``noise_sd_m`` (the fitted Monte Carlo noise of a quantile estimate, RMS
         over outputs), ``z_rms`` (RMS of error / predictive sd including that
-        noise; about 1 when the GP's uncertainty is honest), ``n_test``, ``n_train``.
+        noise; about 1 when the GP's uncertainty is honest), ``median_abs_err_m``,
+        ``variance_inflation`` (``variance_inflation`` at ``kernel_var_m2``),
+        ``n_test``, ``n_train``.
     """
     x, runouts = _usable(x, runouts)
     n = x.shape[0]
@@ -229,5 +268,9 @@ def holdout_error(x: np.ndarray, runouts: np.ndarray, lo, hi, n_levels: int = 10
     zs = errs / np.sqrt(np.asarray(var) + noise + 1e-6)
     return {"rmse_m": float(np.sqrt(np.mean(errs**2))),
             "noise_sd_m": float(np.sqrt(np.mean(noise))),
-            "z_rms": float(np.sqrt(np.mean(zs**2))), "n_test": int(n_test),
+            "z_rms": float(np.sqrt(np.mean(zs**2))),
+            "median_abs_err_m": float(np.median(np.abs(errs))),
+            "variance_inflation": variance_inflation(errs, np.asarray(var), noise,
+                                                     kernel_var_m2),
+            "n_test": int(n_test),
             "n_train": int(len(train))}

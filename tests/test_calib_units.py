@@ -11,7 +11,7 @@ import pytest
 from scipy.stats import norm
 
 import calib  # noqa: F401  (x64)
-from calib.emulator import fit_emulator, holdout_error
+from calib.emulator import fit_emulator, holdout_error, variance_inflation
 from calib.forward import alpha_of
 from calib.likelihood import log_likelihood
 from calib.observations import ObservationError, load_observations
@@ -117,3 +117,29 @@ def test_same_key_same_forward_runouts():
     th = np.array([[0.4, 0.85, 1.0], [0.3, 0.9, 2.0]])
     a, b = fw.runouts(th), fw.runouts(th[::-1])
     np.testing.assert_array_equal(a, b[::-1])  # same block keys whatever the batch
+
+
+def test_variance_inflation_ignores_errors_far_below_the_tolerance():
+    """Held-out quantiles that sit on an atom (many blocks stopping at one point)
+    have Monte Carlo and latent variances of ~1e-6 m^2; errors of 0.2 m there
+    give z ~ 80 (the old rule inflated by z_rms^2 ~ 6400) but cannot mislead a
+    likelihood whose kernel is 3 m wide: the inflation stays 1."""
+    err = np.full(50, 0.2)
+    var = np.full(50, 1e-6)
+    noise = np.full(50, 1e-6)
+    z_rms2 = float(np.mean(err**2 / (var + noise + 1e-6)))
+    assert z_rms2 > 1e3
+    assert variance_inflation(err, var, noise, kernel_var_m2=9.0) == 1.0
+
+
+def test_variance_inflation_restores_unit_mean_square():
+    """Errors larger than the tolerance: the factor makes mean e^2 / (s^2 + n + c v)
+    equal to 1 (to bisection accuracy), and it grows with the errors."""
+    rng = np.random.default_rng(0)
+    var = rng.uniform(0.5, 2.0, 200)
+    noise = rng.uniform(0.0, 0.5, 200)
+    err = 6.0 * rng.standard_normal(200)
+    c = variance_inflation(err, var, noise, kernel_var_m2=1.0)
+    assert c > 1.0
+    np.testing.assert_allclose(np.mean(err**2 / (1.0 + noise + 1e-6 + c * var)), 1.0, rtol=1e-6)
+    assert variance_inflation(2 * err, var, noise, kernel_var_m2=1.0) > c
