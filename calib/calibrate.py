@@ -22,6 +22,10 @@ Stages (each timed; ``Budget`` sets the sizes, ``QUICK`` / ``DEFAULT`` the prese
 3. Check: the point estimate is re-simulated with fresh random numbers
    (``n_check`` blocks per size) and every observation gets its fit quality:
    simulated 5/50/95 % runouts, its PIT value P(R <= y) and log-likelihood.
+4. Adequacy (``calib.adequacy``): posterior mass near each prior bound and the
+   posterior predictive coverage of the calibration rows (``n_predictive_draws``
+   draws x ``n_blocks_predictive`` fresh blocks per size), flagged when the
+   model looks unable to fit the data.
 
 Unfinished blocks (NaN runouts from the forward model, ``calib.unfinished``)
 are left out of every stage and counted per stage (design, gradient, check):
@@ -40,6 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.special import ndtr
 
+from calib.adequacy import adequacy_record
 from calib.bayes import Posterior, run_nuts
 from calib.emulator import fit_emulator, holdout_error
 from calib.gradient import GradientFit, fit_gradient
@@ -66,6 +71,8 @@ class Budget:
     grad_k: int = 3
     n_blocks_grad: int = 256
     n_check: int = 2000
+    n_predictive_draws: int = 32
+    n_blocks_predictive: int = 64
 
 
 def presets(model: str, quick: bool) -> Budget:
@@ -74,15 +81,18 @@ def presets(model: str, quick: bool) -> Budget:
         if quick:
             return Budget(n_design=48, n_design2=32, n_blocks_design=128, nuts_warmup=200,
                           nuts_samples=400, nuts_chains=2, grad_starts=2, grad_steps=8,
-                          grad_k=2, n_blocks_grad=64, n_check=128)
+                          grad_k=2, n_blocks_grad=64, n_check=128, n_predictive_draws=16,
+                          n_blocks_predictive=32)
         return Budget()
     if model == "dem":
         if quick:
             return Budget(n_design=8, n_design2=0, n_blocks_design=4, nuts_warmup=200,
                           nuts_samples=400, nuts_chains=2, grad_starts=1, grad_steps=2,
-                          grad_k=1, n_blocks_grad=4, n_check=4)
+                          grad_k=1, n_blocks_grad=4, n_check=4, n_predictive_draws=2,
+                          n_blocks_predictive=2)
         return Budget(n_design=16, n_design2=0, n_blocks_design=12, grad_starts=2,
-                      grad_steps=8, grad_k=1, n_blocks_grad=8, n_check=16)
+                      grad_steps=8, grad_k=1, n_blocks_grad=8, n_check=16,
+                      n_predictive_draws=4, n_blocks_predictive=4)
     raise ValueError(f"unknown model {model!r}")
 
 
@@ -103,6 +113,7 @@ class ModelFit:
     timings_s: dict
     budget: Budget
     unfinished: dict | None = None
+    adequacy: dict | None = None
 
 
 def _obs_arrays(obs: Observations):
@@ -290,7 +301,33 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     tally("check", check[None], estimate[None], sizes)
     quality = fit_quality(obs, check[np.searchsorted(sizes, obs.sizes_m)])
     timings["check_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    adequacy = _adequacy(forward, obs, posterior, check[np.searchsorted(sizes, obs.sizes_m)],
+                         budget, jax.random.fold_in(k_check, 1), tally)
+    timings["adequacy_s"] = time.perf_counter() - t0
     record = unfinished_record(tallies, f"{type(forward).__name__} calibration")
     warn_unfinished(record)
     return ModelFit(tuple(box.names), np.asarray(estimate), source, posterior, gfit, emu_check,
-                    quality, sizes, check, timings, budget, record)
+                    quality, sizes, check, timings, budget, record, adequacy)
+
+
+def _adequacy(forward, obs: Observations, posterior: Posterior | None, check: np.ndarray,
+              budget: Budget, key: jax.Array, tally) -> dict:
+    """``calib.adequacy`` of one fit: posterior predictive runouts at
+    ``n_predictive_draws`` draws spread evenly over the chains' output, with
+    ``n_blocks_predictive`` fresh blocks per draw and size; without a posterior,
+    the check's runouts at the point estimate (plug-in)."""
+    if posterior is None:
+        return adequacy_record(None, forward.box, obs, check,
+                               f"plug-in at the point estimate, {check.shape[-1]} blocks "
+                               "per size (no posterior)")
+    n = posterior.samples.shape[0]
+    pick = np.linspace(0, n - 1, min(budget.n_predictive_draws, n)).round().astype(int)
+    draws = posterior.samples[pick]
+    pred = dataclasses.replace(forward, n_blocks=budget.n_blocks_predictive, key=key)
+    runs = pred.runouts(draws)  # (T, S, n)
+    tally("predictive", runs, draws)
+    pooled = np.moveaxis(runs, 0, 1).reshape(runs.shape[1], -1)
+    return adequacy_record(posterior.samples, forward.box, obs, pooled,
+                           f"posterior predictive, {len(pick)} draws x "
+                           f"{budget.n_blocks_predictive} blocks per size")

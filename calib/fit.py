@@ -143,6 +143,7 @@ def _model_section(name, fit, forward, law_form=None) -> dict:
     post = fit.posterior
     sec = {"parameters": list(fit.names), "estimate_source": fit.estimate_source,
            "fit_quality": fit.quality, "unfinished_blocks": fit.unfinished,
+           "adequacy": fit.adequacy,
            "timings_s": fit.timings_s,
            "budget": {k: v for k, v in vars(fit.budget).items()},
            "n_blocks_check": int(fit.check_runouts.shape[-1]),
@@ -321,6 +322,18 @@ def _print_summary(result: dict, models, out: str) -> None:
         w = result[model]["unfinished_blocks"]["warning"]
         if w:
             print(f"\n!!! {w}.", file=sys.stderr)
+    for model in models:
+        a = result[model]["adequacy"]
+        c = a["coverage"]["levels"]
+        print(f"\n{model.upper()} calibration rows inside their predictive bands "
+              f"({a['predictive']}): 50 %: {c['0.5']['n_covered']}/{c['0.5']['n_rows']}, "
+              f"90 %: {c['0.9']['n_covered']}/{c['0.9']['n_rows']}")
+        if a["bounds"] is not None:
+            print(f"{model.upper()} posterior mass within {a['bound_band_fraction']:.0%} of a "
+                  "prior bound: " + ", ".join(
+                      f"{n} {max(b['lower'], b['upper']):.0%}" for n, b in a["bounds"].items()))
+        if not a["ok"]:
+            print(f"\n!!! {model.upper()} CALIBRATION: {a['message']}.", file=sys.stderr)
     for model in models:
         b = result[model].get("bayes")
         if b is not None and not b["ok"]:

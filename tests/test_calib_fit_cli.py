@@ -53,6 +53,15 @@ def test_quick_run_writes_every_output(quick_run):
             assert f"{m.upper()} POSTERIOR DIAGNOSTICS FAILED" in proc.stderr
     rows = (out / "crsp_posterior.csv").read_text().splitlines()
     assert rows[0] == "Kn,Kt,roughness_m" and len(rows) > 100
+    # the fit says whether it can fit (issue 17): bound mass and predictive coverage
+    for m in ("crsp", "dem"):
+        a = cal[m]["adequacy"]
+        assert set(a["bounds"]) == set(cal[m]["parameters"])
+        assert a["coverage"]["levels"]["0.9"]["n_rows"] == 2
+        assert "posterior predictive" in a["predictive"]
+        if not a["ok"]:
+            assert f"{m.upper()} CALIBRATION: the model may not" in proc.stderr
+    assert "inside their predictive bands" in proc.stdout
 
 
 def test_help_explains():

@@ -1,0 +1,71 @@
+"""A calibration says when it cannot fit (issue 17): posterior mass at the prior
+bounds and posterior predictive coverage of the calibration rows."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from calib.adequacy import adequacy_record, bound_mass, predictive_coverage
+from calib.observations import load_observations
+from calib.priors import CRSP_BOX
+
+
+def _obs(tmp_path, sizes, runouts, sd=3.0):
+    path = tmp_path / "obs.csv"
+    pd.DataFrame({"block_size_m": sizes, "runout_m": runouts,
+                  "runout_sd_m": np.full(len(sizes), sd)}).to_csv(path, index=False)
+    return load_observations(str(path))
+
+
+def test_uniform_posterior_is_not_flagged_and_piled_posterior_is():
+    rng = np.random.default_rng(0)
+    uniform = CRSP_BOX.from_unit(rng.random((4000, 3)))
+    b = bound_mass(uniform, CRSP_BOX)
+    for name in CRSP_BOX.names:
+        assert abs(b[name]["lower"] - 0.02) < 0.01 and abs(b[name]["upper"] - 0.02) < 0.01
+        assert not b[name]["flagged"]
+    piled = uniform.copy()
+    piled[:, 1] = CRSP_BOX.hi[1] - 0.001 * rng.random(4000)  # Kt against its upper bound
+    b = bound_mass(piled, CRSP_BOX)
+    assert b["Kt"]["flagged"] and b["Kt"]["upper"] == 1.0
+    assert not b["Kn"]["flagged"]
+
+
+def test_rows_drawn_from_the_predictive_are_covered_at_about_the_nominal_rate(tmp_path):
+    """Rows that are draws of R + e from the simulated distribution itself: about
+    50 % and 90 % are covered, nothing is flagged."""
+    rng = np.random.default_rng(1)
+    sim = 100.0 + 20.0 * rng.standard_normal((2, 4000))  # two sizes
+    sizes = np.repeat([0.5, 1.0], 100)
+    y = 100.0 + 20.0 * rng.standard_normal(200) + 3.0 * rng.standard_normal(200)
+    obs = _obs(tmp_path, sizes, y)
+    cov = predictive_coverage(obs, sim)
+    assert abs(cov["levels"]["0.5"]["fraction"] - 0.5) < 0.1
+    assert abs(cov["levels"]["0.9"]["fraction"] - 0.9) < 0.06
+    assert not cov["levels"]["0.5"]["flagged"] and not cov["levels"]["0.9"]["flagged"]
+
+
+def test_a_model_that_stops_too_early_is_flagged(tmp_path):
+    """18 rows of which 7 lie beyond the simulated 90 % band (the Tschamut
+    symptom of issue 17): coverage of the 90 % band is flagged, and the record
+    says the model may not fit."""
+    rng = np.random.default_rng(2)
+    sim = 80.0 + 5.0 * rng.standard_normal((1, 4000))
+    y = np.concatenate([80.0 + 5.0 * rng.standard_normal(11), np.full(7, 130.0)])
+    obs = _obs(tmp_path, np.full(18, 0.4), y, sd=1.0)
+    piled = CRSP_BOX.from_unit(rng.random((1000, 3)))
+    piled[:, 1] = CRSP_BOX.hi[1]
+    rec = adequacy_record(piled, CRSP_BOX, obs, sim, "test")
+    assert rec["coverage"]["levels"]["0.9"]["n_covered"] <= 11
+    assert rec["coverage"]["levels"]["0.9"]["flagged"]
+    assert not rec["ok"] and "Kt" in rec["message"] and "90%" in rec["message"]
+
+
+def test_interval_rows_are_covered_when_they_overlap_the_band(tmp_path):
+    path = tmp_path / "obs.csv"
+    path.write_text("block_size_m,runout_min_m,runout_max_m\n1.0,90,95\n1.0,200,210\n")
+    obs = load_observations(str(path))
+    sim = np.linspace(80.0, 120.0, 401)[None]
+    rows = predictive_coverage(obs, sim)["rows"]
+    assert rows[0]["in_90"] and rows[0]["in_50"] and not rows[1]["in_90"]
