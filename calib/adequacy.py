@@ -84,8 +84,9 @@ def predictive_coverage(obs: Observations, runouts: np.ndarray, key_seed: int = 
     Returns:
         {"levels": {"0.5": {...}, "0.9": {...}}, "rows": [...]}: per level the
         number of rows, the number covered, the fraction, the one-sided binomial
-        test's p-value and ``flagged`` (too few covered); per row whether each band covers it (None for a
-        row whose size has no finished block, left out of the counts).
+        test's p-value and ``flagged`` (too few covered); per row whether each
+        band covers it (None for a row whose size has no finished block, left
+        out of the counts).
     """
     rng = np.random.default_rng(key_seed)
     rows, covered = [], {p: [] for p in LEVELS}
