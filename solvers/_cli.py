@@ -109,7 +109,12 @@ def write_all_atomic(writers: dict) -> list[str]:
     extension, so e.g. matplotlib picks the format), and only when all have
     been written are they renamed into place; on any error the temporaries
     are removed and nothing is renamed. Returns the final paths.
+
+    Each output gets the permissions of a file the user creates (0666 less the
+    umask), not the 0600 that ``tempfile.mkstemp`` gives its temporaries.
     """
+    umask = os.umask(0)
+    os.umask(umask)
     staged = []
     try:
         for final, write in writers.items():
@@ -120,6 +125,7 @@ def write_all_atomic(writers: dict) -> list[str]:
             os.close(fd)
             staged.append((tmp, final))
             write(tmp)
+            os.chmod(tmp, 0o666 & ~umask)
         for tmp, final in staged:
             os.replace(tmp, final)
     finally:
