@@ -34,6 +34,7 @@ import warnings
 import jax
 import numpy as np
 
+from calib.calibration_file import SCHEMA
 from solvers._cli import CliError, OneLineParser, run_guarded, text_writer, write_all_atomic
 
 __all__ = ["main"]
@@ -211,7 +212,7 @@ def _run(args) -> int:
     models = ["crsp", "dem"] if args.model == "both" else [args.model]
     methods = ("gradient", "bayes") if args.method == "both" else (args.method,)
     key = jax.random.key(args.seed)
-    result = {"schema": "rockfall-calibration/1",
+    result = {"schema": SCHEMA,
               "command": " ".join([PROG] + sys.argv[1:]),
               "data_csv": args.data, "profile_csv": profile_path, "seed": args.seed,
               "quick": bool(args.quick), "methods": list(methods), "versions": _versions(),

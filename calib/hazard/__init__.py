@@ -11,7 +11,7 @@ annual frequencies and hazard level. See ``_tables`` for the definitions,
 recalled, not verified: labelled there), ``_units`` for the random numbers,
 ``_stats`` for the bounded-memory reductions, ``_sharding`` for devices.
 
-Modules: ``_calibration`` (read calibration.json, draw parameter sets),
+Modules: ``calib.calibration_file`` (read calibration.json, draw parameter sets),
 ``_units`` (jitted simulate-and-reduce chunks), ``_sharding`` (devices),
 ``_run`` (the Monte Carlo loop), ``_stats`` (counts, histograms, quantiles),
 ``_tables`` (CSV tables and text summary), ``_intensity`` (classes, matrix),
@@ -19,7 +19,7 @@ Modules: ``_calibration`` (read calibration.json, draw parameter sets),
 """
 
 import solvers  # noqa: F401  (enables float64)
-from calib.hazard._calibration import (
+from calib.calibration_file import (
     SCHEMA,
     Calibration,
     CalibrationError,

@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from calib.hazard._calibration import draw_parameters, load_calibration
+from calib.calibration_file import draw_parameters, load_calibration
 from calib.hazard._run import run_hazard
 from solvers import crsp, load_profile
 from solvers._cli import OneLineParser

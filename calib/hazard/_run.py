@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from calib.hazard._calibration import Calibration, CalibrationError, Draws
+from calib.calibration_file import Calibration, CalibrationError, Draws
 from calib.hazard._sharding import run_units
 from calib.hazard._stats import BINS, hist_quantile
 from calib.hazard._units import crsp_chunk, dem_chunk, draw_key

@@ -1,6 +1,10 @@
-"""Reading ``results/calibration.json`` and drawing parameter sets from it.
+"""The calibration file: ``results/calibration.json``, its one reader, and
+drawing parameter sets from it.
 
-The file is written by ``python -m calib.fit`` (schema ``rockfall-calibration/1``):
+``python -m calib.fit`` writes it (``SCHEMA``); every consumer reads it through
+``load_calibration`` (``python -m calib.hazard``, ``python -m calib.validate``,
+the notebooks), never by re-parsing the JSON with its own names. Schema
+``rockfall-calibration/1``:
 
 * ``crsp``: ``Kn``, ``Kt``, ``roughness_m`` with ``map``/``mean``/``q05``/``q95``
   and ``posterior_csv`` (columns ``Kn,Kt,roughness_m``; null after a
