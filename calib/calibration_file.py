@@ -62,6 +62,8 @@ class Calibration(NamedTuple):
         posterior: (R, P) posterior sample, or None (gradient-only fit).
         posterior_csv: its resolved path, or None.
         alpha_form: DEM only: "power" or "constant" ("" for CRSP).
+        data_csv: the observations the fit used, resolved like ``profile_csv``,
+            or None where that file is not found.
     """
 
     path: str
@@ -72,6 +74,7 @@ class Calibration(NamedTuple):
     posterior: np.ndarray | None
     posterior_csv: str | None
     alpha_form: str
+    data_csv: str | None = None
 
 
 class Draws(NamedTuple):
@@ -234,9 +237,13 @@ def load_calibration(path: str, model: str | None = None) -> Calibration:
     else:
         post_path = _resolve(path, post_rel, json_dir, f"{model}.posterior_csv", False)
         posterior = _read_posterior(post_path, names, ranges)
+    try:
+        data_csv = _resolve(path, doc.get("data_csv"), json_dir, "data_csv", True)
+    except CalibrationError:
+        data_csv = None
     return Calibration(path=path, model=model, profile_csv=profile_csv, names=names,
                        point=np.asarray(point, dtype=np.float64), posterior=posterior,
-                       posterior_csv=post_path, alpha_form=form)
+                       posterior_csv=post_path, alpha_form=form, data_csv=data_csv)
 
 
 def draw_parameters(cal: Calibration, n_posterior: int, seed: int) -> Draws:

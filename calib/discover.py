@@ -127,7 +127,8 @@ def _fit_section(f) -> dict:
 def _run(args) -> int:
     from calib import discovery_figures as figs
     from calib.discrepancy import GAP_METRIC, discover, preset_budget
-    from calib.fit import _Progress, _versions, _write_all, load_inputs
+    from calib.fit import _Progress, _write_all, load_inputs
+    from calib.provenance import versions
     from calib.scores import ELPD_MIN, Z_MIN
     from calib.unfinished import UnfinishedBlocksWarning
 
@@ -171,7 +172,7 @@ def _run(args) -> int:
         "budget": {k: (list(v) if isinstance(v, tuple) else v)
                    for k, v in vars(budget).items()},
         "timings_s": {**d.timings_s, "total_s": time.perf_counter() - t0},
-        "versions": _versions(),
+        "versions": versions(),
     }
     result["warnings"] = (ess_warnings({e: (f.ess, int(f.theta.shape[0]))
                                         for e, f in d.fits.items()})

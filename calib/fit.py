@@ -23,10 +23,8 @@ from __future__ import annotations
 
 import argparse
 import functools
-import importlib.metadata as md
 import json
 import os
-import platform
 import sys
 import time
 import warnings
@@ -35,6 +33,7 @@ import jax
 import numpy as np
 
 from calib.calibration_file import SCHEMA
+from calib.provenance import provenance, versions
 from solvers._cli import CliError, OneLineParser, run_guarded, text_writer, write_all_atomic
 
 __all__ = ["main"]
@@ -88,17 +87,6 @@ def _check_reach(obs, profile, profile_path: str) -> None:
                            f"beyond the end of the profile {profile_path} (it covers "
                            f"{length:g} m from the release at x = {x0:g} m); the blocks can "
                            f"never reach it")
-
-
-def _versions() -> dict:
-    out = {"python": platform.python_version()}
-    for pkg in ("rockfall-calib", "jax", "jaxlib", "numpy", "scipy", "optax", "numpyro",
-                "pandas", "matplotlib"):
-        try:
-            out[pkg] = md.version(pkg)
-        except md.PackageNotFoundError:
-            out[pkg] = None
-    return out
 
 
 def _stats(values: np.ndarray | None, point: float) -> dict:
@@ -215,7 +203,9 @@ def _run(args) -> int:
     result = {"schema": SCHEMA,
               "command": " ".join([PROG] + sys.argv[1:]),
               "data_csv": args.data, "profile_csv": profile_path, "seed": args.seed,
-              "quick": bool(args.quick), "methods": list(methods), "versions": _versions(),
+              "quick": bool(args.quick), "methods": list(methods), "versions": versions(),
+              "inputs": provenance(PROG, args.seed, {"data": args.data,
+                                                     "profile": profile_path})["inputs"],
               "block_size_mapping": {"crsp_radius_m": "block_size_m / 2",
                                      "dem_side_m": "block_size_m"},
               "likelihood": "point: (1/n) sum_j N(y; r_j, sd^2 + v_j); interval: (1/n) sum_j "

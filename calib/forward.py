@@ -116,6 +116,10 @@ class CrspForward:
             box becomes ``calib.effects.full_box``.
         stations_x_m: abscissae (m) at which ``simulate`` records passage speeds.
         settings: CRSP solver settings (event budget, search window).
+        release_x_m: (S,) release abscissa of each entry of ``sizes_m``, m, or
+            None (every block starts at the profile's first vertex). With it,
+            ``sizes_m`` need not be distinct: an entry is a (size, release)
+            group, e.g. the held-out rows of ``calib.predictive_check``.
     """
 
     profile: Profile
@@ -128,6 +132,7 @@ class CrspForward:
     effect: str = "none"
     stations_x_m: tuple[float, ...] = ()
     settings: crsp.Settings = crsp.Settings()
+    release_x_m: tuple[float, ...] | None = None
 
     def __post_init__(self):
         if self.effect != "none":
@@ -170,15 +175,22 @@ class CrspForward:
         n_t, n_s = theta.shape[0], len(self.sizes_m)
         rep = np.repeat(theta, n_s, axis=0)  # task = (t, s)
         radius = np.tile(crsp_radius_m(self.sizes_m), n_t)
+        release = (None if self.release_x_m is None else
+                   np.tile(np.asarray(self.release_x_m, float), n_t))
         n_tasks = rep.shape[0]
         chunk = self.task_chunk
         pad = (-n_tasks) % chunk
         rep = np.concatenate([rep, np.repeat(rep[-1:], pad, axis=0)])
         radius = np.concatenate([radius, np.repeat(radius[-1:], pad)])
+        if release is not None:
+            release = np.concatenate([release, np.repeat(release[-1:], pad)])
         stations = jnp.asarray(np.asarray(self.stations_x_m, float).reshape(-1), jnp.float64)
         runs, speeds = [], []
         for c0 in range(0, rep.shape[0], chunk):
             params = self.params(rep[c0:c0 + chunk])
+            if release is not None:
+                params = params._replace(
+                    release_x_m=jnp.asarray(release[c0:c0 + chunk], jnp.float64))
             blocks = _stack([crsp.make_block(float(r)) for r in radius[c0:c0 + chunk]])
             res = crsp.simulate_tasks(params, blocks, self.key, self.profile, stations,
                                       n_per_task=self.n_blocks,

@@ -1,0 +1,166 @@
+"""Predictive check: does a calibration predict runouts it was not fitted to?
+
+For each held-out row (a block of size d released at ``release_x_m``, seen at
+runout y with tolerance s) the calibration's posterior predictive distribution
+of the OBSERVED value is simulated: the runouts R of fresh blocks of that size
+released there, at ``n_posterior`` posterior draws (``calib.calibration_file.
+draw_parameters``), plus the measurement error e ~ N(0, s^2) of the
+observation model (``calib.likelihood``): Y = R + e, an ensemble of
+``n_posterior x n_blocks`` members. Scores per point row:
+
+* CRPS(F, y) = E|Y - y| - E|Y - Y'| / 2 (Gneiting & Raftery 2007, JASA 102,
+  359-378), of the ensemble, in metres (``scoringrules.crps_ensemble``; lower
+  is better; it is the mean absolute error for a point forecast);
+* PIT = P(Y <= y) (uniform on [0, 1] for a calibrated forecast; Dawid 1984);
+* whether the central 50 % and 90 % predictive intervals contain y;
+* the error of the predictive mean, E[Y] - y (positive: overshoot).
+
+Baseline (climatology): the empirical distribution of the runouts observed in
+the CALIBRATION rows, (a) all of them and (b) those of the held-out row's block
+size (rows whose size is within 1 % of it; where fewer than
+``MIN_ROWS_PER_SIZE`` such rows exist, (b) falls back to (a) and the row says
+so). Its CRPS is computed the same way. Skill against a baseline:
+``1 - mean CRPS / mean CRPS_baseline`` (1: perfect, 0: no better than quoting
+the observed distribution, < 0: worse).
+
+Interval rows (runout seen to lie in [a, b]) have no CRPS here; they are
+reported with their coverage only (an interval is inside a band when it
+overlaps it) and left out of the averages of the scores.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pandas as pd
+import scoringrules as sr
+
+from calib.observations import Observations
+
+__all__ = ["MIN_ROWS_PER_SIZE", "PredictiveCheck", "groups_of", "score_rows"]
+
+MIN_ROWS_PER_SIZE = 3  # fewest calibration rows of one size for a per-size baseline
+
+
+def groups_of(obs: Observations, default_release_x_m: float) -> tuple[np.ndarray, np.ndarray,
+                                                                        np.ndarray]:
+    """Distinct (block size, release abscissa) pairs of the rows.
+
+    Args:
+        obs: rows; ``obs.release_x_m`` where present (NaN or absent: the default).
+        default_release_x_m: release of rows that give none (the profile's start).
+
+    Returns:
+        (sizes_m (G,), release_x_m (G,), group_index (n_obs,)).
+    """
+    rel = getattr(obs, "release_x_m", None)
+    rel = (np.full(obs.n_obs, default_release_x_m) if rel is None
+           else np.where(np.isfinite(rel), rel, default_release_x_m))
+    pairs = np.stack([np.asarray(obs.block_size_m, float), np.asarray(rel, float)], axis=1)
+    uniq, index = np.unique(pairs, axis=0, return_inverse=True)
+    return uniq[:, 0], uniq[:, 1], index.reshape(-1)
+
+
+def _baseline(calib_obs: Observations) -> tuple[np.ndarray, np.ndarray]:
+    """Observed runouts and sizes of the calibration's point rows."""
+    point = ~np.asarray(calib_obs.is_interval)
+    return np.asarray(calib_obs.runout_m)[point], np.asarray(calib_obs.block_size_m)[point]
+
+
+@dataclasses.dataclass
+class PredictiveCheck:
+    """Scores of one predictive check.
+
+    Attributes:
+        rows: one row per held-out observation (pandas DataFrame; columns in
+            ``score_rows``).
+        summary: averages and counts (plain Python numbers).
+    """
+
+    rows: pd.DataFrame
+    summary: dict
+
+
+def score_rows(obs: Observations, predictive: np.ndarray, group_index: np.ndarray,
+               calib_obs: Observations, seed: int = 0) -> PredictiveCheck:
+    """Score held-out rows against their predictive runouts and the baselines.
+
+    Args:
+        obs: held-out rows.
+        predictive: (G, m) simulated runouts of each (size, release) group,
+            pooled over the posterior draws, m; NaN for unfinished blocks.
+        group_index: (n_obs,) group of each row.
+        calib_obs: the calibration rows (the climatology baselines).
+        seed: seed of the measurement-error draws.
+
+    Returns:
+        ``PredictiveCheck``.
+    """
+    rng = np.random.default_rng(seed)
+    clim_all, clim_sizes = _baseline(calib_obs)
+    if clim_all.size < 2:
+        raise ValueError("the calibration data have fewer than 2 point rows: no climatology "
+                         "baseline can be formed")
+    out = []
+    for i in range(obs.n_obs):
+        r = np.asarray(predictive[group_index[i]], float)
+        r = r[np.isfinite(r)]
+        d = float(obs.block_size_m[i])
+        same = np.abs(clim_sizes - d) <= 0.01 * d
+        per_size = clim_all[same] if same.sum() >= MIN_ROWS_PER_SIZE else clim_all
+        row = {"row": i + 1, "block_size_m": d, "n_predictive": int(r.size),
+               "baseline_size": "size" if same.sum() >= MIN_ROWS_PER_SIZE else "overall"}
+        if obs.is_interval[i]:
+            a, b = float(obs.runout_min_m[i]), float(obs.runout_max_m[i])
+            row.update(observed_min_m=a, observed_max_m=b)
+            for p in (0.5, 0.9):
+                if r.size:
+                    lo, hi = np.quantile(r, [0.5 - p / 2, 0.5 + p / 2])
+                    row[f"in_{round(100 * p)}"] = bool(a <= hi and b >= lo)
+            out.append(row)
+            continue
+        y, s = float(obs.runout_m[i]), float(obs.runout_sd_m[i])
+        row.update(observed_m=y, observed_sd_m=s)
+        if r.size == 0:  # no simulated block of this group finished
+            out.append(row)
+            continue
+        ens = r + s * rng.standard_normal(r.size)
+        q = np.quantile(ens, [0.05, 0.25, 0.5, 0.75, 0.95])
+        row.update(
+            pred_q05_m=q[0], pred_q25_m=q[1], pred_median_m=q[2], pred_q75_m=q[3],
+            pred_q95_m=q[4], pred_mean_m=float(ens.mean()),
+            error_of_mean_m=float(ens.mean() - y),
+            pit=float(np.mean(ens <= y)),
+            in_50=bool(q[1] <= y <= q[3]), in_90=bool(q[0] <= y <= q[4]),
+            crps_m=float(sr.crps_ensemble(y, ens)),
+            crps_climatology_m=float(sr.crps_ensemble(y, clim_all)),
+            crps_climatology_size_m=float(sr.crps_ensemble(y, per_size)))
+        out.append(row)
+    rows = pd.DataFrame(out)
+    scored = rows[rows.get("crps_m", pd.Series(dtype=float)).notna()] if "crps_m" in rows \
+        else rows.iloc[0:0]
+    n = len(scored)
+
+    def mean(col):
+        return float(scored[col].mean()) if n else None
+
+    summary = {
+        "n_rows": int(obs.n_obs), "n_scored": n,
+        "n_interval_rows": int(np.sum(obs.is_interval)),
+        "n_without_prediction": int(obs.n_obs - np.sum(obs.is_interval) - n),
+        "mean_crps_m": mean("crps_m"),
+        "mean_crps_climatology_m": mean("crps_climatology_m"),
+        "mean_crps_climatology_size_m": mean("crps_climatology_size_m"),
+        "mean_error_of_mean_m": mean("error_of_mean_m"),
+        "mean_abs_error_of_mean_m": float(scored["error_of_mean_m"].abs().mean()) if n else None,
+        "coverage_50": float(scored["in_50"].mean()) if n else None,
+        "coverage_90": float(scored["in_90"].mean()) if n else None,
+        "n_above_90": int((scored["pit"] > 0.95).sum()) if n else 0,
+        "n_below_90": int((scored["pit"] < 0.05).sum()) if n else 0,
+    }
+    for name, ref in (("skill_vs_climatology", "mean_crps_climatology_m"),
+                      ("skill_vs_climatology_size", "mean_crps_climatology_size_m")):
+        summary[name] = (1.0 - summary["mean_crps_m"] / summary[ref]
+                         if n and summary[ref] > 0 else None)
+    return PredictiveCheck(rows, summary)

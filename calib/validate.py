@@ -1,0 +1,226 @@
+"""Command line: ``python -m calib.validate results/calibration.json heldout.csv``.
+
+Checks a calibration against runouts it was not fitted to: simulates the
+posterior predictive runout distribution of every held-out row (its block size
+and, where the CSV gives ``release_x_m``, its release point) and scores it
+against the row and against a climatology baseline (the calibration rows' own
+observed runouts). The scores and their sources are in
+``calib.predictive_check``.
+
+Outputs (in ``--out``, all written together or not at all):
+
+* ``validation.csv``: one row per held-out observation (predictive quantiles,
+  PIT, 50/90 % coverage, error of the predictive mean, CRPS of the model and of
+  both baselines);
+* ``validation.json``: the averages, skill scores, settings and provenance
+  (command line, seed, SHA-256 of every input, package versions);
+* ``pit_histogram.png`` and ``intervals.png``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+import numpy as np
+
+from solvers._cli import CliError, OneLineParser, run_guarded
+
+PROG = "python -m calib.validate"
+
+
+def _parser() -> OneLineParser:
+    p = OneLineParser(
+        prog=PROG, description=__doc__.split("\n\n")[1],
+        epilog="Example: python -m calib.validate results/calibration.json heldout.csv "
+               "--n-posterior 50 --out results/validation/")
+    p.add_argument("calibration", help="calibration.json written by python -m calib.fit")
+    p.add_argument("heldout", help="observations CSV of the held-out rows (same schema as "
+                   "calib.fit's input; optional column release_x_m)")
+    p.add_argument("--model", choices=("crsp", "dem"), default=None,
+                   help="which calibrated model (default: crsp if calibrated, else dem)")
+    p.add_argument("--calibration-data", default=None,
+                   help="observations the calibration was fitted to, for the climatology "
+                   "baseline (default: the data_csv recorded in the calibration file)")
+    p.add_argument("--n-posterior", type=int, default=50,
+                   help="posterior draws (default 50; 1 = the point estimate)")
+    p.add_argument("--n-blocks", type=int, default=None,
+                   help="blocks per draw and row group (default 100 CRSP, 4 DEM)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--out", default="results/validation", help="output folder "
+                   "(default results/validation)")
+    return p
+
+
+def _load(args):
+    from calib.calibration_file import CalibrationError, load_calibration
+    from calib.observations import ObservationError, load_observations
+    from solvers.profile import ProfileError, load_profile
+
+    try:
+        cal = load_calibration(args.calibration, args.model)
+    except CalibrationError as e:
+        raise CliError(str(e)) from None
+    data = args.calibration_data or cal.data_csv
+    if data is None:
+        raise CliError(f"{args.calibration}: the calibration data it records cannot be found; "
+                       "give --calibration-data")
+    try:
+        heldout = load_observations(args.heldout)
+        calib_obs = load_observations(data)
+        profile = load_profile(cal.profile_csv)
+    except (ObservationError, ProfileError) as e:
+        raise CliError(str(e)) from None
+    if args.n_posterior < 1:
+        raise CliError(f"--n-posterior: expected a positive count, got {args.n_posterior}")
+    if args.n_blocks is not None and args.n_blocks < 1:
+        raise CliError(f"--n-blocks: expected a positive count, got {args.n_blocks}")
+    if os.path.exists(args.out) and not os.path.isdir(args.out):
+        raise CliError(f"--out {args.out}: exists and is not a folder")
+    return cal, heldout, calib_obs, data, profile
+
+
+def _predictive(cal, heldout, profile, n_posterior, n_blocks, seed):
+    """(G, m) predictive runouts per (size, release) group, group index per row,
+    and the draws' description."""
+    import jax
+
+    from calib.calibration_file import CalibrationError, draw_parameters
+    from calib.forward import CrspForward, DemForward
+    from calib.predictive_check import groups_of
+
+    x0 = float(profile.x_m[0])
+    sizes, releases, index = groups_of(heldout, x0)
+    lo, hi = float(profile.x_m[0]), float(profile.x_m[-1])
+    bad = np.flatnonzero((releases < lo) | (releases >= hi))
+    if bad.size:
+        raise CliError(f"release_x_m {releases[bad[0]]:g}: outside the profile {cal.profile_csv} "
+                       f"({lo:g} to {hi:g} m)")
+    try:
+        draws = draw_parameters(cal, n_posterior, seed)
+    except CalibrationError as e:
+        raise CliError(str(e)) from None
+    key = jax.random.fold_in(jax.random.key(seed), 7)
+    if cal.model == "crsp":
+        fw = CrspForward(profile, sizes, n_blocks or 100, key, release_x_m=tuple(releases))
+    else:
+        if np.any(releases != x0):
+            raise CliError("the DEM forward model releases every block at the profile's start; "
+                           "held-out rows with other release_x_m need --model crsp")
+        fw = DemForward(profile, sizes, n_blocks or 4, key, form=cal.alpha_form)
+    runs = fw.runouts(draws.values)  # (D, G, n)
+    pooled = np.moveaxis(runs, 0, 1).reshape(runs.shape[1], -1)
+    return pooled, index, draws, fw.n_blocks
+
+
+def _figures(check):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = check.rows
+    figs = {}
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    pit = rows["pit"].dropna().to_numpy() if "pit" in rows else np.array([])
+    ax.hist(pit, bins=np.linspace(0, 1, 11), color="0.6", edgecolor="k")
+    if pit.size:
+        ax.axhline(pit.size / 10, color="C3", ls="--", label="uniform (calibrated)")
+        ax.legend(loc="upper center")
+    ax.set(xlabel="PIT = P(predicted <= observed)", ylabel="held-out rows",
+           title=f"PIT histogram ({pit.size} rows)")
+    fig.tight_layout()
+    figs["pit_histogram.png"] = fig
+
+    scored = rows.dropna(subset=["pred_median_m"]) if "pred_median_m" in rows else rows.iloc[:0]
+    scored = scored.sort_values("observed_m")
+    fig, ax = plt.subplots(figsize=(7, 0.25 * max(len(scored), 8) + 1.0))
+    yy = np.arange(len(scored))
+    ax.hlines(yy, scored["pred_q05_m"], scored["pred_q95_m"], color="C0", lw=1.5,
+              label="predicted 90 %")
+    ax.hlines(yy, scored["pred_q25_m"], scored["pred_q75_m"], color="C0", lw=4,
+              label="predicted 50 %")
+    ax.plot(scored["observed_m"], yy, "k.", label="observed")
+    ax.set_yticks(yy, [f"row {r} ({d:g} m)" for r, d in zip(scored["row"],
+                                                             scored["block_size_m"])],
+                  fontsize=6)
+    ax.set(xlabel="runout, m", title="held-out rows: observed against predicted intervals")
+    ax.legend(loc="lower right", fontsize=7)
+    fig.tight_layout()
+    figs["intervals.png"] = fig
+    return figs
+
+
+def run_validation(args) -> dict:
+    """Run the check of ``args`` (parsed options) and write its outputs; returns
+    the summary written to validation.json."""
+    from calib.predictive_check import score_rows
+    from calib.provenance import provenance
+    from solvers._cli import text_writer, write_all_atomic
+
+    cal, heldout, calib_obs, data, profile = _load(args)
+    pooled, index, draws, n_blocks = _predictive(cal, heldout, profile, args.n_posterior,
+                                                 args.n_blocks, args.seed)
+    try:
+        check = score_rows(heldout, pooled, index, calib_obs, seed=args.seed)
+    except ValueError as e:
+        raise CliError(f"{data}: {e}") from None
+    summary = {"schema": "rockfall-validation/1", "model": cal.model,
+               "draws": draws.source, "n_draws": int(draws.values.shape[0]),
+               "n_blocks_per_draw_and_group": int(n_blocks), **check.summary,
+               "provenance": provenance(PROG, args.seed, {
+                   "calibration": args.calibration, "heldout": args.heldout,
+                   "calibration_data": data, "profile": cal.profile_csv})}
+    figs = _figures(check)
+    files = {"validation.csv": check.rows.to_csv(index=False, float_format="%.6g"),
+             "validation.json": json.dumps(summary, indent=1, allow_nan=False) + "\n"}
+    import functools
+
+    writers = {os.path.join(args.out, n): text_writer(t) for n, t in files.items()}
+    writers.update({os.path.join(args.out, n): functools.partial(f.savefig, dpi=120)
+                    for n, f in figs.items()})
+    write_all_atomic(writers)
+    return summary
+
+
+def print_summary(s: dict, out: str) -> None:
+    def f(v, fmt="{:.1f}"):
+        return "-" if v is None else fmt.format(v)
+
+    print(f"predictive check ({s['model']}, {s['draws']}: {s['n_draws']} draws x "
+          f"{s['n_blocks_per_draw_and_group']} blocks per row group) on {s['n_scored']} "
+          f"held-out point rows" + (f" (+{s['n_interval_rows']} interval rows, coverage only)"
+                                    if s["n_interval_rows"] else ""))
+    print(f"  mean CRPS            {f(s['mean_crps_m'], '{:.2f}')} m")
+    print(f"  climatology CRPS     {f(s['mean_crps_climatology_m'], '{:.2f}')} m (all "
+          f"calibration rows), {f(s['mean_crps_climatology_size_m'], '{:.2f}')} m (per size)")
+    print(f"  skill                {f(s['skill_vs_climatology'], '{:+.2f}')} vs climatology, "
+          f"{f(s['skill_vs_climatology_size'], '{:+.2f}')} vs per-size climatology "
+          "(1 perfect, 0 no better, < 0 worse)")
+    print(f"  coverage             50 %: {f(s['coverage_50'], '{:.0%}')}, 90 %: "
+          f"{f(s['coverage_90'], '{:.0%}')} ({s['n_above_90']} rows above the 90 % band, "
+          f"{s['n_below_90']} below)")
+    print(f"  error of the mean    {f(s['mean_error_of_mean_m'], '{:+.1f}')} m on average "
+          f"(positive: overshoot), {f(s['mean_abs_error_of_mean_m'])} m in absolute value")
+    if s["n_without_prediction"]:
+        print(f"!!! {s['n_without_prediction']} held-out rows have no finished simulated block "
+              "and no score", file=sys.stderr)
+    if s["skill_vs_climatology"] is not None and s["skill_vs_climatology"] < 0:
+        print("!!! the calibration predicts these rows WORSE than quoting the observed runout "
+              "distribution", file=sys.stderr)
+    print(f"wrote validation.csv, validation.json, pit_histogram.png, intervals.png to {out}")
+
+
+def _main(args) -> int:
+    s = run_validation(args)
+    print_summary(s, args.out)
+    return 0
+
+
+def main(argv=None) -> int:
+    return run_guarded(PROG, _main, _parser().parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

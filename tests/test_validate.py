@@ -1,0 +1,122 @@
+"""The predictive check (issue 17): scores on known ensembles, per-row releases in
+the forward model, and ``python -m calib.validate`` end to end and on bad input."""
+
+from __future__ import annotations
+
+import json
+import os
+import types
+
+import jax
+import numpy as np
+import pytest
+from test_hazard_fixtures import write_calibration
+
+from calib.forward import CrspForward
+from calib.observations import Observations
+from calib.predictive_check import groups_of, score_rows
+from calib.validate import main
+from solvers.profile import load_profile
+
+PROFILE = load_profile("data/postignano_profile.csv")
+
+
+def _calib_rows(values, sizes):
+    return Observations.points(np.asarray(sizes, float), np.asarray(values, float), 1.0)
+
+
+def test_scores_of_a_known_ensemble():
+    """Ensemble uniform on [0, 100] (measurement sd ~0): y = 30 has PIT 0.3, lies in
+    the 50 % band (25-75) and the 90 % band (5-95); the error of the mean is +20 m;
+    the CRPS of U(0, 100) at 30 is (30^2 + 70^2) / 200 - 100 / 6 = 12.33 m."""
+    obs = Observations.points([1.0], [30.0], 1e-9)
+    ens = np.linspace(0.0, 100.0, 100001)[None]
+    calib = _calib_rows([10.0, 20.0, 30.0, 40.0], [1.0] * 4)
+    row = score_rows(obs, ens, np.array([0]), calib).rows.iloc[0]
+    assert abs(row["pit"] - 0.3) < 1e-3 and row["in_50"] and row["in_90"]
+    assert abs(row["error_of_mean_m"] - 20.0) < 1e-2
+    assert abs(row["crps_m"] - ((30**2 + 70**2) / 200 - 100 / 6)) < 1e-2
+    # climatology {10, 20, 30, 40} at 30: E|X - 30| - E|X - X'| / 2 = 10 - 12.5 / 2
+    assert abs(row["crps_climatology_m"] - (10.0 - 6.25)) < 1e-9
+    assert row["baseline_size"] == "size"
+
+
+def test_skill_ranks_a_sharp_right_forecast_above_climatology_and_a_biased_one_below():
+    rng = np.random.default_rng(0)
+    y = 100.0 + 10.0 * rng.standard_normal(40)
+    obs = Observations.points(np.ones(40), y, 1.0)
+    calib = _calib_rows(100.0 + 10.0 * rng.standard_normal(30), np.ones(30))
+    idx = np.arange(40)
+    right = (y[:, None] + 2.0 * rng.standard_normal((40, 2000)))  # knows each row
+    biased = 160.0 + 2.0 * rng.standard_normal((40, 2000))
+    good = score_rows(obs, right, idx, calib).summary
+    bad = score_rows(obs, biased, idx, calib).summary
+    assert good["skill_vs_climatology"] > 0.5
+    assert bad["skill_vs_climatology"] < 0 and bad["n_below_90"] == 40
+    assert bad["mean_error_of_mean_m"] > 50 and bad["coverage_90"] == 0.0
+
+
+def test_per_size_baseline_falls_back_to_all_rows():
+    obs = Observations.points([2.0], [200.0], 1.0)
+    calib = _calib_rows([100.0, 110.0, 120.0, 210.0], [0.5, 0.5, 0.5, 2.0])
+    rows = score_rows(obs, np.full((1, 10), 200.0), np.array([0]), calib).rows
+    assert rows.loc[0, "baseline_size"] == "overall"
+    assert rows.loc[0, "crps_climatology_size_m"] == rows.loc[0, "crps_climatology_m"]
+
+
+def test_groups_of_rows_with_and_without_release():
+    obs = types.SimpleNamespace(block_size_m=np.array([1.0, 1.0, 0.5, 1.0]), n_obs=4,
+                                release_x_m=np.array([5.0, np.nan, 5.0, 5.0]))
+    sizes, rel, index = groups_of(obs, 0.0)
+    assert sizes.tolist() == [0.5, 1.0, 1.0] and rel.tolist() == [5.0, 0.0, 5.0]
+    assert index.tolist() == [2, 1, 0, 2]
+
+
+def test_forward_runs_each_group_from_its_release():
+    """Release at the profile's start: the same blocks as the forward without
+    releases (common random numbers); released at 150 m on the gentle lower slope,
+    1 m blocks stop within a few metres."""
+    theta = np.array([[0.41, 0.87, 2.0]])
+    key = jax.random.key(5)
+    plain = CrspForward(PROFILE, np.array([1.0]), 32, key).runouts(theta)[0, 0]
+    both = CrspForward(PROFILE, np.array([1.0, 1.0]), 32, key,
+                       release_x_m=(0.0, 150.0)).runouts(theta)[0]
+    np.testing.assert_array_equal(both[0], plain)
+    assert np.nanmax(both[1]) < 20.0 < np.nanmin(both[0])
+
+
+@pytest.fixture(scope="module")
+def cal_path(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("cal")
+    post = np.array([[0.41, 0.87, 2.0], [0.45, 0.9, 1.0], [0.35, 0.85, 3.0]])
+    return write_calibration(folder, crsp_posterior=post)
+
+
+def test_command_writes_scores_figures_and_provenance(cal_path, tmp_path, capsys):
+    held = tmp_path / "held.csv"
+    held.write_text("block_size_m,runout_m,runout_sd_m\n0.2,110,5\n2.0,220,15\n")
+    out = tmp_path / "val"
+    assert main([cal_path, str(held), "--n-posterior", "3", "--n-blocks", "16",
+                 "--out", str(out)]) == 0
+    assert set(os.listdir(out)) == {"validation.csv", "validation.json", "pit_histogram.png",
+                                    "intervals.png"}
+    s = json.loads((out / "validation.json").read_text())
+    assert s["n_scored"] == 2 and s["n_draws"] == 3
+    assert len(s["provenance"]["inputs"]["heldout"]["sha256"]) == 64
+    assert s["provenance"]["versions"]["scoringrules"]
+    assert "mean CRPS" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("content, needle", [
+    ("block_size_m,runout_m,runout_sd_m\n0.2,abc,5\n", "runout_m"),
+    ("block_size_m,runout_m,runout_sd_m,release_x_m\n0.2,110,5,400\n", "release_x_m"),
+])
+def test_bad_input_one_line_exit_2_nothing_written(cal_path, tmp_path, capsys, content, needle):
+    held = tmp_path / "held.csv"
+    held.write_text(content)
+    out = tmp_path / "val"
+    with pytest.raises(SystemExit) as e:
+        main([cal_path, str(held), "--n-posterior", "1", "--n-blocks", "4", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and needle in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists()
