@@ -66,6 +66,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true",
                    help="small budgets (about 1.5 min on 2 cores; for tests and a first look; "
                         "its posterior diagnostics usually fail and say so)")
+    p.add_argument("--holdout-fraction", type=float, default=0.0,
+                   help="keep this fraction of the rows aside (split by --seed), fit the "
+                        "rest, then check the calibration's predictions of the held-out rows "
+                        "(python -m calib.validate; written to OUT/validation/). Default 0: "
+                        "fit every row")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     return p
 
@@ -196,13 +201,17 @@ def _run(args) -> int:
 
     t_start = time.perf_counter()
     obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
+    files, figs, predictive = {}, {}, {}
+    data_csv = args.data
+    if args.holdout_fraction:
+        obs, data_csv = _split(args, obs, files)
 
     models = ["crsp", "dem"] if args.model == "both" else [args.model]
     methods = ("gradient", "bayes") if args.method == "both" else (args.method,)
     key = jax.random.key(args.seed)
     result = {"schema": SCHEMA,
               "command": " ".join([PROG] + sys.argv[1:]),
-              "data_csv": args.data, "profile_csv": profile_path, "seed": args.seed,
+              "data_csv": data_csv, "profile_csv": profile_path, "seed": args.seed,
               "quick": bool(args.quick), "methods": list(methods), "versions": versions(),
               "inputs": provenance(PROG, args.seed, {"data": args.data,
                                                      "profile": profile_path})["inputs"],
@@ -211,7 +220,6 @@ def _run(args) -> int:
               "likelihood": "point: (1/n) sum_j N(y; r_j, sd^2 + v_j); interval: (1/n) sum_j "
                             "[Phi((b-r_j)/w_j) - Phi((a-r_j)/w_j)] (calib/likelihood.py)",
               "n_observations": obs.n_obs, "fit_quality": {}, "timings_s": {}}
-    files, figs, predictive = {}, {}, {}
     from calib import figures
 
     for m_i, model in enumerate(models):
@@ -266,7 +274,41 @@ def _run(args) -> int:
     files["calibration.json"] = json.dumps(result, indent=1, allow_nan=False) + "\n"
     _write_all(args.out, files, figs)
     _print_summary(result, models, args.out)
+    if args.holdout_fraction:
+        _validate(args, models)
     return 0
+
+
+def _split(args, obs, files):
+    """Split the rows (``calib.split``): the fit's observations, and the path its
+    calibration rows will have; both row files join the outputs."""
+    import pandas as pd
+
+    from calib.split import holdout_rows, subset
+
+    try:
+        fit_rows, held_rows = holdout_rows(obs.n_obs, args.holdout_fraction, args.seed)
+    except ValueError as e:
+        raise CliError(str(e)) from None
+    table = pd.read_csv(args.data, dtype=str, keep_default_na=False)
+    files["calibration_rows.csv"] = table.iloc[fit_rows].to_csv(index=False)
+    files["heldout_rows.csv"] = table.iloc[held_rows].to_csv(index=False)
+    print(f"holding out {len(held_rows)} of {obs.n_obs} rows (seed {args.seed}): "
+          f"{os.path.join(args.out, 'heldout_rows.csv')}")
+    return subset(obs, fit_rows), os.path.join(args.out, "calibration_rows.csv")
+
+
+def _validate(args, models) -> None:
+    """The predictive check of the first calibrated model on the held-out rows."""
+    from calib.validate import print_summary, run_validation
+
+    vargs = argparse.Namespace(
+        calibration=os.path.join(args.out, "calibration.json"),
+        heldout=os.path.join(args.out, "heldout_rows.csv"), model=models[0],
+        calibration_data=None, n_posterior=1 if args.method == "gradient" else 50,
+        n_blocks=None, seed=args.seed, out=os.path.join(args.out, "validation"))
+    print()
+    print_summary(run_validation(vargs), vargs.out)
 
 
 def _write_all(out: str, files: dict, figs: dict) -> None:

@@ -120,3 +120,46 @@ def test_bad_input_one_line_exit_2_nothing_written(cal_path, tmp_path, capsys, c
     err = capsys.readouterr().err
     assert e.value.code == 2 and needle in err and len(err.strip().splitlines()) == 1, err
     assert not out.exists()
+
+
+def test_holdout_split_is_reproducible_disjoint_and_complete():
+    from calib.split import holdout_rows
+
+    a_fit, a_held = holdout_rows(62, 0.3, 4)
+    b_fit, b_held = holdout_rows(62, 0.3, 4)
+    np.testing.assert_array_equal(a_held, b_held)
+    assert len(a_held) == 19 and not set(a_fit) & set(a_held)
+    assert sorted(set(a_fit) | set(a_held)) == list(range(62))
+    assert not np.array_equal(holdout_rows(62, 0.3, 5)[1], a_held)
+    with pytest.raises(ValueError, match="fewer than 2"):
+        holdout_rows(2, 0.5, 0)
+    with pytest.raises(ValueError, match="fraction"):
+        holdout_rows(10, 1.0, 0)
+
+
+def test_fit_with_holdout_fraction_writes_the_split_and_validates(tmp_path):
+    """calib.fit --holdout-fraction: the held-out rows are not fitted, the
+    calibration records its own rows as its data, and the check runs at the end."""
+    import subprocess
+    import sys
+
+    import pandas as pd
+
+    data = tmp_path / "site.csv"
+    pd.DataFrame({"block_size_m": [0.2, 0.2, 0.5, 1.0, 1.0, 2.0, 2.0, 2.0],
+                  "runout_m": [110, 112, 115, 120, 135, 150, 210, 230],
+                  "runout_sd_m": [5] * 8, "source": ["test"] * 8}).to_csv(data, index=False)
+    out = tmp_path / "res"
+    proc = subprocess.run(
+        [sys.executable, "-m", "calib.fit", str(data), "--profile",
+         "data/postignano_profile.csv", "--model", "crsp", "--method", "gradient", "--quick",
+         "--holdout-fraction", "0.25", "--seed", "3", "--out", str(out), "--no-progress"],
+        capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    cal = json.loads((out / "calibration.json").read_text())
+    fit_rows = pd.read_csv(out / "calibration_rows.csv")
+    held = pd.read_csv(out / "heldout_rows.csv")
+    assert len(fit_rows) == 6 and len(held) == 2 and cal["n_observations"] == 6
+    assert cal["data_csv"] == str(out / "calibration_rows.csv")
+    s = json.loads((out / "validation" / "validation.json").read_text())
+    assert s["n_scored"] == 2 and "mean CRPS" in proc.stdout
