@@ -6,9 +6,10 @@ drawing parameter sets from it.
 the notebooks), never by re-parsing the JSON with its own names. Schema
 ``rockfall-calibration/1``:
 
-* ``crsp``: ``Kn``, ``Kt``, ``roughness_m`` with ``map``/``mean``/``q05``/``q95``
-  and ``posterior_csv`` (columns ``Kn,Kt,roughness_m``; null after a
-  gradient-only fit);
+* ``crsp``: ``Kn``, ``Kt``, ``roughness_m`` (and ``rolling_friction_deg`` when
+  it was fitted: one angle for every zone) with ``map``/``mean``/``q05``/``q95``
+  and ``posterior_csv`` (columns ``Kn,Kt,roughness_m[,rolling_friction_deg]``;
+  null after a gradient-only fit);
 * ``dem``: ``alpha_law`` (``form`` "power" with ``a``, ``b``: alpha = a L^-b, L
   the square side in m; or ``form`` "constant" with ``alpha``) and
   ``posterior_csv`` (columns ``a,b`` or ``alpha``; may be null);
@@ -40,7 +41,8 @@ SCHEMA = "rockfall-calibration/1"
 
 # name -> (lower, upper, lower bound inclusive) for every calibrated scalar
 _CRSP_RANGES = {"Kn": (0.0, 1.0, False), "Kt": (0.0, 1.0, False),
-                "roughness_m": (0.0, math.inf, True)}
+                "roughness_m": (0.0, math.inf, True),
+                "rolling_friction_deg": (0.0, 90.0 - 1e-9, True)}
 _DEM_RANGES = {"a": (0.0, math.inf, False), "b": (-math.inf, math.inf, True),
                "alpha": (0.0, 1.0, True)}
 _DEM_COLUMNS = {"power": ("a", "b"), "constant": ("alpha",)}
@@ -216,7 +218,8 @@ def load_calibration(path: str, model: str | None = None) -> Calibration:
     profile_csv = _resolve(path, doc.get("profile_csv"), json_dir, "profile_csv", True)
     sec = _section(path, doc, model)
     if model == "crsp":
-        names = ("Kn", "Kt", "roughness_m")
+        names = ("Kn", "Kt", "roughness_m") + (
+            ("rolling_friction_deg",) if "rolling_friction_deg" in sec else ())
         ranges = _CRSP_RANGES
         point = [_summary_value(path, sec, "crsp", n, ranges[n]) for n in names]
         form = ""

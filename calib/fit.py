@@ -59,6 +59,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--method", choices=["gradient", "bayes", "both"], default="both",
                    help="gradient (optax, point estimate), bayes (NumPyro NUTS on an "
                         "emulator, posterior) or both (default)")
+    p.add_argument("--rolling-resistance", choices=["fit", "profile"], default="fit",
+                   help="CRSP rolling resistance angle: fit it as a 4th parameter, one value "
+                        "for the slope, prior 8-40 deg (default), or keep the profile's "
+                        "per-zone rolling_friction_deg")
     p.add_argument("--alpha-law", choices=["power", "constant"], default="power",
                    help="DEM damping law: power alpha = a L^-b (default) or constant alpha")
     p.add_argument("--out", default="results", help="output folder (default: results/)")
@@ -197,6 +201,7 @@ def load_inputs(data: str, profile_arg: str | None, out: str):
 def _run(args) -> int:
     from calib.calibrate import calibrate, presets
     from calib.forward import CrspForward, DemForward, alpha_of
+    from calib.priors import CRSP_BOX, CRSP_ROLLING_BOX
     from calib.unfinished import UnfinishedBlocksWarning
 
     t_start = time.perf_counter()
@@ -226,8 +231,9 @@ def _run(args) -> int:
         budget = presets(model, args.quick)
         mkey = jax.random.fold_in(key, m_i)
         if model == "crsp":
+            box = CRSP_ROLLING_BOX if args.rolling_resistance == "fit" else CRSP_BOX
             forward = CrspForward(profile, obs.sizes_m, budget.n_blocks_design,
-                                  jax.random.fold_in(mkey, 1))
+                                  jax.random.fold_in(mkey, 1), box=box)
         else:
             forward = DemForward(profile, obs.sizes_m, budget.n_blocks_design,
                                  jax.random.fold_in(mkey, 1), form=args.alpha_law)

@@ -9,7 +9,8 @@ Yao 1992, "Some guidelines and guarantees for common random numbers").
 ``CrspForward.replicates`` deliberately does not: it draws independent block
 sets at one theta, to measure the Monte Carlo error itself.
 
-* ``CrspForward``: theta = (Kn, Kt, roughness_m), one set for the whole slope;
+* ``CrspForward``: theta = (Kn, Kt, roughness_m), one set for the whole slope
+  (with ``box=CRSP_ROLLING_BOX`` also the rolling resistance angle);
   sphere radius d / 2 (``calib.observations``). One lane pool runs all
   (theta, size) tasks (``solvers.crsp.simulate_tasks``).
 * ``DemForward``: theta = the damping law's parameters; a block of size d is a
@@ -67,13 +68,19 @@ def alpha_of(form: str, theta, size_m):
     return jnp.clip(alpha, 0.0, ALPHA_MAX)
 
 
-@jax.jit
-def _crsp_params(base: crsp.Params, theta: jax.Array) -> crsp.Params:
+@functools.partial(jax.jit, static_argnames=("with_rolling",))
+def _crsp_params(base: crsp.Params, theta: jax.Array, with_rolling: bool = False
+                 ) -> crsp.Params:
+    """Per-task parameters: theta (T, 3) sets Kn, Kt, roughness_m in every zone;
+    with ``with_rolling`` theta (T, 4) also sets rolling_friction_deg."""
     n_t, n_z = theta.shape[0], base.Kn.shape[0]
     zone = lambda v: jnp.broadcast_to(v[:, None], (n_t, n_z))  # noqa: E731
     p = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (n_t,) + a.shape), base)
-    return p._replace(Kn=zone(theta[:, 0]), Kt=zone(theta[:, 1]),
-                      roughness_m=zone(theta[:, 2]))
+    p = p._replace(Kn=zone(theta[:, 0]), Kt=zone(theta[:, 1]),
+                   roughness_m=zone(theta[:, 2]))
+    if with_rolling:
+        p = p._replace(rolling_friction_deg=zone(theta[:, 3]))
+    return p
 
 
 @functools.partial(jax.jit, static_argnames=("options",))
@@ -144,16 +151,22 @@ class CrspForward:
     def names(self) -> tuple[str, ...]:
         return self.box.names
 
+    @property
+    def fits_rolling(self) -> bool:
+        """theta's 4th column is the rolling resistance angle (``CRSP_ROLLING_BOX``)."""
+        return len(self.box.names) > 3 and self.box.names[3] == "rolling_friction_deg"
+
     def params(self, theta) -> crsp.Params:
         """Per-task CRSP parameters (T, ...) from theta (T, 3 + k), one set for all zones."""
         theta = np.atleast_2d(np.asarray(theta, float))
+        n_core = 4 if self.fits_rolling else 3
         p = _crsp_params(crsp.params_from_profile(self.profile),
-                         jnp.asarray(theta[:, :3], jnp.float64))
+                         jnp.asarray(theta[:, :n_core], jnp.float64), self.fits_rolling)
         if self.effect == "none":
             return p
         from calib.effects import crsp_overrides
 
-        extra = crsp_overrides(self.effect, theta[:, 3:], self.profile)
+        extra = crsp_overrides(self.effect, theta[:, n_core:], self.profile)
         return p._replace(**{k: jnp.asarray(v, jnp.float64) for k, v in extra.items()})
 
     def runouts(self, theta) -> np.ndarray:
@@ -236,23 +249,26 @@ class CrspForward:
         x = self.box.from_unit(z)
         return self.to_input(x), self.runouts(x)
 
-    @staticmethod
-    def to_input(theta):
-        """Emulator coordinates (Kn, log(1 - Kt), log S): runouts change fastest as
-        Kt -> 1 and S -> 0; in these coordinates the response is closer to stationary,
-        which a GP with one length scale per input assumes (input warping)."""
+    def to_input(self, theta):
+        """Emulator coordinates (Kn, log(1 - Kt), log S[, tan(phi_r)]): runouts change
+        fastest as Kt -> 1 and S -> 0; in these coordinates the response is closer to
+        stationary, which a GP with one length scale per input assumes (input
+        warping). The rolling resistance enters the motion as tan(phi_r)."""
         t = jnp.asarray(theta)
-        return jnp.stack([t[..., 0], jnp.log1p(-t[..., 1]), jnp.log(t[..., 2])], axis=-1)
+        cols = [t[..., 0], jnp.log1p(-t[..., 1]), jnp.log(t[..., 2])]
+        if self.fits_rolling:
+            cols.append(jnp.tan(jnp.deg2rad(t[..., 3])))
+        return jnp.stack(cols, axis=-1)
 
     def emulator_inputs(self, theta):
-        """Emulator input of each size for theta (3,) -> (S, 3)."""
+        """Emulator input of each size for theta (d,) -> (S, d)."""
         return jnp.broadcast_to(self.to_input(theta), (len(self.sizes_m), self.box.dim))
 
     @property
     def input_box(self) -> Box:
         a, b = np.asarray(self.to_input(self.box.lo)), np.asarray(self.to_input(self.box.hi))
-        return Box(("Kn", "log(1-Kt)", "log(S)"), tuple(np.minimum(a, b)),
-                   tuple(np.maximum(a, b)))
+        names = ("Kn", "log(1-Kt)", "log(S)", "tan(phi_r)")[:len(a)]
+        return Box(names, tuple(np.minimum(a, b)), tuple(np.maximum(a, b)))
 
 
 @dataclasses.dataclass

@@ -20,6 +20,17 @@ CRSP (restitution coefficients are velocity ratios, dimensionless):
   (S ~ 0.3 m) to very blocky talus (assumption; CRSP's surface roughness is the
   relief within one rock radius of the surface).
 
+* rolling_friction_deg phi_r in [8, 40] deg (``CRSP_ROLLING_BOX``, fitted by
+  default by ``python -m calib.fit``): the Coulomb rolling resistance
+  mu = tan(phi_r) of the rolling phase (``solvers.crsp._contact``), a site
+  parameter. Published values: tan(phi_r) = 0.30 for carbonate rock, lava and
+  intrusive rock, 0.35-0.40 for clastic deposits, marl, flysch and schists,
+  0.65 for anthropic, landslide and glacial deposits, 0.80 for alluvial and
+  colluvial deposits (STONE, Guzzetti et al. 2002, Computers & Geosciences 28,
+  1079-1093), i.e. 16.7-38.7 deg; RocFall's lumped-mass rolling friction
+  arctan((1 - Rt) / Rt) is 8.5 deg at Rt = 0.87 and 6-14 deg for Rt 0.8-0.9.
+  The box spans 8-40 deg (rounded out from those, assumption).
+
 DEM damping law:
 
 * power law alpha(L) = a L^-b (L in m): a in [0.05, 0.95] (alpha of a 1 m
@@ -35,7 +46,7 @@ import dataclasses
 
 import numpy as np
 
-__all__ = ["Box", "CRSP_BOX", "DEM_BOXES"]
+__all__ = ["Box", "CRSP_BOX", "CRSP_ROLLING_BOX", "DEM_BOXES"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,6 +83,8 @@ class Box:
 
 
 CRSP_BOX = Box(("Kn", "Kt", "roughness_m"), (0.15, 0.60, 0.25), (0.60, 0.98, 4.0))
+CRSP_ROLLING_BOX = Box(("Kn", "Kt", "roughness_m", "rolling_friction_deg"),
+                       (0.15, 0.60, 0.25, 8.0), (0.60, 0.98, 4.0, 40.0))
 DEM_BOXES = {
     "power": Box(("a", "b"), (0.05, 0.0), (0.95, 1.5)),
     "constant": Box(("alpha",), (0.02,), (0.95,)),

@@ -20,7 +20,8 @@ def write_calibration(folder, *, crsp=(0.41, 0.87, 2.0), dem=(0.40, 0.5), profil
     """Write ``calibration.json`` (and posterior CSVs) into ``folder``.
 
     Args:
-        crsp: (Kn, Kt, roughness_m) map values, or None for no CRSP section.
+        crsp: (Kn, Kt, roughness_m[, rolling_friction_deg]) map values, or None for
+            no CRSP section.
         dem: (a, b) of alpha = a L^-b, or None for no DEM section.
         crsp_posterior: (R, 3) rows for crsp_posterior.csv, or None (null).
         dem_posterior: (R, 2) rows for dem_posterior.csv, or None.
@@ -35,12 +36,12 @@ def write_calibration(folder, *, crsp=(0.41, 0.87, 2.0), dem=(0.40, 0.5), profil
                                   "dem_side_m": "block_size_m"},
            "fit_quality": []}
     if crsp is not None:
-        doc["crsp"] = {k: _summary(v) for k, v in zip(("Kn", "Kt", "roughness_m"), crsp,
-                                                       strict=True)}
+        names = ("Kn", "Kt", "roughness_m", "rolling_friction_deg")[:len(crsp)]
+        doc["crsp"] = {k: _summary(v) for k, v in zip(names, crsp, strict=True)}
         doc["crsp"]["posterior_csv"] = None
         if crsp_posterior is not None:
             doc["crsp"]["posterior_csv"] = "crsp_posterior.csv"
-            _write_rows(os.path.join(folder, "crsp_posterior.csv"), "Kn,Kt,roughness_m",
+            _write_rows(os.path.join(folder, "crsp_posterior.csv"), ",".join(names),
                         crsp_posterior)
     if dem is not None:
         doc["dem"] = {"alpha_law": {"form": "power", "a": _summary(dem[0]),

@@ -191,8 +191,8 @@ def _crsp_units(draws, profile, sizes_m, stations, n_blocks, seed, chunk, offset
     fn = functools.partial(crsp_chunk, n_chunk=chunk, pool=min(pool, n_sizes * chunk),
                            settings=settings)
     for d, values in enumerate(draws.values):
-        kn, kt, rough = (float(v) for v in values)
-        p = crsp.params_from_profile(profile, Kn=kn, Kt=kt, roughness_m=rough)
+        p = crsp.params_from_profile(profile, **{n: float(v) for n, v in
+                                                 zip(draws.names, values, strict=True)})
         params = _stack([p] * n_sizes)
         key = draw_key(seed, d)
         for off in offsets:
