@@ -170,3 +170,29 @@ def test_observation_loader_reads_the_optional_field_columns(tmp_path):
     with pytest.raises(ObservationError, match="column 'release_speed_m_s'"):
         load_observations(p)
 
+
+# ---------------------------------------------------------------- the shipped case
+
+DATA = "data/tschamut2014"
+
+
+def test_shipped_tschamut_observations_load_and_are_all_62_runs():
+    obs = load_observations(f"{DATA}/observations.csv")
+    assert obs.n_obs == 62 and len(set(obs.run_id)) == 62
+    raw_ids = [line.split(",")[0] for line in _read(f"{DATA}/runs.csv").splitlines()[1:]]
+    assert list(obs.run_id) == raw_ids
+    assert (obs.runout_m > 0).all() and (obs.runout_sd_m == 2.0).all()
+    # three blocks: 40, 69 and 79 kg at 2650 kg/m^3
+    np.testing.assert_allclose(obs.sizes_m, sphere_diameter_m([40, 69, 79], 2650.0), atol=1e-4)
+    assert set(obs.shape) == {"sphere", "disc"}
+    assert np.isfinite(obs.release_x_m).all() and np.isfinite(obs.release_speed_m_s).all()
+
+
+def test_regenerating_the_shipped_observations_reproduces_them(tmp_path, capsys):
+    out = str(tmp_path / "observations.csv")
+    rc, _, err = _cli([f"{DATA}/runs.csv", "--blocks", f"{DATA}/blocks.csv",
+                       "--profile", f"{DATA}/profile.csv", "--source",
+                       "Tschamut 2014 (Volkwein & Gerber 2018, EnviDat, doi:10.16904/envidat.34)",
+                       "--out", out], capsys)
+    assert rc == 0, err
+    assert _read(out) == _read(f"{DATA}/observations.csv")

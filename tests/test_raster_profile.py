@@ -261,3 +261,37 @@ def test_cli_bad_input_exits_2_and_writes_nothing(tmp_path, capsys, case, needle
     assert err.count("\n") == 1 and needle in err and err.startswith("python -m solvers.profile")
     assert not os.path.exists(tmp_path / "out")
 
+
+# ---------------------------------------------------------------- the shipped case
+
+SHIPPED = "data/tschamut2014/profile.csv"
+
+
+def test_shipped_tschamut_profile_loads_and_has_the_stated_zones():
+    prof = load_profile(SHIPPED)
+    x, z = np.asarray(prof.x_m), np.asarray(prof.z_m)
+    assert prof.zone_names == ("steep", "flat")
+    names = np.array(prof.segment_zone_names())
+    assert x[np.flatnonzero(names == "flat")[0]] == 100.0
+    slope = np.degrees(np.arctan(-np.diff(z) / np.diff(x)))
+    assert 34 < slope[(x[:-1] >= 45) & (x[:-1] < 90)].mean() < 42       # the ~38 deg slope
+    assert abs(slope[(x[:-1] >= 110) & (x[:-1] < 150)].mean()) < 6       # the ~1 deg runout
+    _, trace = read_profile_trace(SHIPPED)
+    assert len(trace.east_m) == len(x)
+
+
+def test_recutting_the_shipped_profile_reproduces_it(tmp_path, capsys):
+    info = json.loads(_read("data/tschamut2014/profile.cut.json"))
+    argv = list(info["argv"])
+    out = str(tmp_path / "profile.csv")
+    argv[argv.index("--out") + 1] = out
+    rc, _, err = _cli(argv, capsys)
+    assert rc == 0, err
+    for name in ("profile.csv", "profile_materials.csv", "profile.cut.json"):
+        new = _read(tmp_path / name)
+        old = _read(os.path.join("data/tschamut2014", name))
+        if name.endswith(".json"):
+            new, old = json.loads(new), json.loads(old)
+            for d in (new, old):
+                d.pop("argv"), d.pop("command")
+        assert new == old, name
