@@ -91,6 +91,14 @@ def test_cut_along_a_bent_line_follows_the_plane_and_unrolls_x():
     assert cut.x_m[-1] - cut.x_m[-2] == pytest.approx(0.5)  # the end is kept
 
 
+def test_no_station_closer_than_a_tenth_of_a_step_to_a_vertex_or_the_end():
+    grid = Raster(_plane_grid()[::-1].copy(), 102.5, 202.5, 5.0, "mem")
+    cut = cut_profile(grid, _line([105, 115.05, 115.05], [230, 230, 220.02]), 1.0)
+    assert np.diff(cut.x_m).min() >= 0.1
+    np.testing.assert_allclose(cut.x_m[9:12], [9.0, 10.05, 11.0])  # 10 dropped for the bend
+    assert cut.x_m[-1] == pytest.approx(20.03) and cut.x_m[-2] == 19.0  # 20 dropped
+
+
 def test_nodata_under_the_line_is_refused_with_its_distance():
     z = _plane_grid()[::-1].copy()
     z[3, 4] = np.nan  # centre (122.5, 217.5)
