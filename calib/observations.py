@@ -10,6 +10,18 @@ Schema (CSV, one row per observation; ``data/README.md``)::
   it). A row that gives both uses the interval.
 * ``source``: free text (where the number comes from); optional column.
 
+Optional columns of tracked field runs (``calib.field``; absent columns read as
+NaN or empty text, and files without them behave exactly as before):
+
+* ``release_x_m``: abscissa of the release point on the profile, m (NOT the
+  east coordinate that a runs file may call by the same name);
+* ``release_speed_m_s``: speed at release, m/s (>= 0), where tracked;
+* ``run_id``: the run's identifier in its source;
+* ``shape``: CRSP shape class ``sphere``, ``cylinder`` or ``disc`` (empty:
+  unknown), from the block's dimensions (rule in ``calib.field``).
+
+Other columns are ignored.
+
 A second, optional table holds PASSAGE VELOCITIES at stations (``load_velocities``)::
 
     station_x_m, block_size_m, velocity_m_s, velocity_sd_m_s, source
@@ -46,7 +58,9 @@ __all__ = ["ObservationError", "Observations", "Velocities", "crsp_radius_m", "d
            "load_observations", "load_velocities"]
 
 REQUIRED = ("block_size_m",)
-OPTIONAL = ("runout_m", "runout_sd_m", "runout_min_m", "runout_max_m", "source")
+OPTIONAL = ("runout_m", "runout_sd_m", "runout_min_m", "runout_max_m", "source",
+            "release_x_m", "release_speed_m_s", "run_id", "shape")
+SHAPES = ("sphere", "cylinder", "disc")
 
 
 class ObservationError(ValueError):
@@ -74,6 +88,10 @@ class Observations:
         is_interval: True where the row is an interval.
         source: provenance text per row.
         path: file the rows came from.
+        release_x_m: release abscissa on the profile, m (NaN where not given).
+        release_speed_m_s: speed at release, m/s (NaN where not given).
+        run_id: run identifier per row ("" where not given), str array.
+        shape: CRSP shape class per row ("" where not given), str array.
     """
 
     block_size_m: np.ndarray
@@ -84,6 +102,19 @@ class Observations:
     is_interval: np.ndarray
     source: tuple[str, ...]
     path: str = "<memory>"
+    release_x_m: np.ndarray | None = None
+    release_speed_m_s: np.ndarray | None = None
+    run_id: np.ndarray | None = None
+    shape: np.ndarray | None = None
+
+    def __post_init__(self):
+        n = int(np.shape(self.block_size_m)[0])
+        for name in ("release_x_m", "release_speed_m_s"):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, np.full(n, np.nan))
+        for name in ("run_id", "shape"):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, np.full(n, "", dtype=object))
 
     @property
     def n_obs(self) -> int:
@@ -235,8 +266,33 @@ def load_observations(path: str | os.PathLike) -> Observations:
                                    f"positive tolerance in metres for a point observation")
     is_int = np.isfinite(lo)
     src = tuple(df["source"].tolist()) if "source" in df.columns else ("",) * len(df)
+    x0, speed, run_id, shape = _field_columns(df, path)
     return Observations(d, np.where(is_int, np.nan, y), np.where(is_int, np.nan, sd),
-                        lo, hi, is_int, src, path)
+                        lo, hi, is_int, src, path, x0, speed, run_id, shape)
+
+
+def _field_columns(df: pd.DataFrame, path: str):
+    """The optional field-run columns (module docstring), validated."""
+    x0 = _number(df, "release_x_m", path)
+    speed = _number(df, "release_speed_m_s", path)
+    bad = np.flatnonzero(np.isinf(x0))
+    if bad.size:
+        raise ObservationError(f"{path}: line {bad[0] + 2}, column 'release_x_m': expected a "
+                               f"finite abscissa in metres, got {df['release_x_m'][bad[0]]!r}")
+    bad = np.flatnonzero(~(np.isnan(speed) | (np.isfinite(speed) & (speed >= 0))))
+    if bad.size:
+        raise ObservationError(f"{path}: line {bad[0] + 2}, column 'release_speed_m_s': "
+                               f"expected a speed >= 0 m/s, got "
+                               f"{df['release_speed_m_s'][bad[0]]!r}")
+    text = {}
+    for col in ("run_id", "shape"):
+        vals = df[col].tolist() if col in df.columns else [""] * len(df)
+        text[col] = np.array([str(v).strip() for v in vals], dtype=object)
+    bad = [i for i, v in enumerate(text["shape"]) if v not in SHAPES + ("",)]
+    if bad:
+        raise ObservationError(f"{path}: line {bad[0] + 2}, column 'shape': expected one of "
+                               f"{', '.join(SHAPES)} or empty, got {text['shape'][bad[0]]!r}")
+    return x0, speed, text["run_id"], text["shape"]
 
 
 VELOCITY_COLUMNS = ("station_x_m", "block_size_m", "velocity_m_s", "velocity_sd_m_s")
