@@ -17,13 +17,15 @@ from calib.forward import CrspForward
 __all__ = ["crsp_candidates"]
 
 
-def _crsp_forward(profile, effect, sizes_m, n_blocks, key, stations_x_m=()):
+def _crsp_forward(profile, effect, release_x_m, sizes_m, n_blocks, key, stations_x_m=()):
     return CrspForward(profile, sizes_m, n_blocks, key, effect=effect,
-                       stations_x_m=tuple(stations_x_m))
+                       stations_x_m=tuple(stations_x_m), release_x_m=release_x_m)
 
 
-def crsp_candidates(profile, effects=CRSP_EFFECTS) -> list[Candidate]:
-    """Baseline first, then one candidate per effect."""
+def crsp_candidates(profile, effects=CRSP_EFFECTS, release_x_m=None) -> list[Candidate]:
+    """Baseline first, then one candidate per effect (blocks released at
+    ``release_x_m``, m; None: the profile's first vertex)."""
     names = ["none"] + [e for e in effects if e != "none"]
     return [Candidate(e, full_box(e, profile),
-                      functools.partial(_crsp_forward, profile, e)) for e in names]
+                      functools.partial(_crsp_forward, profile, e, release_x_m))
+            for e in names]

@@ -90,7 +90,7 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def _candidates(model: str, effects_arg: str | None, profile):
+def _candidates(model: str, effects_arg: str | None, profile, release_x_m=None):
     from calib.effects import CRSP_EFFECTS, DEM_EFFECTS
 
     allowed = CRSP_EFFECTS if model == "crsp" else DEM_EFFECTS
@@ -105,8 +105,12 @@ def _candidates(model: str, effects_arg: str | None, profile):
     if model == "crsp":
         from calib.candidates import crsp_candidates
 
-        return crsp_candidates(profile, chosen)
+        return crsp_candidates(profile, chosen, release_x_m)
     from calib.dem_candidates import dem_candidates
+
+    if release_x_m is not None and release_x_m != float(profile.x_m[0]):
+        raise CliError("the DEM candidates release every block at the profile's first "
+                       "vertex; data with release_x_m need --model crsp")
 
     return dem_candidates(profile, chosen)
 
@@ -127,7 +131,7 @@ def _fit_section(f) -> dict:
 def _run(args) -> int:
     from calib import discovery_figures as figs
     from calib.discrepancy import GAP_METRIC, discover, preset_budget
-    from calib.fit import _Progress, _write_all, load_inputs
+    from calib.fit import _Progress, _write_all, common_release_m, load_inputs
     from calib.provenance import versions
     from calib.scores import ELPD_MIN, Z_MIN
     from calib.unfinished import UnfinishedBlocksWarning
@@ -135,7 +139,7 @@ def _run(args) -> int:
     t0 = time.perf_counter()
     obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
     velocities = _load_velocities(args.velocities, args.model, profile)
-    cands = _candidates(args.model, args.effects, profile)
+    cands = _candidates(args.model, args.effects, profile, common_release_m(obs, profile))
     try:
         budget = preset_budget(args.model, args.quick, args.n_blocks)
     except ValueError as e:

@@ -53,7 +53,8 @@ def _parser() -> argparse.ArgumentParser:
                "tolerance) or runout_min_m, runout_max_m (an interval), source.")
     p.add_argument("data", help="observed runouts CSV (see data/README.md for the schema)")
     p.add_argument("--profile", default=None,
-                   help="slope profile CSV (default: <data stem>_profile.csv next to DATA)")
+                   help="slope profile CSV (default: <data stem>_profile.csv next to DATA, "
+                        "else profile.csv in DATA's folder)")
     p.add_argument("--model", choices=["crsp", "dem", "both"], default="both",
                    help="which solver to calibrate (default: both)")
     p.add_argument("--method", choices=["gradient", "bayes", "both"], default="both",
@@ -61,8 +62,8 @@ def _parser() -> argparse.ArgumentParser:
                         "emulator, posterior) or both (default)")
     p.add_argument("--rolling-resistance", choices=["fit", "profile"], default="fit",
                    help="CRSP rolling resistance angle: fit it as a 4th parameter, one value "
-                        "for the slope, prior 8-40 deg (default), or keep the profile's "
-                        "per-zone rolling_friction_deg")
+                        "for the slope, prior 5-40 deg, with S from 0.01 m (default), or keep "
+                        "the profile's per-zone rolling_friction_deg and S from 0.25 m")
     p.add_argument("--alpha-law", choices=["power", "constant"], default="power",
                    help="DEM damping law: power alpha = a L^-b (default) or constant alpha")
     p.add_argument("--out", default="results", help="output folder (default: results/)")
@@ -80,13 +81,31 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _default_profile(data: str) -> str:
+    """``<data stem>_profile.csv`` next to DATA, or, where that does not exist, a
+    ``profile.csv`` in DATA's folder (a site folder such as data/tschamut2014/)."""
     stem, _ = os.path.splitext(data)
-    return stem + "_profile.csv"
+    named = stem + "_profile.csv"
+    folder = os.path.join(os.path.dirname(data), "profile.csv")
+    return named if os.path.isfile(named) or not os.path.isfile(folder) else folder
+
+
+def common_release_m(obs, profile) -> float:
+    """The release abscissa of the simulated blocks: the median of the rows'
+    ``release_x_m`` where the data give it, else the profile's first vertex.
+    (Our interim choice: one release for every row; the rows' own releases are
+    used by ``calib.validate``, not yet by the fit.)"""
+    rel = getattr(obs, "release_x_m", None)
+    if rel is None or not np.any(np.isfinite(rel)):
+        return float(profile.x_m[0])
+    return float(np.nanmedian(rel))
 
 
 def _check_reach(obs, profile, profile_path: str) -> None:
-    """Every observed runout must lie on the profile (x0 .. x_end)."""
-    x0, x1 = float(profile.x_m[0]), float(profile.x_m[-1])
+    """Every observed runout must lie on the profile (release .. x_end)."""
+    x0, x1 = common_release_m(obs, profile), float(profile.x_m[-1])
+    if not float(profile.x_m[0]) <= x0 < x1:
+        raise CliError(f"{obs.path}: column 'release_x_m': the median release {x0:g} m lies "
+                       f"outside the profile {profile_path}")
     length = x1 - x0
     for i in range(obs.n_obs):
         col, val = (("runout_min_m", obs.runout_min_m[i]) if obs.is_interval[i]
@@ -210,6 +229,11 @@ def _run(args) -> int:
     data_csv = args.data
     if args.holdout_fraction:
         obs, data_csv = _split(args, obs, files)
+    release = common_release_m(obs, profile)
+    rel = getattr(obs, "release_x_m", None)
+    if rel is not None and np.any(np.isfinite(rel)):
+        print(f"releasing every simulated block at x = {release:.1f} m, the median of the "
+              f"rows' release_x_m ({np.nanmin(rel):.1f} to {np.nanmax(rel):.1f} m)")
 
     models = ["crsp", "dem"] if args.model == "both" else [args.model]
     methods = ("gradient", "bayes") if args.method == "both" else (args.method,)
@@ -217,6 +241,7 @@ def _run(args) -> int:
     result = {"schema": SCHEMA,
               "command": " ".join([PROG] + sys.argv[1:]),
               "data_csv": data_csv, "profile_csv": profile_path, "seed": args.seed,
+              "release_x_m": release,
               "quick": bool(args.quick), "methods": list(methods), "versions": versions(),
               "inputs": provenance(PROG, args.seed, {"data": args.data,
                                                      "profile": profile_path})["inputs"],
@@ -233,10 +258,11 @@ def _run(args) -> int:
         if model == "crsp":
             box = CRSP_ROLLING_BOX if args.rolling_resistance == "fit" else CRSP_BOX
             forward = CrspForward(profile, obs.sizes_m, budget.n_blocks_design,
-                                  jax.random.fold_in(mkey, 1), box=box)
+                                  jax.random.fold_in(mkey, 1), box=box, release_x_m=release)
         else:
             forward = DemForward(profile, obs.sizes_m, budget.n_blocks_design,
-                                 jax.random.fold_in(mkey, 1), form=args.alpha_law)
+                                 jax.random.fold_in(mkey, 1), form=args.alpha_law,
+                                 release_x_m=release)
         bar = _Progress(not args.no_progress, model.upper())
         # the check also simulates a grid of sizes for the runout-vs-size figure
         extra = (np.geomspace(0.2, 2.0, 6) if model == "crsp" else

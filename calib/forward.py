@@ -123,10 +123,11 @@ class CrspForward:
             box becomes ``calib.effects.full_box``.
         stations_x_m: abscissae (m) at which ``simulate`` records passage speeds.
         settings: CRSP solver settings (event budget, search window).
-        release_x_m: (S,) release abscissa of each entry of ``sizes_m``, m, or
-            None (every block starts at the profile's first vertex). With it,
-            ``sizes_m`` need not be distinct: an entry is a (size, release)
-            group, e.g. the held-out rows of ``calib.predictive_check``.
+        release_x_m: release abscissa, m: one for every entry, or (S,) one per
+            entry of ``sizes_m``, or None (every block starts at the profile's
+            first vertex). With one per entry ``sizes_m`` need not be distinct:
+            an entry is a (size, release) group, e.g. the held-out rows of
+            ``calib.predictive_check``.
     """
 
     profile: Profile
@@ -139,7 +140,7 @@ class CrspForward:
     effect: str = "none"
     stations_x_m: tuple[float, ...] = ()
     settings: crsp.Settings = crsp.Settings()
-    release_x_m: tuple[float, ...] | None = None
+    release_x_m: float | tuple[float, ...] | None = None
 
     def __post_init__(self):
         if self.effect != "none":
@@ -189,7 +190,7 @@ class CrspForward:
         rep = np.repeat(theta, n_s, axis=0)  # task = (t, s)
         radius = np.tile(crsp_radius_m(self.sizes_m), n_t)
         release = (None if self.release_x_m is None else
-                   np.tile(np.asarray(self.release_x_m, float), n_t))
+                   np.tile(np.broadcast_to(np.asarray(self.release_x_m, float), (n_s,)), n_t))
         n_tasks = rep.shape[0]
         chunk = self.task_chunk
         pad = (-n_tasks) % chunk
@@ -288,6 +289,8 @@ class DemForward:
             call reuses one compiled program.
         min_size_m: the step bound is max_time_s / dt of this size (the smallest
             block's dt), fixed so that forwards on other sizes share the program.
+        release_x_m: release abscissa of every block, m (None: the profile's
+            first vertex).
     """
 
     profile: Profile
@@ -299,6 +302,7 @@ class DemForward:
     max_time_s: float = 150.0
     lane_batch: int = 32
     min_size_m: float = 0.2
+    release_x_m: float | None = None
 
     def __post_init__(self):
         from solvers.dem import make_params
@@ -338,7 +342,8 @@ class DemForward:
 
         alpha = np.asarray(alpha, float)
         n_t, n_s = alpha.shape
-        proto = [make_block(float(L), alpha=0.5, release_x_m=float(self.profile.x_m[0]))
+        x0 = float(self.profile.x_m[0]) if self.release_x_m is None else float(self.release_x_m)
+        proto = [make_block(float(L), alpha=0.5, release_x_m=x0)
                  for L in dem_side_m(self.sizes_m)]
         lanes, keys = [], []
         for t in range(n_t):

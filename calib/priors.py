@@ -20,7 +20,7 @@ CRSP (restitution coefficients are velocity ratios, dimensionless):
   (S ~ 0.3 m) to very blocky talus (assumption; CRSP's surface roughness is the
   relief within one rock radius of the surface).
 
-* rolling_friction_deg phi_r in [8, 40] deg (``CRSP_ROLLING_BOX``, fitted by
+* rolling_friction_deg phi_r in [5, 40] deg (``CRSP_ROLLING_BOX``, fitted by
   default by ``python -m calib.fit``): the Coulomb rolling resistance
   mu = tan(phi_r) of the rolling phase (``solvers.crsp._contact``), a site
   parameter. Published values: tan(phi_r) = 0.30 for carbonate rock, lava and
@@ -28,8 +28,15 @@ CRSP (restitution coefficients are velocity ratios, dimensionless):
   0.65 for anthropic, landslide and glacial deposits, 0.80 for alluvial and
   colluvial deposits (STONE, Guzzetti et al. 2002, Computers & Geosciences 28,
   1079-1093), i.e. 16.7-38.7 deg; RocFall's lumped-mass rolling friction
-  arctan((1 - Rt) / Rt) is 8.5 deg at Rt = 0.87 and 6-14 deg for Rt 0.8-0.9.
-  The box spans 8-40 deg (rounded out from those, assumption).
+  arctan((1 - Rt) / Rt) is 8.5 deg at Rt = 0.87, 5 deg at Rt = 0.92 and
+  6-14 deg for Rt 0.8-0.9. The box spans 5-40 deg (rounded out from those,
+  assumption).
+* In ``CRSP_ROLLING_BOX`` (the default of ``python -m calib.fit``) S goes down to
+  0.01 m: a grassy or soil slope has centimetres of relief within one radius of a
+  0.3 m block, and with S >= 0.25 m such blocks (S / R >= 1.4, theta_max >= 54
+  deg) cannot roll at all (measured on the Tschamut profile: every block stopped
+  at the same point whatever Kn, Kt and phi_r). Assumption; the three-parameter
+  ``CRSP_BOX`` of the discrepancy studies keeps 0.25 m.
 
 DEM damping law:
 
@@ -84,7 +91,7 @@ class Box:
 
 CRSP_BOX = Box(("Kn", "Kt", "roughness_m"), (0.15, 0.60, 0.25), (0.60, 0.98, 4.0))
 CRSP_ROLLING_BOX = Box(("Kn", "Kt", "roughness_m", "rolling_friction_deg"),
-                       (0.15, 0.60, 0.25, 8.0), (0.60, 0.98, 4.0, 40.0))
+                       (0.15, 0.60, 0.01, 5.0), (0.60, 0.98, 4.0, 40.0))
 DEM_BOXES = {
     "power": Box(("a", "b"), (0.05, 0.0), (0.95, 1.5)),
     "constant": Box(("alpha",), (0.02,), (0.95,)),

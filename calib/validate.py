@@ -103,7 +103,11 @@ def _predictive(cal, heldout, profile, n_posterior, n_blocks, seed):
         raise CliError(str(e)) from None
     key = jax.random.fold_in(jax.random.key(seed), 7)
     if cal.model == "crsp":
-        fw = CrspForward(profile, sizes, n_blocks or 100, key, release_x_m=tuple(releases))
+        from calib.priors import CRSP_BOX, CRSP_ROLLING_BOX
+
+        box = CRSP_ROLLING_BOX if "rolling_friction_deg" in draws.names else CRSP_BOX
+        fw = CrspForward(profile, sizes, n_blocks or 100, key, box=box,
+                         release_x_m=tuple(releases))
     else:
         if np.any(releases != x0):
             raise CliError("the DEM forward model releases every block at the profile's start; "

@@ -163,3 +163,21 @@ def test_fit_with_holdout_fraction_writes_the_split_and_validates(tmp_path):
     assert cal["data_csv"] == str(out / "calibration_rows.csv")
     s = json.loads((out / "validation" / "validation.json").read_text())
     assert s["n_scored"] == 2 and "mean CRPS" in proc.stdout
+
+
+def test_validate_simulates_with_the_fitted_rolling_angle(tmp_path):
+    """A four-parameter calibration: the predictive runouts use its rolling angle
+    (on smooth ground 2 m blocks run further at 10 deg than at 40 deg), not the
+    profile's own 30 deg."""
+    held = tmp_path / "held.csv"
+    held.write_text("block_size_m,runout_m,runout_sd_m\n2.0,200,5\n")
+    medians = []
+    for phi in (10.0, 40.0):
+        folder = tmp_path / f"phi{phi:g}"
+        folder.mkdir()
+        path = write_calibration(folder, crsp=(0.41, 0.87, 0.25, phi))
+        assert main([path, str(held), "--n-posterior", "1", "--n-blocks", "64",
+                     "--out", str(folder / "val")]) == 0
+        s = json.loads((folder / "val" / "validation.json").read_text())
+        medians.append(s["mean_error_of_mean_m"])
+    assert medians[0] > medians[1] + 5.0, medians
