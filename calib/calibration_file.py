@@ -66,6 +66,8 @@ class Calibration(NamedTuple):
         alpha_form: DEM only: "power" or "constant" ("" for CRSP).
         data_csv: the observations the fit used, resolved like ``profile_csv``,
             or None where that file is not found.
+        release_x_m: the release abscissa the fit simulated, m (key
+            ``release_x_m``), or None (older files: the profile's first vertex).
     """
 
     path: str
@@ -77,6 +79,7 @@ class Calibration(NamedTuple):
     posterior_csv: str | None
     alpha_form: str
     data_csv: str | None = None
+    release_x_m: float | None = None
 
 
 class Draws(NamedTuple):
@@ -244,9 +247,13 @@ def load_calibration(path: str, model: str | None = None) -> Calibration:
         data_csv = _resolve(path, doc.get("data_csv"), json_dir, "data_csv", True)
     except CalibrationError:
         data_csv = None
+    release = doc.get("release_x_m")
+    if release is not None:
+        release = _number(path, "release_x_m", release, -math.inf, math.inf, True)
     return Calibration(path=path, model=model, profile_csv=profile_csv, names=names,
                        point=np.asarray(point, dtype=np.float64), posterior=posterior,
-                       posterior_csv=post_path, alpha_form=form, data_csv=data_csv)
+                       posterior_csv=post_path, alpha_form=form, data_csv=data_csv,
+                       release_x_m=release)
 
 
 def draw_parameters(cal: Calibration, n_posterior: int, seed: int) -> Draws:

@@ -44,3 +44,23 @@ def test_hazard_reads_a_fitted_rolling_angle(tmp_path):
                             np.array([200.0]), 256, 0)
         reach.append(float(np.asarray(counts.reach).ravel()[0]))
     assert reach[0] > 0 and reach[1] == 0, reach
+
+
+def test_hazard_releases_where_the_calibration_was_fitted(tmp_path):
+    """calib.fit records the release it simulated (release_x_m); the hazard run
+    starts its blocks there: released at 150 m, no block passes a station at
+    100 m (upslope), and the release is what the tables are measured from."""
+    import json
+
+    path = write_calibration(tmp_path, crsp=(0.41, 0.87, 2.0))
+    import pathlib
+
+    doc = json.loads(pathlib.Path(path).read_text())
+    doc["release_x_m"] = 150.0
+    pathlib.Path(path).write_text(json.dumps(doc))
+    cal = load_calibration(path, "crsp")
+    assert cal.release_x_m == 150.0
+    counts = run_hazard(cal, draw_parameters(cal, 1, 0), PROFILE, [1.0],
+                        np.array([100.0, 155.0]), 64, 0)
+    assert counts.release_x_m == 150.0
+    assert int(np.asarray(counts.reach)[0, 0, 0]) == 0

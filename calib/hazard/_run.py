@@ -136,7 +136,7 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
     stations = np.asarray(stations_x_m, dtype=np.float64)
     n_draws, n_sizes, n_st = len(draws.values), len(sizes_m), len(stations)
     chunk, offsets = _chunks(n_blocks, chunk_blocks)
-    release_x = float(profile.x_m[0])
+    release_x = float(profile.x_m[0]) if cal.release_x_m is None else float(cal.release_x_m)
     shape = (n_draws, n_sizes, n_st)
     acc = {k: np.zeros(shape, np.int64) for k in ("exceed", "reach", "e30", "e300")}
     n_unfinished = np.zeros((n_draws, n_sizes), np.int64)
@@ -166,11 +166,13 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
             progress(int(out.n_blocks) * (t_sl.stop - t_sl.start))
 
     if cal.model == "crsp":
-        units = _crsp_units(draws, profile, sizes_m, st_dev, n_blocks, seed, chunk, offsets,
+        units = _crsp_units(draws, profile, release_x, sizes_m, st_dev, n_blocks, seed, chunk,
+                            offsets,
                             pool, settings)
     else:
         _check_dem_alphas(cal, draws, sizes_m)
-        units = _dem_units(cal, draws, profile, sizes_m, stations, n_blocks, seed, chunk,
+        units = _dem_units(cal, draws, profile, release_x, sizes_m, stations, n_blocks, seed,
+                           chunk,
                            offsets, dem_options)
     run_units(units, on_result, devices=devices)
     return HazardCounts(model=cal.model, sizes_m=sizes_m, stations_x_m=stations,
@@ -184,15 +186,16 @@ def _stack(trees):
     return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *trees)
 
 
-def _crsp_units(draws, profile, sizes_m, stations, n_blocks, seed, chunk, offsets, pool,
-                settings):
+def _crsp_units(draws, profile, release_x, sizes_m, stations, n_blocks, seed, chunk, offsets,
+                pool, settings):
     n_sizes = len(sizes_m)
     blocks = _stack([crsp.make_block(0.5 * s) for s in sizes_m])
     fn = functools.partial(crsp_chunk, n_chunk=chunk, pool=min(pool, n_sizes * chunk),
                            settings=settings)
     for d, values in enumerate(draws.values):
-        p = crsp.params_from_profile(profile, **{n: float(v) for n, v in
-                                                 zip(draws.names, values, strict=True)})
+        p = crsp.params_from_profile(profile, release_x_m=release_x,
+                                     **{n: float(v) for n, v in
+                                        zip(draws.names, values, strict=True)})
         params = _stack([p] * n_sizes)
         key = draw_key(seed, d)
         for off in offsets:
@@ -205,10 +208,9 @@ def _crsp_units(draws, profile, sizes_m, stations, n_blocks, seed, chunk, offset
             yield (d, slice(0, n_sizes)), make_args, fn
 
 
-def _dem_units(cal, draws, profile, sizes_m, stations, n_blocks, seed, chunk, offsets,
-               options: DemOptions):
+def _dem_units(cal, draws, profile, release, sizes_m, stations, n_blocks, seed, chunk,
+               offsets, options: DemOptions):
     params = dem.make_params(profile, stiffness_scale=options.stiffness_scale)
-    release = float(profile.x_m[0])
     # one static step bound for every size (one compilation): the smallest dt
     dts = [float(dem.stable_dt(params, dem.make_block(s, alpha=0.0))) for s in sizes_m]
     max_steps = int(math.ceil(options.max_time_s / min(dts)))
