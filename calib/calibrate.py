@@ -11,9 +11,9 @@ Stages (each timed; ``Budget`` sets the sizes, ``QUICK`` / ``DEFAULT`` the prese
       emulator is accurate where the posterior lives (sequential design, as in
       history matching: Vernon et al. 2010);
    c. hold-out check of the emulator; its predictive variance is inflated by the
-      factor c >= 1 that gives held-out errors unit mean square against the
-      variance the likelihood uses (the median kernel variance of the rows plus
-      c times the emulator's; ``calib.emulator.variance_inflation``);
+      factor c >= 1 with which it accounts for the held-out errors, weighted by
+      the variance the likelihood uses (the median kernel variance of the rows
+      plus c times the emulator's; ``calib.emulator.variance_inflation``);
    d. NUTS (``calib.bayes``).
 2. Gradient (``method`` includes "gradient"): Adam on the smoothed CRN
    objective of the SIMULATOR itself (``calib.gradient``) from several starts:

@@ -202,36 +202,41 @@ def _fit_all(xu, y_sk, nv_sk):
 
 def variance_inflation(err_m: np.ndarray, latent_var_m2: np.ndarray, noise_var_m2: np.ndarray,
                        kernel_var_m2: float) -> float:
-    """The factor c >= 1 on the emulator's latent variance that makes held-out
-    errors consistent with the variance the likelihood gives each emulated
-    quantile:
+    """The factor c >= 1 on the emulator's latent variance that makes it account
+    for the held-out errors, weighted by the variance the likelihood gives each
+    emulated quantile:
 
-        mean_i e_i^2 / (s^2 + n_i + c v_i) = 1,
+        mean_i (e_i^2 - n_i - c v_i) / (s^2 + n_i + c v_i) = 0,
 
-    with e_i the held-out error, v_i the latent variance, n_i the Monte Carlo
-    noise of the held-out quantile and s^2 the likelihood's kernel variance (the
-    rows' measurement tolerance, ``calib.likelihood``). The left side falls
-    monotonically in c; c = 1 when it is already <= 1 at c = 1. Our own choice:
-    an error much smaller than the tolerance cannot mislead the likelihood, so it
-    must not inflate the variance (the pure z-score mean(e^2 / (n + v)) does:
-    where many blocks stop at one point, e.g. at the foot of a talus, n and v are
-    ~1e-6 m^2 and a 0.2 m error scores z = 80).
+    with e_i the held-out error, n_i the Monte Carlo noise of the held-out
+    quantile (part of e_i^2 that is not the emulator's), v_i the latent variance
+    and s^2 the likelihood's kernel variance (the rows' measurement tolerance,
+    ``calib.likelihood``). Solved, c v_i matches e_i^2 - n_i on average, so the
+    likelihood's variance s^2 + c v_i adds the emulator's error to the
+    measurement's. The left side falls monotonically in c (its derivative is
+    -v_i (e_i^2 + s^2) / (s^2 + n_i + c v_i)^2); c = 1 when it is <= 0 at c = 1.
+    Our own choice, and why the weights: where many blocks stop at one point
+    (e.g. the foot of a talus) n_i and v_i are ~1e-6 m^2; an unweighted z-score
+    mean(e^2 / (n + v)) then scores a 0.2 m error as z = 80 and one global factor
+    inflates every other output by thousands. Here such an output asks only for
+    c v_i ~ e_i^2 (harmless next to s^2) and weighs 1/s^2 in the balance.
     """
     e2 = np.asarray(err_m, float) ** 2
     v = np.asarray(latent_var_m2, float)
-    base = kernel_var_m2 + np.asarray(noise_var_m2, float) + 1e-6
+    n = np.asarray(noise_var_m2, float)
+    base = kernel_var_m2 + n + 1e-9
 
-    def excess(c):
-        return float(np.mean(e2 / (base + c * v))) - 1.0
+    def balance(c):
+        return float(np.mean((e2 - n - c * v) / (base + c * v)))
 
-    if excess(1.0) <= 0.0:
+    if balance(1.0) <= 0.0:
         return 1.0
     lo, hi = 1.0, 2.0
-    while excess(hi) > 0.0 and hi < 1e12:
+    while balance(hi) > 0.0 and hi < 1e15:
         lo, hi = hi, hi * 4.0
-    for _ in range(100):  # bisection in log c
+    for _ in range(200):  # bisection in log c
         mid = float(np.sqrt(lo * hi))
-        lo, hi = (mid, hi) if excess(mid) > 0.0 else (lo, mid)
+        lo, hi = (mid, hi) if balance(mid) > 0.0 else (lo, mid)
     return hi
 
 

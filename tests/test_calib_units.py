@@ -119,27 +119,37 @@ def test_same_key_same_forward_runouts():
     np.testing.assert_array_equal(a, b[::-1])  # same block keys whatever the batch
 
 
-def test_variance_inflation_ignores_errors_far_below_the_tolerance():
+def test_variance_inflation_keeps_errors_far_below_the_tolerance_harmless():
     """Held-out quantiles that sit on an atom (many blocks stopping at one point)
     have Monte Carlo and latent variances of ~1e-6 m^2; errors of 0.2 m there
-    give z ~ 80 (the old rule inflated by z_rms^2 ~ 6400) but cannot mislead a
-    likelihood whose kernel is 3 m wide: the inflation stays 1."""
+    give z ~ 80 (the old rule inflated every output by z_rms^2 ~ 6400 x its own
+    variance). Here the inflated variance of those outputs only grows to their
+    squared error, 0.04 m^2, harmless next to a 3 m tolerance; and mixed with
+    well-emulated outputs (v = 1 m^2, errors ~1 m) the factor stays modest."""
     err = np.full(50, 0.2)
     var = np.full(50, 1e-6)
     noise = np.full(50, 1e-6)
-    z_rms2 = float(np.mean(err**2 / (var + noise + 1e-6)))
-    assert z_rms2 > 1e3
-    assert variance_inflation(err, var, noise, kernel_var_m2=9.0) == 1.0
+    c = variance_inflation(err, var, noise, kernel_var_m2=9.0)
+    assert c * 1e-6 < 0.05
+    rng = np.random.default_rng(3)
+    mixed_err = np.concatenate([err, rng.standard_normal(50)])
+    mixed_var = np.concatenate([var, np.ones(50)])
+    mixed_noise = np.concatenate([noise, np.zeros(50)])
+    assert variance_inflation(mixed_err, mixed_var, mixed_noise, kernel_var_m2=9.0) < 20.0
 
 
-def test_variance_inflation_restores_unit_mean_square():
-    """Errors larger than the tolerance: the factor makes mean e^2 / (s^2 + n + c v)
-    equal to 1 (to bisection accuracy), and it grows with the errors."""
+def test_variance_inflation_adds_the_emulator_error_to_the_tolerance():
+    """One output, s^2 = 4, v = 1, no noise, e^2 = 25: the likelihood's variance
+    must become s^2 + e^2 (c = 25), not e^2 (c = 21, the rule of unit mean
+    square against s^2 + c v). And the balance holds for many outputs."""
+    c = variance_inflation(np.array([5.0]), np.array([1.0]), np.array([0.0]), kernel_var_m2=4.0)
+    np.testing.assert_allclose(c, 25.0, rtol=1e-6)
     rng = np.random.default_rng(0)
     var = rng.uniform(0.5, 2.0, 200)
     noise = rng.uniform(0.0, 0.5, 200)
     err = 6.0 * rng.standard_normal(200)
     c = variance_inflation(err, var, noise, kernel_var_m2=1.0)
     assert c > 1.0
-    np.testing.assert_allclose(np.mean(err**2 / (1.0 + noise + 1e-6 + c * var)), 1.0, rtol=1e-6)
+    bal = np.mean((err**2 - noise - c * var) / (1.0 + noise + 1e-9 + c * var))
+    assert abs(bal) < 1e-6
     assert variance_inflation(2 * err, var, noise, kernel_var_m2=1.0) > c
