@@ -47,7 +47,7 @@ __all__ = ["BOUND_BAND", "BOUND_FLAG", "COVERAGE_ALPHA", "LEVELS", "adequacy_rec
 
 BOUND_BAND = 0.02  # width of the band at each bound, as a fraction of the box width
 BOUND_FLAG = 0.10  # posterior mass in that band above which a parameter is flagged
-COVERAGE_ALPHA = 0.05  # level of the two-sided binomial test of coverage
+COVERAGE_ALPHA = 0.05  # level of the one-sided binomial test of coverage
 LEVELS = (0.5, 0.9)
 
 

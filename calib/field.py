@@ -63,7 +63,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from solvers._cli import CliError, OneLineParser, run_guarded, text_writer, write_all_atomic
+from solvers._cli import (
+    CliError,
+    OneLineParser,
+    read_csv_rows,
+    run_guarded,
+    text_writer,
+    write_all_atomic,
+)
 
 __all__ = [
     "DEFAULT_DENSITY_KG_M3",
@@ -174,22 +181,7 @@ def crsp_shape(size_m) -> str:
 
 
 def _read(path: str, what: str) -> tuple[list[str], list[tuple[int, dict[str, str]]]]:
-    if not os.path.isfile(path):
-        raise FieldError(f"{path}: file not found")
-    try:
-        with open(path, newline="", encoding="utf-8") as fh:
-            reader = csv.DictReader(fh)
-            if not reader.fieldnames:
-                raise FieldError(f"{path}: line 1: empty file; expected a header ({what})")
-            header = [h.strip() for h in reader.fieldnames]
-            rows = []
-            for raw in reader:
-                row = {k.strip(): (v or "").strip() for k, v in raw.items() if k is not None}
-                if any(row.values()):
-                    rows.append((reader.line_num, row))
-    except UnicodeDecodeError:
-        raise FieldError(f"{path}: not a text CSV file") from None
-    return header, rows
+    return read_csv_rows(path, what, FieldError)
 
 
 def _value(path: str, line: int, row: dict, col: str, *, positive: bool = False,

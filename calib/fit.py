@@ -314,15 +314,15 @@ def _run(args) -> int:
 def _split(args, obs, files):
     """Split the rows (``calib.split``): the fit's observations, and the path its
     calibration rows will have; both row files join the outputs."""
-    import pandas as pd
 
+    from calib.observations import read_table
     from calib.split import holdout_rows, subset
 
     try:
         fit_rows, held_rows = holdout_rows(obs.n_obs, args.holdout_fraction, args.seed)
     except ValueError as e:
         raise CliError(str(e)) from None
-    table = pd.read_csv(args.data, dtype=str, keep_default_na=False)
+    table = read_table(args.data, "block_size_m,...")
     files["calibration_rows.csv"] = table.iloc[fit_rows].to_csv(index=False)
     files["heldout_rows.csv"] = table.iloc[held_rows].to_csv(index=False)
     print(f"holding out {len(held_rows)} of {obs.n_obs} rows (seed {args.seed}): "

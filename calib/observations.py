@@ -55,7 +55,7 @@ import numpy as np
 import pandas as pd
 
 __all__ = ["ObservationError", "Observations", "Velocities", "crsp_radius_m", "dem_side_m",
-           "load_observations", "load_velocities"]
+           "load_observations", "load_velocities", "read_table"]
 
 REQUIRED = ("block_size_m",)
 OPTIONAL = ("runout_m", "runout_sd_m", "runout_min_m", "runout_max_m", "source",
@@ -197,7 +197,7 @@ def _number(df: pd.DataFrame, col: str, path: str) -> np.ndarray:
     return out
 
 
-def _read_table(path: str, header: str) -> pd.DataFrame:
+def read_table(path: str, header: str) -> pd.DataFrame:
     """The CSV at ``path`` as strings; a missing, empty or unreadable file raises."""
     if not os.path.isfile(path):
         raise ObservationError(f"{path}: no such file")
@@ -221,7 +221,7 @@ def load_observations(path: str | os.PathLike) -> Observations:
             The message names the file, line (header = line 1) and column.
     """
     path = os.fspath(path)
-    df = _read_table(path, "block_size_m,runout_m,runout_sd_m,...")
+    df = read_table(path, "block_size_m,runout_m,runout_sd_m,...")
     for col in REQUIRED:
         if col not in df.columns:
             raise ObservationError(f"{path}: line 1: missing column {col!r} (columns: "
@@ -308,7 +308,7 @@ def load_velocities(path: str | os.PathLike) -> Velocities:
             line (header = line 1) and column.
     """
     path = os.fspath(path)
-    df = _read_table(path, ",".join(VELOCITY_COLUMNS))
+    df = read_table(path, ",".join(VELOCITY_COLUMNS))
     for col in VELOCITY_COLUMNS:
         if col not in df.columns:
             raise ObservationError(f"{path}: line 1: missing column {col!r} (columns: "

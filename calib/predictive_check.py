@@ -9,8 +9,10 @@ observation model (``calib.likelihood``): Y = R + e, an ensemble of
 ``n_posterior x n_blocks`` members. Scores per point row:
 
 * CRPS(F, y) = E|Y - y| - E|Y - Y'| / 2 (Gneiting & Raftery 2007, JASA 102,
-  359-378), of the ensemble, in metres (``scoringrules.crps_ensemble``; lower
-  is better; it is the mean absolute error for a point forecast);
+  359-378), of the ensemble's empirical distribution, in metres
+  (``scoringrules.crps_ensemble``, quantile-decomposition estimator, exact for
+  that distribution; lower is better; it is the mean absolute error for a
+  point forecast);
 * PIT = P(Y <= y) (uniform on [0, 1] for a calibrated forecast; Dawid 1984);
 * whether the central 50 % and 90 % predictive intervals contain y;
 * the error of the predictive mean, E[Y] - y (positive: overshoot).
@@ -133,9 +135,9 @@ def score_rows(obs: Observations, predictive: np.ndarray, group_index: np.ndarra
             error_of_mean_m=float(ens.mean() - y),
             pit=float(np.mean(ens <= y)),
             in_50=bool(q[1] <= y <= q[3]), in_90=bool(q[0] <= y <= q[4]),
-            crps_m=float(sr.crps_ensemble(y, ens)),
-            crps_climatology_m=float(sr.crps_ensemble(y, clim_all)),
-            crps_climatology_size_m=float(sr.crps_ensemble(y, per_size)))
+            crps_m=float(sr.crps_ensemble(y, ens, estimator="qd")),
+            crps_climatology_m=float(sr.crps_ensemble(y, clim_all, estimator="qd")),
+            crps_climatology_size_m=float(sr.crps_ensemble(y, per_size, estimator="qd")))
         out.append(row)
     rows = pd.DataFrame(out)
     scored = rows[rows.get("crps_m", pd.Series(dtype=float)).notna()] if "crps_m" in rows \

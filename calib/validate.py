@@ -137,20 +137,25 @@ def _figures(check):
     fig.tight_layout()
     figs["pit_histogram.png"] = fig
 
-    scored = rows.dropna(subset=["pred_median_m"]) if "pred_median_m" in rows else rows.iloc[:0]
-    scored = scored.sort_values("observed_m")
+    scored = (rows.dropna(subset=["pred_median_m"]) if "pred_median_m" in rows
+              else rows.iloc[:0])
+    if len(scored):
+        scored = scored.sort_values("observed_m")
     fig, ax = plt.subplots(figsize=(7, 0.25 * max(len(scored), 8) + 1.0))
-    yy = np.arange(len(scored))
-    ax.hlines(yy, scored["pred_q05_m"], scored["pred_q95_m"], color="C0", lw=1.5,
-              label="predicted 90 %")
-    ax.hlines(yy, scored["pred_q25_m"], scored["pred_q75_m"], color="C0", lw=4,
-              label="predicted 50 %")
-    ax.plot(scored["observed_m"], yy, "k.", label="observed")
-    ax.set_yticks(yy, [f"row {r} ({d:g} m)" for r, d in zip(scored["row"],
-                                                             scored["block_size_m"])],
-                  fontsize=6)
+    if len(scored):
+        yy = np.arange(len(scored))
+        ax.hlines(yy, scored["pred_q05_m"], scored["pred_q95_m"], color="C0", lw=1.5,
+                  label="predicted 90 %")
+        ax.hlines(yy, scored["pred_q25_m"], scored["pred_q75_m"], color="C0", lw=4,
+                  label="predicted 50 %")
+        ax.plot(scored["observed_m"], yy, "k.", label="observed")
+        ax.set_yticks(yy, [f"row {r} ({d:g} m)" for r, d in zip(scored["row"],
+                                                                 scored["block_size_m"])],
+                      fontsize=6)
+        ax.legend(loc="lower right", fontsize=7)
+    else:
+        ax.text(0.5, 0.5, "no scored point rows", ha="center", transform=ax.transAxes)
     ax.set(xlabel="runout, m", title="held-out rows: observed against predicted intervals")
-    ax.legend(loc="lower right", fontsize=7)
     fig.tight_layout()
     figs["intervals.png"] = fig
     return figs

@@ -17,6 +17,7 @@ __all__ = [
     "parse_floats",
     "parse_stations",
     "run_guarded",
+    "read_csv_rows",
     "text_writer",
     "write_all_atomic",
     "write_csv_atomic",
@@ -133,6 +134,34 @@ def write_all_atomic(writers: dict) -> list[str]:
             if os.path.exists(tmp):
                 os.unlink(tmp)
     return [final for _, final in staged]
+
+
+def read_csv_rows(path: str, what: str, error=CliError) -> tuple[list[str], list[tuple[int, dict]]]:
+    """A CSV's stripped header and its non-blank rows as ``(file line, {column: text})``.
+
+    Args:
+        path: the file.
+        what: what the header should be, for the message of an empty file.
+        error: exception class raised for a missing, empty or non-UTF-8 file.
+    """
+    import csv
+
+    if not os.path.isfile(path):
+        raise error(f"{path}: file not found")
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            reader = csv.DictReader(fh)
+            if not reader.fieldnames:
+                raise error(f"{path}: line 1: empty file; expected a header ({what})")
+            header = [h.strip() for h in reader.fieldnames]
+            rows = []
+            for raw in reader:
+                row = {k.strip(): (v or "").strip() for k, v in raw.items() if k is not None}
+                if any(row.values()):
+                    rows.append((reader.line_num, row))
+    except UnicodeDecodeError:
+        raise error(f"{path}: not a UTF-8 text CSV file") from None
+    return header, rows
 
 
 def text_writer(text: str):

@@ -49,7 +49,6 @@ wrong (a header key, a line and column, or a distance along the line).
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import math
@@ -57,6 +56,8 @@ import os
 from collections.abc import Sequence
 
 import numpy as np
+
+from solvers._cli import read_csv_rows
 
 __all__ = [
     "DEFAULT_MATERIALS",
@@ -435,19 +436,7 @@ class Polyline:
 
 
 def _read_csv_rows(path: str, what: str) -> tuple[list[str], list[tuple[int, dict]]]:
-    if not os.path.isfile(path):
-        raise RasterError(f"{path}: file not found")
-    with open(path, newline="", encoding="utf-8") as fh:
-        reader = csv.DictReader(fh)
-        if not reader.fieldnames:
-            raise RasterError(f"{path}: line 1: empty file; expected a header ({what})")
-        header = [h.strip() for h in reader.fieldnames]
-        rows = []
-        for raw in reader:
-            row = {k.strip(): (v or "").strip() for k, v in raw.items() if k is not None}
-            if any(row.values()):
-                rows.append((reader.line_num, row))
-    return header, rows
+    return read_csv_rows(path, what, RasterError)
 
 
 def _cell_float(path: str, line: int, row: dict, col: str) -> float:

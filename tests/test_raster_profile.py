@@ -303,3 +303,19 @@ def test_recutting_the_shipped_profile_reproduces_it(tmp_path, capsys):
             for d in (new, old):
                 d.pop("argv"), d.pop("command")
         assert new == old, name
+
+
+def test_non_utf8_line_file_is_one_line_exit_2(tmp_path, capsys):
+    """A line CSV saved in Latin-1 is a clear error, not a traceback."""
+    from solvers.profile import main
+
+    grid = tmp_path / "g.asc"
+    grid.write_text("ncols 3\nnrows 3\nxllcorner 0\nyllcorner 0\ncellsize 10\n"
+                    "NODATA_value -9999\n1 1 1\n1 1 1\n1 1 1\n")
+    line = tmp_path / "line.csv"
+    line.write_bytes("x,y\n5,5\n25,25\n# caf\xe9\n".encode("latin-1"))
+    with pytest.raises(SystemExit) as e:
+        main(["cut", str(grid), "--line", str(line), "--out", str(tmp_path / "p.csv")])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "UTF-8" in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "p.csv").exists()

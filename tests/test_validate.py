@@ -181,3 +181,13 @@ def test_validate_simulates_with_the_fitted_rolling_angle(tmp_path):
         s = json.loads((folder / "val" / "validation.json").read_text())
         medians.append(s["mean_error_of_mean_m"])
     assert medians[0] > medians[1] + 5.0, medians
+
+
+def test_interval_only_heldout_rows_are_reported_not_a_traceback(cal_path, tmp_path):
+    held = tmp_path / "held.csv"
+    held.write_text("block_size_m,runout_min_m,runout_max_m\n0.2,100,120\n")
+    out = tmp_path / "val"
+    assert main([cal_path, str(held), "--n-posterior", "1", "--n-blocks", "8",
+                 "--out", str(out)]) == 0
+    s = json.loads((out / "validation.json").read_text())
+    assert s["n_scored"] == 0 and s["n_interval_rows"] == 1
