@@ -139,7 +139,8 @@ def _run(args) -> int:
     t0 = time.perf_counter()
     obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
     velocities = _load_velocities(args.velocities, args.model, profile)
-    cands = _candidates(args.model, args.effects, profile, common_release_m(obs, profile))
+    release = common_release_m(obs, profile)
+    cands = _candidates(args.model, args.effects, profile, release)
     try:
         budget = preset_budget(args.model, args.quick, args.n_blocks)
     except ValueError as e:
@@ -147,7 +148,8 @@ def _run(args) -> int:
     bar = _Progress(not args.no_progress, args.model.upper())
     with warnings.catch_warnings():  # reported in the summary and discovery.json
         warnings.simplefilter("ignore", UnfinishedBlocksWarning)
-        d = discover(cands, obs, profile, jax.random.key(args.seed), budget, bar, velocities)
+        d = discover(cands, obs, profile, jax.random.key(args.seed), budget, bar, velocities,
+                     release)
     bar.close()
     named_fit = d.fits[d.named_effect]
     result = {

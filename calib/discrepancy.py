@@ -501,13 +501,15 @@ class Discovery:
 
 
 def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: Budget,
-             progress=None, velocities=None) -> Discovery:
+             progress=None, velocities=None, release_x_m: float | None = None) -> Discovery:
     """Run the whole workflow on observations ``obs`` (see module docstring).
 
     ``candidates[0]`` must be the baseline (effect ``none``). ``velocities``
     (optional, ``calib.observations.Velocities``): passage speeds at stations,
     scored with the runouts by every candidate (forward models with
     ``simulate``, i.e. CRSP); the gap metric and the residuals stay on runouts.
+    ``release_x_m``: where the candidates release their blocks (None: the
+    profile's first vertex), for the stop positions of the residual tests.
     """
     if candidates[0].effect != "none":
         raise ValueError("the first candidate must be the baseline (effect 'none')")
@@ -539,7 +541,7 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
             warm = _gaussian_fit(zb, np.log(np.maximum(b.weights, 1e-300)))
     base = fits["none"]
     rng = np.random.default_rng(0)
-    where_before = locate(obs, row_class, class_sizes, base.samples, profile, rng)
+    where_before = locate(obs, row_class, class_sizes, base.samples, profile, rng, release_x_m)
     table = []
     for eff, f in fits.items():
         gains = f.elpd - base.elpd  # per row
@@ -560,6 +562,7 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
     for r in table:
         r["clear_gain"] = r["effect"] == named and named != "none"
     where_after = None if named == "none" else locate(
-        obs, row_class, class_sizes, fits[named].samples, profile, np.random.default_rng(0))
+        obs, row_class, class_sizes, fits[named].samples, profile, np.random.default_rng(0),
+        release_x_m)
     return Discovery(named, fits, table, where_before, where_after, class_sizes, row_class,
                      base.gap, fits[named].gap, timings)

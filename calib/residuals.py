@@ -77,7 +77,7 @@ def slope_parts(profile) -> list[tuple[float, float, str]]:
 
 
 def locate(obs, row_class: np.ndarray, class_sizes_m: np.ndarray, samples: np.ndarray,
-           profile, rng: np.random.Generator) -> dict:
+           profile, rng: np.random.Generator, release_x_m: float | None = None) -> dict:
     """Residual tests against block size and stop position.
 
     Args:
@@ -86,8 +86,10 @@ def locate(obs, row_class: np.ndarray, class_sizes_m: np.ndarray, samples: np.nd
         class_sizes_m: (C,) representative size of each class, m.
         samples: (C, m) posterior-predictive runouts per class (without noise), m;
             NaN for an unfinished block (left out).
-        profile: the slope (release at its first vertex).
+        profile: the slope.
         rng: NumPy generator (measurement noise of the predictive stop positions).
+        release_x_m: where the blocks were released, m (None: the profile's first
+            vertex); stop positions are release + runout.
 
     Returns:
         dict with ``by_size``, ``size_trend``, ``by_slope_part``, ``flagged`` (list of
@@ -95,7 +97,7 @@ def locate(obs, row_class: np.ndarray, class_sizes_m: np.ndarray, samples: np.nd
     """
     pit, q = quantile_residuals(obs, row_class, samples)
     y, sd = point_view(obs)
-    x0 = float(profile.x_m[0])
+    x0 = float(profile.x_m[0]) if release_x_m is None else float(release_x_m)
     by_size = []
     for c, d in enumerate(class_sizes_m):
         rows = row_class == c

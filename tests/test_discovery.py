@@ -329,3 +329,17 @@ def test_notebook_03_discrepancy_runs_at_small_size(tmp_path):
     assert "hidden: rolling_resistance | named:" in text
     assert "of which from the speeds" in text  # section 2: runouts and passage speeds
     assert "size_dissipation" in text and "named:" in text
+
+
+def test_stop_positions_are_measured_from_the_release():
+    """Rows released at 150 m stopping 10 m further are stops on the lower slope
+    (x 160 m), not on the cliff (x 10 m) where a profile-start origin put them."""
+    prof = load_profile("data/postignano_profile.csv")
+    obs = Observations.points(np.full(6, 1.0), np.full(6, 10.0), 1.0)
+    samples = np.full((1, 200), 10.0)
+    rng = np.random.default_rng(0)
+    res = locate(obs, np.zeros(6, int), np.array([1.0]), samples, prof, rng, release_x_m=150.0)
+    where = {p["zone"]: p["observed"] for p in res["by_slope_part"]}
+    parts = [(p["x_from_m"], p["x_to_m"], p["observed"]) for p in res["by_slope_part"]]
+    assert sum(o for a, e, o in parts if a <= 160.0 < e) == 6, parts
+    assert where.get("cliff", 0) == 0
