@@ -66,6 +66,7 @@ import numpy as np
 from solvers._cli import (
     CliError,
     OneLineParser,
+    cell_float,
     read_csv_rows,
     run_guarded,
     text_writer,
@@ -192,14 +193,7 @@ def _value(path: str, line: int, row: dict, col: str, *, positive: bool = False,
         if required:
             raise FieldError(f"{path}: line {line}: column {col!r}: missing value")
         return math.nan
-    try:
-        v = float(text)
-    except ValueError:
-        raise FieldError(f"{path}: line {line}: column {col!r}: expected a number, "
-                         f"got {text!r}") from None
-    if not math.isfinite(v):
-        raise FieldError(f"{path}: line {line}: column {col!r}: expected a finite number, "
-                         f"got {text!r}")
+    v = cell_float(path, line, row, col, FieldError)
     if positive and v <= 0:
         raise FieldError(f"{path}: line {line}: column {col!r}: expected a positive value, "
                          f"got {text!r}")

@@ -4,6 +4,7 @@ writes, and parsing of station lists. No physics here."""
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import tempfile
@@ -17,6 +18,7 @@ __all__ = [
     "parse_floats",
     "parse_stations",
     "run_guarded",
+    "cell_float",
     "read_csv_rows",
     "text_writer",
     "write_all_atomic",
@@ -162,6 +164,20 @@ def read_csv_rows(path: str, what: str, error=CliError) -> tuple[list[str], list
     except UnicodeDecodeError:
         raise error(f"{path}: not a UTF-8 text CSV file") from None
     return header, rows
+
+
+def cell_float(path: str, line: int, row: dict, col: str, error=CliError) -> float:
+    """A CSV cell as a finite float; otherwise ``error`` naming file, line and column."""
+    text = row.get(col, "")
+    try:
+        value = float(text)
+    except ValueError:
+        raise error(f"{path}: line {line}: column '{col}': expected a number, "
+                    f"got {text!r}") from None
+    if not math.isfinite(value):
+        raise error(f"{path}: line {line}: column '{col}': expected a finite number, "
+                    f"got {text!r}")
+    return value
 
 
 def text_writer(text: str):

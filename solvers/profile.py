@@ -49,6 +49,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from solvers._cli import cell_float
+
 __all__ = [
     "MATERIAL_COLUMNS",
     "Profile",
@@ -239,16 +241,7 @@ def _read_csv(path: str, required: Sequence[str]) -> list[tuple[int, dict[str, s
 
 
 def _float(path: str, line: int, row: dict[str, str], col: str) -> float:
-    text = row.get(col, "")
-    try:
-        value = float(text)
-    except ValueError:
-        raise ProfileError(f"{path}: line {line}: column '{col}': expected a number, "
-                           f"got {text!r}") from None
-    if not math.isfinite(value):
-        raise ProfileError(f"{path}: line {line}: column '{col}': expected a finite number, "
-                           f"got {text!r}")
-    return value
+    return cell_float(path, line, row, col, ProfileError)
 
 
 def default_materials_path(profile_path: str) -> str:

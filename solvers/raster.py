@@ -57,7 +57,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from solvers._cli import read_csv_rows
+from solvers._cli import cell_float, read_csv_rows
 
 __all__ = [
     "DEFAULT_MATERIALS",
@@ -440,16 +440,7 @@ def _read_csv_rows(path: str, what: str) -> tuple[list[str], list[tuple[int, dic
 
 
 def _cell_float(path: str, line: int, row: dict, col: str) -> float:
-    text = row.get(col, "")
-    try:
-        value = float(text)
-    except ValueError:
-        raise RasterError(f"{path}: line {line}: column {col!r}: expected a number, "
-                          f"got {text!r}") from None
-    if not math.isfinite(value):
-        raise RasterError(f"{path}: line {line}: column {col!r}: expected a finite number, "
-                          f"got {text!r}")
-    return value
+    return cell_float(path, line, row, col, RasterError)
 
 
 _LINE_COLUMNS = (("east_m", "north_m"), ("x_m", "y_m"), ("x", "y"))
