@@ -40,6 +40,7 @@ import numpy as np
 from scipy.stats import binomtest
 
 from calib.observations import Observations
+from calib.predictive_check import in_band, observed_ensemble
 from calib.priors import Box
 
 __all__ = ["BOUND_BAND", "BOUND_FLAG", "COVERAGE_ALPHA", "LEVELS", "adequacy_record",
@@ -91,22 +92,13 @@ def predictive_coverage(obs: Observations, runouts: np.ndarray, key_seed: int = 
     rng = np.random.default_rng(key_seed)
     rows, covered = [], {p: [] for p in LEVELS}
     for i in range(obs.n_obs):
-        r = np.asarray(runouts[obs.size_index[i]], float)
-        r = r[np.isfinite(r)]
+        ens = observed_ensemble(obs, i, runouts[obs.size_index[i]], rng)
         row = {"row": i + 1, "block_size_m": float(obs.block_size_m[i])}
         for p in LEVELS:
-            if r.size == 0:
-                row[f"in_{round(100 * p)}"] = None
-                continue
-            if obs.is_interval[i]:
-                lo, hi = np.quantile(r, [0.5 - p / 2, 0.5 + p / 2])
-                inside = bool(obs.runout_min_m[i] <= hi and obs.runout_max_m[i] >= lo)
-            else:
-                y_pred = r + obs.runout_sd_m[i] * rng.standard_normal(r.size)
-                lo, hi = np.quantile(y_pred, [0.5 - p / 2, 0.5 + p / 2])
-                inside = bool(lo <= obs.runout_m[i] <= hi)
+            inside = in_band(obs, i, ens, p) if ens.size else None
             row[f"in_{round(100 * p)}"] = inside
-            covered[p].append(inside)
+            if inside is not None:
+                covered[p].append(inside)
         rows.append(row)
     levels = {}
     for p in LEVELS:

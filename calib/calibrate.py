@@ -50,6 +50,7 @@ from calib.emulator import fit_emulator, holdout_error
 from calib.gradient import GradientFit, fit_gradient
 from calib.likelihood import log_likelihood
 from calib.observations import Observations
+from calib.predictive_check import pool_draws
 from calib.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
 
 __all__ = ["Budget", "ModelFit", "calibrate", "fit_quality", "presets"]
@@ -327,7 +328,6 @@ def _adequacy(forward, obs: Observations, posterior: Posterior | None, check: np
     pred = dataclasses.replace(forward, n_blocks=budget.n_blocks_predictive, key=key)
     runs = pred.runouts(draws)  # (T, S, n)
     tally("predictive", runs, draws)
-    pooled = np.moveaxis(runs, 0, 1).reshape(runs.shape[1], -1)
-    return adequacy_record(posterior.samples, forward.box, obs, pooled,
+    return adequacy_record(posterior.samples, forward.box, obs, pool_draws(runs),
                            f"posterior predictive, {len(pick)} draws x "
                            f"{budget.n_blocks_predictive} blocks per size")

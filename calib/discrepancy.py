@@ -51,6 +51,7 @@ from scipy.special import logsumexp
 from scipy.stats import qmc
 
 from calib.likelihood import log_likelihood, silverman_width_m, velocity_log_likelihood
+from calib.predictive_check import pool_draws
 from calib.priors import Box
 from calib.residuals import locate, point_view
 from calib.scores import (
@@ -481,7 +482,7 @@ def _predictive(cand, fw, theta, w, class_sizes_m, key, budget, rng, tallies):
         tallies["predictive"].add(runs, theta[idx], cand.box.names)
     else:
         runs = fw.runouts(theta[idx])
-    return np.moveaxis(runs, 1, 0).reshape(len(class_sizes_m), -1)
+    return pool_draws(runs)
 
 
 @dataclasses.dataclass

@@ -40,7 +40,8 @@ import scoringrules as sr
 
 from calib.observations import Observations
 
-__all__ = ["MIN_ROWS_PER_SIZE", "PredictiveCheck", "groups_of", "score_rows"]
+__all__ = ["MIN_ROWS_PER_SIZE", "PredictiveCheck", "groups_of", "in_band", "observed_ensemble",
+           "pool_draws", "score_rows"]
 
 MIN_ROWS_PER_SIZE = 3  # fewest calibration rows of one size for a per-size baseline
 
@@ -62,6 +63,33 @@ def groups_of(obs: Observations, default_release_x_m: float) -> tuple[np.ndarray
     pairs = np.stack([np.asarray(obs.block_size_m, float), np.asarray(rel, float)], axis=1)
     uniq, index = np.unique(pairs, axis=0, return_inverse=True)
     return uniq[:, 0], uniq[:, 1], index.reshape(-1)
+
+
+def pool_draws(runouts: np.ndarray) -> np.ndarray:
+    """Runouts (T draws, S groups, n blocks) -> (S, T n): each group's predictive
+    sample pooled over the posterior draws."""
+    return np.moveaxis(runouts, 0, 1).reshape(runouts.shape[1], -1)
+
+
+def observed_ensemble(obs: Observations, i: int, runouts: np.ndarray,
+                      rng: np.random.Generator) -> np.ndarray:
+    """Predictive ensemble of row i's OBSERVED value from its group's simulated
+    runouts (NaN: unfinished, left out): R + e, e ~ N(0, sd^2), for a point row
+    (the observation model of ``calib.likelihood``); R itself for an interval row."""
+    r = np.asarray(runouts, float)
+    r = r[np.isfinite(r)]
+    if obs.is_interval[i] or r.size == 0:
+        return r
+    return r + float(obs.runout_sd_m[i]) * rng.standard_normal(r.size)
+
+
+def in_band(obs: Observations, i: int, ensemble: np.ndarray, p: float) -> bool:
+    """Whether the central p interval of ``ensemble`` (``observed_ensemble``)
+    covers row i: contains its value (point row) or overlaps its interval."""
+    lo, hi = np.quantile(ensemble, [0.5 - p / 2, 0.5 + p / 2])
+    if obs.is_interval[i]:
+        return bool(obs.runout_min_m[i] <= hi and obs.runout_max_m[i] >= lo)
+    return bool(lo <= obs.runout_m[i] <= hi)
 
 
 def _baseline(calib_obs: Observations) -> tuple[np.ndarray, np.ndarray]:
@@ -106,35 +134,31 @@ def score_rows(obs: Observations, predictive: np.ndarray, group_index: np.ndarra
                          "baseline can be formed")
     out = []
     for i in range(obs.n_obs):
-        r = np.asarray(predictive[group_index[i]], float)
-        r = r[np.isfinite(r)]
+        ens = observed_ensemble(obs, i, predictive[group_index[i]], rng)
         d = float(obs.block_size_m[i])
         same = np.abs(clim_sizes - d) <= 0.01 * d
         per_size = clim_all[same] if same.sum() >= MIN_ROWS_PER_SIZE else clim_all
-        row = {"row": i + 1, "block_size_m": d, "n_predictive": int(r.size),
+        row = {"row": i + 1, "block_size_m": d, "n_predictive": int(ens.size),
                "baseline_size": "size" if same.sum() >= MIN_ROWS_PER_SIZE else "overall"}
         if obs.is_interval[i]:
             a, b = float(obs.runout_min_m[i]), float(obs.runout_max_m[i])
             row.update(observed_min_m=a, observed_max_m=b)
-            for p in (0.5, 0.9):
-                if r.size:
-                    lo, hi = np.quantile(r, [0.5 - p / 2, 0.5 + p / 2])
-                    row[f"in_{round(100 * p)}"] = bool(a <= hi and b >= lo)
+            if ens.size:
+                row.update(in_50=in_band(obs, i, ens, 0.5), in_90=in_band(obs, i, ens, 0.9))
             out.append(row)
             continue
         y, s = float(obs.runout_m[i]), float(obs.runout_sd_m[i])
         row.update(observed_m=y, observed_sd_m=s)
-        if r.size == 0:  # no simulated block of this group finished
+        if ens.size == 0:  # no simulated block of this group finished
             out.append(row)
             continue
-        ens = r + s * rng.standard_normal(r.size)
         q = np.quantile(ens, [0.05, 0.25, 0.5, 0.75, 0.95])
         row.update(
             pred_q05_m=q[0], pred_q25_m=q[1], pred_median_m=q[2], pred_q75_m=q[3],
             pred_q95_m=q[4], pred_mean_m=float(ens.mean()),
             error_of_mean_m=float(ens.mean() - y),
             pit=float(np.mean(ens <= y)),
-            in_50=bool(q[1] <= y <= q[3]), in_90=bool(q[0] <= y <= q[4]),
+            in_50=in_band(obs, i, ens, 0.5), in_90=in_band(obs, i, ens, 0.9),
             crps_m=float(sr.crps_ensemble(y, ens, estimator="qd")),
             crps_climatology_m=float(sr.crps_ensemble(y, clim_all, estimator="qd")),
             crps_climatology_size_m=float(sr.crps_ensemble(y, per_size, estimator="qd")))

@@ -53,7 +53,7 @@ import dataclasses
 
 import numpy as np
 
-__all__ = ["Box", "CRSP_BOX", "CRSP_ROLLING_BOX", "DEM_BOXES"]
+__all__ = ["Box", "CRSP_BOX", "CRSP_ROLLING_BOX", "DEM_BOXES", "crsp_box"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -96,3 +96,11 @@ DEM_BOXES = {
     "power": Box(("a", "b"), (0.05, 0.0), (0.95, 1.5)),
     "constant": Box(("alpha",), (0.02,), (0.95,)),
 }
+
+
+def crsp_box(names) -> Box:
+    """The CRSP prior box whose parameters are ``names`` (a calibration's)."""
+    for box in (CRSP_BOX, CRSP_ROLLING_BOX):
+        if tuple(names) == box.names:
+            return box
+    raise ValueError(f"no CRSP prior box has the parameters {', '.join(names)}")

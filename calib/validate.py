@@ -88,7 +88,7 @@ def _predictive(cal, heldout, profile, n_posterior, n_blocks, seed):
 
     from calib.calibration_file import CalibrationError, draw_parameters
     from calib.forward import CrspForward, DemForward
-    from calib.predictive_check import groups_of
+    from calib.predictive_check import groups_of, pool_draws
 
     x0 = float(profile.x_m[0]) if cal.release_x_m is None else float(cal.release_x_m)
     sizes, releases, index = groups_of(heldout, x0)
@@ -103,19 +103,16 @@ def _predictive(cal, heldout, profile, n_posterior, n_blocks, seed):
         raise CliError(str(e)) from None
     key = jax.random.fold_in(jax.random.key(seed), 7)
     if cal.model == "crsp":
-        from calib.priors import CRSP_BOX, CRSP_ROLLING_BOX
+        from calib.priors import crsp_box
 
-        box = CRSP_ROLLING_BOX if "rolling_friction_deg" in draws.names else CRSP_BOX
-        fw = CrspForward(profile, sizes, n_blocks or 100, key, box=box,
+        fw = CrspForward(profile, sizes, n_blocks or 100, key, box=crsp_box(draws.names),
                          release_x_m=tuple(releases))
     else:
         if np.any(releases != x0):
             raise CliError("the DEM forward model releases every block at the profile's start; "
                            "held-out rows with other release_x_m need --model crsp")
         fw = DemForward(profile, sizes, n_blocks or 4, key, form=cal.alpha_form)
-    runs = fw.runouts(draws.values)  # (D, G, n)
-    pooled = np.moveaxis(runs, 0, 1).reshape(runs.shape[1], -1)
-    return pooled, index, draws, fw.n_blocks
+    return pool_draws(fw.runouts(draws.values)), index, draws, fw.n_blocks
 
 
 def _figures(check):
