@@ -73,14 +73,17 @@ def bound_mass(samples: np.ndarray, box: Box) -> dict:
     return out
 
 
-def predictive_coverage(obs: Observations, runouts: np.ndarray, key_seed: int = 0) -> dict:
+def predictive_coverage(obs: Observations, runouts: np.ndarray, key_seed: int = 0,
+                        index=None) -> dict:
     """Posterior predictive coverage of the rows at the 50 and 90 % levels.
 
     Args:
         obs: the calibration rows.
-        runouts: (S, n) simulated runouts per distinct size (``obs.sizes_m``),
-            pooled over the posterior draws, m; NaN for unfinished blocks.
+        runouts: (S, n) simulated runouts per entry (a distinct size,
+            ``obs.sizes_m``, or a (size, release) group), pooled over the
+            posterior draws, m; NaN for unfinished blocks.
         key_seed: seed of the measurement-error draws (NumPy generator).
+        index: (n_obs,) entry of each row (default ``obs.size_index``).
 
     Returns:
         {"levels": {"0.5": {...}, "0.9": {...}}, "rows": [...]}: per level the
@@ -90,9 +93,10 @@ def predictive_coverage(obs: Observations, runouts: np.ndarray, key_seed: int = 
         out of the counts).
     """
     rng = np.random.default_rng(key_seed)
+    index = obs.size_index if index is None else np.asarray(index)
     rows, covered = [], {p: [] for p in LEVELS}
     for i in range(obs.n_obs):
-        ens = observed_ensemble(obs, i, runouts[obs.size_index[i]], rng)
+        ens = observed_ensemble(obs, i, runouts[index[i]], rng)
         row = {"row": i + 1, "block_size_m": float(obs.block_size_m[i])}
         for p in LEVELS:
             inside = in_band(obs, i, ens, p) if ens.size else None
@@ -111,19 +115,20 @@ def predictive_coverage(obs: Observations, runouts: np.ndarray, key_seed: int = 
 
 
 def adequacy_record(samples: np.ndarray | None, box: Box, obs: Observations,
-                    runouts: np.ndarray, source: str) -> dict:
+                    runouts: np.ndarray, source: str, index=None) -> dict:
     """Both checks and one message (None when nothing is flagged).
 
     Args:
         samples: (n_draws, d) posterior draws, or None (no bound check).
         box: the prior box.
         obs: the calibration rows.
-        runouts: (S, n) predictive runouts per distinct size, m.
+        runouts: (S, n) predictive runouts per entry, m.
         source: how ``runouts`` were made (e.g. "posterior predictive, 32 draws x
             64 blocks per size").
+        index: (n_obs,) entry of each row in ``runouts`` (default ``obs.size_index``).
     """
     bounds = None if samples is None else bound_mass(samples, box)
-    cov = predictive_coverage(obs, runouts)
+    cov = predictive_coverage(obs, runouts, index=index)
     problems = []
     for name, b in (bounds or {}).items():
         if b["flagged"]:

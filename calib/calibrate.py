@@ -49,7 +49,7 @@ from calib.bayes import Posterior, run_nuts
 from calib.emulator import fit_emulator, holdout_error
 from calib.gradient import GradientFit, fit_gradient
 from calib.likelihood import log_likelihood
-from calib.observations import Observations
+from calib.observations import Observations, ReleaseGroups
 from calib.predictive_check import pool_draws
 from calib.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
 
@@ -130,10 +130,11 @@ def _median_kernel_var_m2(obs: Observations) -> float:
     return float(np.median(np.where(obs.is_interval, 0.5**2, np.nan_to_num(obs.runout_sd_m)**2)))
 
 
-def _loglik_of_runouts(obs: Observations):
-    """runouts (T, S, n) -> pointwise log-likelihood (T, n_obs) (jitted)."""
+def _loglik_of_runouts(obs: Observations, index=None):
+    """runouts (T, S, n) -> pointwise log-likelihood (T, n_obs) (jitted); row i
+    reads simulated entry ``index[i]`` (default ``obs.size_index``)."""
     y, sd, lo, hi, is_int = _obs_arrays(obs)
-    idx = jnp.asarray(obs.size_index)
+    idx = jnp.asarray(obs.size_index if index is None else index)
 
     @jax.jit
     def f(runouts):
@@ -142,10 +143,11 @@ def _loglik_of_runouts(obs: Observations):
     return f
 
 
-def _emulated_loglik(obs: Observations, emu, forward, inflation: float):
-    """theta (d,) -> pointwise log-likelihood (n_obs,) from the emulator."""
+def _emulated_loglik(obs: Observations, emu, forward, inflation: float, index=None):
+    """theta (d,) -> pointwise log-likelihood (n_obs,) from the emulator (row i:
+    entry ``index[i]`` of the forward model, default ``obs.size_index``)."""
     y, sd, lo, hi, is_int = _obs_arrays(obs)
-    idx = jnp.asarray(obs.size_index)
+    idx = jnp.asarray(obs.size_index if index is None else index)
 
     def f(theta):
         mean, var = emu.predict(forward.emulator_inputs(theta))
@@ -154,12 +156,14 @@ def _emulated_loglik(obs: Observations, emu, forward, inflation: float):
     return f
 
 
-def fit_quality(obs: Observations, runouts: np.ndarray) -> list[dict]:
+def fit_quality(obs: Observations, runouts: np.ndarray, index=None) -> list[dict]:
     """Per-observation fit: simulated 5/50/95 % runouts, PIT and log-likelihood.
 
     Args:
-        runouts: (S, n) runouts per distinct size (``obs.sizes_m``), m; NaN for
-            an unfinished block (left out).
+        runouts: (S, n) runouts per simulated entry, m; NaN for an unfinished
+            block (left out).
+        index: (n_obs,) entry of each row (default ``obs.size_index``: one entry
+            per distinct size, ``obs.sizes_m``).
 
     PIT = P(R + e <= y), e ~ N(0, sd^2), for a point (the predictive CDF of the
     OBSERVED value, tolerance included) (about uniform on [0, 1] if the model is right;
@@ -167,10 +171,11 @@ def fit_quality(obs: Observations, runouts: np.ndarray) -> list[dict]:
     90 % band) and P(a <= R <= b) for an interval; all over the finished blocks
     (``sim_n_finished`` of them). With none, the simulated values are None.
     """
-    ll = np.asarray(_loglik_of_runouts(obs)(jnp.asarray(runouts)[None]))[0]
+    index = obs.size_index if index is None else np.asarray(index)
+    ll = np.asarray(_loglik_of_runouts(obs, index)(jnp.asarray(runouts)[None]))[0]
     out = []
     for i in range(obs.n_obs):
-        r = runouts[obs.size_index[i]]
+        r = runouts[index[i]]
         r = r[np.isfinite(r)]
         some = r.size > 0
         q05, q50, q95 = (map(float, np.quantile(r, [0.05, 0.5, 0.95])) if some
@@ -211,11 +216,13 @@ def _pilot_draws(pointwise_loglik, box, n: int, key: jax.Array) -> np.ndarray:
 
 def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ...],
               budget: Budget, progress: Callable[[str, int, int], None] | None = None,
-              extra_sizes_m=()) -> ModelFit:
+              extra_sizes_m=(), groups: ReleaseGroups | None = None) -> ModelFit:
     """Run the stages of the module docstring for one forward model.
 
     Args:
-        forward: ``CrspForward`` or ``DemForward`` built on ``obs.sizes_m``.
+        forward: ``CrspForward`` or ``DemForward`` built on ``obs.sizes_m``, or
+            (``groups`` given) a ``CrspForward`` built on the groups' sizes and
+            releases.
         obs: observations.
         key: PRNG key of the fit (common random numbers, directions, NUTS, check).
         methods: subset of ("gradient", "bayes").
@@ -223,11 +230,18 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
         progress: optional callable(stage, done, total).
         extra_sizes_m: more block sizes to simulate in the check (for figures);
             ``ModelFit.check_sizes_m`` lists every size checked.
+        groups: the rows' (size, release) groups (``calib.observations.
+            release_groups``): each row is scored against its group's blocks.
+            The figure's sizes (``check_sizes_m``) are then released at the
+            median of the rows' releases.
     """
+    index = obs.size_index if groups is None else groups.index
+    if groups is not None and len(forward.sizes_m) != len(groups.sizes_m):
+        raise ValueError("forward must be built on the groups' sizes and releases")
     k_design, k_grad, k_nuts, k_pilot, k_check = jax.random.split(key, 5)
     tick = progress or (lambda *a: None)
     timings, posterior, gfit, emu_check = {}, None, None, None
-    loglik_runs = _loglik_of_runouts(obs)
+    loglik_runs = _loglik_of_runouts(obs, index)
     box = forward.box
     sizes = np.unique(np.concatenate([obs.sizes_m, np.asarray(extra_sizes_m, float)]))
     tallies = {}
@@ -248,7 +262,7 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
         if budget.n_design2 > 0:
             t0 = time.perf_counter()
             emu = fit_emulator(x, r, ibox.lo, ibox.hi, budget.n_levels)
-            x2 = _pilot_draws(_emulated_loglik(obs, emu, forward, 1.0), box,
+            x2 = _pilot_draws(_emulated_loglik(obs, emu, forward, 1.0, index), box,
                               budget.n_design2, k_pilot)
             tick("design2", 0, 1)
             r2 = forward.runouts(x2)
@@ -266,7 +280,7 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
         timings["emulator_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         tick("nuts", 0, 1)
-        posterior = run_nuts(_emulated_loglik(obs, emu, forward, inflation), box, k_nuts,
+        posterior = run_nuts(_emulated_loglik(obs, emu, forward, inflation, index), box, k_nuts,
                              budget.nuts_warmup, budget.nuts_samples, budget.nuts_chains)
         tick("nuts", 1, 1)
         timings["nuts_s"] = time.perf_counter() - t0
@@ -296,15 +310,25 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     else:
         estimate, source = posterior.map, "posterior_mode"
     t0 = time.perf_counter()
-    check_forward = dataclasses.replace(forward, sizes_m=sizes, n_blocks=budget.n_check,
-                                        key=k_check)
-    check = check_forward.runouts(estimate[None])[0]
-    tally("check", check[None], estimate[None], sizes)
-    quality = fit_quality(obs, check[np.searchsorted(sizes, obs.sizes_m)])
+    if groups is None:
+        check_forward = dataclasses.replace(forward, sizes_m=sizes, n_blocks=budget.n_check,
+                                            key=k_check)
+        check = check_forward.runouts(estimate[None])[0]
+        tally("check", check[None], estimate[None], sizes)
+        at_rows = check[np.searchsorted(sizes, obs.sizes_m)]
+    else:
+        row_forward = dataclasses.replace(forward, n_blocks=budget.n_check, key=k_check)
+        at_rows = row_forward.runouts(estimate[None])[0]
+        tally("check", at_rows[None], estimate[None])
+        median_release = float(np.median(groups.release_x_m[groups.index]))
+        check_forward = dataclasses.replace(forward, sizes_m=sizes, n_blocks=budget.n_check,
+                                            key=k_check, release_x_m=median_release)
+        check = check_forward.runouts(estimate[None])[0]
+    quality = fit_quality(obs, at_rows, index)
     timings["check_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    adequacy = _adequacy(forward, obs, posterior, check[np.searchsorted(sizes, obs.sizes_m)],
-                         budget, jax.random.fold_in(k_check, 1), tally)
+    adequacy = _adequacy(forward, obs, posterior, at_rows, budget,
+                         jax.random.fold_in(k_check, 1), tally, index)
     timings["adequacy_s"] = time.perf_counter() - t0
     record = unfinished_record(tallies, f"{type(forward).__name__} calibration")
     warn_unfinished(record)
@@ -313,7 +337,7 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
 
 
 def _adequacy(forward, obs: Observations, posterior: Posterior | None, check: np.ndarray,
-              budget: Budget, key: jax.Array, tally) -> dict:
+              budget: Budget, key: jax.Array, tally, index) -> dict:
     """``calib.adequacy`` of one fit: posterior predictive runouts at
     ``n_predictive_draws`` draws spread evenly over the chains' output, with
     ``n_blocks_predictive`` fresh blocks per draw and size; without a posterior,
@@ -321,7 +345,7 @@ def _adequacy(forward, obs: Observations, posterior: Posterior | None, check: np
     if posterior is None:
         return adequacy_record(None, forward.box, obs, check,
                                f"plug-in at the point estimate, {check.shape[-1]} blocks "
-                               "per size (no posterior)")
+                               "per size (no posterior)", index)
     n = posterior.samples.shape[0]
     pick = np.linspace(0, n - 1, min(budget.n_predictive_draws, n)).round().astype(int)
     draws = posterior.samples[pick]
@@ -330,4 +354,4 @@ def _adequacy(forward, obs: Observations, posterior: Posterior | None, check: np
     tally("predictive", runs, draws)
     return adequacy_record(posterior.samples, forward.box, obs, pool_draws(runs),
                            f"posterior predictive, {len(pick)} draws x "
-                           f"{budget.n_blocks_predictive} blocks per size")
+                           f"{budget.n_blocks_predictive} blocks per size", index)

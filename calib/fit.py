@@ -76,6 +76,11 @@ def _parser() -> argparse.ArgumentParser:
                         "rest, then check the calibration's predictions of the held-out rows "
                         "(python -m calib.validate; written to OUT/validation/). Default 0: "
                         "fit every row")
+    p.add_argument("--release-tolerance-m", type=float, default=1.0,
+                   help="CRSP: rows of one block size whose release_x_m lie within this "
+                        "distance share one simulated release (their mean); 0 simulates "
+                        "every distinct release (slower). Rows without release_x_m start at "
+                        "the profile's first vertex (default 1.0 m)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     return p
 
@@ -90,10 +95,12 @@ def _default_profile(data: str) -> str:
 
 
 def common_release_m(obs, profile) -> float:
-    """The release abscissa of the simulated blocks: the median of the rows'
+    """One release abscissa for the whole data set: the median of the rows'
     ``release_x_m`` where the data give it, else the profile's first vertex.
-    (Our interim choice: one release for every row; the rows' own releases are
-    used by ``calib.validate``, not yet by the fit.)"""
+    The CRSP fit releases each row from its own point (``release_groups``); this
+    one release is where the DEM fit and ``calib.discover`` release every block,
+    where the runout-vs-size figure is simulated, and the default release of
+    ``calib.hazard`` (recorded as ``release_x_m`` in calibration.json)."""
     rel = getattr(obs, "release_x_m", None)
     if rel is None or not np.any(np.isfinite(rel)):
         return float(profile.x_m[0])
@@ -101,19 +108,21 @@ def common_release_m(obs, profile) -> float:
 
 
 def _check_reach(obs, profile, profile_path: str) -> None:
-    """Every observed runout must lie on the profile (release .. x_end)."""
-    x0, x1 = common_release_m(obs, profile), float(profile.x_m[-1])
-    if not float(profile.x_m[0]) <= x0 < x1:
-        raise CliError(f"{obs.path}: column 'release_x_m': the median release {x0:g} m lies "
-                       f"outside the profile {profile_path}")
-    length = x1 - x0
+    """Every row's release lies on the profile and its observed runout between
+    that release and the profile's end."""
+    start, x1 = float(profile.x_m[0]), float(profile.x_m[-1])
+    rel = np.asarray(getattr(obs, "release_x_m", np.full(obs.n_obs, np.nan)), float)
     for i in range(obs.n_obs):
+        x0 = rel[i] if np.isfinite(rel[i]) else start
+        if not start <= x0 < x1:
+            raise CliError(f"{obs.path}: line {i + 2}, column 'release_x_m': release {x0:g} m "
+                           f"lies outside the profile {profile_path} ({start:g} to {x1:g} m)")
         col, val = (("runout_min_m", obs.runout_min_m[i]) if obs.is_interval[i]
                     else ("runout_m", obs.runout_m[i]))
-        if val > length:
+        if val > x1 - x0:
             raise CliError(f"{obs.path}: line {i + 2}, column {col!r}: runout {val:g} m lies "
                            f"beyond the end of the profile {profile_path} (it covers "
-                           f"{length:g} m from the release at x = {x0:g} m); the blocks can "
+                           f"{x1 - x0:g} m from the release at x = {x0:g} m); the blocks can "
                            f"never reach it")
 
 
@@ -230,18 +239,38 @@ def _run(args) -> int:
     if args.holdout_fraction:
         obs, data_csv = _split(args, obs, files)
     release = common_release_m(obs, profile)
+    groups = None
+    if not args.release_tolerance_m >= 0:
+        raise CliError(f"--release-tolerance-m must be >= 0, got {args.release_tolerance_m:g}")
+    models = ["crsp", "dem"] if args.model == "both" else [args.model]
     rel = getattr(obs, "release_x_m", None)
     if rel is not None and np.any(np.isfinite(rel)):
-        print(f"releasing every simulated block at x = {release:.1f} m, the median of the "
-              f"rows' release_x_m ({np.nanmin(rel):.1f} to {np.nanmax(rel):.1f} m)")
+        from calib.observations import release_groups
 
-    models = ["crsp", "dem"] if args.model == "both" else [args.model]
+        groups = release_groups(obs, float(profile.x_m[0]), args.release_tolerance_m)
+        if "crsp" in models:
+            err = np.abs(groups.release_x_m[groups.index] - np.where(
+                np.isfinite(rel), rel, float(profile.x_m[0])))
+            print(f"CRSP: each row released from its own point, rows of one size within "
+                  f"{args.release_tolerance_m:g} m grouped: {len(groups.sizes_m)} simulated "
+                  f"releases for {obs.n_obs} rows (largest release shift "
+                  f"{err.max():.2f} m)")
+        if "dem" in models:
+            print(f"DEM: every block released at x = {release:.1f} m, the median of the "
+                  f"rows' release_x_m ({np.nanmin(rel):.1f} to {np.nanmax(rel):.1f} m)")
+
     methods = ("gradient", "bayes") if args.method == "both" else (args.method,)
     key = jax.random.key(args.seed)
     result = {"schema": SCHEMA,
               "command": " ".join([PROG] + sys.argv[1:]),
               "data_csv": data_csv, "profile_csv": profile_path, "seed": args.seed,
               "release_x_m": release,
+              "release_groups": None if groups is None else {
+                  "tolerance_m": args.release_tolerance_m, "models": ["crsp"],
+                  "groups": [{"block_size_m": float(d), "release_x_m": float(x),
+                              "n_rows": int(np.sum(groups.index == g))}
+                             for g, (d, x) in enumerate(zip(groups.sizes_m,
+                                                            groups.release_x_m))]},
               "quick": bool(args.quick), "methods": list(methods), "versions": versions(),
               "inputs": provenance(PROG, args.seed, {"data": args.data,
                                                      "profile": profile_path})["inputs"],
@@ -257,8 +286,14 @@ def _run(args) -> int:
         mkey = jax.random.fold_in(key, m_i)
         if model == "crsp":
             box = CRSP_ROLLING_BOX if args.rolling_resistance == "fit" else CRSP_BOX
-            forward = CrspForward(profile, obs.sizes_m, budget.n_blocks_design,
-                                  jax.random.fold_in(mkey, 1), box=box, release_x_m=release)
+            if groups is None:
+                forward = CrspForward(profile, obs.sizes_m, budget.n_blocks_design,
+                                      jax.random.fold_in(mkey, 1), box=box,
+                                      release_x_m=release)
+            else:
+                forward = CrspForward(profile, groups.sizes_m, budget.n_blocks_design,
+                                      jax.random.fold_in(mkey, 1), box=box,
+                                      release_x_m=tuple(groups.release_x_m))
         else:
             forward = DemForward(profile, obs.sizes_m, budget.n_blocks_design,
                                  jax.random.fold_in(mkey, 1), form=args.alpha_law,
@@ -270,7 +305,8 @@ def _run(args) -> int:
         with warnings.catch_warnings():  # reported below, in the summary and the json
             warnings.simplefilter("ignore", UnfinishedBlocksWarning)
             fit = calibrate(forward, obs, jax.random.fold_in(mkey, 2), methods, budget, bar,
-                            extra_sizes_m=extra)
+                            extra_sizes_m=extra,
+                            groups=groups if model == "crsp" else None)
         bar.close()
         t0 = time.perf_counter()
         sec = _model_section(model, fit, forward, args.alpha_law if model == "dem" else None)

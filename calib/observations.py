@@ -50,17 +50,71 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 
-__all__ = ["ObservationError", "Observations", "Velocities", "crsp_radius_m", "dem_side_m",
-           "load_observations", "load_velocities", "read_table"]
+__all__ = ["ObservationError", "Observations", "ReleaseGroups", "Velocities", "crsp_radius_m",
+           "dem_side_m", "load_observations", "load_velocities", "read_table", "release_groups"]
 
 REQUIRED = ("block_size_m",)
 OPTIONAL = ("runout_m", "runout_sd_m", "runout_min_m", "runout_max_m", "source",
             "release_x_m", "release_speed_m_s", "run_id", "shape")
 SHAPES = ("sphere", "cylinder", "disc")
+
+
+class ReleaseGroups(NamedTuple):
+    """Simulation groups of the rows: the solvers run once per group.
+
+    Attributes:
+        sizes_m: (G,) block size of each group, m.
+        release_x_m: (G,) release abscissa of each group, m.
+        index: (n_obs,) group of each row.
+    """
+
+    sizes_m: np.ndarray
+    release_x_m: np.ndarray
+    index: np.ndarray
+
+
+def release_groups(obs: Observations, default_release_x_m: float,
+                   tol_m: float = 0.0) -> ReleaseGroups:
+    """Group the rows by (block size, release abscissa).
+
+    Rows of one size whose releases lie within ``tol_m`` of the first (lowest)
+    release of their group share one group, released at the mean of their
+    releases (greedy, in ascending order); ``tol_m = 0`` groups only equal
+    releases. A row without ``release_x_m`` (NaN) is released at
+    ``default_release_x_m``. Our choice: the tolerance trades simulation cost
+    (one simulated sample per group) against the release error of a row, at
+    most ``tol_m``.
+
+    Args:
+        obs: the rows.
+        default_release_x_m: release of rows that give none, m.
+        tol_m: grouping tolerance, m (>= 0).
+    """
+    if not tol_m >= 0:
+        raise ValueError(f"release grouping tolerance must be >= 0 m, got {tol_m!r}")
+    rel = np.asarray(obs.release_x_m, float)
+    rel = np.where(np.isfinite(rel), rel, float(default_release_x_m))
+    size = np.asarray(obs.block_size_m, float)
+    sizes, releases, index = [], [], np.empty(obs.n_obs, int)
+    for d in np.unique(size):
+        rows = np.flatnonzero(size == d)
+        rows = rows[np.argsort(rel[rows], kind="stable")]
+        start = 0
+        while start < rows.size:
+            stop = start + 1
+            while stop < rows.size and rel[rows[stop]] - rel[rows[start]] <= tol_m:
+                stop += 1
+            members = rows[start:stop]
+            index[members] = len(sizes)
+            sizes.append(d)
+            releases.append(float(np.mean(rel[members])))
+            start = stop
+    return ReleaseGroups(np.asarray(sizes, float), np.asarray(releases, float), index)
 
 
 class ObservationError(ValueError):

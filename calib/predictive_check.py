@@ -40,29 +40,10 @@ import scoringrules as sr
 
 from calib.observations import Observations
 
-__all__ = ["MIN_ROWS_PER_SIZE", "PredictiveCheck", "groups_of", "in_band", "observed_ensemble",
+__all__ = ["MIN_ROWS_PER_SIZE", "PredictiveCheck", "in_band", "observed_ensemble",
            "pool_draws", "score_rows"]
 
 MIN_ROWS_PER_SIZE = 3  # fewest calibration rows of one size for a per-size baseline
-
-
-def groups_of(obs: Observations, default_release_x_m: float) -> tuple[np.ndarray, np.ndarray,
-                                                                        np.ndarray]:
-    """Distinct (block size, release abscissa) pairs of the rows.
-
-    Args:
-        obs: rows; ``obs.release_x_m`` where present (NaN or absent: the default).
-        default_release_x_m: release of rows that give none (the profile's start).
-
-    Returns:
-        (sizes_m (G,), release_x_m (G,), group_index (n_obs,)).
-    """
-    rel = getattr(obs, "release_x_m", None)
-    rel = (np.full(obs.n_obs, default_release_x_m) if rel is None
-           else np.where(np.isfinite(rel), rel, default_release_x_m))
-    pairs = np.stack([np.asarray(obs.block_size_m, float), np.asarray(rel, float)], axis=1)
-    uniq, index = np.unique(pairs, axis=0, return_inverse=True)
-    return uniq[:, 0], uniq[:, 1], index.reshape(-1)
 
 
 def pool_draws(runouts: np.ndarray) -> np.ndarray:

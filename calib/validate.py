@@ -88,10 +88,11 @@ def _predictive(cal, heldout, profile, n_posterior, n_blocks, seed):
 
     from calib.calibration_file import CalibrationError, draw_parameters
     from calib.forward import CrspForward, DemForward
-    from calib.predictive_check import groups_of, pool_draws
+    from calib.observations import release_groups
+    from calib.predictive_check import pool_draws
 
     x0 = float(profile.x_m[0]) if cal.release_x_m is None else float(cal.release_x_m)
-    sizes, releases, index = groups_of(heldout, x0)
+    sizes, releases, index = release_groups(heldout, x0)
     lo, hi = float(profile.x_m[0]), float(profile.x_m[-1])
     bad = np.flatnonzero((releases < lo) | (releases >= hi))
     if bad.size:

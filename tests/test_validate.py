@@ -14,7 +14,8 @@ from test_hazard_fixtures import write_calibration
 
 from calib.forward import CrspForward
 from calib.observations import Observations
-from calib.predictive_check import groups_of, score_rows
+from calib.observations import release_groups
+from calib.predictive_check import score_rows
 from calib.validate import main
 from solvers.profile import load_profile
 
@@ -67,9 +68,25 @@ def test_per_size_baseline_falls_back_to_all_rows():
 def test_groups_of_rows_with_and_without_release():
     obs = types.SimpleNamespace(block_size_m=np.array([1.0, 1.0, 0.5, 1.0]), n_obs=4,
                                 release_x_m=np.array([5.0, np.nan, 5.0, 5.0]))
-    sizes, rel, index = groups_of(obs, 0.0)
+    sizes, rel, index = release_groups(obs, 0.0)
     assert sizes.tolist() == [0.5, 1.0, 1.0] and rel.tolist() == [5.0, 0.0, 5.0]
     assert index.tolist() == [2, 1, 0, 2]
+
+
+def test_release_groups_within_a_tolerance():
+    """Rows of one size within tol of their group's lowest release share it,
+    released at the mean; other sizes never join; every row's release error
+    is at most tol."""
+    rel = np.array([10.0, 10.4, 10.9, 11.2, 10.2, 30.0])
+    obs = types.SimpleNamespace(block_size_m=np.array([1.0, 1.0, 1.0, 1.0, 0.5, 1.0]),
+                                n_obs=6, release_x_m=rel)
+    g = release_groups(obs, 0.0, tol_m=1.0)
+    assert g.sizes_m.tolist() == [0.5, 1.0, 1.0, 1.0]
+    np.testing.assert_allclose(g.release_x_m, [10.2, (10.0 + 10.4 + 10.9) / 3, 11.2, 30.0])
+    assert g.index.tolist() == [1, 1, 1, 2, 0, 3]
+    assert np.all(np.abs(g.release_x_m[g.index] - rel) <= 1.0)
+    with pytest.raises(ValueError, match="tolerance"):
+        release_groups(obs, 0.0, tol_m=-1.0)
 
 
 def test_forward_runs_each_group_from_its_release():
@@ -191,3 +208,28 @@ def test_interval_only_heldout_rows_are_reported_not_a_traceback(cal_path, tmp_p
                  "--out", str(out)]) == 0
     s = json.loads((out / "validation.json").read_text())
     assert s["n_scored"] == 0 and s["n_interval_rows"] == 1
+
+
+def test_calibrate_scores_each_row_against_its_own_release():
+    """Two rows of one size, released at the top (x = 0) and on the gentle lower
+    slope (x = 150 m): with release groups the check simulates each row from its
+    own point (long vs short runout), and each row's fit quality reads its own
+    group; the figure's sizes are simulated at the median release."""
+    from calib.calibrate import Budget, calibrate
+    from calib.priors import CRSP_BOX
+
+    obs = Observations(np.array([1.0, 1.0]), np.array([100.0, 5.0]), np.array([2.0, 2.0]),
+                       np.full(2, np.nan), np.full(2, np.nan), np.zeros(2, bool),
+                       ("top", "low"), release_x_m=np.array([0.0, 150.0]))
+    groups = release_groups(obs, 0.0)
+    assert groups.release_x_m.tolist() == [0.0, 150.0]
+    fw = CrspForward(PROFILE, groups.sizes_m, 16, jax.random.key(3), box=CRSP_BOX,
+                     release_x_m=tuple(groups.release_x_m))
+    budget = Budget(grad_starts=1, grad_steps=1, grad_k=1, n_blocks_grad=16, n_check=64)
+    fit = calibrate(fw, obs, jax.random.key(4), ("gradient",), budget, groups=groups)
+    top, low = fit.quality
+    assert low["sim_median_m"] < 20.0 < top["sim_median_m"]
+    assert fit.check_sizes_m.tolist() == [1.0]
+    with pytest.raises(ValueError, match="groups"):
+        calibrate(CrspForward(PROFILE, np.array([1.0]), 16, jax.random.key(3)), obs,
+                  jax.random.key(4), ("gradient",), budget, groups=groups)
