@@ -4,7 +4,8 @@
   against block size, with each model's simulated median and 5-95 % band at
   the point estimate (over the finished blocks).
 * ``alpha_law``: the fitted damping law alpha(L) with its 90 % posterior band,
-  against the paper's Table 1.
+  with the site's published values where its site file gives them
+  (``calib.site``; Postignano: the paper's Table 1).
 * ``pairs``: posterior pair plot (scatter below the diagonal, histograms on it).
 """
 
@@ -19,10 +20,7 @@ import numpy as np  # noqa: E402
 from calib.observations import Observations  # noqa: E402
 from calib.unfinished import nan_quantile  # noqa: E402
 
-__all__ = ["TABLE1", "alpha_law", "pairs", "runout_vs_size"]
-
-#: Paper, Table 1: square side L (m) -> local damping alpha.
-TABLE1 = {0.2: 0.90, 0.9: 0.43, 1.8: 0.30}
+__all__ = ["alpha_law", "pairs", "runout_vs_size"]
 
 _COLORS = {"crsp": "tab:blue", "dem": "tab:red"}
 
@@ -52,15 +50,17 @@ def runout_vs_size(obs: Observations, predictive: dict) -> plt.Figure:
 
 
 def alpha_law(sizes_m: np.ndarray, alpha_map: np.ndarray, alpha_samples: np.ndarray | None,
-              form: str) -> plt.Figure:
-    """alpha_samples: (n_draws, len(sizes_m)) or None."""
+              form: str, reference=(), reference_label: str = "reference") -> plt.Figure:
+    """alpha_samples: (n_draws, len(sizes_m)) or None; reference: ((L, alpha), ...)
+    published values of the site (``calib.site``), drawn only where given."""
     fig, ax = plt.subplots(figsize=(5.5, 4.0))
     if alpha_samples is not None:
         lo, hi = np.quantile(alpha_samples, [0.05, 0.95], axis=0)
         ax.fill_between(sizes_m, lo, hi, color="tab:red", alpha=0.2, label="90 % posterior")
     ax.plot(sizes_m, alpha_map, "-", color="tab:red", label=f"fitted ({form} law)")
-    ax.plot(list(TABLE1), list(TABLE1.values()), "ks", label="paper, Table 1")
-    ax.plot(sizes_m, 0.40 * sizes_m**-0.5, "k:", lw=1, label="0.40 L^-0.5")
+    if len(reference):
+        ref = np.asarray(reference, float)
+        ax.plot(ref[:, 0], ref[:, 1], "ks", label=reference_label)
     ax.set_xlabel("square side L, m")
     ax.set_ylabel("local damping alpha")
     ax.set_ylim(0, 1)

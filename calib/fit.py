@@ -230,10 +230,15 @@ def _run(args) -> int:
     from calib.calibrate import calibrate, presets
     from calib.forward import CrspForward, DemForward, alpha_of
     from calib.priors import CRSP_BOX, CRSP_ROLLING_BOX
+    from calib.site import SiteError, load_site
     from calib.unfinished import UnfinishedBlocksWarning
 
     t_start = time.perf_counter()
     obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
+    try:
+        site = load_site(profile_path)
+    except SiteError as e:
+        raise CliError(str(e)) from None
     files, figs, predictive = {}, {}, {}
     data_csv = args.data
     if args.holdout_fraction:
@@ -320,19 +325,25 @@ def _run(args) -> int:
                 f"({post.samples.shape[0]} draws{'' if post.ok else ', DIAGNOSTICS FAILED'})")
         predictive[model] = (fit.check_sizes_m, fit.check_runouts)
         if model == "dem":
-            ls = np.asarray(ALPHA_AT_L)
+            ref = dict(site.alpha_reference)
+            ls = np.asarray(sorted(ref) if ref else ALPHA_AT_L)
             at = np.asarray(alpha_of(args.alpha_law, fit.estimate, ls))
             samp = None if post is None else np.asarray(alpha_of(args.alpha_law, post.samples,
                                                                  ls))
-            table1 = dict(zip(ALPHA_AT_L, (0.90, 0.43, 0.30)))
             sec["alpha_at_L"] = {
                 f"{L:g}": {**_stats(None if samp is None else samp[:, i], at[i]),
-                           "table1": table1[L]} for i, L in enumerate(ls)}
-            lgrid = np.linspace(0.15, 2.2, 60)
+                           **({"reference": ref[L]} if ref else {})}
+                for i, L in enumerate(ls)}
+            if ref:
+                sec["alpha_reference"] = {"label": site.alpha_reference_label,
+                                          "site_file": site.path}
+            lo_l, hi_l = min(ls.min(), obs.sizes_m.min()), max(ls.max(), obs.sizes_m.max())
+            lgrid = np.geomspace(0.75 * lo_l, 1.25 * hi_l, 60)
             figs["alpha_law.png"] = figures.alpha_law(
                 lgrid, np.asarray(alpha_of(args.alpha_law, fit.estimate, lgrid)),
                 None if post is None else np.asarray(alpha_of(args.alpha_law, post.samples,
-                                                              lgrid)), args.alpha_law)
+                                                              lgrid)), args.alpha_law,
+                reference=site.alpha_reference, reference_label=site.alpha_reference_label)
         fit.timings_s["report_s"] = time.perf_counter() - t0
         result[model] = sec
         result["fit_quality"][model] = fit.quality
@@ -403,8 +414,10 @@ def _print_summary(result: dict, models, out: str) -> None:
         if model == "dem":
             for L, s in sec["alpha_at_L"].items():
                 iv = "-" if s["q05"] is None else f"[{s['q05']:.3f}, {s['q95']:.3f}]"
+                ref = (f"   {sec['alpha_reference']['label']}: {s['reference']:.2f}"
+                       if "reference" in s else "")
                 print(f"{model:5} {'alpha(' + L + ')':12} {s['map']:9.3f} {_fmt(s['mean']):>8} "
-                      f"{iv:>19}   Table 1: {s['table1']:.2f}")
+                      f"{iv:>19}{ref}")
     print(f"\n{'model':5} {'size m':>6} {'observed m':>14} {'sim median':>10} "
           f"{'sim 5-95 %':>15} {'PIT':>5}")
     for model in models:

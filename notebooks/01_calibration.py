@@ -59,6 +59,8 @@ if not os.path.isdir(os.path.join(ROOT, "calib")):  # run from notebooks/
 os.chdir(ROOT)
 sys.path.insert(0, ROOT)
 
+from calib.site import load_site  # noqa: E402
+
 # NOTEBOOK_RESULTS: reuse a finished `calib.fit` output folder (the test suite does);
 # NOTEBOOK_QUICK=1: small budgets. By hand, leave both unset for the full run (~5 min).
 RESULTS = os.environ.get("NOTEBOOK_RESULTS", "")
@@ -75,7 +77,9 @@ fig, ax = plt.subplots(figsize=(8, 3))
 ax.plot(profile["x_m"], profile["z_m"], "k-")
 for y in obs["runout_m"]:
     ax.axvline(y, color="tab:red", ls="--", lw=1)
-ax.axvline(230, color="tab:gray", lw=3, alpha=0.5, label="road (assumed x = 230 m)")
+site = load_site("data/postignano_profile.csv")  # data/postignano_site.json
+ax.axvline(site.station_x_m, color="tab:gray", lw=3, alpha=0.5,
+           label=f"{site.station_label} (assumed x = {site.station_x_m:g} m)")
 ax.set_xlabel("x, m")
 ax.set_ylabel("z, m")
 ax.set_aspect("equal")
@@ -126,7 +130,7 @@ law = cal["dem"]["alpha_law"]
 print("law:", law["form"], {k: round(law[k]["map"], 3) for k in cal["dem"]["parameters"]})
 print(pd.DataFrame([{"L (m)": L, "alpha fitted": v["map"],
                      "90% interval": f"{v['q05']:.2f} - {v['q95']:.2f}",
-                     "Table 1": v["table1"]} for L, v in cal["dem"]["alpha_at_L"].items()])
+                     "Table 1": v.get("reference")} for L, v in cal["dem"]["alpha_at_L"].items()])
       .to_string(index=False))
 
 # %%

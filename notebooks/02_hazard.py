@@ -53,6 +53,7 @@ from calib.hazard import (  # noqa: E402
     summary_text,
 )
 from calib.hazard._figures import plot_envelopes, plot_exceedance  # noqa: E402
+from calib.site import load_site  # noqa: E402
 from solvers import load_profile  # noqa: E402
 
 SMALL = os.environ.get("HAZARD_NOTEBOOK_SMALL") == "1"
@@ -63,7 +64,7 @@ os.makedirs(OUT, exist_ok=True)
 SIZES_M = [0.2, 0.5, 1.0, 2.0]          # average block diameters, m (the observed range)
 N_POSTERIOR = 2 if SMALL else 40        # posterior draws
 N_BLOCKS = 100 if SMALL else 5000       # blocks per draw and size
-ROAD_X_M = 230.0                        # data/README.md (assumed position of the road)
+ROAD_X_M = load_site("data/postignano_profile.csv").station_x_m  # data/postignano_site.json
 STATIONS_M = np.union1d(np.arange(0.0, 301.0, 20.0 if SMALL else 5.0), [ROAD_X_M])
 SEED = 0
 # ILLUSTRATIVE, NOT DATA: blocks of each size released per year. Nothing in the

@@ -42,6 +42,9 @@ def test_quick_run_writes_every_output(quick_run):
     assert set(cal["dem"]["alpha_at_L"]) == {"0.2", "0.9", "1.8"}
     for v in cal["dem"]["alpha_at_L"].values():
         assert 0 <= v["q05"] <= v["q95"] <= 0.95
+    # Table 1 comes from the site file (calib/site.py), not from a default
+    assert {L: v["reference"] for L, v in cal["dem"]["alpha_at_L"].items()} == {
+        "0.2": 0.90, "0.9": 0.43, "1.8": 0.30}
     assert len(cal["fit_quality"]["crsp"]) == 2 and len(cal["fit_quality"]["dem"]) == 2
     assert cal["seed"] == 0 and cal["versions"]["jax"]
     assert "ok" in cal["crsp"]["bayes"] and "rhat" in cal["crsp"]["bayes"]["summary"]["Kn"]

@@ -13,8 +13,7 @@ import pytest
 from test_hazard_fixtures import write_calibration
 
 from calib.forward import CrspForward
-from calib.observations import Observations
-from calib.observations import release_groups
+from calib.observations import Observations, release_groups
 from calib.predictive_check import score_rows
 from calib.validate import main
 from solvers.profile import load_profile

@@ -26,7 +26,6 @@ from solvers._cli import (
 # model -> (blocks per draw and size, posterior draws); DEM defaults keep the
 # default DEM run under 10 minutes on 2 CPU cores (measured 4.3 min: see README.md)
 DEFAULTS = {"crsp": (20000, 100), "dem": (64, 16)}
-ROAD_X_M = 230.0  # data/README.md: the road is assumed at x = 230 m on Postignano
 
 
 def build_parser() -> OneLineParser:
@@ -55,8 +54,11 @@ def build_parser() -> OneLineParser:
     p.add_argument("--release-rate-per-year", type=float,
                    help="blocks of each size released per year (gives annual frequencies "
                         "and hazard levels)")
-    p.add_argument("--road-x-m", type=float, default=ROAD_X_M,
-                   help=f"abscissa of the road for the summary, m (default {ROAD_X_M:g})")
+    p.add_argument("--road-x-m", type=float, default=None,
+                   help="abscissa of the station of interest (a road) where the summary "
+                        "reports, m (default: the site file's station_of_interest next to "
+                        "the calibration's profile, calib/site.py; without one, the "
+                        "profile's last station)")
     p.add_argument("--out", default="results/hazard/", help="output folder")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--chunk-blocks", type=int, default=16384,
@@ -129,6 +131,7 @@ def main(argv: list[str] | None = None) -> int:
         summary_text,
     )
     from calib.hazard._figures import plot_envelopes, plot_exceedance
+    from calib.site import SiteError, load_site, site_path
     from solvers import crsp
     from solvers.profile import ProfileError, load_profile
 
@@ -137,17 +140,29 @@ def main(argv: list[str] | None = None) -> int:
         profile = load_profile(cal.profile_csv)
         lo, hi = profile.x_range_m
         stations = parse_stations(args.stations or f"{lo:g}:{hi:g}:5", profile.x_range_m)
-        if not (math.isfinite(args.road_x_m) and lo < args.road_x_m <= hi):
-            raise CliError(f"--road-x-m {args.road_x_m:g} lies outside the profile "
-                           f"({lo:g}, {hi:g}] m")
-        stations = sorted(set(stations) | {args.road_x_m})
+        road_x, label = args.road_x_m, "road"
+        if road_x is None:
+            site = load_site(cal.profile_csv)
+            road_x, label = site.station_x_m, site.station_label
+            where = site.path
+            if road_x is None:
+                road_x, label = max(stations), "last station"
+                print(f"no station of interest (no --road-x-m, and no site file "
+                      f"{site_path(cal.profile_csv)} giving one): the summary reports at "
+                      f"the last station, x = {road_x:g} m")
+        else:
+            where = "--road-x-m"
+        if not (math.isfinite(road_x) and lo < road_x <= hi):
+            raise CliError(f"{where}: the station of interest {road_x:g} m lies outside the "
+                           f"profile ({lo:g}, {hi:g}] m")
+        stations = sorted(set(stations) | {road_x})
         n_blocks = args.n_blocks or DEFAULTS[cal.model][0]
         n_post = args.n_posterior or DEFAULTS[cal.model][1]
         draws = draw_parameters(cal, n_post, args.seed)
         if cal.model == "dem":
             from calib.hazard._run import _check_dem_alphas
             _check_dem_alphas(cal, draws, sizes)
-    except (CalibrationError, ProfileError, CliError) as exc:
+    except (CalibrationError, ProfileError, CliError, SiteError) as exc:
         fail(prog, str(exc))
 
     total = len(draws.values) * len(sizes) * n_blocks
@@ -163,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
     bar.close()
     exc_df = exceedance_table(counts)
     table = hazard_table(counts, profile, rate)
-    text = summary_text(counts, table, args.road_x_m, rate)
+    text = summary_text(counts, table, road_x, rate, label)
     title = (f"{cal.model.upper()}: {len(draws.values)} draw(s) ({draws.source}) x "
              f"{n_blocks} blocks per size")
 
@@ -177,8 +192,8 @@ def main(argv: list[str] | None = None) -> int:
     writers = {
         "exceedance.csv": csv_writer(exc_df),
         "hazard_table.csv": csv_writer(table),
-        "exceedance.png": lambda p: plot_exceedance(exc_df, profile, args.road_x_m, p, title),
-        "envelopes.png": lambda p: plot_envelopes(table, profile, args.road_x_m, p, title),
+        "exceedance.png": lambda p: plot_exceedance(exc_df, profile, road_x, p, title, label),
+        "envelopes.png": lambda p: plot_envelopes(table, profile, road_x, p, title),
         "summary.txt": text_writer,
     }
     try:

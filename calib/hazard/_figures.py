@@ -28,7 +28,7 @@ def _pyplot():
     return plt
 
 
-def _profile_axis(ax, profile: Profile, road_x_m: float) -> None:
+def _profile_axis(ax, profile: Profile, road_x_m: float, label: str) -> None:
     x, z = np.asarray(profile.x_m), np.asarray(profile.z_m)
     names = profile.segment_zone_names()
     seen = set()
@@ -39,19 +39,20 @@ def _profile_axis(ax, profile: Profile, road_x_m: float) -> None:
         seen.add(name)
     ax.fill_between(x, z, z.min() - 5.0, color="0.9")
     ax.axvline(road_x_m, color="k", ls="--", lw=1)
-    ax.annotate("road", (road_x_m, float(np.interp(road_x_m, x, z))), xytext=(4, 12),
+    ax.annotate(label, (road_x_m, float(np.interp(road_x_m, x, z))), xytext=(4, 12),
                 textcoords="offset points", fontsize=8)
     ax.set_ylabel("z (m)")
     ax.legend(fontsize=7, title="zone", title_fontsize=7, loc="upper right")
 
 
 def plot_exceedance(exc: pd.DataFrame, profile: Profile, road_x_m: float, path: str,
-                    title: str = "") -> None:
-    """Exceedance curves with their posterior bands over the profile."""
+                    title: str = "", label: str = "road") -> None:
+    """Exceedance curves with their posterior bands over the profile; the station
+    of interest at ``road_x_m`` is marked and named ``label``."""
     plt = _pyplot()
     fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True,
                                    gridspec_kw={"height_ratios": [1, 1.4]})
-    _profile_axis(ax0, profile, road_x_m)
+    _profile_axis(ax0, profile, road_x_m, label)
     ax0.set_title(title, fontsize=9)
     floor = 1e-6
     for i, (size, g) in enumerate(exc.groupby("block_size_m", sort=True)):

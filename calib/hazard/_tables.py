@@ -162,14 +162,16 @@ def hazard_table(c: HazardCounts, profile: Profile,
 
 
 def summary_text(c: HazardCounts, table: pd.DataFrame, road_x_m: float,
-                 release_rate_per_year: float | None = None) -> str:
-    """Short text: probability of reaching the road and the design values there."""
+                 release_rate_per_year: float | None = None, label: str = "road") -> str:
+    """Short text: probability of reaching the station of interest at ``road_x_m``
+    (named ``label``: "road", or what the site file calls it) and the design
+    values there."""
     lines = [f"hazard ({c.model}): {len(c.draws.values)} draw(s) from the "
              f"{c.draws.source} x {len(c.sizes_m)} size(s) x {c.n_blocks} blocks; "
-             f"road at x = {road_x_m:g} m"]
+             f"{label} at x = {road_x_m:g} m"]
     at = table[np.isclose(table["x_m"], road_x_m)]
     for _, r in at.iterrows():
-        line = (f"  D = {r.block_size_m:g} m: P(reach road) = {r.reach_prob_mean:.3g} "
+        line = (f"  D = {r.block_size_m:g} m: P(reach {label}) = {r.reach_prob_mean:.3g} "
                 f"[5-95 %: {r.reach_prob_q05:.3g}-{r.reach_prob_q95:.3g}]")
         if np.isfinite(r.energy_p95_kJ):
             line += (f"; from the {r.n_blocks_reached} blocks that reach it: "
@@ -179,7 +181,7 @@ def summary_text(c: HazardCounts, table: pd.DataFrame, road_x_m: float,
                      f"{r.bounce_height_p95_m:.3g} m, v p95 = {r.velocity_p95_m_s:.3g} m/s, "
                      f"intensity {r.intensity_class}")
         else:
-            line += "; no simulated block reached the road"
+            line += f"; no simulated block reached the {label}"
         if release_rate_per_year is not None:
             line += (f"; {r.freq_reach_per_yr:.3g} blocks/yr reach it, level "
                      f"{r.hazard_level}")

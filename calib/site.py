@@ -1,0 +1,120 @@
+"""What a site adds to its profile: its name, the station of interest (a road, a
+house) and published reference values to draw next to a fit.
+
+Nothing site-specific is a default of the commands: a site says it in a small
+JSON file next to its profile, found by the profile's name:
+
+* ``<folder>/<name>_profile.csv`` -> ``<folder>/<name>_site.json``;
+* ``<folder>/<name>.csv`` -> ``<folder>/<name>_site.json`` (so a site folder's
+  ``profile.csv`` has ``profile_site.json``),
+
+the rule ``solvers.profile.default_materials_path`` follows for materials.
+
+Schema (every key optional; ``data/README.md`` says where each shipped value
+comes from)::
+
+    {"name": "Postignano (central Italy)",
+     "station_of_interest": {"x_m": 230.0, "label": "road", "source": "..."},
+     "alpha_reference": {"label": "paper, Table 1", "L_m": [0.2, 0.9, 1.8],
+                         "alpha": [0.90, 0.43, 0.30], "source": "..."}}
+
+``station_of_interest`` is where ``calib.hazard`` reports the reach probability
+and design values (``--road-x-m`` overrides it); ``alpha_reference`` is drawn
+on the DEM damping-law figure and reported next to the fitted alpha(L). A
+profile without a site file has neither: the hazard summary then reports at
+the profile's last station and says so.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+
+__all__ = ["Site", "SiteError", "load_site", "site_path"]
+
+
+class SiteError(ValueError):
+    """Bad site file; the message names the file and the key."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Site:
+    """A site's additions to its profile (module docstring).
+
+    Attributes:
+        name: the site's name ("" where no site file exists).
+        station_x_m: abscissa of the station of interest on the profile, m, or None.
+        station_label: what stands there ("road", "house"; default "station").
+        alpha_reference: ((L_m, alpha), ...) published damping values, or ().
+        alpha_reference_label: their legend label.
+        path: the site file read, or None.
+    """
+
+    name: str = ""
+    station_x_m: float | None = None
+    station_label: str = "station"
+    alpha_reference: tuple[tuple[float, float], ...] = ()
+    alpha_reference_label: str = "reference"
+    path: str | None = None
+
+
+def site_path(profile_path: str) -> str:
+    """The site file of a profile (module docstring), whether or not it exists."""
+    folder, base = os.path.split(profile_path)
+    stem, _ = os.path.splitext(base)
+    if stem.endswith("_profile"):
+        stem = stem[: -len("_profile")]
+    return os.path.join(folder, stem + "_site.json")
+
+
+def _number(path: str, key: str, v, lo: float = -math.inf, hi: float = math.inf) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (lo <= v <= hi):
+        raise SiteError(f"{path}: key {key!r}: expected a finite number in [{lo:g}, {hi:g}], "
+                        f"got {v!r}")
+    return float(v)
+
+
+def load_site(profile_path: str) -> Site:
+    """The site of a profile: its site file, or an empty ``Site`` where none exists.
+
+    Raises:
+        SiteError: the file is not JSON or a key has the wrong type or range.
+    """
+    path = site_path(profile_path)
+    if not os.path.isfile(path):
+        return Site()
+    try:
+        with open(path) as fh:
+            doc = json.load(fh)
+    except (OSError, json.JSONDecodeError) as e:
+        raise SiteError(f"{path}: not a readable JSON site file ({e})") from None
+    if not isinstance(doc, dict):
+        raise SiteError(f"{path}: expected a JSON object")
+    name = doc.get("name", "")
+    if not isinstance(name, str):
+        raise SiteError(f"{path}: key 'name': expected text, got {name!r}")
+    x, label = None, "station"
+    st = doc.get("station_of_interest")
+    if st is not None:
+        if not isinstance(st, dict) or "x_m" not in st:
+            raise SiteError(f"{path}: key 'station_of_interest': expected an object with 'x_m'")
+        x = _number(path, "station_of_interest.x_m", st["x_m"])
+        label = st.get("label", "station")
+        if not isinstance(label, str) or not label:
+            raise SiteError(f"{path}: key 'station_of_interest.label': expected text")
+    ref, ref_label = (), "reference"
+    ar = doc.get("alpha_reference")
+    if ar is not None:
+        ls, al = (ar.get("L_m"), ar.get("alpha")) if isinstance(ar, dict) else (None, None)
+        if not (isinstance(ls, list) and isinstance(al, list) and len(ls) == len(al) > 0):
+            raise SiteError(f"{path}: key 'alpha_reference': expected lists 'L_m' and 'alpha' "
+                            "of one length")
+        ref = tuple((_number(path, "alpha_reference.L_m", L, 1e-6),
+                     _number(path, "alpha_reference.alpha", a, 0.0, 1.0))
+                    for L, a in zip(ls, al))
+        ref_label = ar.get("label", "reference")
+        if not isinstance(ref_label, str):
+            raise SiteError(f"{path}: key 'alpha_reference.label': expected text")
+    return Site(name, x, label, ref, ref_label, path)
