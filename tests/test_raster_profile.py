@@ -319,3 +319,32 @@ def test_non_utf8_line_file_is_one_line_exit_2(tmp_path, capsys):
     err = capsys.readouterr().err
     assert e.value.code == 2 and "UTF-8" in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "p.csv").exists()
+
+
+def test_geotiff_reads_like_the_ascii_grid(tmp_path):
+    """The optional rasterio path (pip install .[geo]): the shipped Tschamut grid
+    written as a GeoTIFF reads to the same heights, origin and cell, NODATA
+    cells become NaN, and a cut through both gives the same profile."""
+    rasterio = pytest.importorskip("rasterio")
+    from affine import Affine  # rasterio's own dependency
+
+    asc = read_ascii_grid("data/tschamut2014/terrain_proxy.asc")
+    z = asc.z_m[::-1].copy()  # north row first, as a GeoTIFF stores it
+    nrows, ncols = z.shape
+    west = asc.east0_m - 0.5 * asc.cell_m
+    north = asc.north0_m + (nrows - 0.5) * asc.cell_m
+    z[0, 0] = -9999.0
+    tif = tmp_path / "dem.tif"
+    with rasterio.open(tif, "w", driver="GTiff", height=nrows, width=ncols, count=1,
+                       dtype="float64",
+                       transform=Affine(asc.cell_m, 0.0, west, 0.0, -asc.cell_m, north),
+                       nodata=-9999.0) as dst:
+        dst.write(z, 1)
+    geo = read_raster(str(tif))
+    assert np.isnan(geo.z_m[-1, 0])
+    same = np.isfinite(geo.z_m)
+    np.testing.assert_array_equal(geo.z_m[same], asc.z_m[same])
+    assert (geo.cell_m, geo.east0_m, geo.north0_m) == (asc.cell_m, asc.east0_m, asc.north0_m)
+    line = read_profile_trace("data/tschamut2014/profile.csv")[1]
+    a, b = cut_profile(asc, line, 1.0), cut_profile(geo, line, 1.0)
+    np.testing.assert_array_equal(a.z_m, b.z_m)
