@@ -86,11 +86,18 @@ def _parser() -> argparse.ArgumentParser:
                         "block_size_m, velocity_m_s, velocity_sd_m_s[, source] (e.g. from "
                         "video of induced rockfalls; calib.synth --velocity-stations writes "
                         "one); scored with the runouts by every candidate; crsp only")
+    p.add_argument("--rolling-resistance", choices=["profile", "fit"], default="profile",
+                   help="CRSP baseline: keep the profile's per-zone rolling resistance and fit "
+                        "Kn, Kt, S (default; the synthetic studies' base), or fit the "
+                        "rolling resistance angle too, as calib.fit does by default (then "
+                        "the rolling_resistance candidate is part of the baseline and is "
+                        "left out)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     return p
 
 
-def _candidates(model: str, effects_arg: str | None, profile, release_x_m=None):
+def _candidates(model: str, effects_arg: str | None, profile, release_x_m=None,
+                rolling: str = "profile"):
     from calib.effects import CRSP_EFFECTS, DEM_EFFECTS
 
     allowed = CRSP_EFFECTS if model == "crsp" else DEM_EFFECTS
@@ -104,8 +111,20 @@ def _candidates(model: str, effects_arg: str | None, profile, release_x_m=None):
                            f"{model} model among {', '.join(a for a in allowed if a != 'none')}")
     if model == "crsp":
         from calib.candidates import crsp_candidates
+        from calib.priors import CRSP_BOX, CRSP_ROLLING_BOX
 
-        return crsp_candidates(profile, chosen, release_x_m)
+        if rolling == "fit":
+            if effects_arg is not None and "rolling_resistance" in chosen:
+                raise CliError("--effects rolling_resistance: with --rolling-resistance fit "
+                               "the baseline already fits the rolling resistance angle; "
+                               "leave it out or use --rolling-resistance profile")
+            base = CRSP_ROLLING_BOX
+        else:
+            base = CRSP_BOX
+        return crsp_candidates(profile, chosen, release_x_m, base)
+    if rolling == "fit":
+        raise CliError("--rolling-resistance fit: the rolling resistance is a CRSP "
+                       "parameter; the DEM candidates have none")
     from calib.dem_candidates import dem_candidates
 
     if release_x_m is not None and release_x_m != float(profile.x_m[0]):
@@ -140,7 +159,7 @@ def _run(args) -> int:
     obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
     velocities = _load_velocities(args.velocities, args.model, profile)
     release = common_release_m(obs, profile)
-    cands = _candidates(args.model, args.effects, profile, release)
+    cands = _candidates(args.model, args.effects, profile, release, args.rolling_resistance)
     try:
         budget = preset_budget(args.model, args.quick, args.n_blocks)
     except ValueError as e:
@@ -157,6 +176,7 @@ def _run(args) -> int:
         "command": " ".join([PROG] + sys.argv[1:]),
         "data_csv": args.data, "profile_csv": profile_path, "model": args.model,
         "seed": args.seed, "quick": bool(args.quick), "n_observations": obs.n_obs,
+        "rolling_resistance": args.rolling_resistance if args.model == "crsp" else None,
         "velocities_csv": args.velocities,
         "n_velocity_observations": 0 if velocities is None else velocities.n_obs,
         "velocity_stations_m": ([] if velocities is None

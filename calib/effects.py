@@ -96,13 +96,18 @@ def effect_box(effect: str, profile, model: str = "crsp") -> Box:
     raise ValueError(f"unknown effect {effect!r}; expected one of {', '.join(EFFECT_NAMES)}")
 
 
-def full_box(effect: str, profile, model: str = "crsp") -> Box:
-    """Prior box of all parameters of a candidate model (CRSP: baseline + effect)."""
+def full_box(effect: str, profile, model: str = "crsp", base: Box = CRSP_BOX) -> Box:
+    """Prior box of all parameters of a candidate model (CRSP: the baseline box
+    ``base``, ``CRSP_BOX`` or ``CRSP_ROLLING_BOX`` with the rolling resistance
+    fitted, then the effect's columns)."""
     extra = effect_box(effect, profile, model)
     if model == "dem":
         return extra
-    return Box(CRSP_BOX.names + extra.names, CRSP_BOX.lower + extra.lower,
-               CRSP_BOX.upper + extra.upper)
+    if effect == "rolling_resistance" and "rolling_friction_deg" in base.names:
+        raise ValueError("the rolling_resistance effect adds to a rolling resistance the "
+                         "baseline already fits (rolling_friction_deg): the two are one "
+                         "parameter")
+    return Box(base.names + extra.names, base.lower + extra.lower, base.upper + extra.upper)
 
 
 def crsp_overrides(effect: str, extra, profile) -> dict[str, np.ndarray]:

@@ -145,8 +145,12 @@ class CrspForward:
     def __post_init__(self):
         if self.effect != "none":
             from calib.effects import full_box
+            from calib.priors import CRSP_ROLLING_BOX
 
-            self.box = full_box(self.effect, self.profile)
+            # the baseline is CRSP_ROLLING_BOX where box fits the rolling resistance,
+            # else CRSP_BOX (recomputed, so dataclasses.replace keeps one box)
+            base = CRSP_ROLLING_BOX if "rolling_friction_deg" in self.box.names else CRSP_BOX
+            self.box = full_box(self.effect, self.profile, base=base)
 
     @property
     def names(self) -> tuple[str, ...]:

@@ -296,6 +296,10 @@ def test_concentration_warning_names_the_sizes_that_carry_an_unnamed_gain():
     (["data/postignano.csv", "--model", "dem", "--effects", "vegetation_belt"], "--effects"),
     (["data/postignano.csv", "--profile", "no/profile.csv"], "no such profile"),
     (["data/postignano.csv", "--n-blocks", "1"], "--n-blocks"),
+    (["data/postignano.csv", "--rolling-resistance", "fit", "--effects", "rolling_resistance"],
+     "already fits the rolling resistance"),
+    (["data/postignano.csv", "--model", "dem", "--rolling-resistance", "fit"],
+     "--rolling-resistance fit"),
 ])
 def test_discover_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, needle):
     out = tmp_path / "d"
@@ -343,3 +347,32 @@ def test_stop_positions_are_measured_from_the_release():
     parts = [(p["x_from_m"], p["x_to_m"], p["observed"]) for p in res["by_slope_part"]]
     assert sum(o for a, e, o in parts if a <= 160.0 < e) == 6, parts
     assert where.get("cliff", 0) == 0
+
+
+def test_candidates_on_the_rolling_baseline():
+    """With the rolling resistance in the baseline (calib.fit's default), every
+    candidate carries it as its 4th parameter, the rolling_resistance effect is
+    left out (one parameter, not two), and a candidate's forward model keeps
+    that box through dataclasses.replace and fits it in the solver."""
+    from calib.candidates import crsp_candidates
+    from calib.effects import full_box
+    from calib.priors import CRSP_BOX, CRSP_ROLLING_BOX
+
+    cands = crsp_candidates(PROFILE, base=CRSP_ROLLING_BOX)
+    assert [c.effect for c in cands] == ["none", "size_dissipation", "fragmentation",
+                                         "vegetation_belt"]
+    for c in cands:
+        assert c.box.names[:4] == CRSP_ROLLING_BOX.names
+        fw = c.forward(np.array([1.0]), 8, jax.random.key(0))
+        assert fw.box.names == c.box.names and fw.fits_rolling
+        assert dataclasses.replace(fw, n_blocks=4).box.names == c.box.names
+    with pytest.raises(ValueError, match="one parameter"):
+        full_box("rolling_resistance", PROFILE, base=CRSP_ROLLING_BOX)
+    plain = crsp_candidates(PROFILE)
+    assert "rolling_resistance" in [c.effect for c in plain]
+    assert all(c.box.names[:3] == CRSP_BOX.names and "rolling_friction_deg" not in c.box.names
+               for c in plain)
+    # the rolling angle reaches the solver: 40 deg stops 1 m blocks sooner than 5 deg
+    fw = cands[1].forward(np.array([1.0]), 64, jax.random.key(0))
+    r = fw.runouts(np.array([[0.41, 0.87, 0.5, 5.0, 0.0], [0.41, 0.87, 0.5, 40.0, 0.0]]))
+    assert np.nanmedian(r[1]) < np.nanmedian(r[0])
