@@ -15,17 +15,17 @@ Buerkner 2021, "Rank-normalization, folding, and localization: an improved
 R-hat for assessing convergence of MCMC", Bayesian Analysis 16, 667-718),
 computed by ArviZ (``arviz_stats``) on the C chains of N draws:
 
-* rank-normalised split R-hat: each chain is split in half (2C chains of N/2),
-  the pooled draws are replaced by their normal scores
-  z = Phi^-1((rank - 3/8) / (2CN/2 + 1/4)), and R-hat = sqrt(var+ / W) with
-  var+ = (N/2 - 1)/(N/2) W + B/(N/2) (W, B: within- and between-chain
-  variances) is computed on z and on the folded draws |theta - median|; the
-  larger of the two is reported (their Sect. 4.2);
+* rank-normalised split R-hat: each chain is split in half (2C chains of
+  n = N/2), the S = CN pooled draws are replaced by their normal scores
+  z = Phi^-1((rank - 3/8) / (S + 1/4)), and R-hat = sqrt(var+ / W) with
+  var+ = (n - 1)/n W + B/n (W: mean within-chain variance, B: n times the
+  variance of the chain means) is computed on z and on the folded draws
+  |theta - median|; the larger of the two is reported;
 * bulk ESS: the effective sample size of the rank-normalised split chains;
   tail ESS: the smaller of the ESS of the indicators I(theta <= q_0.05) and
-  I(theta <= q_0.95) (their Sect. 4.3).
+  I(theta <= q_0.95).
 
-Thresholds (their Sect. 4.4, which calibrates the 1.01 rule for the
+Thresholds (the paper's recommendation, which calibrates the 1.01 rule for the
 rank-normalised statistic; the classic split R-hat with 1.1 misses chains
 with different tails or scales): R-hat < 1.01 and bulk and tail ESS > 400
 for every parameter (100 per chain with 4 chains), no divergent transition.
@@ -117,7 +117,7 @@ def chain_diagnostics(draws: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nda
 
     Returns:
         (rhat, ess_bulk, ess_tail), each (d,); the equations are in the module
-        docstring (Vehtari et al. 2021, Sects. 4.2-4.3), computed by
+        docstring (Vehtari et al. 2021), computed by
         ``arviz_stats``.
     """
     from arviz_stats.base import array_stats

@@ -268,7 +268,7 @@ def psis_warnings(candidates: list[dict]) -> list[str]:
 
     There the smoothed weights rest on a few design points and the folds'
     held-out scores (so the gains and their se) are unreliable (Vehtari et al.
-    2024, Sect. 3.2); more design points where the posterior lives help.
+    2024); more design points where the posterior lives help.
     """
     from calib.importance import KHAT_MAX
 

@@ -4,11 +4,11 @@ diagnostic. NumPy; the tail fit is ArviZ's (``arviz_stats``).
 Given log importance ratios log r_k = log L(theta_k) + log p(theta_k) -
 log q(theta_k) at N points, the self-normalised weights are w_k = r_k / sum_j
 r_j. PSIS (Vehtari, Simpson, Gelman, Yao & Gabry 2024, "Pareto smoothed
-importance sampling", JMLR 25(72), 1-58, Sect. 3) replaces the M = min(N/5,
+importance sampling", JMLR 25(72), 1-58) replaces the M = min(N/5,
 3 sqrt(N)) largest ratios by the expected order statistics of a generalized
 Pareto distribution fitted to them (Zhang & Stephens 2009, with a weak prior),
 truncated at the largest raw ratio, then normalises. Its shape estimate k-hat
-says how far the estimate can be trusted (same paper, Sect. 3.2): below 0.5
+says how far the estimate can be trusted (same paper): below 0.5
 the raw weights have finite variance; up to 0.7 PSIS is reliable with a
 practical number of points; above ``KHAT_MAX`` = 0.7 the weighted estimates
 (here: the posterior summaries and the held-out scores built on them) are
