@@ -9,7 +9,11 @@ Modules (one concept each):
 * ``crsp_fit`` / ``dem_fit``: the objective of each solver, evaluated with common
   random numbers.
 * ``gradient``: the smoothed-gradient estimator and the optax loop.
-* ``emulator`` / ``bayes``: the smooth emulator and the NumPyro posterior.
+* ``emulator`` / ``bayes``: the smooth emulator and the NumPyro posterior with
+  its ArviZ diagnostics; ``inference_data``: that posterior as ArviZ
+  InferenceData (NetCDF), written and read back.
+* ``importance``: Pareto-smoothed importance weights and their k-hat (the
+  discrepancy workflow's fits and held-out scores).
 * ``fit``: the command ``python -m calib.fit``.
 """
 

@@ -15,10 +15,11 @@ tangential restitution, a speed measured above the belt can.
 
 Writes into ``--out`` (atomically; nothing on error):
 
-* ``discovery.json``: named_effect, candidates [{effect, score, gap, ...}],
-  gap_metric, gap_before, gap_after, where (the baseline's disagreement), each
-  candidate's fit (with its unfinished blocks, ``calib.unfinished``), warnings,
-  budgets, timings, seed;
+* ``discovery.json``: named_effect, candidates [{effect, score, gap, ...,
+  khat, khat_by_fold, psis_flagged_folds}], gap_metric, gap_before, gap_after,
+  where (the baseline's disagreement), each candidate's fit (with its
+  unfinished blocks, ``calib.unfinished``, and the Pareto k-hats of its
+  importance weights, ``calib.importance``), warnings, budgets, timings, seed;
 * ``residuals.png`` (where the baseline fails), ``candidates.png`` (scores),
   ``before_after.png`` (the gap before and after).
 """
@@ -37,7 +38,7 @@ import numpy as np
 
 from solvers._cli import CliError, OneLineParser, run_guarded
 
-__all__ = ["concentration_warnings", "ess_warnings", "main", "noise_warnings"]
+__all__ = ["concentration_warnings", "ess_warnings", "main", "noise_warnings", "psis_warnings"]
 
 PROG = "python -m calib.discover"
 # The DEM's fragmentation candidate (2 x 2 bonded fragments) is opt-in: on
@@ -141,6 +142,7 @@ def _fit_section(f) -> dict:
             "q95": dict(zip(f.names, map(float, f.q95))),
             "best_design_point": dict(zip(f.names, map(float, f.best))),
             "ess": f.ess, "n_design": int(f.theta.shape[0]),
+            "khat": f.khat, "khat_by_fold": [float(k) for k in f.khat_folds],
             "loglik_noise_sd_nats": f.loglik_noise_sd_nats,
             "unfinished_blocks": f.unfinished,
             "gap_by_size_class_m": [None if not np.isfinite(g) else float(g)
@@ -202,6 +204,7 @@ def _run(args) -> int:
     }
     result["warnings"] = (ess_warnings({e: (f.ess, int(f.theta.shape[0]))
                                         for e, f in d.fits.items()})
+                          + psis_warnings(d.table)
                           + noise_warnings(d.table, budget.n_blocks)
                           + concentration_warnings(d.table, obs.block_size_m,
                                                    None if velocities is None
@@ -277,6 +280,32 @@ def ess_warnings(ess: dict, min_ess: float = MIN_ESS) -> list[str]:
             f"Their 90 % intervals understate the uncertainty, and their held-out scores carry "
             f"Monte Carlo error that the reported se omits: treat gains near the naming "
             f"threshold with care, or rerun with a larger budget."]
+
+
+def psis_warnings(candidates: list[dict]) -> list[str]:
+    """A warning naming the folds whose training weights have a Pareto k-hat above
+    ``calib.importance.KHAT_MAX`` (``psis_flagged_folds`` of each candidate row).
+
+    There the smoothed weights rest on a few design points and the folds'
+    held-out scores (so the gains and their se) are unreliable (Vehtari et al.
+    2024); more design points where the posterior lives help.
+    """
+    from calib.importance import KHAT_MAX
+
+    flagged = [c for c in candidates if c.get("psis_flagged_folds")]
+    if not flagged:
+        return []
+    listing = "; ".join(
+        f"{c['effect']} fold{'s' if len(c['psis_flagged_folds']) > 1 else ''} "
+        + ", ".join(f"{j} ({_khat_text(c['khat_by_fold'][j])})" for j in c["psis_flagged_folds"])
+        for c in flagged)
+    return [f"Pareto k-hat above {KHAT_MAX:g} in the held-out folds' importance weights "
+            f"({listing}): those folds' scores rest on few design points and are unreliable; "
+            f"treat the gains that involve them with care, or rerun with a larger budget."]
+
+
+def _khat_text(k) -> str:
+    return f"k-hat {float('nan') if k is None else k:.2f}"
 
 
 def noise_warnings(candidates: list[dict], n_blocks: int) -> list[str]:
@@ -363,16 +392,18 @@ def _print_summary(r: dict, out: str) -> None:
         print(f"  (and {r['n_velocity_observations']} passage speeds at "
               f"{', '.join(f'{x:g}' for x in r['velocity_stations_m'])} m, scored with them)")
     print(f"\n{'candidate':20} {'score':>9} {'gain':>8} {'± se':>6} {'gap m':>7} "
-          f"{'sim sd':>7}")
+          f"{'sim sd':>7} {'k-hat':>7}")
     noise = [c.get("loglik_noise_sd_nats") for c in r["candidates"]]
     noise = ["-" if v is None or not np.isfinite(v) else f"{v:.1f}" for v in noise]
     for c, sim in zip(r["candidates"], noise):
         se = "-" if c["effect"] == "none" or c["se_delta"] is None else f"{c['se_delta']:.1f}"
         print(f"{c['effect']:20} {c['score']:9.1f} {c['delta_vs_none']:+8.1f} {se:>6} "
-              f"{c['gap']:7.2f} {sim:>7}")
+              f"{c['gap']:7.2f} {sim:>7} {_worst_fold(c):>7}")
     if set(noise) != {"-"}:
         print("(sim sd: Monte Carlo sd of the summed log-likelihood, nats, over independent "
               "block sets)")
+    print("(k-hat: the largest Pareto k-hat of the folds' importance weights; ! marks one "
+          "above 0.7, an unreliable held-out score)")
     if r["n_velocity_observations"]:
         parts = ", ".join(f"{c['effect']} {c['delta_velocity_rows']:+.1f}"
                           for c in r["candidates"] if c["effect"] != "none")
@@ -389,6 +420,16 @@ def _print_summary(r: dict, out: str) -> None:
           f"{r['gap_after']:.2f} m (x{r['gap_after'] / r['gap_before']:.2f})")
     print(f"total {r['timings_s']['total_s']:.0f} s; wrote {os.path.join(out, 'discovery.json')} "
           f"and figures in {out}/")
+
+
+def _worst_fold(c: dict) -> str:
+    """The largest fold k-hat of a candidate row ('-': none estimated), with '!'
+    when some fold is flagged."""
+    ks = np.array([np.nan if k is None else k for k in c.get("khat_by_fold") or []], float)
+    ks = ks[~np.isnan(ks)]
+    if not ks.size:
+        return "-"
+    return f"{ks.max():.2f}" + ("!" if c.get("psis_flagged_folds") else "")
 
 
 def main(argv=None) -> int:

@@ -11,7 +11,12 @@ candidate effect, name the one that clearly predicts better, show the gap shrink
    coordinates, truncated to the box). All stages are one deterministic-mixture proposal
    (Owen & Zhou 2000, "Safe and effective importance sampling", JASA 95,
    135-143), so the self-normalised weights ``w_k ~ L(theta_k) p(theta_k) /
-   q_mix(theta_k)`` target the posterior under the uniform prior. Runouts are
+   q_mix(theta_k)`` target the posterior under the uniform prior. Every set of
+   weights (each stage's fit, the posterior, each fold's training weights of
+   step 3) is Pareto-smoothed (``calib.importance.psis_weights``); its k-hat
+   is reported per candidate (``khat``) and per fold (``khat_by_fold``), and a
+   fold above ``calib.importance.KHAT_MAX`` = 0.7 is flagged
+   (``psis_flagged_folds``): its held-out scores are unreliable. Runouts are
    simulated with common random numbers (``calib.forward``), and the
    likelihood is ``calib.likelihood`` with the predictive smoothed by a
    Silverman kernel (the width enters as extra variance). Optional passage
@@ -50,6 +55,7 @@ import numpy as np
 from scipy.special import logsumexp
 from scipy.stats import qmc
 
+from calib.importance import KHAT_MAX, ess, psis_weights
 from calib.likelihood import log_likelihood, silverman_width_m, velocity_log_likelihood
 from calib.predictive_check import pool_draws
 from calib.priors import Box
@@ -170,9 +176,12 @@ class CandidateFit:
         theta: (N, p) design points; log_q: (N,) proposal / prior density.
         loglik: (N, n_rows) pointwise log-likelihood at the design points: the
             runout rows, then the passage-velocity rows (if any).
-        weights: (N,) posterior weights (all rows).
+        weights: (N,) posterior weights (all rows), Pareto-smoothed.
         ess: effective sample size of the weights.
         elpd: (n_rows,) held-out log predictive density of each row (same order).
+        khat: Pareto k-hat of the posterior weights; khat_folds: (K,) that of
+            each fold's training weights (``calib.scores.cv_elpd``); NaN where
+            not estimated (``calib.importance``).
         estimate, q05, q95: weighted posterior mean and 90 % interval per parameter;
             best: the design point of highest weight.
         samples: (C, M) posterior-predictive runouts per size class (fresh blocks).
@@ -203,6 +212,8 @@ class CandidateFit:
     loglik_noise_sd_nats: float
     seconds: float
     unfinished: dict | None = None
+    khat: float = float("nan")
+    khat_folds: np.ndarray | None = None
 
 
 def size_classes(sizes_m: np.ndarray, max_classes: int = 8):
@@ -276,9 +287,8 @@ def _weighted_quantile(x, w, q):
     return np.interp(q, cw / cw[-1], x[order])
 
 
-def _gaussian_fit(z, logw, inflate=2.0, floor=0.05):
-    """Mean and inflated covariance of weighted unit-cube points."""
-    w = np.exp(logw - logsumexp(logw))
+def _gaussian_fit(z, w, inflate=2.0, floor=0.05):
+    """Mean and inflated covariance of unit-cube points with normalised weights w."""
     mean = w @ z
     cov = (z - mean).T @ ((z - mean) * w[:, None])
     return mean, inflate**2 * cov + floor**2 * np.eye(z.shape[1])
@@ -399,7 +409,7 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
             if kind == "warm":
                 new, logpdf = _proposal(warm[0], warm[1], rng, n_new, dim)
             else:
-                mean, cov = _gaussian_fit(z, ll.sum(axis=1) - log_q)
+                mean, cov = _gaussian_fit(z, psis_weights(ll.sum(axis=1) - log_q)[0])
                 new, logpdf = _proposal(mean, cov, rng, n_new, dim)
             logpdfs.append(logpdf)
             counts.append(n_new)
@@ -408,13 +418,12 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
             if progress:
                 progress(cand.effect, sum(counts), total)
         log_q = _mixture_log_q(z, counts, logpdfs)
-    logw = ll.sum(axis=1) - log_q
-    w = np.exp(logw - logsumexp(logw))
+    w, khat = psis_weights(ll.sum(axis=1) - log_q)
     theta = box.from_unit(z)
     est = w @ theta
     q05 = np.array([_weighted_quantile(theta[:, j], w, 0.05) for j in range(dim)])
     q95 = np.array([_weighted_quantile(theta[:, j], w, 0.95) for j in range(dim)])
-    elpd = cv_elpd(ll, log_q, fold)
+    elpd, khat_folds = cv_elpd(ll, log_q, fold)
     samples = _predictive(cand, fw, theta, w, class_sizes_m, key, budget, rng, tallies)
     gap_c, gap_m = gap(samples, obs, row_class, rng)
     best = theta[np.argmax(w)]
@@ -427,9 +436,9 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
         noise = loglik_noise_sd(loglik(*reps))
     record = unfinished_record(tallies, f"candidate {cand.effect!r}")
     warn_unfinished(record)
-    return CandidateFit(cand.effect, box.names, theta, log_q, ll, w, float(1.0 / np.sum(w**2)),
+    return CandidateFit(cand.effect, box.names, theta, log_q, ll, w, ess(w),
                         elpd, est, q05, q95, best, samples, gap_c, gap_m, noise,
-                        time.perf_counter() - t0, record)
+                        time.perf_counter() - t0, record, khat, khat_folds)
 
 
 def loglik_noise_sd(loglik_reps: np.ndarray) -> float:
@@ -539,7 +548,7 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
         if i == 0 and cand.design is None:  # the baseline's posterior seeds the effects
             b = fits["none"]
             zb = cand.box.to_unit(b.theta)
-            warm = _gaussian_fit(zb, np.log(np.maximum(b.weights, 1e-300)))
+            warm = _gaussian_fit(zb, b.weights)
     base = fits["none"]
     rng = np.random.default_rng(0)
     where_before = locate(obs, row_class, class_sizes, base.samples, profile, rng, release_x_m)
@@ -549,7 +558,10 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
         d, se = (0.0, 0.0) if eff == "none" else elpd_difference(f.elpd, base.elpd)
         table.append({"effect": eff, "score": float(f.elpd.sum()), "delta_vs_none": d,
                       "se_delta": se, "gap": f.gap, "n_params": len(f.names),
-                      "ess": f.ess, "loglik_noise_sd_nats": f.loglik_noise_sd_nats})
+                      "ess": f.ess, "loglik_noise_sd_nats": f.loglik_noise_sd_nats,
+                      "khat": f.khat, "khat_by_fold": [float(k) for k in f.khat_folds],
+                      "psis_flagged_folds": [int(j) for j in
+                                             np.flatnonzero(f.khat_folds > KHAT_MAX)]})
         if eff != "none":  # how many rows carry the gain (the 2-se rule is a bar on it)
             table[-1]["effective_rows"] = effective_rows(gains)
             table[-1]["carrying_rows"] = [int(i) for i in carrying_rows(gains)]

@@ -12,6 +12,10 @@ temporary name and renamed, so a failure leaves no half-written file):
   emulator checks, unfinished blocks per stage (``unfinished_blocks``, see
   ``calib.unfinished``), stage timings, seed and package versions;
 * ``crsp_posterior.csv``, ``dem_posterior.csv``: posterior draws;
+* ``crsp_posterior.nc``, ``dem_posterior.nc``: the same draws as ArviZ
+  InferenceData (NetCDF-4: chains, sampler statistics, the pointwise emulated
+  log-likelihood and the observed rows; ``calib.inference_data``, read back with
+  ``read_inference_data``);
 * ``runout_vs_size.png``, ``alpha_law.png``, ``crsp_pairs.png``, ``dem_pairs.png``.
 
 The likelihood (``calib.likelihood``): each observed row is one draw from the
@@ -166,6 +170,8 @@ def _finite(v) -> float | None:
 
 
 def _model_section(name, fit, forward, law_form=None) -> dict:
+    from calib.bayes import ESS_MIN, RHAT_MAX
+
     post = fit.posterior
     sec = {"parameters": list(fit.names), "estimate_source": fit.estimate_source,
            "fit_quality": fit.quality, "unfinished_blocks": fit.unfinished,
@@ -189,10 +195,15 @@ def _model_section(name, fit, forward, law_form=None) -> dict:
         sec["bayes"] = {
             "summary": post.summary(), "ok": post.ok, "problems": post.problems,
             "divergences": post.divergences, "accept_prob": post.accept_prob,
-            "n_draws": int(post.samples.shape[0]), "emulator": fit.emulator_check}
+            "n_draws": int(post.samples.shape[0]), "n_chains": post.n_chains,
+            "diagnostics": {"rhat": "rank-normalised split R-hat (Vehtari et al. 2021)",
+                            "rhat_max": RHAT_MAX, "ess": "bulk and tail ESS (same paper)",
+                            "ess_min": ESS_MIN},
+            "emulator": fit.emulator_check}
         sec["posterior_csv"] = f"{name}_posterior.csv"
+        sec["posterior_netcdf"] = f"{name}_posterior.nc"
     else:
-        sec["posterior_csv"] = None
+        sec["posterior_csv"] = sec["posterior_netcdf"] = None
     if law_form is None:
         sec.update(stats)
     else:
@@ -229,6 +240,7 @@ def load_inputs(data: str, profile_arg: str | None, out: str):
 def _run(args) -> int:
     from calib.calibrate import calibrate, presets
     from calib.forward import CrspForward, DemForward, alpha_of
+    from calib.inference_data import inference_data, netcdf_writer
     from calib.priors import CRSP_BOX, CRSP_ROLLING_BOX
     from calib.site import SiteError, load_site
     from calib.unfinished import UnfinishedBlocksWarning
@@ -239,7 +251,7 @@ def _run(args) -> int:
         site = load_site(profile_path)
     except SiteError as e:
         raise CliError(str(e)) from None
-    files, figs, predictive = {}, {}, {}
+    files, figs, predictive, writers = {}, {}, {}, {}
     data_csv = args.data
     if args.holdout_fraction:
         obs, data_csv = _split(args, obs, files)
@@ -320,6 +332,7 @@ def _run(args) -> int:
             header = ",".join(fit.names)
             body = "\n".join(",".join(f"{v:.8g}" for v in row) for row in post.samples)
             files[f"{model}_posterior.csv"] = header + "\n" + body + "\n"
+            writers[f"{model}_posterior.nc"] = netcdf_writer(inference_data(post, obs, model))
             figs[f"{model}_pairs.png"] = figures.pairs(
                 post.samples, fit.names, title=f"{model.upper()} posterior "
                 f"({post.samples.shape[0]} draws{'' if post.ok else ', DIAGNOSTICS FAILED'})")
@@ -351,7 +364,7 @@ def _run(args) -> int:
     figs["runout_vs_size.png"] = figures.runout_vs_size(obs, predictive)
     result["timings_s"]["total_s"] = time.perf_counter() - t_start
     files["calibration.json"] = json.dumps(result, indent=1, allow_nan=False) + "\n"
-    _write_all(args.out, files, figs)
+    _write_all(args.out, files, figs, writers)
     _print_summary(result, models, args.out)
     if args.holdout_fraction:
         _validate(args, models)
@@ -390,12 +403,14 @@ def _validate(args, models) -> None:
     print_summary(run_validation(vargs), vargs.out)
 
 
-def _write_all(out: str, files: dict, figs: dict) -> None:
-    """Write every output into ``out`` atomically (``solvers._cli.write_all_atomic``)."""
-    writers = {os.path.join(out, name): text_writer(text) for name, text in files.items()}
-    writers.update({os.path.join(out, name): functools.partial(fig.savefig, dpi=120)
-                    for name, fig in figs.items()})
-    write_all_atomic(writers)
+def _write_all(out: str, files: dict, figs: dict, writers: dict | None = None) -> None:
+    """Write every output into ``out`` atomically (``solvers._cli.write_all_atomic``):
+    ``files`` name -> text, ``figs`` name -> figure, ``writers`` name -> ``write(path)``."""
+    todo = {os.path.join(out, name): text_writer(text) for name, text in files.items()}
+    todo.update({os.path.join(out, name): functools.partial(fig.savefig, dpi=120)
+                 for name, fig in figs.items()})
+    todo.update({os.path.join(out, name): w for name, w in (writers or {}).items()})
+    write_all_atomic(todo)
 
 
 def _fmt(v, nd=3):

@@ -9,7 +9,10 @@ observations split into K folds, row i's score is
     elpd_i = log p(y_i | y_(-fold(i))) = log sum_k wbar_k^(-f) p(y_i | theta_k)
 
 where theta_k are the design points of the model's fit and wbar^(-f) their
-self-normalised importance weights computed WITHOUT the rows of i's fold.
+self-normalised importance weights computed WITHOUT the rows of i's fold,
+Pareto-smoothed (``calib.importance.psis_weights``; Vehtari et al. 2024): each
+fold's k-hat is returned with the scores, and a fold above 0.7 has a held-out
+score the design cannot be trusted to estimate.
 Extra parameters are penalised automatically: a model that over-fits the
 training folds predicts the held-out fold worse.
 
@@ -32,6 +35,8 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.special import logsumexp
+
+from calib.importance import psis_weights
 
 __all__ = [
     "ELPD_MIN",
@@ -80,8 +85,9 @@ def folds(groups: np.ndarray, k: int, seed: int) -> np.ndarray:
     return out
 
 
-def cv_elpd(loglik: np.ndarray, log_q: np.ndarray, fold: np.ndarray) -> np.ndarray:
-    """Held-out log predictive density of each row.
+def cv_elpd(loglik: np.ndarray, log_q: np.ndarray, fold: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Held-out log predictive density of each row, and the k-hat of each fold.
 
     Args:
         loglik: (N, n_obs) log p(y_i | theta_k) at the N design points.
@@ -90,7 +96,8 @@ def cv_elpd(loglik: np.ndarray, log_q: np.ndarray, fold: np.ndarray) -> np.ndarr
         fold: (n_obs,) fold of each row.
 
     Returns:
-        (n_obs,) elpd_i.
+        (elpd (n_obs,), khat (F,)): elpd_i, and the Pareto k-hat of the training
+        weights of each fold, in the order of ``np.unique(fold)``.
 
     A design point where some row has log p = -inf (no finished block of its
     size, ``calib.likelihood``) gets its training weight from the training rows
@@ -99,15 +106,18 @@ def cv_elpd(loglik: np.ndarray, log_q: np.ndarray, fold: np.ndarray) -> np.ndarr
     out = np.empty(loglik.shape[1])
     total = loglik.sum(axis=1)
     fin = np.isfinite(total)
-    for f in np.unique(fold):
+    ids = np.unique(fold)
+    khat = np.empty(ids.size)
+    for j, f in enumerate(ids):
         held = fold == f
         train = np.empty_like(total)
         train[fin] = total[fin] - loglik[fin][:, held].sum(axis=1)
         train[~fin] = loglik[~fin][:, ~held].sum(axis=1)
-        logw = train - log_q
-        logw = logw - logsumexp(logw)
+        w, khat[j] = psis_weights(train - log_q)
+        with np.errstate(divide="ignore"):  # weight 0: log 0 = -inf, as meant
+            logw = np.log(w)
         out[held] = logsumexp(logw[:, None] + loglik[:, held], axis=0)
-    return out
+    return out, khat
 
 
 def elpd_difference(elpd_a: np.ndarray, elpd_b: np.ndarray) -> tuple[float, float]:

@@ -30,8 +30,9 @@ def test_quick_run_writes_every_output(quick_run):
     print(proc.stdout[-3000:], proc.stderr[-3000:])
     assert proc.returncode == 0, proc.stderr
     names = set(os.listdir(out))
-    assert {"calibration.json", "crsp_posterior.csv", "dem_posterior.csv", "runout_vs_size.png",
-            "alpha_law.png", "crsp_pairs.png", "dem_pairs.png"} <= names
+    assert {"calibration.json", "crsp_posterior.csv", "dem_posterior.csv", "crsp_posterior.nc",
+            "dem_posterior.nc", "runout_vs_size.png", "alpha_law.png", "crsp_pairs.png",
+            "dem_pairs.png"} <= names
     assert not [n for n in names if n.startswith(".")], names  # no temporary leftovers
     cal = json.loads((out / "calibration.json").read_text())
     for p in ("Kn", "Kt", "roughness_m"):
@@ -48,6 +49,18 @@ def test_quick_run_writes_every_output(quick_run):
     assert len(cal["fit_quality"]["crsp"]) == 2 and len(cal["fit_quality"]["dem"]) == 2
     assert cal["seed"] == 0 and cal["versions"]["jax"]
     assert "ok" in cal["crsp"]["bayes"] and "rhat" in cal["crsp"]["bayes"]["summary"]["Kn"]
+    assert {"ess_bulk", "ess_tail"} <= set(cal["crsp"]["bayes"]["summary"]["Kn"])
+    # the same draws as InferenceData, with the chains, the emulated log-likelihood per row
+    from calib.inference_data import read_inference_data
+
+    for m in ("crsp", "dem"):
+        assert cal[m]["posterior_netcdf"] == f"{m}_posterior.nc"
+        idata = read_inference_data(str(out / cal[m]["posterior_netcdf"]))
+        post = idata["posterior"]
+        assert list(post.data_vars) == cal[m]["parameters"]
+        assert post.sizes["chain"] * post.sizes["draw"] == cal[m]["bayes"]["n_draws"]
+        assert idata["log_likelihood"]["runout_m"].sizes["row"] == 2
+        assert int(idata["sample_stats"]["diverging"].sum()) == cal[m]["bayes"]["divergences"]
     # the summary table and stage times are printed
     assert "90% interval" in proc.stdout and "stage times" in proc.stdout
     # diagnostics that fail are said loudly

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from calib.discover import noise_warnings
+from calib.discover import noise_warnings, psis_warnings
 from calib.discrepancy import _proposal, size_classes
 from calib.observations import Observations
 from calib.residuals import locate
@@ -60,7 +60,8 @@ def test_folds_are_balanced_and_loo_for_few_rows():
 def test_cv_elpd_by_hand():
     # two design points, three rows, leave-one-out
     ll = np.log(np.array([[0.5, 0.2, 0.1], [0.1, 0.4, 0.3]]))
-    out = cv_elpd(ll, np.zeros(2), np.arange(3))
+    out, khat = cv_elpd(ll, np.zeros(2), np.arange(3))
+    assert khat.shape == (3,) and np.all(np.isnan(khat))  # too few points for a tail fit
     for i in range(3):
         w = np.exp(ll[:, [j for j in range(3) if j != i]].sum(axis=1))
         w = w / w.sum()
@@ -164,11 +165,21 @@ def test_discover_names_a_strong_hidden_effect_and_shrinks_the_gap(discover_run)
     low = [e for e, f in r["fits"].items() if f["ess"] < 10]
     assert all(f["loglik_noise_sd_nats"] > 0 for f in r["fits"].values())  # measured (CRSP)
     noisy = noise_warnings(r["candidates"], r["budget"]["n_blocks"])
-    assert len(r["warnings"]) == bool(low) + len(noisy)  # named: no concentration warning
+    psis = psis_warnings(r["candidates"])
+    # named: no concentration warning
+    assert len(r["warnings"]) == bool(low) + len(psis) + len(noisy)
     if noisy:
         assert r["warnings"][-1] == noisy[0]
     if low:
         assert all(e in r["warnings"][0] for e in low)
+    if psis:
+        assert r["warnings"][int(bool(low))] == psis[0]
+    for c in r["candidates"]:  # k-hat per fold, flagged above 0.7, in the json and summary
+        assert len(c["khat_by_fold"]) == r["budget"]["k_folds"]
+        assert set(c["psis_flagged_folds"]) >= {j for j, k in enumerate(c["khat_by_fold"])
+                                               if k is not None and k > 0.7}
+        assert len(r["fits"][c["effect"]]["khat_by_fold"]) == r["budget"]["k_folds"]
+    assert "k-hat" in proc.stdout
     for w in r["warnings"]:
         assert f"warning: {w[:40]}" in proc.stdout
     assert {c["effect"] for c in r["candidates"]} == {
@@ -376,3 +387,52 @@ def test_candidates_on_the_rolling_baseline():
     fw = cands[1].forward(np.array([1.0]), 64, jax.random.key(0))
     r = fw.runouts(np.array([[0.41, 0.87, 0.5, 5.0, 0.0], [0.41, 0.87, 0.5, 40.0, 0.0]]))
     assert np.nanmedian(r[1]) < np.nanmedian(r[0])
+
+
+class _Line:
+    """A cheap forward model: runout = scale * 100 m * size^slope + 10 m noise
+    (common random numbers per size class), for workflow-level tests."""
+
+    def __init__(self, sizes_m, n_blocks, key):
+        self.sizes = np.asarray(sizes_m, float)
+        self.noise = np.asarray(jax.random.normal(key, (self.sizes.size, n_blocks)))
+
+    def runouts(self, theta):
+        theta = np.atleast_2d(theta)
+        slope = theta[:, 1:2] if theta.shape[1] > 1 else np.zeros((theta.shape[0], 1))
+        mean = theta[:, :1] * 100.0 * self.sizes[None, :] ** slope
+        return mean[:, :, None] + 10.0 * self.noise[None]
+
+
+def test_a_fold_with_a_large_khat_reaches_the_discovery_record():
+    from calib.discover import _clean, psis_warnings
+    from calib.discrepancy import Budget, Candidate, discover
+    from calib.priors import Box
+
+    # 60 tight rows: the likelihood is far narrower than the 32-point design, so
+    # the weights of every fold rest on one or two points (k-hat > 0.7)
+    sizes = np.repeat([0.5, 1.0, 2.0], 20)
+    rng = np.random.default_rng(0)
+    y = 100.0 * sizes**0.3 + rng.normal(0, 10, sizes.size)
+    nan = np.full(sizes.size, np.nan)
+    obs = Observations(sizes, y, np.full(sizes.size, 1.0), nan, nan,
+                       np.zeros(sizes.size, bool), ("synthetic",) * sizes.size)
+    cands = [Candidate("none", Box(("scale",), (0.5,), (2.0,)), _Line),
+             Candidate("size_dissipation", Box(("scale", "slope"), (0.5, -0.5), (2.0, 0.5)),
+                       _Line)]
+    budget = Budget(n_sobol=32, n_warm=0, n_refine=(), n_blocks=16, n_draws=4,
+                    n_blocks_check=16, k_folds=3, noise_reps=0)
+    d = discover(cands, obs, PROFILE, jax.random.key(0), budget)
+    for f in d.fits.values():
+        assert f.khat_folds.shape == (3,)
+    rows = {r["effect"]: r for r in d.table}
+    assert all(len(r["khat_by_fold"]) == 3 for r in rows.values())
+    flagged = [r for r in rows.values() if r["psis_flagged_folds"]]
+    assert flagged
+    for r in rows.values():  # flagged exactly where k-hat > 0.7
+        k = np.array(r["khat_by_fold"])
+        assert r["psis_flagged_folds"] == [int(j) for j in np.flatnonzero(k > 0.7)]
+    # into the json record (non-finite k-hat -> null, the flag list stays) and its warning
+    record = _clean({"candidates": d.table})
+    (w,) = psis_warnings(record["candidates"])
+    assert all(r["effect"] in w for r in flagged) and "k-hat" in w
