@@ -14,9 +14,10 @@ sets at one theta, to measure the Monte Carlo error itself.
   sphere radius d / 2 (``calib.observations``). One lane pool runs all
   (theta, size) tasks (``solvers.crsp.simulate_tasks``).
 * ``DemForward``: theta = the damping law's parameters; a block of size d is a
-  single square of side L = d with alpha(L). The DEM runout of one size depends
-  on theta only through alpha(L), so the emulator design runs each size on a
-  grid of alpha values (``runouts_at_alpha``).
+  single square of side L = d with alpha(L) (``calib.alpha_law``, clipped as
+  everywhere), run with ``calib.dem_run``'s numerics. The DEM runout of one
+  size depends on theta only through alpha(L), so the emulator design runs
+  each size on a grid of alpha values (``runouts_at_alpha``).
 
 Unfinished blocks (status BUDGET or INVALID, ``solvers.status``) have no
 runout: both return NaN for them, as runout and as passage speed, and every

@@ -117,3 +117,20 @@ def test_every_crsp_calibration_the_fit_can_write_is_accepted_by_hazard(tmp_path
                     got = np.asarray(getattr(params, name))[0]
                     np.testing.assert_allclose(got, np.asarray(getattr(want, name))[d],
                                                rtol=1e-12, err_msg=name)
+
+
+def test_the_fit_checks_its_dem_draws_before_writing():
+    """``calib.fit`` runs the hazard's acceptance check on what it would write:
+    the box passes; a draw the hazard would refuse stops the fit, named."""
+    from calib.fit import _check_alpha_law
+    from solvers._cli import CliError
+
+    box = DEM_BOXES["power"]
+    good = _box_points(box, 16, seed=3)
+    fit = SimpleNamespace(estimate=good[0], posterior=SimpleNamespace(samples=good))
+    _check_alpha_law("power", fit, np.array([0.2, 2.0]))
+    bad = good.copy()
+    bad[5, 0] = 0.0
+    fit = SimpleNamespace(estimate=good[0], posterior=SimpleNamespace(samples=bad))
+    with pytest.raises(CliError, match=r"posterior draw 6 would be refused .*a = 0"):
+        _check_alpha_law("power", fit, np.array([0.2, 2.0]))
