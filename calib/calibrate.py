@@ -48,7 +48,7 @@ from calib.adequacy import adequacy_record
 from calib.bayes import Posterior, run_nuts
 from calib.emulator import fit_emulator, holdout_error
 from calib.gradient import GradientFit, fit_gradient
-from calib.likelihood import log_likelihood
+from calib.likelihood import log_likelihood, observed_rows
 from calib.observations import Observations, ReleaseGroups
 from calib.predictive_check import pool_draws
 from calib.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
@@ -118,9 +118,9 @@ class ModelFit:
 
 
 def _obs_arrays(obs: Observations):
-    f = lambda a: jnp.asarray(np.nan_to_num(a, nan=0.0))  # noqa: E731
-    return (f(obs.runout_m), f(obs.runout_sd_m), f(obs.runout_min_m), f(obs.runout_max_m),
-            jnp.asarray(obs.is_interval))
+    """The rows for ``log_likelihood`` (``calib.likelihood.observed_rows``, the
+    encoding and tolerance rule ``calib.discrepancy`` uses too)."""
+    return observed_rows(obs)
 
 
 def _median_kernel_var_m2(obs: Observations) -> float:

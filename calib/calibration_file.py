@@ -11,8 +11,9 @@ the notebooks), never by re-parsing the JSON with its own names. Schema
   and ``posterior_csv`` (columns ``Kn,Kt,roughness_m[,rolling_friction_deg]``;
   null after a gradient-only fit);
 * ``dem``: ``alpha_law`` (``form`` "power" with ``a``, ``b``: alpha = a L^-b, L
-  the square side in m; or ``form`` "constant" with ``alpha``) and
-  ``posterior_csv`` (columns ``a,b`` or ``alpha``; may be null);
+  the square side in m; or ``form`` "constant" with ``alpha``; every model runs
+  it clipped to [0, 0.95], ``calib.alpha_law``) and ``posterior_csv`` (columns
+  ``a,b`` or ``alpha``; may be null);
 * ``block_size_mapping``: a block of average diameter D is a CRSP sphere of
   radius D/2 and a DEM square of side D.
 
@@ -34,8 +35,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from calib.alpha_law import FORMS, PARAMETER_RANGES
+
 __all__ = ["SCHEMA", "Calibration", "CalibrationError", "Draws", "draw_parameters",
-           "load_calibration"]
+           "load_calibration", "posterior_csv_text"]
 
 SCHEMA = "rockfall-calibration/1"
 
@@ -43,9 +46,8 @@ SCHEMA = "rockfall-calibration/1"
 _CRSP_RANGES = {"Kn": (0.0, 1.0, False), "Kt": (0.0, 1.0, False),
                 "roughness_m": (0.0, math.inf, True),
                 "rolling_friction_deg": (0.0, 90.0 - 1e-9, True)}
-_DEM_RANGES = {"a": (0.0, math.inf, False), "b": (-math.inf, math.inf, True),
-               "alpha": (0.0, 1.0, True)}
-_DEM_COLUMNS = {"power": ("a", "b"), "constant": ("alpha",)}
+_DEM_RANGES = PARAMETER_RANGES
+_DEM_COLUMNS = FORMS
 
 
 class CalibrationError(ValueError):
@@ -174,6 +176,13 @@ def _read_posterior(csv_path: str, names: tuple[str, ...], ranges: dict) -> np.n
     if not rows:
         raise CalibrationError(f"{csv_path}: no data rows")
     return np.asarray(rows, dtype=np.float64)
+
+
+def posterior_csv_text(names, samples) -> str:
+    """The posterior CSV that ``load_calibration`` reads: a header ``names`` and one
+    row per draw of ``samples`` (R, P), 8 significant digits."""
+    body = "\n".join(",".join(f"{v:.8g}" for v in row) for row in np.asarray(samples, float))
+    return ",".join(names) + "\n" + body + "\n"
 
 
 def load_calibration(path: str, model: str | None = None) -> Calibration:

@@ -23,12 +23,13 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from calib.alpha_law import alpha_of
+from calib.dem_run import DEM_RUN, DemRun
 from calib.discrepancy import Candidate
 from calib.effects import DEM_EFFECTS, effect_box
 from calib.forward import DemForward, _dem_lanes, _stack
@@ -49,15 +50,15 @@ FRAG_BLOCKS = 4
 class DemEffectForward:
     """DEM runouts (T, S, n_blocks) of a candidate for theta (T, p), NaN for a
     block that did not finish; common random numbers (block j of every theta and
-    size uses ``fold_in(key, j)``)."""
+    size uses ``fold_in(key, j)``). ``run``: the DEM numerics (``calib.dem_run``),
+    the fit's and the hazard run's."""
 
     profile: Profile
     sizes_m: np.ndarray
     n_blocks: int
     key: jax.Array
     effect: str = "none"
-    stiffness_scale: float = 0.01
-    max_time_s: float = 150.0
+    run: DemRun = DEM_RUN
 
     def __post_init__(self):
         if self.effect not in DEM_EFFECTS:
@@ -65,9 +66,7 @@ class DemEffectForward:
         if self.effect != "fragmentation":
             form = "constant" if self.effect == "none" else "power"
             self._single = DemForward(self.profile, np.asarray(self.sizes_m, float),
-                                      self.n_blocks, self.key, form=form,
-                                      stiffness_scale=self.stiffness_scale,
-                                      max_time_s=self.max_time_s)
+                                      self.n_blocks, self.key, form=form, run=self.run)
 
     @property
     def box(self):
@@ -80,18 +79,17 @@ class DemEffectForward:
         return np.stack([self._fragmented(a, s) for a, s in theta])
 
     def _fragmented(self, alpha: float, log10_strength: float) -> np.ndarray:
-        from solvers.dem import Options, make_block, make_params, stable_dt
+        from solvers.dem import make_block
 
         strength = 10.0 ** float(log10_strength)
-        params = make_params(self.profile, stiffness_scale=self.stiffness_scale,
-                             c_joint_pa=strength, t_joint_pa=strength)
+        params = self.run.params(self.profile, c_joint_pa=strength, t_joint_pa=strength)
         sides = dem_side_m(self.sizes_m)
         x0 = float(self.profile.x_m[0])
-        blocks = [make_block(float(L), alpha=float(alpha), n_fragments=N_FRAGMENTS,
+        # the one clipping rule of calib.alpha_law (the box stops at ALPHA_MAX already)
+        a = float(alpha_of("constant", [alpha], sides[:1])[0])
+        blocks = [make_block(float(L), alpha=a, n_fragments=N_FRAGMENTS,
                              release_x_m=x0) for L in sides]
-        small = make_block(float(min(0.2, sides.min())), alpha=0.5, n_fragments=N_FRAGMENTS)
-        dt_min = float(stable_dt(params, small))
-        options = Options(max_steps=int(math.ceil(self.max_time_s / dt_min)), adaptive=False)
+        options = self.run.options(params, sides, n_fragments=N_FRAGMENTS, adaptive=False)
         lanes = [b for b in blocks for _ in range(self.n_blocks)]
         keys = jax.vmap(lambda j: jax.random.fold_in(self.key, j))(
             jnp.asarray(np.tile(np.arange(self.n_blocks), len(blocks)), jnp.uint32))

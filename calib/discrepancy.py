@@ -18,8 +18,8 @@ candidate effect, name the one that clearly predicts better, show the gap shrink
    fold above ``calib.importance.KHAT_MAX`` = 0.7 is flagged
    (``psis_flagged_folds``): its held-out scores are unreliable. Runouts are
    simulated with common random numbers (``calib.forward``), and the
-   likelihood is ``calib.likelihood`` with the predictive smoothed by a
-   Silverman kernel (the width enters as extra variance). Optional passage
+   likelihood is ``calib.likelihood``'s, the one ``calib.fit`` uses (points:
+   the tolerance as kernel; intervals: the Silverman width). Optional passage
    speeds at stations (``calib.observations.Velocities``) add rows scored by
    ``calib.likelihood.velocity_log_likelihood`` from the same simulations.
 2. The baseline's posterior predictive (``n_draws`` posterior draws re-simulated
@@ -56,7 +56,7 @@ from scipy.special import logsumexp
 from scipy.stats import qmc
 
 from calib.importance import KHAT_MAX, ess, psis_weights
-from calib.likelihood import log_likelihood, silverman_width_m, velocity_log_likelihood
+from calib.likelihood import log_likelihood, observed_rows, velocity_log_likelihood
 from calib.predictive_check import pool_draws
 from calib.priors import Box
 from calib.residuals import locate, point_view
@@ -237,13 +237,9 @@ def size_classes(sizes_m: np.ndarray, max_classes: int = 8):
 
 @jax.jit
 def _loglik_design(runs, row_class, y, sd, lo, hi, is_interval):
-    """(N, n_obs) log-likelihood of every row at every design point."""
-    def one(r):  # r: (C, n)
-        samples = r[row_class]
-        h = silverman_width_m(samples)
-        return log_likelihood(samples, y, sd, lo, hi, is_interval, (h**2)[:, None])
-
-    return jax.vmap(one)(runs)
+    """(N, n_obs) log-likelihood of every row at every design point: the
+    observation model of ``calib.fit`` (``calib.likelihood``, no extra variance)."""
+    return jax.vmap(lambda r: log_likelihood(r[row_class], y, sd, lo, hi, is_interval))(runs)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -272,13 +268,6 @@ def _vel_loglik_design(speeds, size_class, station, v, sd):
     """(N, n_v) log-likelihood of every velocity row at every design point,
     from speeds (N, C, K, n)."""
     return jax.vmap(lambda u: velocity_log_likelihood(u[size_class, station], v, sd))(speeds)
-
-
-def _obs_arrays(obs):
-    return (jnp.asarray(np.nan_to_num(obs.runout_m)), jnp.asarray(np.nan_to_num(obs.runout_sd_m,
-                                                                                nan=1.0)),
-            jnp.asarray(np.nan_to_num(obs.runout_min_m)),
-            jnp.asarray(np.nan_to_num(obs.runout_max_m)), jnp.asarray(obs.is_interval))
 
 
 def _weighted_quantile(x, w, q):
@@ -365,7 +354,7 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
             raise
         raise ValueError(f"candidate {cand.effect!r}: its forward model cannot record "
                          f"passage speeds (CRSP candidates can)") from None
-    y, sd, lo, hi, is_int = _obs_arrays(obs)
+    y, sd, lo, hi, is_int = observed_rows(obs)
     rc = jnp.asarray(row_class)
 
     vel_arrays = None if vel is None else tuple(

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.priors import CRSP_BOX, Box
+from calib.priors import CRSP_BOX, DEM_BOXES, Box
 
 __all__ = [
     "CRSP_EFFECTS",
@@ -74,12 +74,14 @@ def belt_geometry_m(profile) -> tuple[float, float, float]:
 def effect_box(effect: str, profile, model: str = "crsp") -> Box:
     """Prior box of the effect's extra parameters (CRSP) or of the whole law (DEM)."""
     if model == "dem":
+        one = DEM_BOXES["constant"]  # the fit's boxes (calib.priors), one copy
         if effect == "none":
-            return Box(("alpha",), (0.02,), (0.95,))
+            return one
         if effect == "size_dissipation":
-            return Box(("a", "b"), (0.05, 0.0), (0.95, 1.5))
+            return DEM_BOXES["power"]
         if effect == "fragmentation":
-            return Box(("alpha", "log10_joint_strength_pa"), (0.02, 4.0), (0.95, 7.0))
+            return Box(one.names + ("log10_joint_strength_pa",), one.lower + (4.0,),
+                       one.upper + (7.0,))
         raise ValueError(f"effect {effect!r} is not available for the DEM; expected one of "
                          f"{', '.join(DEM_EFFECTS)}")
     if effect == "none":

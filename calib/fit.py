@@ -36,7 +36,7 @@ import warnings
 import jax
 import numpy as np
 
-from calib.calibration_file import SCHEMA
+from calib.calibration_file import SCHEMA, posterior_csv_text
 from calib.provenance import provenance, versions
 from solvers._cli import CliError, OneLineParser, run_guarded, text_writer, write_all_atomic
 
@@ -213,6 +213,24 @@ def _model_section(name, fit, forward, law_form=None) -> dict:
     return sec
 
 
+def _check_alpha_law(form: str, fit, sizes_m) -> None:
+    """Calibration-time check: every parameter set the fit writes (the estimate
+    and each posterior draw) passes ``calib.alpha_law.check_law`` on the fitted
+    sizes, the check ``calib.hazard`` applies before it simulates; with the one
+    clipping rule a set that passes at some sizes passes at all, so the hazard
+    run accepts the calibration and runs the alpha the fit ran."""
+    from calib.alpha_law import check_law
+    from calib.observations import dem_side_m
+
+    rows = fit.estimate[None] if fit.posterior is None else np.vstack(
+        [fit.estimate[None], fit.posterior.samples])
+    bad = check_law(form, rows, dem_side_m(sizes_m))
+    if bad is not None:
+        i, why = bad
+        what = "the estimate" if i == 0 else f"posterior draw {i}"
+        raise CliError(f"DEM calibration: {what} would be refused by calib.hazard: {why}")
+
+
 def load_inputs(data: str, profile_arg: str | None, out: str):
     """Observations, profile and its path, checked for a command (``CliError`` on bad
     input): the files exist and parse, every runout lies on the profile, ``out``
@@ -238,8 +256,9 @@ def load_inputs(data: str, profile_arg: str | None, out: str):
 
 
 def _run(args) -> int:
+    from calib.alpha_law import alpha_of
     from calib.calibrate import calibrate, presets
-    from calib.forward import CrspForward, DemForward, alpha_of
+    from calib.forward import CrspForward, DemForward
     from calib.inference_data import inference_data, netcdf_writer
     from calib.priors import CRSP_BOX, CRSP_ROLLING_BOX
     from calib.site import SiteError, load_site
@@ -329,15 +348,14 @@ def _run(args) -> int:
         sec = _model_section(model, fit, forward, args.alpha_law if model == "dem" else None)
         post = fit.posterior
         if post is not None:
-            header = ",".join(fit.names)
-            body = "\n".join(",".join(f"{v:.8g}" for v in row) for row in post.samples)
-            files[f"{model}_posterior.csv"] = header + "\n" + body + "\n"
+            files[f"{model}_posterior.csv"] = posterior_csv_text(fit.names, post.samples)
             writers[f"{model}_posterior.nc"] = netcdf_writer(inference_data(post, obs, model))
             figs[f"{model}_pairs.png"] = figures.pairs(
                 post.samples, fit.names, title=f"{model.upper()} posterior "
                 f"({post.samples.shape[0]} draws{'' if post.ok else ', DIAGNOSTICS FAILED'})")
         predictive[model] = (fit.check_sizes_m, fit.check_runouts)
         if model == "dem":
+            _check_alpha_law(args.alpha_law, fit, obs.sizes_m)
             ref = dict(site.alpha_reference)
             ls = np.asarray(sorted(ref) if ref else ALPHA_AT_L)
             at = np.asarray(alpha_of(args.alpha_law, fit.estimate, ls))

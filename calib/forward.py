@@ -14,9 +14,10 @@ sets at one theta, to measure the Monte Carlo error itself.
   sphere radius d / 2 (``calib.observations``). One lane pool runs all
   (theta, size) tasks (``solvers.crsp.simulate_tasks``).
 * ``DemForward``: theta = the damping law's parameters; a block of size d is a
-  single square of side L = d with alpha(L). The DEM runout of one size depends
-  on theta only through alpha(L), so the emulator design runs each size on a
-  grid of alpha values (``runouts_at_alpha``).
+  single square of side L = d with alpha(L) (``calib.alpha_law``, clipped as
+  everywhere), run with ``calib.dem_run``'s numerics. The DEM runout of one
+  size depends on theta only through alpha(L), so the emulator design runs
+  each size on a grid of alpha values (``runouts_at_alpha``).
 
 Unfinished blocks (status BUDGET or INVALID, ``solvers.status``) have no
 runout: both return NaN for them, as runout and as passage speed, and every
@@ -28,44 +29,20 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 import solvers.crsp as crsp
+from calib.alpha_law import ALPHA_MAX, alpha_of
+from calib.dem_run import DEM_RUN, DemRun
 from calib.observations import crsp_radius_m, dem_side_m
 from calib.priors import CRSP_BOX, DEM_BOXES, Box
 from calib.unfinished import mask_unfinished
 from solvers.profile import Profile
 
-__all__ = ["ALPHA_MAX", "CrspForward", "DemForward", "alpha_of", "default_lanes"]
-
-ALPHA_MAX = 0.95
-
-
-def alpha_of(form: str, theta, size_m):
-    """alpha(L) of a law: power ``a L^-b`` or constant ``alpha``; clipped to [0, 0.95].
-
-    Args:
-        form: "power" or "constant".
-        theta: (..., n_params) law parameters.
-        size_m: (S,) square sides L, m.
-
-    Returns:
-        (..., S) alpha per size.
-    """
-    theta = jnp.asarray(theta)
-    size_m = jnp.asarray(size_m)
-    if form == "power":
-        a, b = theta[..., 0:1], theta[..., 1:2]
-        alpha = a * size_m ** (-b)
-    elif form == "constant":
-        alpha = theta[..., 0:1] * jnp.ones_like(size_m)
-    else:
-        raise ValueError(f"unknown alpha law form {form!r}; expected 'power' or 'constant'")
-    return jnp.clip(alpha, 0.0, ALPHA_MAX)
+__all__ = ["CrspForward", "DemForward", "default_lanes"]
 
 
 @functools.partial(jax.jit, static_argnames=("with_rolling",))
@@ -285,14 +262,11 @@ class DemForward:
         sizes_m: (S,) average block diameters d (square side L = d), m.
         n_blocks: blocks per (alpha, size); few, the DEM is expensive.
         key: PRNG key shared by all (common random numbers).
-        form: "power" or "constant".
-        stiffness_scale: kn, ks multiplier (0.01: the DEM's documented check found
-            runouts unchanged within Monte Carlo noise; dt 10x larger).
-        max_time_s: simulated-time bound per block.
+        form: "power" or "constant" (``calib.alpha_law``).
+        run: DEM numerics (stiffness scale, time limit, step bound;
+            ``calib.dem_run``), the hazard run's too.
         lane_batch: blocks per compiled call (the last call is padded), so every
             call reuses one compiled program.
-        min_size_m: the step bound is max_time_s / dt of this size (the smallest
-            block's dt), fixed so that forwards on other sizes share the program.
         release_x_m: release abscissa of every block, m (None: the profile's
             first vertex).
     """
@@ -302,19 +276,15 @@ class DemForward:
     n_blocks: int
     key: jax.Array
     form: str = "power"
-    stiffness_scale: float = 0.01
-    max_time_s: float = 150.0
+    run: DemRun = DEM_RUN
     lane_batch: int = 32
-    min_size_m: float = 0.2
     release_x_m: float | None = None
 
     def __post_init__(self):
-        from solvers.dem import make_params
-
         if self.form not in DEM_BOXES:
             raise ValueError(f"unknown alpha law form {self.form!r}; expected one of "
                              f"{', '.join(DEM_BOXES)}")
-        self._params = make_params(self.profile, stiffness_scale=self.stiffness_scale)
+        self._params = self.run.params(self.profile)
         self._fn = None
 
     @property
@@ -331,11 +301,7 @@ class DemForward:
 
     def _compiled(self):
         if self._fn is None:
-            from solvers.dem import Options, make_block, stable_dt
-
-            small = min(self.min_size_m, float(np.min(dem_side_m(self.sizes_m))))
-            dt_min = float(stable_dt(self._params, make_block(small, alpha=0.5)))
-            options = Options(max_steps=int(math.ceil(self.max_time_s / dt_min)))
+            options = self.run.options(self._params, dem_side_m(self.sizes_m))
             self._fn = functools.partial(_dem_lanes, self._params, options=options)
         return self._fn
 

@@ -45,17 +45,71 @@ Assumptions: rows are independent given theta (distinct blocks); every
 observed block is a random draw from the release conditions the solver uses;
 the tolerance is Gaussian. With few rows per size the likelihood says where
 the distribution must put mass, not its full shape.
+
+This is the one observation model of the project (``README.md``, "Observation
+model"): ``calib.fit`` (``calib.calibrate``) and ``calib.discover``
+(``calib.discrepancy``) both score runout rows with ``log_likelihood`` on the
+rows of ``observed_rows``, with v_j = 0 for simulated runouts (the kernel of a
+point row is the tolerance alone, that of an interval row the width h alone)
+and v_j the inflated emulator variance for emulated quantiles.
+
+Tolerance rule (ours): a point row needs a finite tolerance s_i > 0, in the file
+(``calib.observations.load_observations`` refuses the row otherwise) and in
+observations built in memory (``observed_rows`` refuses them); no default is
+filled in. An interval row has no tolerance: the interval is what was seen.
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.scipy.special import log_ndtr, logsumexp
 
-__all__ = ["log_likelihood", "silverman_width_m", "velocity_log_likelihood"]
+__all__ = ["ObservedRows", "log_likelihood", "observed_rows", "silverman_width_m",
+           "velocity_log_likelihood"]
 
 _LOG_2PI = 1.8378770664093453
+
+
+class ObservedRows(NamedTuple):
+    """Runout rows as ``log_likelihood`` takes them (``log_likelihood(samples, *rows)``).
+
+    Attributes:
+        y_m, sd_m: (n_obs,) point value and tolerance, m (0 and 1 on interval rows,
+            where they are not used).
+        lo_m, hi_m: (n_obs,) interval ends, m (0 on point rows, not used).
+        is_interval: (n_obs,) bool.
+    """
+
+    y_m: jax.Array
+    sd_m: jax.Array
+    lo_m: jax.Array
+    hi_m: jax.Array
+    is_interval: jax.Array
+
+
+def observed_rows(obs) -> ObservedRows:
+    """The rows of ``obs`` (``calib.observations.Observations``) for ``log_likelihood``.
+
+    Raises:
+        ValueError: a point row without a finite tolerance > 0 (the tolerance
+            rule of the module docstring), naming the file and line.
+    """
+    is_int = np.asarray(obs.is_interval, bool)
+    sd = np.asarray(obs.runout_sd_m, float)
+    bad = np.flatnonzero(~is_int & ~(np.isfinite(sd) & (sd > 0)))
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"{obs.path}: line {i + 2}, column 'runout_sd_m': a point "
+                         f"observation needs a positive tolerance in metres, got {sd[i]:g}")
+    y = np.where(is_int, 0.0, np.asarray(obs.runout_m, float))
+    lo = np.where(is_int, np.asarray(obs.runout_min_m, float), 0.0)
+    hi = np.where(is_int, np.asarray(obs.runout_max_m, float), 0.0)
+    return ObservedRows(jnp.asarray(y), jnp.asarray(np.where(is_int, 1.0, sd)),
+                        jnp.asarray(lo), jnp.asarray(hi), jnp.asarray(is_int))
 
 
 def silverman_width_m(samples: jax.Array, floor_m: float = 0.5) -> jax.Array:

@@ -43,7 +43,8 @@ DEM damping law:
 * power law alpha(L) = a L^-b (L in m): a in [0.05, 0.95] (alpha of a 1 m
   block; local damping lies in [0, 1), Cundall's default 0.8; Table 1 gives
   0.30-0.90), b in [0.0, 1.5] (b = 0 is constant damping; Table 1 follows
-  b ~ 0.5). Evaluated alphas are clipped to [0, 0.95] (assumption).
+  b ~ 0.5). Evaluated alphas are clipped to [0, 0.95] everywhere
+  (``calib.alpha_law``: why a clip and not a smaller box).
 * constant alpha in [0.02, 0.95].
 """
 

@@ -12,7 +12,6 @@ from scipy.stats import norm
 
 import calib  # noqa: F401  (x64)
 from calib.emulator import fit_emulator, holdout_error, variance_inflation
-from calib.forward import alpha_of
 from calib.likelihood import log_likelihood
 from calib.observations import ObservationError, load_observations
 
@@ -96,16 +95,6 @@ def test_emulator_learns_a_smooth_quantile_function_and_its_uncertainty_is_hones
     expect = 100 + 10 + 5 + 5.0 * norm.ppf(emu.levels)
     np.testing.assert_allclose(np.asarray(m)[0], expect, atol=1.5)
     assert np.all(np.diff(np.asarray(m)[0]) >= 0)
-
-
-def test_alpha_laws():
-    L = np.array([0.2, 0.9, 1.8])
-    np.testing.assert_allclose(alpha_of("power", np.array([0.4, 0.5]), L),
-                               np.minimum(0.4 * L**-0.5, 0.95))
-    np.testing.assert_allclose(alpha_of("constant", np.array([0.43]), L), 0.43)
-    assert float(alpha_of("power", np.array([0.9, 1.5]), np.array([0.2]))[0]) == 0.95
-    with pytest.raises(ValueError):
-        alpha_of("cubic", np.array([1.0]), L)
 
 
 def test_same_key_same_forward_runouts():

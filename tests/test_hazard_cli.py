@@ -123,7 +123,7 @@ def _bad_files(tmp_path):
     text[3] = "0.4,abc,2.0"  # line 4 of the file, column Kt
     (tmp_path / "post" / "crsp_posterior.csv").write_text("\n".join(text) + "\n")
     (tmp_path / "alpha").mkdir()
-    cases["alpha"] = write_calibration(tmp_path / "alpha", dem=(0.6, 0.5))
+    cases["alpha"] = write_calibration(tmp_path / "alpha", dem=(0.0, 0.5))
     return cases
 
 
@@ -140,7 +140,7 @@ def bad(tmp_path):
     ("kn", [], "crsp.Kn.map: 1.4 outside"),
     ("post", ["--n-posterior", "3"], "crsp_posterior.csv: line 4, column Kt"),
     ("ok", ["--n-posterior", "6"], "has only 5 rows"),
-    ("alpha", ["--model", "dem", "--n-posterior", "1"], "alpha = 1.34164 for block size 0.2"),
+    ("alpha", ["--model", "dem", "--n-posterior", "1"], "dem.alpha_law.a.map: 0 outside (0"),
     ("ok", ["--stations", "0:400:10"], "outside the profile"),
     ("ok", ["--stations", "a,b"], "--stations"),
     ("ok", ["--block-sizes", "0.5,-1"], "--block-sizes: sizes must be positive"),

@@ -27,13 +27,14 @@ from calib.calibration_file import (
     draw_parameters,
     load_calibration,
 )
+from calib.dem_run import DemRun
 from calib.hazard._intensity import (
     ENERGY_THRESHOLDS_KJ,
     hazard_level,
     intensity_class,
     probability_class,
 )
-from calib.hazard._run import DemOptions, HazardCounts, dem_alpha, run_hazard
+from calib.hazard._run import HazardCounts, check_dem_draws, dem_alpha, run_hazard
 from calib.hazard._stats import BINS, Bins, hist_quantile
 from calib.hazard._tables import exceedance_table, hazard_table, summary_text
 
@@ -44,9 +45,10 @@ __all__ = [
     "Bins",
     "Calibration",
     "CalibrationError",
-    "DemOptions",
+    "DemRun",
     "Draws",
     "HazardCounts",
+    "check_dem_draws",
     "dem_alpha",
     "draw_parameters",
     "exceedance_table",

@@ -14,6 +14,7 @@ import os
 import sys
 import time
 
+from calib.dem_run import DEM_RUN
 from solvers._cli import (
     CliError,
     OneLineParser,
@@ -65,10 +66,12 @@ def build_parser() -> OneLineParser:
                    help="most blocks per size in one compiled call (bounds memory)")
     p.add_argument("--pool", type=int, default=1024, help="CRSP lanes per call")
     p.add_argument("--max-events", type=int, default=5000, help="CRSP event budget per block")
-    p.add_argument("--dem-stiffness-scale", type=float, default=0.01,
-                   help="DEM: multiply kn = ks = 50 GPa/m by this (default 0.01)")
-    p.add_argument("--dem-max-time-s", type=float, default=120.0,
-                   help="DEM: simulated-time bound per block, s (default 120)")
+    p.add_argument("--dem-stiffness-scale", type=float, default=DEM_RUN.stiffness_scale,
+                   help="DEM: multiply kn = ks = 50 GPa/m by this (default "
+                        f"{DEM_RUN.stiffness_scale:g}, the fit's)")
+    p.add_argument("--dem-max-time-s", type=float, default=DEM_RUN.max_time_s,
+                   help="DEM: simulated-time bound per block, s (default "
+                        f"{DEM_RUN.max_time_s:g}, the fit's)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
@@ -122,7 +125,8 @@ def main(argv: list[str] | None = None) -> int:
 
     from calib.hazard import (
         CalibrationError,
-        DemOptions,
+        DemRun,
+        check_dem_draws,
         draw_parameters,
         exceedance_table,
         hazard_table,
@@ -160,8 +164,7 @@ def main(argv: list[str] | None = None) -> int:
         n_post = args.n_posterior or DEFAULTS[cal.model][1]
         draws = draw_parameters(cal, n_post, args.seed)
         if cal.model == "dem":
-            from calib.hazard._run import _check_dem_alphas
-            _check_dem_alphas(cal, draws, sizes)
+            check_dem_draws(cal, draws, sizes)
     except (CalibrationError, ProfileError, CliError, SiteError) as exc:
         fail(prog, str(exc))
 
@@ -172,7 +175,8 @@ def main(argv: list[str] | None = None) -> int:
     counts = run_hazard(cal, draws, profile, sizes, np.asarray(stations), n_blocks, args.seed,
                         chunk_blocks=args.chunk_blocks, pool=args.pool,
                         settings=crsp.Settings(max_events=args.max_events),
-                        dem_options=DemOptions(args.dem_stiffness_scale, args.dem_max_time_s),
+                        dem_run=DemRun(stiffness_scale=args.dem_stiffness_scale,
+                                       max_time_s=args.dem_max_time_s),
                         progress=bar.update)
     wall = time.perf_counter() - t0
     bar.close()

@@ -28,6 +28,7 @@ import numpy as np
 
 from calib.calibration_file import draw_parameters, load_calibration
 from calib.hazard._run import run_hazard
+from calib.observations import crsp_radius_m
 from solvers import crsp, load_profile
 from solvers._cli import OneLineParser
 
@@ -59,7 +60,7 @@ def main(argv=None) -> int:
     params = crsp.params_from_profile(profile, Kn=0.41, Kt=0.87, roughness_m=2.0)
     stack = lambda xs: jax.tree_util.tree_map(lambda *a: jnp.stack(a), *xs)  # noqa: E731
     ps = stack([params] * len(SIZES_M))
-    bs = stack([crsp.make_block(0.5 * s) for s in SIZES_M])
+    bs = stack([crsp.make_block(float(r)) for r in crsp_radius_m(SIZES_M)])
     st = jnp.asarray(stations)
 
     def solver(key):

@@ -10,37 +10,23 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from calib.alpha_law import alpha_of, check_law
 from calib.calibration_file import Calibration, CalibrationError, Draws
+from calib.dem_run import DEM_RUN, DemRun
 from calib.hazard._sharding import run_units
 from calib.hazard._stats import BINS, hist_quantile
 from calib.hazard._units import crsp_chunk, dem_chunk, draw_key
+from calib.observations import crsp_radius_m, dem_side_m
 from solvers import crsp, dem
 from solvers.profile import Profile
 
-__all__ = ["DemOptions", "HazardCounts", "dem_alpha", "run_hazard"]
-
-
-@dataclasses.dataclass(frozen=True)
-class DemOptions:
-    """DEM numerics of a hazard run.
-
-    Attributes:
-        stiffness_scale: multiplies kn = ks = 50 GPa/m (see ``solvers.dem.Params``;
-            0.01 is the DEM benchmark's value, whose effect on runout is checked
-            by ``scripts/dem_reproduce.py``).
-        max_time_s: simulated-time bound per block, s; blocks still moving are
-            counted as unfinished.
-    """
-
-    stiffness_scale: float = 0.01
-    max_time_s: float = 120.0
+__all__ = ["HazardCounts", "check_dem_draws", "dem_alpha", "run_hazard"]
 
 
 @dataclasses.dataclass
@@ -80,23 +66,28 @@ class HazardCounts:
 
 
 def dem_alpha(cal: Calibration, values: np.ndarray, size_m: float) -> float:
-    """Local damping of a square of side ``size_m`` for one draw:
-    alpha = a L^-b (form "power") or alpha (form "constant")."""
-    p = dict(zip(cal.names, values, strict=True))
-    if cal.alpha_form == "power":
-        return float(p["a"] * size_m ** (-p["b"]))
-    return float(p["alpha"])
+    """Local damping of the DEM square of a block of size ``size_m`` (average
+    diameter, m) for one draw: the calibration's law, clipped, exactly as the
+    fit ran it (``calib.alpha_law.alpha_of`` at L = ``dem_side_m(size_m)``)."""
+    side = dem_side_m(np.atleast_1d(size_m))
+    return float(alpha_of(cal.alpha_form, np.asarray(values, np.float64), side)[0])
 
 
-def _check_dem_alphas(cal: Calibration, draws: Draws, sizes_m) -> None:
-    for values, row in zip(draws.values, draws.rows, strict=True):
-        for s in sizes_m:
-            a = dem_alpha(cal, values, s)
-            if not (math.isfinite(a) and 0.0 <= a < 1.0):
-                where = (f"{cal.posterior_csv}: line {row + 1}" if row > 0
-                         else f"{cal.path}: dem.alpha_law (map)")
-                raise CalibrationError(f"{where}: alpha = {a:g} for block size {s:g} m, "
-                                       "outside [0, 1)")
+def check_dem_draws(cal: Calibration, draws: Draws, sizes_m) -> None:
+    """The hazard run's acceptance check of DEM draws (``calib.alpha_law.check_law``,
+    the check the fit applies before it writes a calibration).
+
+    Raises:
+        CalibrationError: naming the posterior CSV line (or the map) of the first
+            draw that is refused.
+    """
+    bad = check_law(cal.alpha_form, draws.values, dem_side_m(sizes_m))
+    if bad is not None:
+        i, why = bad
+        row = int(draws.rows[i])
+        where = (f"{cal.posterior_csv}: line {row + 1}" if row > 0
+                 else f"{cal.path}: dem.alpha_law (map)")
+        raise CalibrationError(f"{where}: {why}")
 
 
 def _chunks(n_blocks: int, max_chunk: int) -> tuple[int, list[int]]:
@@ -108,7 +99,7 @@ def _chunks(n_blocks: int, max_chunk: int) -> tuple[int, list[int]]:
 
 def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, stations_x_m,
                n_blocks: int, seed: int, *, chunk_blocks: int = 16384, pool: int = 1024,
-               settings: crsp.Settings = crsp.Settings(), dem_options: DemOptions = DemOptions(),
+               settings: crsp.Settings = crsp.Settings(), dem_run: DemRun = DEM_RUN,
                progress: Callable[[int], None] | None = None, devices=None) -> HazardCounts:
     """Simulate ``n_blocks`` blocks per draw and size; reduce at the stations.
 
@@ -125,7 +116,7 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
         chunk_blocks: most blocks per size in one work unit (memory bound).
         pool: CRSP lanes per unit.
         settings: CRSP settings.
-        dem_options: DEM numerics.
+        dem_run: DEM numerics (``calib.dem_run``; default: the fit's).
         progress: called with the number of blocks finished after each unit.
         devices: JAX devices (default all).
 
@@ -170,10 +161,9 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
                             offsets,
                             pool, settings)
     else:
-        _check_dem_alphas(cal, draws, sizes_m)
+        check_dem_draws(cal, draws, sizes_m)
         units = _dem_units(cal, draws, profile, release_x, sizes_m, stations, n_blocks, seed,
-                           chunk,
-                           offsets, dem_options)
+                           chunk, offsets, dem_run)
     run_units(units, on_result, devices=devices)
     return HazardCounts(model=cal.model, sizes_m=sizes_m, stations_x_m=stations,
                         release_x_m=release_x, n_blocks=n_blocks, draws=draws,
@@ -189,7 +179,7 @@ def _stack(trees):
 def _crsp_units(draws, profile, release_x, sizes_m, stations, n_blocks, seed, chunk, offsets,
                 pool, settings):
     n_sizes = len(sizes_m)
-    blocks = _stack([crsp.make_block(0.5 * s) for s in sizes_m])
+    blocks = _stack([crsp.make_block(float(r)) for r in crsp_radius_m(sizes_m)])
     fn = functools.partial(crsp_chunk, n_chunk=chunk, pool=min(pool, n_sizes * chunk),
                            settings=settings)
     for d, values in enumerate(draws.values):
@@ -209,16 +199,16 @@ def _crsp_units(draws, profile, release_x, sizes_m, stations, n_blocks, seed, ch
 
 
 def _dem_units(cal, draws, profile, release, sizes_m, stations, n_blocks, seed, chunk,
-               offsets, options: DemOptions):
-    params = dem.make_params(profile, stiffness_scale=options.stiffness_scale)
-    # one static step bound for every size (one compilation): the smallest dt
-    dts = [float(dem.stable_dt(params, dem.make_block(s, alpha=0.0))) for s in sizes_m]
-    max_steps = int(math.ceil(options.max_time_s / min(dts)))
-    fn = functools.partial(dem_chunk, n_chunk=chunk, options=dem.Options(max_steps=max_steps))
-    for d, values in enumerate(draws.values):
+               offsets, run: DemRun):
+    params = run.params(profile)
+    sides = dem_side_m(sizes_m)
+    # one static step bound for every size (one compilation; calib.dem_run)
+    fn = functools.partial(dem_chunk, n_chunk=chunk, options=run.options(params, sides))
+    alphas = np.asarray(alpha_of(cal.alpha_form, draws.values, sides))  # (D, T)
+    for d in range(len(draws.values)):
         key = draw_key(seed, d)
-        for t, s in enumerate(sizes_m):
-            block = dem.make_block(float(s), alpha=dem_alpha(cal, values, float(s)),
+        for t, side in enumerate(sides):
+            block = dem.make_block(float(side), alpha=float(alphas[d, t]),
                                    release_x_m=release, stations=stations)
             for off in offsets:
                 n_valid = min(chunk, n_blocks - off)

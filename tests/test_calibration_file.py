@@ -1,0 +1,136 @@
+"""Every calibration ``calib.fit`` can write is one ``calib.hazard`` accepts, and
+the hazard run simulates the parameters (DEM: the alpha per size) that the fit
+simulated. Property test over each prior box: its corners and uniform draws
+from it, written through the fit's own writers (``calib.fit._model_section``,
+``calib.calibration_file.posterior_csv_text``), read back by
+``load_calibration``, and taken through the hazard run's acceptance check and
+the set-up of its work units (no simulation: seconds)."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+from types import SimpleNamespace
+
+import jax
+import numpy as np
+import pytest
+
+from calib.calibration_file import SCHEMA, draw_parameters, load_calibration, posterior_csv_text
+from calib.dem_run import DEM_RUN
+from calib.fit import _model_section
+from calib.forward import CrspForward, DemForward
+from calib.hazard._run import _crsp_units, _dem_units, check_dem_draws
+from calib.priors import CRSP_BOX, CRSP_ROLLING_BOX, DEM_BOXES
+from solvers import crsp
+from solvers.profile import load_profile
+
+PROFILE_CSV = os.path.abspath("data/postignano_profile.csv")
+# the hazard command's default sizes, and sizes the fit never sees (0.05 m: a
+# power law with b = 1.5 is far above 1 there)
+SIZES_M = np.array([0.05, 0.2, 0.5, 1.0, 2.0, 5.0])
+
+
+def _box_points(box, n_random: int, seed: int) -> np.ndarray:
+    """The 2^d corners of the box, then n_random uniform draws from it."""
+    corners = np.array(list(itertools.product(*zip(box.lo, box.hi, strict=True))))
+    z = np.random.default_rng(seed).uniform(size=(n_random, box.dim))
+    return np.concatenate([corners, box.from_unit(z)])
+
+
+def _write_fit(folder, model: str, box, estimate, samples, form=None) -> str:
+    """calibration.json and the posterior CSV as ``calib.fit`` writes them, for a
+    fit whose estimate and posterior draws are given."""
+    post = SimpleNamespace(samples=samples, summary=lambda: {}, ok=True, problems=[],
+                           divergences=0, accept_prob=0.9)
+    fit = SimpleNamespace(names=box.names, estimate=np.asarray(estimate, float),
+                          estimate_source="posterior_mode", posterior=post, gradient=None,
+                          quality=[], unfinished=None, adequacy=None, timings_s={},
+                          budget=SimpleNamespace(), check_runouts=np.zeros((1, 1)),
+                          emulator_check=None)
+    sec = _model_section(model, fit, SimpleNamespace(box=box), form)
+    doc = {"schema": SCHEMA, "profile_csv": PROFILE_CSV, "release_x_m": 0.0, model: sec}
+    with open(os.path.join(folder, f"{model}_posterior.csv"), "w") as fh:
+        fh.write(posterior_csv_text(box.names, samples))
+    path = os.path.join(folder, "calibration.json")
+    with open(path, "w") as fh:
+        json.dump(doc, fh, allow_nan=False)
+    return path
+
+
+def _drawn(cal):
+    """The draws of a hazard run: every posterior row, and the point estimate."""
+    return draw_parameters(cal, cal.posterior.shape[0], 0), draw_parameters(cal, 1, 0)
+
+
+@pytest.mark.parametrize("form", ["power", "constant"])
+def test_every_dem_calibration_the_fit_can_write_is_accepted_by_hazard(tmp_path, form):
+    """DEM: for each corner of the prior box as the estimate and the box (corners
+    + 64 uniform draws) as the posterior, the hazard run accepts every draw at
+    every size, and the alpha of each block it would simulate equals the alpha
+    the fit's forward model runs for that draw and size."""
+    box = DEM_BOXES[form]
+    samples = _box_points(box, 64, seed=1)
+    profile = load_profile(PROFILE_CSV)
+    fit_forward = DemForward(profile, SIZES_M, 1, jax.random.key(0), form=form)
+    stations = np.array([50.0, 150.0])
+    for k, estimate in enumerate(_box_points(box, 0, seed=0)):
+        folder = tmp_path / f"{form}{k}"
+        folder.mkdir()
+        cal = load_calibration(_write_fit(str(folder), "dem", box, estimate, samples, form),
+                               "dem")
+        assert cal.alpha_form == form
+        for draws in _drawn(cal):
+            check_dem_draws(cal, draws, SIZES_M)  # raises if refused
+            units = _dem_units(cal, draws, profile, 0.0, SIZES_M, stations, 2, 0, 2, [0],
+                               DEM_RUN)
+            ran = np.full((len(draws.values), len(SIZES_M)), np.nan)
+            for (d, t_sl), make_args, _ in units:
+                ran[d, t_sl] = np.asarray(make_args()[1].alpha)[0]
+            np.testing.assert_allclose(ran, fit_forward.alphas(draws.values), rtol=1e-12)
+        # the values the fit held (before the CSV's 8 digits) give the same alphas
+        np.testing.assert_allclose(fit_forward.alphas(samples),
+                                   fit_forward.alphas(cal.posterior), rtol=1e-7)
+
+
+@pytest.mark.parametrize("box", [CRSP_BOX, CRSP_ROLLING_BOX], ids=["3", "rolling"])
+def test_every_crsp_calibration_the_fit_can_write_is_accepted_by_hazard(tmp_path, box):
+    """CRSP: the same property for both prior boxes; the hazard run's parameters
+    (every zone) are the ones the fit's forward model runs for the draw."""
+    samples = _box_points(box, 32, seed=2)
+    profile = load_profile(PROFILE_CSV)
+    fit_forward = CrspForward(profile, SIZES_M, 1, jax.random.key(0), box=box)
+    stations = np.array([50.0, 150.0])
+    for k, estimate in enumerate(_box_points(box, 0, seed=0)[[0, -1]]):
+        folder = tmp_path / f"crsp{k}"
+        folder.mkdir()
+        cal = load_calibration(_write_fit(str(folder), "crsp", box, estimate, samples), "crsp")
+        assert cal.names == box.names
+        for draws in _drawn(cal):
+            units = _crsp_units(draws, profile, 0.0, SIZES_M, stations, 2, 0, 2, [0], 64,
+                                crsp.Settings())
+            want = fit_forward.params(draws.values)
+            for (d, _), make_args, _ in units:
+                params = make_args()[0]
+                for name in box.names:
+                    got = np.asarray(getattr(params, name))[0]
+                    np.testing.assert_allclose(got, np.asarray(getattr(want, name))[d],
+                                               rtol=1e-12, err_msg=name)
+
+
+def test_the_fit_checks_its_dem_draws_before_writing():
+    """``calib.fit`` runs the hazard's acceptance check on what it would write:
+    the box passes; a draw the hazard would refuse stops the fit, named."""
+    from calib.fit import _check_alpha_law
+    from solvers._cli import CliError
+
+    box = DEM_BOXES["power"]
+    good = _box_points(box, 16, seed=3)
+    fit = SimpleNamespace(estimate=good[0], posterior=SimpleNamespace(samples=good))
+    _check_alpha_law("power", fit, np.array([0.2, 2.0]))
+    bad = good.copy()
+    bad[5, 0] = 0.0
+    fit = SimpleNamespace(estimate=good[0], posterior=SimpleNamespace(samples=bad))
+    with pytest.raises(CliError, match=r"posterior draw 6 would be refused .*a = 0"):
+        _check_alpha_law("power", fit, np.array([0.2, 2.0]))

@@ -1,0 +1,90 @@
+"""The one observation model (``calib.likelihood``): ``calib.fit``'s path
+(``calib.calibrate``) and ``calib.discover``'s (``calib.discrepancy``) score the
+same rows identically, and both are the model ``README.md`` documents."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.special import logsumexp, ndtr
+from scipy.stats import norm
+
+from calib.calibrate import _loglik_of_runouts
+from calib.discrepancy import _loglik_design, size_classes
+from calib.likelihood import observed_rows
+from calib.observations import Observations
+
+NAN = np.nan
+
+
+def _rows() -> Observations:
+    """Point and interval rows over three sizes (two rows share a size)."""
+    return Observations(
+        block_size_m=np.array([0.2, 0.2, 0.5, 1.0, 1.0, 2.0]),
+        runout_m=np.array([100.0, NAN, 150.0, NAN, 205.0, 240.0]),
+        runout_sd_m=np.array([5.0, NAN, 3.0, NAN, 10.0, 0.5]),
+        runout_min_m=np.array([NAN, 80.0, NAN, 170.0, NAN, NAN]),
+        runout_max_m=np.array([NAN, 130.0, NAN, 260.0, NAN, NAN]),
+        is_interval=np.array([False, True, False, True, False, False]),
+        source=("test",) * 6)
+
+
+def _runouts(n_points: int = 3, n: int = 24) -> np.ndarray:
+    """(T, S, n) simulated runouts with unfinished blocks (NaN); at the last point
+    no block of the 0.5 m size finished."""
+    rng = np.random.default_rng(7)
+    centre = np.array([110.0, 160.0, 210.0, 235.0])
+    r = centre[None, :, None] + 25.0 * rng.standard_normal((n_points, 4, n))
+    r[rng.uniform(size=r.shape) < 0.15] = NAN
+    r[-1, 1] = NAN
+    return r
+
+
+def _documented(obs: Observations, runouts: np.ndarray) -> np.ndarray:
+    """README.md, "Observation model", in NumPy: points (1/n) sum_j N(y; r_j, sd^2),
+    intervals (1/n) sum_j [Phi((b - r_j)/h) - Phi((a - r_j)/h)], h Silverman's
+    width (>= 0.5 m), over the finished blocks."""
+    out = np.empty((runouts.shape[0], obs.n_obs))
+    for t, by_size in enumerate(runouts):
+        for i in range(obs.n_obs):
+            r = by_size[obs.size_index[i]]
+            r = r[np.isfinite(r)]
+            if r.size == 0:
+                out[t, i] = -np.inf
+                continue
+            if not obs.is_interval[i]:
+                lp = norm.logpdf(obs.runout_m[i], r, obs.runout_sd_m[i])
+                out[t, i] = logsumexp(lp) - np.log(r.size)
+                continue
+            q75, q25 = np.percentile(r, [75.0, 25.0])
+            spread = min(np.std(r), (q75 - q25) / 1.34)
+            h = max(0.9 * spread * r.size ** -0.2, 0.5) if r.size >= 2 else 0.5
+            p = ndtr((obs.runout_max_m[i] - r) / h) - ndtr((obs.runout_min_m[i] - r) / h)
+            out[t, i] = np.log(np.mean(p))
+    return out
+
+
+def test_fit_and_discover_score_the_same_rows_identically():
+    obs, runs = _rows(), _runouts()
+    fit_path = np.asarray(_loglik_of_runouts(obs)(runs))
+    _, row_class = size_classes(obs.block_size_m)
+    discover_path = np.asarray(_loglik_design(runs, row_class, *observed_rows(obs)))
+    assert fit_path.shape == (3, obs.n_obs)
+    assert np.isneginf(fit_path[-1, 2])  # no finished block of its size
+    np.testing.assert_allclose(discover_path, fit_path, rtol=1e-13, atol=0)
+    for kind in (obs.is_interval, ~obs.is_interval):  # both kinds of row are there
+        assert np.isfinite(fit_path[:, kind]).any()
+
+
+def test_both_paths_are_the_documented_model():
+    obs, runs = _rows(), _runouts()
+    np.testing.assert_allclose(np.asarray(_loglik_of_runouts(obs)(runs)),
+                               _documented(obs, runs), rtol=1e-9)
+
+
+def test_a_point_row_without_a_tolerance_is_refused():
+    obs = Observations.points([0.5, 1.0], [100.0, 120.0], [2.0, NAN])
+    with pytest.raises(ValueError, match="line 3, column 'runout_sd_m'"):
+        observed_rows(obs)
+    with pytest.raises(ValueError, match="positive tolerance"):
+        observed_rows(Observations.points([0.5], [100.0], [0.0]))
