@@ -43,7 +43,7 @@ def _write_fit(folder, model: str, box, estimate, samples, form=None) -> str:
     """calibration.json and the posterior CSV as ``calib.fit`` writes them, for a
     fit whose estimate and posterior draws are given."""
     post = SimpleNamespace(samples=samples, summary=lambda: {}, ok=True, problems=[],
-                           divergences=0, accept_prob=0.9)
+                           divergences=0, accept_prob=0.9, n_chains=1)
     fit = SimpleNamespace(names=box.names, estimate=np.asarray(estimate, float),
                           estimate_source="posterior_mode", posterior=post, gradient=None,
                           quality=[], unfinished=None, adequacy=None, timings_s={},

@@ -148,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
         if road_x is None:
             site = load_site(cal.profile_csv)
             road_x, label = site.station_x_m, site.station_label
-            where = site.path
+            where = f"{site.path}: station_of_interest.x_m"
             if road_x is None:
                 road_x, label = max(stations), "last station"
                 print(f"no station of interest (no --road-x-m, and no site file "
@@ -157,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
         else:
             where = "--road-x-m"
         if not (math.isfinite(road_x) and lo < road_x <= hi):
-            raise CliError(f"{where}: the station of interest {road_x:g} m lies outside the "
+            raise CliError(f"{where} {road_x:g}: the station of interest lies outside the "
                            f"profile ({lo:g}, {hi:g}] m")
         stations = sorted(set(stations) | {road_x})
         n_blocks = args.n_blocks or DEFAULTS[cal.model][0]
