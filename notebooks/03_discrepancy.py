@@ -93,8 +93,8 @@ print(f"gap before {result['gap_before']:.1f} m -> after {result['gap_after']:.1
 # A belt of trees that slows blocks over a stretch of the slope shortens the
 # runouts of big blocks. So does a lower tangential restitution Kt everywhere,
 # and with runouts and sizes alone the baseline can mimic the belt that way
-# (README, "Passage speeds"). The two differ *above* the belt: a lower Kt slows
-# blocks there too, a belt does not. `calib.synth --velocity-stations 110` also
+# (docs/studies.md, "Passage speeds"). The two differ *above* the belt: a lower
+# Kt slows blocks there too, a belt does not. `calib.synth --velocity-stations 110` also
 # writes the speeds of some blocks passing 110 m (the belt starts at 129 m), and
 # `calib.discover --velocities` scores them together with the runouts.
 
@@ -116,8 +116,8 @@ print("named:", belt["named_effect"])
 # %% [markdown]
 # At full size (60 runout rows, 30 speeds) this seed names the belt. Over five
 # unseen seeds the speeds raised the belt's detection from 2 of 5 to 4 of 5
-# (README). At the notebook's small test size the verdict printed above may be
-# `none`: 30 rows and 12 speeds are little data.
+# (docs/studies.md). At the notebook's small test size the verdict printed
+# above may be `none`: 30 rows and 12 speeds are little data.
 
 # %% [markdown]
 # ## 3. Postignano: is one damping coefficient enough for the DEM?

@@ -10,19 +10,19 @@ Run: ``pytest -m slow -s tests/test_discovery_hidden_effects.py`` (about 25
 minutes on 2 cores); it prints the confusion matrix.
 
 How the two shortfalls depend on the number of rows and on strength is
-measured by ``python -m calib.power`` (other unseen seeds, 3001-3005; README,
-"How much data does discover need?"): with 180 rows fragmentation is named in
-5 of 5, the vegetation belt in 0 of 5. On seeds 5001-5005 at 60 rows
-fragmentation was named in 1 of 5, and in 2 of 5 with 4 times the blocks
+measured by ``python -m calib.power`` (other unseen seeds, 3001-3005;
+docs/studies.md, "How much data does discover need?"): with 180 rows
+fragmentation is named in 5 of 5, the vegetation belt in 0 of 5. On seeds
+5001-5005 at 60 rows fragmentation was named in 1 of 5, and in 2 of 5 with 4 times the blocks
 (``--n-blocks 512``, simulation sd 2.0 -> 0.5 nats): the shortfall is the data's
 standard error, not the simulation noise. The belt needs another kind of
 observation: with 30 passage speeds at 110 m added to the same 60 runout rows
 (``calib.discover --velocities``) it was named in 4 of 5 unseen seeds
-(8001-8005), against 2 of 5 on those seeds without the speeds (README,
-"Passage speeds"). With 180 runout rows plus those 30 speeds (unseen seeds
-9001-9005, README "One data design that names every effect") every effect was
-named in at least 4 of 5 runs and the null gave ``none`` 5 of 5. This test
-keeps its first design, 60 runout rows and no speeds.
+(8001-8005), against 2 of 5 on those seeds without the speeds
+(docs/studies.md, "Passage speeds"). With 180 runout rows plus those 30 speeds
+(unseen seeds 9001-9005, docs/studies.md, "One data design that names every
+effect") every effect was named in at least 4 of 5 runs and the null gave
+``none`` 5 of 5. This test keeps its first design, 60 runout rows and no speeds.
 """
 
 import json
