@@ -63,7 +63,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from solvers._cli import (
+from solvers.cli import (
     CliError,
     OneLineParser,
     cell_float,

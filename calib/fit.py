@@ -26,7 +26,6 @@ tolerance (points) or known to lie in an interval.
 from __future__ import annotations
 
 import argparse
-import functools
 import json
 import os
 import sys
@@ -38,7 +37,7 @@ import numpy as np
 
 from calib.calibration_file import SCHEMA
 from calib.provenance import provenance, versions
-from solvers._cli import CliError, OneLineParser, run_guarded, text_writer, write_all_atomic
+from solvers.cli import CliError, OneLineParser, Progress, run_guarded, write_outputs
 
 __all__ = ["main"]
 
@@ -135,32 +134,6 @@ def _stats(values: np.ndarray | None, point: float) -> dict:
         return {"map": float(point), "mean": None, "q05": None, "q95": None}
     return {"map": float(point), "mean": float(np.mean(values)),
             "q05": float(np.quantile(values, 0.05)), "q95": float(np.quantile(values, 0.95))}
-
-
-class _Progress:
-    """One tqdm bar per stage (stderr)."""
-
-    def __init__(self, enabled: bool, label: str):
-        self.enabled, self.label, self.bar, self.stage = enabled, label, None, None
-        self.t0 = time.perf_counter()
-
-    def __call__(self, stage: str, done: int, total: int) -> None:
-        if not self.enabled:
-            return
-        from tqdm import tqdm
-
-        if stage != self.stage:
-            if self.bar is not None:
-                self.bar.close()
-            self.stage = stage
-            self.bar = tqdm(total=total, desc=f"{self.label}: {stage}", file=sys.stderr,
-                            leave=False)
-        self.bar.n = done
-        self.bar.refresh()
-
-    def close(self):
-        if self.bar is not None:
-            self.bar.close()
 
 
 def _finite(v) -> float | None:
@@ -315,7 +288,7 @@ def _run(args) -> int:
             forward = DemForward(profile, obs.sizes_m, budget.n_blocks_design,
                                  jax.random.fold_in(mkey, 1), form=args.alpha_law,
                                  release_x_m=release)
-        bar = _Progress(not args.no_progress, model.upper())
+        bar = Progress(not args.no_progress, model.upper())
         # the check also simulates a grid of sizes for the runout-vs-size figure
         extra = (np.geomspace(0.2, 2.0, 6) if model == "crsp" else
                  [0.2, 0.9, 2.0] if args.quick else [0.2, 0.5, 0.9, 1.4, 2.0])
@@ -364,7 +337,7 @@ def _run(args) -> int:
     figs["runout_vs_size.png"] = figures.runout_vs_size(obs, predictive)
     result["timings_s"]["total_s"] = time.perf_counter() - t_start
     files["calibration.json"] = json.dumps(result, indent=1, allow_nan=False) + "\n"
-    _write_all(args.out, files, figs, writers)
+    write_outputs(args.out, files, figs, writers)
     _print_summary(result, models, args.out)
     if args.holdout_fraction:
         _validate(args, models)
@@ -401,16 +374,6 @@ def _validate(args, models) -> None:
         n_blocks=None, seed=args.seed, out=os.path.join(args.out, "validation"))
     print()
     print_summary(run_validation(vargs), vargs.out)
-
-
-def _write_all(out: str, files: dict, figs: dict, writers: dict | None = None) -> None:
-    """Write every output into ``out`` atomically (``solvers._cli.write_all_atomic``):
-    ``files`` name -> text, ``figs`` name -> figure, ``writers`` name -> ``write(path)``."""
-    todo = {os.path.join(out, name): text_writer(text) for name, text in files.items()}
-    todo.update({os.path.join(out, name): functools.partial(fig.savefig, dpi=120)
-                 for name, fig in figs.items()})
-    todo.update({os.path.join(out, name): w for name, w in (writers or {}).items()})
-    write_all_atomic(todo)
 
 
 def _fmt(v, nd=3):

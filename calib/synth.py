@@ -29,7 +29,7 @@ import os
 import shutil
 import sys
 
-from solvers._cli import (
+from solvers.cli import (
     CliError,
     OneLineParser,
     parse_stations,

@@ -25,7 +25,7 @@ import sys
 
 import numpy as np
 
-from solvers._cli import CliError, OneLineParser, run_guarded
+from solvers.cli import CliError, OneLineParser, run_guarded
 
 PROG = "python -m calib.validate"
 
@@ -164,7 +164,7 @@ def run_validation(args) -> dict:
     the summary written to validation.json."""
     from calib.predictive_check import score_rows
     from calib.provenance import provenance
-    from solvers._cli import text_writer, write_all_atomic
+    from solvers.cli import write_outputs
 
     cal, heldout, calib_obs, data, profile = _load(args)
     pooled, index, draws, n_blocks = _predictive(cal, heldout, profile, args.n_posterior,
@@ -182,12 +182,7 @@ def run_validation(args) -> dict:
     figs = _figures(check)
     files = {"validation.csv": check.rows.to_csv(index=False, float_format="%.6g"),
              "validation.json": json.dumps(summary, indent=1, allow_nan=False) + "\n"}
-    import functools
-
-    writers = {os.path.join(args.out, n): text_writer(t) for n, t in files.items()}
-    writers.update({os.path.join(args.out, n): functools.partial(f.savefig, dpi=120)
-                    for n, f in figs.items()})
-    write_all_atomic(writers)
+    write_outputs(args.out, files, figs)
     return summary
 
 

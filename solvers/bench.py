@@ -10,7 +10,7 @@ N = 1e3 (roughness 0, the setting where it is valid) from its own virtual
 environment, never a project dependency: ``--pyrockfall-python
 .bench-venv/bin/python``.
 
-DEM: figures from ``solvers.dem._bench.run_benchmarks`` when the DEM is present.
+DEM: figures from ``solvers.dem.bench.run_benchmarks`` when the DEM is present.
 
 A benchmark, not a test: it asserts nothing; compare runs of the same command.
 Targets (issue 15, 2 CPU cores): >= 100,000 blocks/s for 1 m blocks and >=
@@ -30,7 +30,7 @@ import jax
 import numpy as np
 
 from solvers import crsp, load_profile
-from solvers._cli import OneLineParser
+from solvers.cli import OneLineParser
 from solvers.status import status_counts
 
 PROFILE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
@@ -127,7 +127,7 @@ def main(argv=None) -> int:
                                                      1)
     if not args.no_dem:
         try:
-            from solvers.dem._bench import run_benchmarks
+            from solvers.dem.bench import run_benchmarks
         except ImportError as exc:
             out["dem"] = {"error": f"DEM benchmark unavailable: {exc}"}
         else:

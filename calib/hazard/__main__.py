@@ -14,13 +14,13 @@ import os
 import sys
 import time
 
-from solvers._cli import (
+from solvers.cli import (
     CliError,
     OneLineParser,
     fail,
     parse_floats,
     parse_stations,
-    write_all_atomic,
+    write_outputs,
 )
 
 # model -> (blocks per draw and size, posterior draws); DEM defaults keep the
@@ -76,11 +76,6 @@ def build_parser() -> OneLineParser:
 def _positive_int(name: str, v: int) -> None:
     if v <= 0:
         raise CliError(f"{name}: expected a positive count, got {v}")
-
-
-def _write_all(out_dir: str, writers: dict) -> list[str]:
-    """Write every output into ``out_dir`` atomically (``solvers._cli.write_all_atomic``)."""
-    return write_all_atomic({os.path.join(out_dir, name): w for name, w in writers.items()})
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -185,19 +180,14 @@ def main(argv: list[str] | None = None) -> int:
     def csv_writer(df):
         return lambda p: df.to_csv(p, index=False)
 
-    def text_writer(p):
-        with open(p, "w") as fh:
-            fh.write(text + "\n")
-
     writers = {
         "exceedance.csv": csv_writer(exc_df),
         "hazard_table.csv": csv_writer(table),
         "exceedance.png": lambda p: plot_exceedance(exc_df, profile, road_x, p, title, label),
         "envelopes.png": lambda p: plot_envelopes(table, profile, road_x, p, title),
-        "summary.txt": text_writer,
     }
     try:
-        written = _write_all(args.out, writers)
+        written = write_outputs(args.out, {"summary.txt": text + "\n"}, writers=writers)
     except OSError as exc:
         fail(prog, f"cannot write to {args.out}: {exc.strerror or exc}")
     print(text)

@@ -29,7 +29,7 @@ import numpy as np
 from calib.calibration_file import draw_parameters, load_calibration
 from calib.hazard._run import run_hazard
 from solvers import crsp, load_profile
-from solvers._cli import OneLineParser
+from solvers.cli import OneLineParser
 
 PROFILE = os.path.abspath("data/postignano_profile.csv")
 SIZES_M = (0.2, 0.5, 1.0, 2.0)

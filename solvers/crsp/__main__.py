@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from solvers._cli import CliError, OneLineParser, fail, parse_stations, write_csv_atomic
+from solvers.cli import CliError, OneLineParser, fail, parse_stations, write_csv_atomic
 from solvers.status import STATUS_NAMES, finished
 
 

@@ -17,7 +17,7 @@ import time
 
 from tqdm import tqdm
 
-from solvers._cli import CliError, OneLineParser, fail, parse_stations, write_csv_atomic
+from solvers.cli import CliError, OneLineParser, fail, parse_stations, write_csv_atomic
 from solvers.dem._params import DAMPING_MODES
 
 

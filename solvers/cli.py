@@ -1,20 +1,31 @@
-"""Shared command-line plumbing: one-line errors with exit code 2, atomic CSV
-writes, and parsing of station lists. No physics here."""
+"""The command-line kit every ``python -m`` command of the project uses.
+
+One-line errors with exit code 2 (``CliError``, ``OneLineParser``,
+``run_guarded``), option and CSV parsing, progress bars on stderr
+(``Progress``), atomic writes of all of a command's outputs
+(``write_all_atomic``, ``write_outputs``) and JSON-ready values
+(``json_ready``). No physics here. Commands import these names from this
+module, never another command's private helpers.
+"""
 
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import os
 import sys
 import tempfile
+import time
 
 import numpy as np
 
 __all__ = [
     "CliError",
     "OneLineParser",
+    "Progress",
     "fail",
+    "json_ready",
     "parse_floats",
     "parse_stations",
     "run_guarded",
@@ -23,6 +34,7 @@ __all__ = [
     "text_writer",
     "write_all_atomic",
     "write_csv_atomic",
+    "write_outputs",
     "write_text_atomic",
 ]
 
@@ -54,6 +66,34 @@ def run_guarded(prog: str, fn, *args) -> int:
     except KeyboardInterrupt:
         fail(prog, "interrupted; nothing written")
     return 0
+
+
+class Progress:
+    """A progress callback ``(stage, done, total)`` that shows one tqdm bar per
+    stage on stderr, labelled ``"<label>: <stage>"``; does nothing when not
+    ``enabled`` (a command's ``--no-progress``)."""
+
+    def __init__(self, enabled: bool, label: str):
+        self.enabled, self.label, self.bar, self.stage = enabled, label, None, None
+        self.t0 = time.perf_counter()
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if not self.enabled:
+            return
+        from tqdm import tqdm
+
+        if stage != self.stage:
+            if self.bar is not None:
+                self.bar.close()
+            self.stage = stage
+            self.bar = tqdm(total=total, desc=f"{self.label}: {stage}", file=sys.stderr,
+                            leave=False)
+        self.bar.n = done
+        self.bar.refresh()
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
 
 
 def parse_floats(text: str, name: str) -> list[float]:
@@ -136,6 +176,42 @@ def write_all_atomic(writers: dict) -> list[str]:
             if os.path.exists(tmp):
                 os.unlink(tmp)
     return [final for _, final in staged]
+
+
+def write_outputs(out: str, files: dict, figs: dict | None = None,
+                  writers: dict | None = None) -> list[str]:
+    """Write a command's outputs into folder ``out`` atomically (``write_all_atomic``).
+
+    Args:
+        out: output folder (created if needed).
+        files: file name -> text.
+        figs: file name -> matplotlib figure (saved at 120 dpi, format from the name).
+        writers: file name -> ``write(path)`` callable.
+
+    Returns:
+        The final paths.
+    """
+    todo = {os.path.join(out, name): text_writer(text) for name, text in files.items()}
+    todo.update({os.path.join(out, name): functools.partial(fig.savefig, dpi=120)
+                 for name, fig in (figs or {}).items()})
+    todo.update({os.path.join(out, name): w for name, w in (writers or {}).items()})
+    return write_all_atomic(todo)
+
+
+def json_ready(v):
+    """A copy of ``v`` that ``json.dumps(..., allow_nan=False)`` accepts: NumPy
+    scalars become Python ones, non-finite floats None, tuples lists."""
+    if isinstance(v, dict):
+        return {k: json_ready(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [json_ready(x) for x in v]
+    if isinstance(v, (np.bool_, bool)):
+        return bool(v)
+    if isinstance(v, (np.integer, int)):
+        return int(v)
+    if isinstance(v, (np.floating, float)):
+        return float(v) if np.isfinite(v) else None
+    return v
 
 
 def read_csv_rows(path: str, what: str, error=CliError) -> tuple[list[str], list[tuple[int, dict]]]:
