@@ -3,8 +3,10 @@
 One-line errors with exit code 2 (``CliError``, ``OneLineParser``,
 ``run_guarded``), option and CSV parsing, progress bars on stderr
 (``Progress``), atomic writes of all of a command's outputs
-(``write_all_atomic``, ``write_outputs``) and JSON-ready values
-(``json_ready``). No physics here. Commands import these names from this
+(``write_all_atomic``, ``write_outputs``), JSON-ready values (``json_ready``),
+the station columns both solvers write (``station_columns``) and the rule for
+percentiles that rest on too few blocks (``few_blocks``,
+``few_blocks_warning``). No physics here. Commands import these names from this
 module, never another command's private helpers.
 """
 
@@ -21,14 +23,19 @@ import time
 import numpy as np
 
 __all__ = [
+    "MIN_BLOCKS_FOR_PERCENTILE",
     "CliError",
     "OneLineParser",
     "Progress",
     "fail",
+    "few_blocks",
+    "few_blocks_warning",
     "json_ready",
     "parse_floats",
     "parse_stations",
     "run_guarded",
+    "station_column_names",
+    "station_columns",
     "cell_float",
     "read_csv_rows",
     "text_writer",
@@ -37,6 +44,10 @@ __all__ = [
     "write_outputs",
     "write_text_atomic",
 ]
+
+
+# a percentile of simulated blocks from fewer finished blocks than this is flagged
+MIN_BLOCKS_FOR_PERCENTILE = 20
 
 
 class CliError(Exception):
@@ -272,3 +283,80 @@ def write_text_atomic(path: str, text: str) -> None:
 def write_csv_atomic(df, path: str) -> None:
     """Write a pandas DataFrame to ``path`` atomically (``write_text_atomic``)."""
     write_text_atomic(path, df.to_csv(index=False))
+
+
+def few_blocks(n_blocks):
+    """True where a percentile rests on fewer than ``MIN_BLOCKS_FOR_PERCENTILE``
+    (20) blocks: for n < 20 the p95 lies between the two largest of the n values
+    (rank 0.95 (n - 1) > n - 2), so one block more or less moves it. The one copy of
+    the rule; every command flags and warns through it.
+
+    Args:
+        n_blocks: count(s) of finished blocks behind the percentile (int or array).
+
+    Returns:
+        bool, or a bool array of the same shape.
+    """
+    out = np.asarray(n_blocks) < MIN_BLOCKS_FOR_PERCENTILE
+    return bool(out) if out.ndim == 0 else out
+
+
+def few_blocks_warning(rows, what: str = "percentiles", max_named: int = 8) -> str | None:
+    """One warning line naming the rows whose percentiles rest on too few blocks.
+
+    Args:
+        rows: iterable of ``(label, n_blocks)``, e.g. ``("D = 0.5 m, x = 110 m", 7)``.
+        what: what rests on the blocks, for the message.
+        max_named: rows named before "and k more".
+
+    Returns:
+        ``"warning: <what> rest on fewer than 20 blocks in N row(s): label (n blocks);
+        ..."``, or None where no row is below the threshold.
+    """
+    bad = [(label, int(n)) for label, n in rows if few_blocks(n)]
+    if not bad:
+        return None
+    named = "; ".join(f"{label} ({n} block{'s' if n != 1 else ''})"
+                      for label, n in bad[:max_named])
+    more = f"; and {len(bad) - max_named} more" if len(bad) > max_named else ""
+    return (f"warning: {what} rest on fewer than {MIN_BLOCKS_FOR_PERCENTILE} blocks in "
+            f"{len(bad)} row(s), treat them as rough: {named}{more}")
+
+
+def station_column_names(x_m: float, energy_per_m: bool = False) -> dict[str, str]:
+    """The CSV column of each station quantity at station ``x_m`` (m), the same
+    in ``python -m solvers.crsp`` and ``python -m solvers.dem``.
+
+    ``passed_<x>m``, ``energy_kJ_<x>m`` (``energy_kJ_per_m_<x>m`` where the energy
+    is per metre of block width, the 2D DEM), ``velocity_m_s_<x>m``,
+    ``bounce_height_m_<x>m``; ``<x>`` is ``f"{x_m:g}"``.
+
+    Returns:
+        ``StationRecord`` field name -> column name.
+    """
+    tag = f"{x_m:g}m"
+    return {"passed": f"passed_{tag}",
+            "energy_kJ": f"energy_kJ_per_m_{tag}" if energy_per_m else f"energy_kJ_{tag}",
+            "velocity_m_s": f"velocity_m_s_{tag}",
+            "bounce_height_m": f"bounce_height_m_{tag}"}
+
+
+def station_columns(stations_x_m, record, energy_per_m: bool = False) -> dict:
+    """Station columns of a solver's output CSV (``station_column_names``).
+
+    Args:
+        stations_x_m: (S,) station abscissae, m.
+        record: a ``solvers.stations.StationRecord`` whose fields have shape
+            (..., S); the leading axes are flattened in C order to one row per
+            block (per fragment for the DEM).
+        energy_per_m: the energies are kJ per metre of block width (2D DEM).
+
+    Returns:
+        column name -> (n_rows,) array, station by station.
+    """
+    cols = {}
+    for j, x in enumerate(stations_x_m):
+        for field, name in station_column_names(x, energy_per_m).items():
+            v = np.asarray(getattr(record, field))
+            cols[name] = v.reshape(-1, v.shape[-1])[:, j]
+    return cols

@@ -86,3 +86,30 @@ def test_the_known_exceptions_are_still_there():
     seen = {(name, src, what) for path, name, is_pkg in _modules()
             for _, src, what in _imports(path, name, is_pkg)}
     assert not KNOWN - seen, f"remove from KNOWN: {sorted(KNOWN - seen)}"
+
+
+# ---------------------------------------------------------------- solver outputs
+
+def test_both_solvers_name_shared_station_quantities_alike():
+    """python -m solvers.crsp and python -m solvers.dem build their station columns
+    with station_columns: the same names for passage, speed and bounce height; the
+    2D DEM's energy (kJ per metre of block width) is named so, the CRSP's (kJ per
+    block) is not."""
+    import numpy as np
+
+    from solvers.cli import station_column_names, station_columns
+    from solvers.stations import StationRecord
+
+    crsp, dem = station_column_names(110.0), station_column_names(110.0, energy_per_m=True)
+    for field in ("passed", "velocity_m_s", "bounce_height_m"):
+        assert crsp[field] == dem[field]
+    assert crsp == {"passed": "passed_110m", "energy_kJ": "energy_kJ_110m",
+                    "velocity_m_s": "velocity_m_s_110m",
+                    "bounce_height_m": "bounce_height_m_110m"}
+    assert dem["energy_kJ"] == "energy_kJ_per_m_110m"
+    assert station_column_names(2.5)["passed"] == "passed_2.5m"
+    # (blocks, fragments, stations) records flatten to one row per fragment
+    v = np.arange(12.0).reshape(3, 2, 2)
+    cols = station_columns([10.0, 20.0], StationRecord(v > 4, v, v, v), energy_per_m=True)
+    assert list(cols)[:4] == list(station_column_names(10.0, energy_per_m=True).values())
+    np.testing.assert_array_equal(cols["energy_kJ_per_m_20m"], v[..., 1].ravel())

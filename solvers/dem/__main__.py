@@ -1,11 +1,14 @@
 """Command line: ``python -m solvers.dem --profile data/postignano_profile.csv
 --block-size-m 0.9 --n-blocks 256 --alpha 0.43 --seed 0 --out dem.csv``.
 
-Writes one row per block or fragment (runout_m, stop_x_m, stop_z_m, stopped,
-exited, status, block_id, fragment_id, plus station columns) and prints one
-summary line. Blocks run in batches of ``--batch-size`` (a progress bar on a
-terminal); block i uses the key fold_in(key(seed), i), so results do not
-depend on the batch size. Bad arguments: one line on stderr, exit status 2.
+Writes one row per block or fragment (block_id, fragment_id, runout_m, stop_x_m,
+stop_z_m, stopped, exited, status, and per station passed_<x>m,
+energy_kJ_per_m_<x>m (kJ per metre of block width: the DEM is 2D),
+velocity_m_s_<x>m, bounce_height_m_<x>m: the names of ``python -m solvers.crsp``,
+``solvers.cli.station_columns``) and prints one summary line. Blocks run in
+batches of ``--batch-size`` (a progress bar on a terminal); block i uses the
+key fold_in(key(seed), i), so results do not depend on the batch size. Bad
+arguments: one line on stderr, exit status 2.
 """
 
 from __future__ import annotations
@@ -17,7 +20,15 @@ import time
 
 from tqdm import tqdm
 
-from solvers.cli import CliError, OneLineParser, fail, parse_stations, write_csv_atomic
+from solvers.cli import (
+    CliError,
+    OneLineParser,
+    fail,
+    few_blocks_warning,
+    parse_stations,
+    station_columns,
+    write_csv_atomic,
+)
 from solvers.dem._params import DAMPING_MODES
 
 
@@ -99,6 +110,7 @@ def main(argv: list[str] | None = None) -> int:
         from solvers.dem import AlphaLawError, Options, make_block, make_params, stable_dt
         from solvers.dem._integrate import simulate_batch
         from solvers.profile import ProfileError, load_profile
+        from solvers.status import finished
 
         try:
             profile = load_profile(args.profile, args.materials)
@@ -137,23 +149,25 @@ def main(argv: list[str] | None = None) -> int:
         "exited": np.asarray(res.exited).ravel(),
         "status": [STATUS_NAMES[int(s)] for s in np.repeat(np.asarray(res.status), n_frag)],
     }
-    for si, xs in enumerate(stations):
-        tag = f"{xs:g}"
-        rows[f"passed_{tag}"] = np.asarray(res.stations.passed[..., si]).ravel()
-        rows[f"energy_kJ_{tag}"] = np.asarray(res.stations.energy_kJ[..., si]).ravel()
-        rows[f"velocity_m_s_{tag}"] = np.asarray(res.stations.velocity_m_s[..., si]).ravel()
-        rows[f"bounce_height_m_{tag}"] = np.asarray(res.stations.bounce_height_m[..., si]).ravel()
+    # the 2D DEM's energies are per metre of block width (plane strain)
+    rows.update(station_columns(stations, res.stations, energy_per_m=True))
     df = pd.DataFrame(rows)
     write_csv_atomic(df, args.out)
-    ro = df["runout_m"].to_numpy()
+    n_done = int(np.sum(finished(np.asarray(res.status))))  # blocks; fragments share one
+    ro = df["runout_m"].to_numpy()[finished(np.repeat(np.asarray(res.status), n_frag))]
+    stats = (f"runout median {np.median(ro):.1f} m (p5 {np.percentile(ro, 5):.1f}, "
+             f"p95 {np.percentile(ro, 95):.1f}) of the {n_done} finished block(s)"
+             if ro.size else "no block finished")
     steps = int(np.sum(res.n_steps))
     print(f"dem: {args.n_blocks} block(s) x {n_frag} fragment(s), L={args.block_size_m:g} m, "
           f"alpha={float(block.alpha[0]):.3f}, damping={args.damping}, dt={dt:.3g} s; "
-          f"runout median {np.median(ro):.1f} m (p5 {np.percentile(ro, 5):.1f}, "
-          f"p95 {np.percentile(ro, 95):.1f}); stopped {int(df['stopped'].sum())}/{len(df)}, "
+          f"{stats}; stopped {int(df['stopped'].sum())}/{len(df)}, "
           f"not stopped {int((~df['stopped'] & ~df['exited']).sum())}, left profile "
           f"{int(df['exited'].sum())}; {steps} block-steps in {wall:.1f} s "
           f"({steps / wall:.3g}/s) -> {args.out}")
+    warning = few_blocks_warning([("runout", n_done)] if n_done else [])
+    if warning:
+        print(warning, file=sys.stderr)
     return 0
 
 
