@@ -49,7 +49,7 @@ DEM_DEFAULT = ("none", "size_dissipation")
 MIN_ESS = 10.0
 
 
-def _parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(
         prog=PROG, description=__doc__.split("\n\n")[0] + " Writes discovery.json "
         "(named_effect, candidates with score and gap, gap_before, gap_after, where the "
@@ -418,7 +418,7 @@ def _worst_fold(c: dict) -> str:
 
 
 def main(argv=None) -> int:
-    return run_guarded(PROG, _run, _parser().parse_args(argv))
+    return run_guarded(PROG, _run, build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -45,7 +45,7 @@ PROG = "python -m calib.fit"
 ALPHA_AT_L = (0.2, 0.9, 1.8)
 
 
-def _parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(
         prog=PROG,
         description=__doc__.split("\n\n")[0] + " Writes calibration.json, posterior CSVs and "
@@ -441,7 +441,7 @@ def _print_summary(result: dict, models, out: str) -> None:
 
 
 def main(argv=None) -> int:
-    return run_guarded(PROG, _run, _parser().parse_args(argv))
+    return run_guarded(PROG, _run, build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

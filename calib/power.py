@@ -35,7 +35,7 @@ __all__ = ["detection_table", "main", "parse_seeds"]
 PROG = "python -m calib.power"
 
 
-def _parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
     from calib.synth import add_speed_options
 
     p = OneLineParser(
@@ -274,7 +274,7 @@ def _run(args) -> int:
 
 
 def main(argv=None) -> int:
-    return run_guarded(PROG, _run, _parser().parse_args(argv))
+    return run_guarded(PROG, _run, build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -30,7 +30,7 @@ from solvers.cli import CliError, OneLineParser, run_guarded
 PROG = "python -m calib.validate"
 
 
-def _parser() -> OneLineParser:
+def build_parser() -> OneLineParser:
     p = OneLineParser(
         prog=PROG, description=__doc__.split("\n\n")[1],
         epilog="Example: python -m calib.validate results/calibration.json heldout.csv "
@@ -221,7 +221,7 @@ def _main(args) -> int:
 
 
 def main(argv=None) -> int:
-    return run_guarded(PROG, _main, _parser().parse_args(argv))
+    return run_guarded(PROG, _main, build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

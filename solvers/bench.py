@@ -93,7 +93,7 @@ def pyrockfall_anchor(python: str, n_blocks: int = 1000) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def main(argv=None) -> int:
+def build_parser() -> OneLineParser:
     p = OneLineParser(prog="python -m solvers.bench", description=__doc__.split("\n\n")[0])
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--quick", action="store_true", help="N = 1e4 instead of 1e5, quick DEM")
@@ -102,7 +102,11 @@ def main(argv=None) -> int:
     p.add_argument("--pyrockfall-python", help="python of a venv with pyrockfall 0.1.2 "
                    "(default: .bench-venv/bin/python if it exists)")
     p.add_argument("--no-dem", action="store_true", help="skip the DEM benchmarks")
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
 
     n = 10000 if args.quick else 100000
     rows = [crsp_throughput(n, radius_m=0.5 * d, stations_x_m=st, pool=args.pool)

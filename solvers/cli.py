@@ -25,6 +25,7 @@ import numpy as np
 __all__ = [
     "MIN_BLOCKS_FOR_PERCENTILE",
     "CliError",
+    "DefaultsHelpFormatter",
     "OneLineParser",
     "Progress",
     "fail",
@@ -60,6 +61,25 @@ class OneLineParser(argparse.ArgumentParser):
     def error(self, message: str):  # noqa: D401 - argparse API
         sys.stderr.write(f"{self.prog}: error: {message}\n")
         raise SystemExit(2)
+
+
+def _no_default(value) -> bool:
+    """None, an off switch or argparse.SUPPRESS: nothing for --help to show (by
+    identity: a default of 0 == False is a value to show)."""
+    return value is None or value is False or value is argparse.SUPPRESS
+
+
+class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """``--help`` that ends each option's text with ``(default: X)``, except where
+    the text already names its default or there is none to show (None, an off
+    switch): say what None means in the text, e.g. "(default: first vertex)"."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if (not action.option_strings or _no_default(action.default)
+                or "default" in text.lower()):
+            return text
+        return text + " (default: %(default)s)"
 
 
 def fail(prog: str, message: str) -> None:

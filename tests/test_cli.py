@@ -2,12 +2,16 @@
 
 * Commands share plumbing through the public kit, never through another
   module's private names (an AST scan of ``calib/`` and ``solvers/``).
+* Both solvers name the quantities they share alike.
+* ``--help`` of every command shows every default.
 """
 
 from __future__ import annotations
 
 import ast
 import pathlib
+
+import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 PACKAGES = ("calib", "solvers")
@@ -113,3 +117,58 @@ def test_both_solvers_name_shared_station_quantities_alike():
     cols = station_columns([10.0, 20.0], StationRecord(v > 4, v, v, v), energy_per_m=True)
     assert list(cols)[:4] == list(station_column_names(10.0, energy_per_m=True).values())
     np.testing.assert_array_equal(cols["energy_kJ_per_m_20m"], v[..., 1].ravel())
+
+
+# ---------------------------------------------------------------- --help shows defaults
+
+COMMANDS = ["solvers.crsp.__main__", "solvers.dem.__main__", "solvers.profile", "solvers.bench",
+            "calib.fit", "calib.discover", "calib.power", "calib.synth", "calib.validate",
+            "calib.field", "calib.hazard.__main__"]
+
+
+def _parsers(module):
+    """The command's parser and its sub-commands' parsers."""
+    import argparse
+    import importlib
+
+    parser = importlib.import_module(module).build_parser()
+    out = [parser]
+    for a in parser._actions:
+        if isinstance(a, argparse._SubParsersAction):
+            out += list(a.choices.values())
+    return out
+
+
+@pytest.mark.parametrize("module", COMMANDS)
+def test_every_option_with_a_default_says_it(module):
+    """An option whose default is a value (not None, not an off switch) names that
+    default in its help, by hand or through ArgumentDefaultsHelpFormatter."""
+    import argparse
+
+    missing = []
+    for parser in _parsers(module):
+        auto = issubclass(parser.formatter_class, argparse.ArgumentDefaultsHelpFormatter)
+        for a in parser._actions:
+            if not a.option_strings or any(a.default is v for v in (None, False,
+                                                                     argparse.SUPPRESS)):
+                continue
+            if not (auto or "default" in (a.help or "").lower()):
+                missing.append(f"{parser.prog} {a.option_strings[0]} (default {a.default!r})")
+    assert not missing, "say the default in --help:\n" + "\n".join(missing)
+
+
+@pytest.mark.parametrize("module, needles", [
+    ("solvers.crsp.__main__", ["default 1000", "default 0.5", "default 2350"]),
+    ("solvers.dem.__main__", ["default: 256", "default: unbalanced", "default: 200.0"]),
+    ("calib.fit", ["default: both", "default 0", "default 1.0 m"]),
+    ("calib.hazard.__main__", ["0.2,0.5,1.0,2.0", "default 5000"]),
+])
+def test_help_shows_defaults(module, needles, capsys):
+    import importlib
+
+    with pytest.raises(SystemExit) as exc:
+        importlib.import_module(module).main(["--help"])
+    assert exc.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    for needle in needles:
+        assert needle in text, (module, needle)

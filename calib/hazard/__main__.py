@@ -59,12 +59,15 @@ def build_parser() -> OneLineParser:
                         "reports, m (default: the site file's station_of_interest next to "
                         "the calibration's profile, calib/site.py; without one, the "
                         "profile's last station)")
-    p.add_argument("--out", default="results/hazard/", help="output folder")
+    p.add_argument("--out", default="results/hazard/",
+                   help="output folder (default results/hazard/)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--chunk-blocks", type=int, default=16384,
-                   help="most blocks per size in one compiled call (bounds memory)")
-    p.add_argument("--pool", type=int, default=1024, help="CRSP lanes per call")
-    p.add_argument("--max-events", type=int, default=5000, help="CRSP event budget per block")
+                   help="most blocks per size in one compiled call (bounds memory; "
+                        "default 16384)")
+    p.add_argument("--pool", type=int, default=1024, help="CRSP lanes per call (default 1024)")
+    p.add_argument("--max-events", type=int, default=5000,
+                   help="CRSP event budget per block (default 5000)")
     p.add_argument("--dem-stiffness-scale", type=float, default=0.01,
                    help="DEM: multiply kn = ks = 50 GPa/m by this (default 0.01)")
     p.add_argument("--dem-max-time-s", type=float, default=120.0,

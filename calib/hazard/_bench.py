@@ -50,8 +50,8 @@ def _calibration_file(folder: str) -> str:
 
 def main(argv=None) -> int:
     p = OneLineParser(prog="python -m calib.hazard._bench", description=__doc__.split("\n\n")[0])
-    p.add_argument("--n", type=int, default=16384, help="blocks per size and draw")
-    p.add_argument("--draws", type=int, default=2, help="draws in the pipeline run")
+    p.add_argument("--n", type=int, default=16384, help="blocks per size and draw (default 16384)")
+    p.add_argument("--draws", type=int, default=2, help="draws in the pipeline run (default 2)")
     p.add_argument("--pool", type=int, default=1024, help="CRSP lanes (default 1024)")
     args = p.parse_args(argv)
     profile = load_profile(PROFILE)
