@@ -37,7 +37,14 @@ import numpy as np
 
 from calib.calibration_file import SCHEMA
 from calib.provenance import provenance, versions
-from solvers.cli import CliError, OneLineParser, Progress, run_guarded, write_outputs
+from solvers.cli import (
+    CliError,
+    OneLineParser,
+    Progress,
+    few_blocks_warning,
+    run_guarded,
+    write_outputs,
+)
 
 __all__ = ["main"]
 
@@ -408,8 +415,16 @@ def _print_summary(result: dict, models, out: str) -> None:
                       f"{'-':>5}  no finished block")
                 continue
             flag = "" if q.get("in_90_band", True) else "  outside 90% band"
+            if q.get("sim_few_blocks"):
+                flag += f"  from {q['sim_n_finished']} blocks"
             print(f"{model:5} {q['block_size_m']:6.2f} {o:>14} {q['sim_median_m']:10.1f} "
                   f"{q['sim_q05_m']:6.1f}-{q['sim_q95_m']:<6.1f} {pit:5.2f}{flag}")
+    few = few_blocks_warning(
+        [(f"{model} row {q['row']} ({q['block_size_m']:g} m)", q["sim_n_finished"])
+         for model in models for q in result["fit_quality"][model] if q.get("sim_few_blocks")],
+        what="the simulated 5/50/95 % runouts")
+    if few:
+        print(f"\n!!! {few}.", file=sys.stderr)
     for model in models:
         w = result[model]["unfinished_blocks"]["warning"]
         if w:

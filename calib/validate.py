@@ -11,7 +11,8 @@ Outputs (in ``--out``, all written together or not at all):
 
 * ``validation.csv``: one row per held-out observation (predictive quantiles,
   PIT, 50/90 % coverage, error of the predictive mean, CRPS of the model and of
-  both baselines);
+  both baselines; ``few_blocks`` where the quantiles rest on fewer than 20
+  finished blocks, also named in a warning line);
 * ``validation.json``: the averages, skill scores, settings and provenance
   (command line, seed, SHA-256 of every input, package versions);
 * ``pit_histogram.png`` and ``intervals.png``.
@@ -25,7 +26,7 @@ import sys
 
 import numpy as np
 
-from solvers.cli import CliError, OneLineParser, run_guarded
+from solvers.cli import CliError, OneLineParser, few_blocks_warning, run_guarded
 
 PROG = "python -m calib.validate"
 
@@ -205,6 +206,10 @@ def print_summary(s: dict, out: str) -> None:
           f"{s['n_below_90']} below)")
     print(f"  error of the mean    {f(s['mean_error_of_mean_m'], '{:+.1f}')} m on average "
           f"(positive: overshoot), {f(s['mean_abs_error_of_mean_m'])} m in absolute value")
+    few = few_blocks_warning([(f"row {r}", n) for r, n in s.get("few_blocks_rows", [])],
+                             what="the predictive quantiles")
+    if few:
+        print(f"!!! {few}", file=sys.stderr)
     if s["n_without_prediction"]:
         print(f"!!! {s['n_without_prediction']} held-out rows have no finished simulated block "
               "and no score", file=sys.stderr)

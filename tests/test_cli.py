@@ -172,3 +172,24 @@ def test_help_shows_defaults(module, needles, capsys):
     text = " ".join(capsys.readouterr().out.split())
     for needle in needles:
         assert needle in text, (module, needle)
+
+
+# ---------------------------------------------------------------- percentiles from few blocks
+
+def test_few_blocks_is_the_one_rule_below_20():
+    import numpy as np
+
+    from solvers.cli import MIN_BLOCKS_FOR_PERCENTILE, few_blocks, few_blocks_warning
+
+    assert MIN_BLOCKS_FOR_PERCENTILE == 20
+    assert few_blocks(19) is True and few_blocks(20) is False
+    np.testing.assert_array_equal(few_blocks(np.array([0, 1, 19, 20, 10**6])),
+                                  [True, True, True, False, False])
+    assert few_blocks_warning([("a", 20), ("b", 500)]) is None
+    w = few_blocks_warning([("x = 110 m", 7), ("x = 120 m", 25), ("x = 130 m", 1)],
+                           what="E p95")
+    assert w == ("warning: E p95 rest on fewer than 20 blocks in 2 row(s), treat them as "
+                 "rough: x = 110 m (7 blocks); x = 130 m (1 block)")
+    many = few_blocks_warning([(f"row {i}", 3) for i in range(12)], max_named=8)
+    assert "in 12 row(s)" in many and "row 7 (3 blocks); and 4 more" in many
+    assert "row 8 (" not in many
