@@ -52,6 +52,7 @@ from calib.likelihood import log_likelihood, observed_rows
 from calib.observations import Observations, ReleaseGroups
 from calib.predictive_check import pool_draws
 from calib.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
+from solvers.cli import few_blocks
 
 __all__ = ["Budget", "ModelFit", "calibrate", "fit_quality", "presets"]
 
@@ -169,7 +170,9 @@ def fit_quality(obs: Observations, runouts: np.ndarray, index=None) -> list[dict
     OBSERVED value, tolerance included) (about uniform on [0, 1] if the model is right;
     below 0.05 or above 0.95 means the observation lies outside the simulated
     90 % band) and P(a <= R <= b) for an interval; all over the finished blocks
-    (``sim_n_finished`` of them). With none, the simulated values are None.
+    (``sim_n_finished`` of them). With none, the simulated values are None;
+    ``sim_few_blocks`` is True where 1 to 19 blocks finished, too few for the
+    5/95 % values (``solvers.cli.few_blocks``).
     """
     index = obs.size_index if index is None else np.asarray(index)
     ll = np.asarray(_loglik_of_runouts(obs, index)(jnp.asarray(runouts)[None]))[0]
@@ -182,7 +185,7 @@ def fit_quality(obs: Observations, runouts: np.ndarray, index=None) -> list[dict
                          else (None,) * 3)
         row = {"row": i + 1, "block_size_m": float(obs.block_size_m[i]),
                "sim_q05_m": q05, "sim_median_m": q50, "sim_q95_m": q95,
-               "sim_n_finished": int(r.size),
+               "sim_n_finished": int(r.size), "sim_few_blocks": bool(some and few_blocks(r.size)),
                "loglik": float(ll[i]) if np.isfinite(ll[i]) else None}
         if obs.is_interval[i]:
             a, b = obs.runout_min_m[i], obs.runout_max_m[i]

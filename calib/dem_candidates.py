@@ -32,7 +32,7 @@ from calib.alpha_law import alpha_of
 from calib.dem_run import DEM_RUN, DemRun
 from calib.discrepancy import Candidate
 from calib.effects import DEM_EFFECTS, effect_box
-from calib.forward import DemForward, _dem_lanes, _stack
+from calib.forward import DemForward, dem_lanes, stack_trees
 from calib.observations import dem_side_m
 from calib.unfinished import mask_unfinished
 from solvers.profile import Profile
@@ -93,7 +93,7 @@ class DemEffectForward:
         lanes = [b for b in blocks for _ in range(self.n_blocks)]
         keys = jax.vmap(lambda j: jax.random.fold_in(self.key, j))(
             jnp.asarray(np.tile(np.arange(self.n_blocks), len(blocks)), jnp.uint32))
-        res = _dem_lanes(params, _stack(lanes), keys, options)
+        res = dem_lanes(params, stack_trees(lanes), keys, options)
         furthest = mask_unfinished(np.max(np.asarray(res.runout_m), axis=-1), res.status)
         return furthest.reshape(len(blocks), self.n_blocks)
 

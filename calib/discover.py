@@ -36,7 +36,7 @@ import warnings
 import jax
 import numpy as np
 
-from solvers._cli import CliError, OneLineParser, run_guarded
+from solvers.cli import CliError, OneLineParser, Progress, json_ready, run_guarded, write_outputs
 
 __all__ = ["concentration_warnings", "ess_warnings", "main", "noise_warnings", "psis_warnings"]
 
@@ -49,7 +49,7 @@ DEM_DEFAULT = ("none", "size_dissipation")
 MIN_ESS = 10.0
 
 
-def _parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(
         prog=PROG, description=__doc__.split("\n\n")[0] + " Writes discovery.json "
         "(named_effect, candidates with score and gap, gap_before, gap_after, where the "
@@ -152,7 +152,7 @@ def _fit_section(f) -> dict:
 def _run(args) -> int:
     from calib import discovery_figures as figs
     from calib.discrepancy import GAP_METRIC, discover, preset_budget
-    from calib.fit import _Progress, _write_all, common_release_m, load_inputs
+    from calib.fit import common_release_m, load_inputs
     from calib.provenance import versions
     from calib.scores import ELPD_MIN, Z_MIN
     from calib.unfinished import UnfinishedBlocksWarning
@@ -166,7 +166,7 @@ def _run(args) -> int:
         budget = preset_budget(args.model, args.quick, args.n_blocks)
     except ValueError as e:
         raise CliError(f"--n-blocks: {e}") from None
-    bar = _Progress(not args.no_progress, args.model.upper())
+    bar = Progress(not args.no_progress, args.model.upper())
     with warnings.catch_warnings():  # reported in the summary and discovery.json
         warnings.simplefilter("ignore", UnfinishedBlocksWarning)
         d = discover(cands, obs, profile, jax.random.key(args.seed), budget, bar, velocities,
@@ -222,8 +222,8 @@ def _run(args) -> int:
             None if d.named_effect == "none" else named_fit.samples, d.named_effect,
             (d.gap_before, d.gap_after)),
     }
-    text = json.dumps(_clean(result), indent=1, allow_nan=False) + "\n"
-    _write_all(args.out, {"discovery.json": text}, out_figs)
+    text = json.dumps(json_ready(result), indent=1, allow_nan=False) + "\n"
+    write_outputs(args.out, {"discovery.json": text}, out_figs)
     _print_summary(result, args.out)
     return 0
 
@@ -248,21 +248,6 @@ def _load_velocities(path, model: str, profile):
         raise CliError(f"{path}: line {i + 2}, column 'station_x_m': expected an abscissa "
                        f"inside the profile ({x0:g} to {x1:g} m), got {vel.station_x_m[i]:g}")
     return vel
-
-
-def _clean(v):
-    """JSON-ready copy: NumPy scalars to Python, non-finite floats to None."""
-    if isinstance(v, dict):
-        return {k: _clean(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_clean(x) for x in v]
-    if isinstance(v, (np.bool_, bool)):
-        return bool(v)
-    if isinstance(v, (np.integer, int)):
-        return int(v)
-    if isinstance(v, (np.floating, float)):
-        return float(v) if np.isfinite(v) else None
-    return v
 
 
 def ess_warnings(ess: dict, min_ess: float = MIN_ESS) -> list[str]:
@@ -433,7 +418,7 @@ def _worst_fold(c: dict) -> str:
 
 
 def main(argv=None) -> int:
-    return run_guarded(PROG, _run, _parser().parse_args(argv))
+    return run_guarded(PROG, _run, build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -63,7 +63,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from solvers._cli import (
+from solvers.cli import (
     CliError,
     OneLineParser,
     cell_float,
@@ -390,7 +390,7 @@ def observations_csv_text(rows: list[dict]) -> str:
     return buf.getvalue()
 
 
-def _parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(
         prog=PROG, description=__doc__.split("\n\n")[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -508,7 +508,7 @@ def _run(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m calib.field``; bad input: one line on stderr, exit 2, nothing written."""
-    return run_guarded(PROG, _run, _parser().parse_args(argv))
+    return run_guarded(PROG, _run, build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -26,7 +26,6 @@ tolerance (points) or known to lie in an interval.
 from __future__ import annotations
 
 import argparse
-import functools
 import json
 import os
 import sys
@@ -38,7 +37,14 @@ import numpy as np
 
 from calib.calibration_file import SCHEMA, posterior_csv_text
 from calib.provenance import provenance, versions
-from solvers._cli import CliError, OneLineParser, run_guarded, text_writer, write_all_atomic
+from solvers.cli import (
+    CliError,
+    OneLineParser,
+    Progress,
+    few_blocks_warning,
+    run_guarded,
+    write_outputs,
+)
 
 __all__ = ["main"]
 
@@ -46,7 +52,7 @@ PROG = "python -m calib.fit"
 ALPHA_AT_L = (0.2, 0.9, 1.8)
 
 
-def _parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(
         prog=PROG,
         description=__doc__.split("\n\n")[0] + " Writes calibration.json, posterior CSVs and "
@@ -135,32 +141,6 @@ def _stats(values: np.ndarray | None, point: float) -> dict:
         return {"map": float(point), "mean": None, "q05": None, "q95": None}
     return {"map": float(point), "mean": float(np.mean(values)),
             "q05": float(np.quantile(values, 0.05)), "q95": float(np.quantile(values, 0.95))}
-
-
-class _Progress:
-    """One tqdm bar per stage (stderr)."""
-
-    def __init__(self, enabled: bool, label: str):
-        self.enabled, self.label, self.bar, self.stage = enabled, label, None, None
-        self.t0 = time.perf_counter()
-
-    def __call__(self, stage: str, done: int, total: int) -> None:
-        if not self.enabled:
-            return
-        from tqdm import tqdm
-
-        if stage != self.stage:
-            if self.bar is not None:
-                self.bar.close()
-            self.stage = stage
-            self.bar = tqdm(total=total, desc=f"{self.label}: {stage}", file=sys.stderr,
-                            leave=False)
-        self.bar.n = done
-        self.bar.refresh()
-
-    def close(self):
-        if self.bar is not None:
-            self.bar.close()
 
 
 def _finite(v) -> float | None:
@@ -334,7 +314,7 @@ def _run(args) -> int:
             forward = DemForward(profile, obs.sizes_m, budget.n_blocks_design,
                                  jax.random.fold_in(mkey, 1), form=args.alpha_law,
                                  release_x_m=release)
-        bar = _Progress(not args.no_progress, model.upper())
+        bar = Progress(not args.no_progress, model.upper())
         # the check also simulates a grid of sizes for the runout-vs-size figure
         extra = (np.geomspace(0.2, 2.0, 6) if model == "crsp" else
                  [0.2, 0.9, 2.0] if args.quick else [0.2, 0.5, 0.9, 1.4, 2.0])
@@ -382,7 +362,7 @@ def _run(args) -> int:
     figs["runout_vs_size.png"] = figures.runout_vs_size(obs, predictive)
     result["timings_s"]["total_s"] = time.perf_counter() - t_start
     files["calibration.json"] = json.dumps(result, indent=1, allow_nan=False) + "\n"
-    _write_all(args.out, files, figs, writers)
+    write_outputs(args.out, files, figs, writers)
     _print_summary(result, models, args.out)
     if args.holdout_fraction:
         _validate(args, models)
@@ -421,16 +401,6 @@ def _validate(args, models) -> None:
     print_summary(run_validation(vargs), vargs.out)
 
 
-def _write_all(out: str, files: dict, figs: dict, writers: dict | None = None) -> None:
-    """Write every output into ``out`` atomically (``solvers._cli.write_all_atomic``):
-    ``files`` name -> text, ``figs`` name -> figure, ``writers`` name -> ``write(path)``."""
-    todo = {os.path.join(out, name): text_writer(text) for name, text in files.items()}
-    todo.update({os.path.join(out, name): functools.partial(fig.savefig, dpi=120)
-                 for name, fig in figs.items()})
-    todo.update({os.path.join(out, name): w for name, w in (writers or {}).items()})
-    write_all_atomic(todo)
-
-
 def _fmt(v, nd=3):
     return "-" if v is None else f"{v:.{nd}f}"
 
@@ -463,8 +433,16 @@ def _print_summary(result: dict, models, out: str) -> None:
                       f"{'-':>5}  no finished block")
                 continue
             flag = "" if q.get("in_90_band", True) else "  outside 90% band"
+            if q.get("sim_few_blocks"):
+                flag += f"  from {q['sim_n_finished']} blocks"
             print(f"{model:5} {q['block_size_m']:6.2f} {o:>14} {q['sim_median_m']:10.1f} "
                   f"{q['sim_q05_m']:6.1f}-{q['sim_q95_m']:<6.1f} {pit:5.2f}{flag}")
+    few = few_blocks_warning(
+        [(f"{model} row {q['row']} ({q['block_size_m']:g} m)", q["sim_n_finished"])
+         for model in models for q in result["fit_quality"][model] if q.get("sim_few_blocks")],
+        what="the simulated 5/50/95 % runouts")
+    if few:
+        print(f"\n!!! {few}.", file=sys.stderr)
     for model in models:
         w = result[model]["unfinished_blocks"]["warning"]
         if w:
@@ -496,7 +474,7 @@ def _print_summary(result: dict, models, out: str) -> None:
 
 
 def main(argv=None) -> int:
-    return run_guarded(PROG, _run, _parser().parse_args(argv))
+    return run_guarded(PROG, _run, build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

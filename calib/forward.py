@@ -42,7 +42,7 @@ from calib.priors import CRSP_BOX, DEM_BOXES, Box
 from calib.unfinished import mask_unfinished
 from solvers.profile import Profile
 
-__all__ = ["CrspForward", "DemForward", "default_lanes"]
+__all__ = ["CrspForward", "DemForward", "default_lanes", "dem_lanes", "stack_trees"]
 
 
 @functools.partial(jax.jit, static_argnames=("with_rolling",))
@@ -61,7 +61,7 @@ def _crsp_params(base: crsp.Params, theta: jax.Array, with_rolling: bool = False
 
 
 @functools.partial(jax.jit, static_argnames=("options",))
-def _dem_lanes(params, blocks, keys, options):
+def dem_lanes(params, blocks, keys, options):
     """DEM ``simulate`` vmapped over (block, key) lanes; one cache for every forward."""
     from solvers.dem import simulate
 
@@ -79,7 +79,8 @@ def default_lanes() -> int:
     return 128 if jax.default_backend() == "cpu" else 4096
 
 
-def _stack(trees):
+def stack_trees(trees):
+    """Stack a list of pytrees (blocks) leaf by leaf into one batched pytree."""
     return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *trees)
 
 
@@ -186,7 +187,7 @@ class CrspForward:
             if release is not None:
                 params = params._replace(
                     release_x_m=jnp.asarray(release[c0:c0 + chunk], jnp.float64))
-            blocks = _stack([crsp.make_block(float(r)) for r in radius[c0:c0 + chunk]])
+            blocks = stack_trees([crsp.make_block(float(r)) for r in radius[c0:c0 + chunk]])
             res = crsp.simulate_tasks(params, blocks, self.key, self.profile, stations,
                                       n_per_task=self.n_blocks,
                                       pool=min(self.pool, chunk * self.n_blocks),
@@ -302,7 +303,7 @@ class DemForward:
     def _compiled(self):
         if self._fn is None:
             options = self.run.options(self._params, dem_side_m(self.sizes_m))
-            self._fn = functools.partial(_dem_lanes, self._params, options=options)
+            self._fn = functools.partial(dem_lanes, self._params, options=options)
         return self._fn
 
     def runouts_at_alpha(self, alpha) -> np.ndarray:
@@ -328,7 +329,7 @@ class DemForward:
         fn = self._compiled()
         out = []
         for c0 in range(0, len(lanes), self.lane_batch):
-            blocks = _stack(lanes[c0:c0 + self.lane_batch])
+            blocks = stack_trees(lanes[c0:c0 + self.lane_batch])
             k = jax.vmap(lambda j: jax.random.fold_in(self.key, j))(
                 jnp.asarray(keys[c0:c0 + self.lane_batch], jnp.uint32))
             res = fn(blocks, k)  # runout_m (lanes, 1 fragment), status (lanes,)

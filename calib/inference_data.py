@@ -69,7 +69,7 @@ def inference_data(post, obs, model: str):
 
 
 def netcdf_writer(tree):
-    """A ``write(path)`` callable for ``solvers._cli.write_all_atomic`` that writes
+    """A ``write(path)`` callable for ``solvers.cli.write_all_atomic`` that writes
     ``tree`` as NetCDF-4 (h5netcdf engine)."""
     def write(path):
         tree.to_netcdf(path, engine="h5netcdf")

@@ -28,14 +28,14 @@ import time
 
 import numpy as np
 
-from solvers._cli import CliError, OneLineParser, parse_floats, run_guarded
+from solvers.cli import CliError, OneLineParser, parse_floats, run_guarded
 
 __all__ = ["detection_table", "main", "parse_seeds"]
 
 PROG = "python -m calib.power"
 
 
-def _parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
     from calib.synth import add_speed_options
 
     p = OneLineParser(
@@ -129,10 +129,9 @@ def _median(values) -> float | None:
 
 
 def _write_json_atomic(path: str, obj) -> None:
-    from calib.discover import _clean
-    from solvers._cli import write_text_atomic
+    from solvers.cli import json_ready, write_text_atomic
 
-    write_text_atomic(path, json.dumps(_clean(obj), indent=1, allow_nan=False) + "\n")
+    write_text_atomic(path, json.dumps(json_ready(obj), indent=1, allow_nan=False) + "\n")
 
 
 def _one_run(profile, effect, strength, n_obs, seed, sd_m, fit_seed, budget,
@@ -184,7 +183,7 @@ def _run(args) -> int:
     from calib.discrepancy import PRESETS, preset_budget
     from calib.effects import EFFECT_NAMES
     from calib.synth import speed_design
-    from solvers._cli import write_csv_atomic
+    from solvers.cli import write_csv_atomic
     from solvers.profile import load_profile
 
     effects = [e.strip() for e in args.effects.split(",") if e.strip()]
@@ -275,7 +274,7 @@ def _run(args) -> int:
 
 
 def main(argv=None) -> int:
-    return run_guarded(PROG, _run, _parser().parse_args(argv))
+    return run_guarded(PROG, _run, build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -25,6 +25,11 @@ so). Its CRPS is computed the same way. Skill against a baseline:
 ``1 - mean CRPS / mean CRPS_baseline`` (1: perfect, 0: no better than quoting
 the observed distribution, < 0: worse).
 
+A row whose ensemble holds 1 to 19 finished blocks (``n_predictive``) has
+``few_blocks`` set: its quantiles and bands rest on too few blocks
+(``solvers.cli.few_blocks``); the summary lists those rows
+(``few_blocks_rows``: [row, n_predictive] pairs).
+
 Interval rows (runout seen to lie in [a, b]) have no CRPS here; they are
 reported with their coverage only (an interval is inside a band when it
 overlaps it) and left out of the averages of the scores.
@@ -39,6 +44,7 @@ import pandas as pd
 import scoringrules as sr
 
 from calib.observations import Observations
+from solvers.cli import few_blocks
 
 __all__ = ["MIN_ROWS_PER_SIZE", "PredictiveCheck", "in_band", "observed_ensemble",
            "pool_draws", "score_rows"]
@@ -120,6 +126,7 @@ def score_rows(obs: Observations, predictive: np.ndarray, group_index: np.ndarra
         same = np.abs(clim_sizes - d) <= 0.01 * d
         per_size = clim_all[same] if same.sum() >= MIN_ROWS_PER_SIZE else clim_all
         row = {"row": i + 1, "block_size_m": d, "n_predictive": int(ens.size),
+               "few_blocks": bool(ens.size and few_blocks(ens.size)),
                "baseline_size": "size" if same.sum() >= MIN_ROWS_PER_SIZE else "overall"}
         if obs.is_interval[i]:
             a, b = float(obs.runout_min_m[i]), float(obs.runout_max_m[i])
@@ -165,6 +172,8 @@ def score_rows(obs: Observations, predictive: np.ndarray, group_index: np.ndarra
         "coverage_90": float(scored["in_90"].mean()) if n else None,
         "n_above_90": int((scored["pit"] > 0.95).sum()) if n else 0,
         "n_below_90": int((scored["pit"] < 0.05).sum()) if n else 0,
+        "few_blocks_rows": [[int(r), int(k)] for r, k, f in
+                            zip(rows["row"], rows["n_predictive"], rows["few_blocks"]) if f],
     }
     for name, ref in (("skill_vs_climatology", "mean_crps_climatology_m"),
                       ("skill_vs_climatology_size", "mean_crps_climatology_size_m")):

@@ -29,7 +29,7 @@ import os
 import shutil
 import sys
 
-from solvers._cli import (
+from solvers.cli import (
     CliError,
     OneLineParser,
     parse_stations,
@@ -45,7 +45,7 @@ DEFAULT_PROFILE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(_
                                "data", "postignano_profile.csv")
 
 
-def _parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
     from calib.effects import EFFECT_NAMES
 
     p = OneLineParser(
@@ -182,7 +182,7 @@ def _run(args) -> int:
 
 
 def main(argv=None) -> int:
-    return run_guarded(PROG, _run, _parser().parse_args(argv))
+    return run_guarded(PROG, _run, build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

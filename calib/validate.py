@@ -11,7 +11,8 @@ Outputs (in ``--out``, all written together or not at all):
 
 * ``validation.csv``: one row per held-out observation (predictive quantiles,
   PIT, 50/90 % coverage, error of the predictive mean, CRPS of the model and of
-  both baselines);
+  both baselines; ``few_blocks`` where the quantiles rest on fewer than 20
+  finished blocks, also named in a warning line);
 * ``validation.json``: the averages, skill scores, settings and provenance
   (command line, seed, SHA-256 of every input, package versions);
 * ``pit_histogram.png`` and ``intervals.png``.
@@ -25,12 +26,12 @@ import sys
 
 import numpy as np
 
-from solvers._cli import CliError, OneLineParser, run_guarded
+from solvers.cli import CliError, OneLineParser, few_blocks_warning, run_guarded
 
 PROG = "python -m calib.validate"
 
 
-def _parser() -> OneLineParser:
+def build_parser() -> OneLineParser:
     p = OneLineParser(
         prog=PROG, description=__doc__.split("\n\n")[1],
         epilog="Example: python -m calib.validate results/calibration.json heldout.csv "
@@ -164,7 +165,7 @@ def run_validation(args) -> dict:
     the summary written to validation.json."""
     from calib.predictive_check import score_rows
     from calib.provenance import provenance
-    from solvers._cli import text_writer, write_all_atomic
+    from solvers.cli import write_outputs
 
     cal, heldout, calib_obs, data, profile = _load(args)
     pooled, index, draws, n_blocks = _predictive(cal, heldout, profile, args.n_posterior,
@@ -182,12 +183,7 @@ def run_validation(args) -> dict:
     figs = _figures(check)
     files = {"validation.csv": check.rows.to_csv(index=False, float_format="%.6g"),
              "validation.json": json.dumps(summary, indent=1, allow_nan=False) + "\n"}
-    import functools
-
-    writers = {os.path.join(args.out, n): text_writer(t) for n, t in files.items()}
-    writers.update({os.path.join(args.out, n): functools.partial(f.savefig, dpi=120)
-                    for n, f in figs.items()})
-    write_all_atomic(writers)
+    write_outputs(args.out, files, figs)
     return summary
 
 
@@ -210,6 +206,10 @@ def print_summary(s: dict, out: str) -> None:
           f"{s['n_below_90']} below)")
     print(f"  error of the mean    {f(s['mean_error_of_mean_m'], '{:+.1f}')} m on average "
           f"(positive: overshoot), {f(s['mean_abs_error_of_mean_m'])} m in absolute value")
+    few = few_blocks_warning([(f"row {r}", n) for r, n in s.get("few_blocks_rows", [])],
+                             what="the predictive quantiles")
+    if few:
+        print(f"!!! {few}", file=sys.stderr)
     if s["n_without_prediction"]:
         print(f"!!! {s['n_without_prediction']} held-out rows have no finished simulated block "
               "and no score", file=sys.stderr)
@@ -226,7 +226,7 @@ def _main(args) -> int:
 
 
 def main(argv=None) -> int:
-    return run_guarded(PROG, _main, _parser().parse_args(argv))
+    return run_guarded(PROG, _main, build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

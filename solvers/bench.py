@@ -10,7 +10,7 @@ N = 1e3 (roughness 0, the setting where it is valid) from its own virtual
 environment, never a project dependency: ``--pyrockfall-python
 .bench-venv/bin/python``.
 
-DEM: figures from ``solvers.dem._bench.run_benchmarks`` when the DEM is present.
+DEM: figures from ``solvers.dem.bench.run_benchmarks`` when the DEM is present.
 
 A benchmark, not a test: it asserts nothing; compare runs of the same command.
 Targets (issue 15, 2 CPU cores): >= 100,000 blocks/s for 1 m blocks and >=
@@ -30,7 +30,7 @@ import jax
 import numpy as np
 
 from solvers import crsp, load_profile
-from solvers._cli import OneLineParser
+from solvers.cli import OneLineParser
 from solvers.status import status_counts
 
 PROFILE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
@@ -93,7 +93,7 @@ def pyrockfall_anchor(python: str, n_blocks: int = 1000) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def main(argv=None) -> int:
+def build_parser() -> OneLineParser:
     p = OneLineParser(prog="python -m solvers.bench", description=__doc__.split("\n\n")[0])
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--quick", action="store_true", help="N = 1e4 instead of 1e5, quick DEM")
@@ -102,7 +102,11 @@ def main(argv=None) -> int:
     p.add_argument("--pyrockfall-python", help="python of a venv with pyrockfall 0.1.2 "
                    "(default: .bench-venv/bin/python if it exists)")
     p.add_argument("--no-dem", action="store_true", help="skip the DEM benchmarks")
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
 
     n = 10000 if args.quick else 100000
     rows = [crsp_throughput(n, radius_m=0.5 * d, stations_x_m=st, pool=args.pool)
@@ -127,7 +131,7 @@ def main(argv=None) -> int:
                                                      1)
     if not args.no_dem:
         try:
-            from solvers.dem._bench import run_benchmarks
+            from solvers.dem.bench import run_benchmarks
         except ImportError as exc:
             out["dem"] = {"error": f"DEM benchmark unavailable: {exc}"}
         else:

@@ -49,7 +49,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from solvers._cli import cell_float
+from solvers.cli import cell_float
 
 __all__ = [
     "MATERIAL_COLUMNS",
@@ -472,7 +472,7 @@ def _cut_parser(sub) -> None:
 
 def build_parser():
     """The ``python -m solvers.profile`` parser (subcommand ``cut``)."""
-    from solvers._cli import OneLineParser
+    from solvers.cli import OneLineParser
 
     parser = OneLineParser(prog=PROG, description="Slope profile tools.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
@@ -481,7 +481,7 @@ def build_parser():
 
 
 def _columns(text: str, option: str) -> tuple[str, str]:
-    from solvers._cli import CliError
+    from solvers.cli import CliError
 
     parts = [c.strip() for c in text.split(",")]
     if len(parts) != 2 or not all(parts):
@@ -494,7 +494,7 @@ def _run_cut(args, argv: list[str]) -> int:
     import shlex
 
     from solvers import raster as rs
-    from solvers._cli import CliError, text_writer, write_all_atomic
+    from solvers.cli import CliError, text_writer, write_all_atomic
 
     if not args.out.endswith(".csv"):
         raise CliError(f"--out {args.out}: expected a .csv file name")
@@ -589,7 +589,7 @@ def main(argv: list[str] | None = None) -> int:
     """``python -m solvers.profile cut ...``; bad input: one line on stderr, exit 2."""
     import sys
 
-    from solvers._cli import run_guarded
+    from solvers.cli import run_guarded
 
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)

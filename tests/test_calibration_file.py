@@ -122,8 +122,9 @@ def test_every_crsp_calibration_the_fit_can_write_is_accepted_by_hazard(tmp_path
 def test_the_fit_checks_its_dem_draws_before_writing():
     """``calib.fit`` runs the hazard's acceptance check on what it would write:
     the box passes; a draw the hazard would refuse stops the fit, named."""
+    from solvers.cli import CliError
+
     from calib.fit import _check_alpha_law
-    from solvers._cli import CliError
 
     box = DEM_BOXES["power"]
     good = _box_points(box, 16, seed=3)

@@ -1,4 +1,4 @@
-"""Outputs written by every command (``solvers._cli.write_all_atomic``) are files a
+"""Outputs written by every command (``solvers.cli.write_all_atomic``) are files a
 colleague can open: they get the user's umask, like any file the user writes."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import stat
 
 import pytest
 
-from solvers._cli import text_writer, write_all_atomic
+from solvers.cli import text_writer, write_all_atomic
 
 
 @pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o077, 0o600), (0o002, 0o664)])

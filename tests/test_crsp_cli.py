@@ -7,6 +7,8 @@ import sys
 import pandas as pd
 import pytest
 
+from solvers.cli import station_column_names
+
 CMD = [sys.executable, "-m", "solvers.crsp", "--no-progress"]
 PROFILE = "data/postignano_profile.csv"
 
@@ -25,6 +27,11 @@ def test_cli_writes_one_row_per_block(tmp_path):
     assert len(df) == 64
     for col in ("runout_m", "stop_x_m", "stop_z_m", "stopped", "passed_110m", "energy_kJ_230m"):
         assert col in df.columns
+    # station columns: the names python -m solvers.dem writes too (energy per block here)
+    names = [*station_column_names(110).values(), *station_column_names(230).values()]
+    assert names == ["passed_110m", "energy_kJ_110m", "velocity_m_s_110m", "bounce_height_m_110m",
+                     "passed_230m", "energy_kJ_230m", "velocity_m_s_230m", "bounce_height_m_230m"]
+    assert list(df.columns[-8:]) == names
     assert "median" in r.stdout and "blocks/s" in r.stdout
 
 

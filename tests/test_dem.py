@@ -525,14 +525,19 @@ def test_cli_writes_rows(tmp_path):
     p = subprocess.run([sys.executable, "-m", "solvers.dem", "--profile", PROFILE_CSV,
                         "--block-size-m", "0.9", "--n-blocks", "2", "--alpha", "0.43",
                         "--fragments", "4", "--stiffness-scale", "0.01", "--max-time-s", "5",
-                        "--seed", "0", "--out", str(out)], capture_output=True, text=True)
+                        "--seed", "0", "--stations", "110", "--no-progress",
+                        "--out", str(out)], capture_output=True, text=True)
     assert p.returncode == 0, p.stderr
     import pandas as pd
     df = pd.read_csv(out)
     assert len(df) == 8
     for col in ("runout_m", "stop_x_m", "stop_z_m", "stopped", "block_id", "fragment_id"):
         assert col in df.columns
+    # python -m solvers.crsp's station names; the 2D energy says it is per metre of width
+    assert list(df.columns[-4:]) == ["passed_110m", "energy_kJ_per_m_110m",
+                                     "velocity_m_s_110m", "bounce_height_m_110m"]
     assert len(p.stdout.strip().splitlines()) == 1
+    assert "DEM:" not in p.stderr  # --no-progress: no bar
 
 
 def test_cli_viscous_batches(tmp_path):
@@ -549,6 +554,7 @@ def test_cli_viscous_batches(tmp_path):
                         "--out", str(out)], capture_output=True, text=True)
     assert p.returncode == 0, p.stderr
     assert "damping=viscous" in p.stdout
+    assert "DEM:" in p.stderr and "2/2" in p.stderr  # the progress bar, in blocks
     df = pd.read_csv(out)
     assert len(df) == 2 and set(df["status"]) <= set(STATUS_NAMES.values())
 

@@ -22,6 +22,7 @@ from calib.hazard import (
     load_calibration,
     probability_class,
     run_hazard,
+    summary_text,
 )
 from calib.hazard._units import draw_key
 from solvers import crsp, load_profile
@@ -310,6 +311,25 @@ def test_release_rate_gives_frequencies(small_run):
     assert np.all(down.freq_E_gt_30kJ_per_yr <= down.freq_reach_per_yr)
     assert set(down.hazard_level) <= {"white", "residual", "yellow", "blue", "red"}
     assert "hazard_level" not in hazard_table(c, profile).columns
+
+
+def test_percentiles_from_few_blocks_are_flagged_and_named(small_run):
+    """A row whose percentiles rest on 1 to 19 passers has few_blocks set, and
+    summary_text names it in a warning line (solvers.cli.few_blocks, the one rule)."""
+    _, profile, c = small_run
+    t = hazard_table(c, profile)
+    n = t.n_blocks_reached
+    expected = (t.x_m > c.release_x_m) & (n > 0) & (n < 20)
+    assert (t.few_blocks == expected).all()
+    assert expected.any() and (~expected & (n > 0)).any()  # both kinds in this run
+    road = float(t[t.few_blocks].x_m.iloc[0])
+    lines = summary_text(c, t, road).splitlines()
+    assert any("(fewer than 20: rough)" in ln for ln in lines[1:-1])
+    warning = lines[-1]
+    assert warning.startswith("warning: the energy, bounce-height and speed percentiles rest "
+                              "on fewer than 20 blocks in ")
+    assert f"x = {road:g} m" in warning and "few_blocks" in warning
+    assert "warning" not in summary_text(c, t[~t.few_blocks], road)
 
 
 # ------------------------------------------------------------------ memory bound

@@ -11,7 +11,7 @@ import xarray as xr
 from calib.bayes import Posterior
 from calib.inference_data import inference_data, netcdf_writer, read_inference_data
 from calib.observations import Observations
-from solvers._cli import write_all_atomic
+from solvers.cli import write_all_atomic
 
 
 def _posterior(rng, n_chains=2, n_draws=7, n_rows=3):

@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 
 from calib.power import detection_table, parse_seeds
-from solvers._cli import CliError
+from solvers.cli import CliError
 
 
 def _cli(*args):

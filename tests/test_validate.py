@@ -15,7 +15,7 @@ from test_hazard_fixtures import write_calibration
 from calib.forward import CrspForward
 from calib.observations import Observations, release_groups
 from calib.predictive_check import score_rows
-from calib.validate import main
+from calib.validate import main, print_summary
 from solvers.profile import load_profile
 
 PROFILE = load_profile("data/postignano_profile.csv")
@@ -39,6 +39,23 @@ def test_scores_of_a_known_ensemble():
     # climatology {10, 20, 30, 40} at 30: E|X - 30| - E|X - X'| / 2 = 10 - 12.5 / 2
     assert abs(row["crps_climatology_m"] - (10.0 - 6.25)) < 1e-9
     assert row["baseline_size"] == "size"
+
+
+def test_rows_whose_quantiles_rest_on_few_blocks_are_flagged_and_named(capsys):
+    """10 finished blocks behind row 2, 100 behind row 1: only row 2 is flagged
+    (solvers.cli.few_blocks), listed in the summary and named on stderr."""
+    obs = Observations.points([1.0, 1.0], [30.0, 40.0], 1.0)
+    ens = np.full((2, 100), np.nan)  # NaN: unfinished blocks, left out
+    ens[0] = np.linspace(0.0, 100.0, 100)
+    ens[1, :10] = np.linspace(0.0, 100.0, 10)
+    check = score_rows(obs, ens, np.array([0, 1]), _calib_rows([10.0, 20.0, 30.0], [1.0] * 3))
+    assert list(check.rows["few_blocks"]) == [False, True]
+    assert check.summary["few_blocks_rows"] == [[2, 10]]
+    print_summary({**check.summary, "model": "crsp", "draws": "posterior", "n_draws": 1,
+                   "n_blocks_per_draw_and_group": 100}, "out")
+    err = capsys.readouterr().err
+    assert "rest on fewer than 20 blocks" in err and "row 2 (10 blocks)" in err
+    assert "row 1" not in err
 
 
 def test_skill_ranks_a_sharp_right_forecast_above_climatology_and_a_biased_one_below():

@@ -15,13 +15,13 @@ import sys
 import time
 
 from calib.dem_run import DEM_RUN
-from solvers._cli import (
+from solvers.cli import (
     CliError,
     OneLineParser,
     fail,
     parse_floats,
     parse_stations,
-    write_all_atomic,
+    write_outputs,
 )
 
 # model -> (blocks per draw and size, posterior draws); DEM defaults keep the
@@ -60,12 +60,15 @@ def build_parser() -> OneLineParser:
                         "reports, m (default: the site file's station_of_interest next to "
                         "the calibration's profile, calib/site.py; without one, the "
                         "profile's last station)")
-    p.add_argument("--out", default="results/hazard/", help="output folder")
+    p.add_argument("--out", default="results/hazard/",
+                   help="output folder (default results/hazard/)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--chunk-blocks", type=int, default=16384,
-                   help="most blocks per size in one compiled call (bounds memory)")
-    p.add_argument("--pool", type=int, default=1024, help="CRSP lanes per call")
-    p.add_argument("--max-events", type=int, default=5000, help="CRSP event budget per block")
+                   help="most blocks per size in one compiled call (bounds memory; "
+                        "default 16384)")
+    p.add_argument("--pool", type=int, default=1024, help="CRSP lanes per call (default 1024)")
+    p.add_argument("--max-events", type=int, default=5000,
+                   help="CRSP event budget per block (default 5000)")
     p.add_argument("--dem-stiffness-scale", type=float, default=DEM_RUN.stiffness_scale,
                    help="DEM: multiply kn = ks = 50 GPa/m by this (default "
                         f"{DEM_RUN.stiffness_scale:g}, the fit's)")
@@ -79,11 +82,6 @@ def build_parser() -> OneLineParser:
 def _positive_int(name: str, v: int) -> None:
     if v <= 0:
         raise CliError(f"{name}: expected a positive count, got {v}")
-
-
-def _write_all(out_dir: str, writers: dict) -> list[str]:
-    """Write every output into ``out_dir`` atomically (``solvers._cli.write_all_atomic``)."""
-    return write_all_atomic({os.path.join(out_dir, name): w for name, w in writers.items()})
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -189,19 +187,14 @@ def main(argv: list[str] | None = None) -> int:
     def csv_writer(df):
         return lambda p: df.to_csv(p, index=False)
 
-    def text_writer(p):
-        with open(p, "w") as fh:
-            fh.write(text + "\n")
-
     writers = {
         "exceedance.csv": csv_writer(exc_df),
         "hazard_table.csv": csv_writer(table),
         "exceedance.png": lambda p: plot_exceedance(exc_df, profile, road_x, p, title, label),
         "envelopes.png": lambda p: plot_envelopes(table, profile, road_x, p, title),
-        "summary.txt": text_writer,
     }
     try:
-        written = _write_all(args.out, writers)
+        written = write_outputs(args.out, {"summary.txt": text + "\n"}, writers=writers)
     except OSError as exc:
         fail(prog, f"cannot write to {args.out}: {exc.strerror or exc}")
     print(text)

@@ -30,7 +30,7 @@ from calib.calibration_file import draw_parameters, load_calibration
 from calib.hazard._run import run_hazard
 from calib.observations import crsp_radius_m
 from solvers import crsp, load_profile
-from solvers._cli import OneLineParser
+from solvers.cli import OneLineParser
 
 PROFILE = os.path.abspath("data/postignano_profile.csv")
 SIZES_M = (0.2, 0.5, 1.0, 2.0)
@@ -51,8 +51,8 @@ def _calibration_file(folder: str) -> str:
 
 def main(argv=None) -> int:
     p = OneLineParser(prog="python -m calib.hazard._bench", description=__doc__.split("\n\n")[0])
-    p.add_argument("--n", type=int, default=16384, help="blocks per size and draw")
-    p.add_argument("--draws", type=int, default=2, help="draws in the pipeline run")
+    p.add_argument("--n", type=int, default=16384, help="blocks per size and draw (default 16384)")
+    p.add_argument("--draws", type=int, default=2, help="draws in the pipeline run (default 2)")
     p.add_argument("--pool", type=int, default=1024, help="CRSP lanes (default 1024)")
     args = p.parse_args(argv)
     profile = load_profile(PROFILE)

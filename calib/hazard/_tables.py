@@ -28,7 +28,10 @@ Definitions (station x, block size D; draws d = 1..M, N blocks each):
   p95 (the calibration's uncertainty on the design energy).
 * P(E > 30 kJ | reach), P(E > 300 kJ | reach): pooled over draws.
 * ``n_blocks_reached``: passers over all draws, the sample behind the design
-  values (a p95 from a handful of blocks is not a design value).
+  values (a p95 from a handful of blocks is not a design value);
+  ``few_blocks``: True where 0 < n_blocks_reached < 20, the percentiles of the
+  row rest on too few blocks (``solvers.cli.few_blocks``); ``summary_text``
+  names those rows in a warning line.
 * intensity class: Swiss class (``_intensity``) of the design energy, E p95
   (the percentile UNI 11211-4 designs on, per NOTES.md, checked via a
   secondary source).
@@ -45,6 +48,7 @@ import pandas as pd
 from calib.hazard._intensity import hazard_level, intensity_class
 from calib.hazard._run import HazardCounts
 from calib.hazard._stats import BINS, hist_quantile
+from solvers.cli import few_blocks, few_blocks_warning
 from solvers.profile import Profile
 
 __all__ = ["EXCEEDANCE_COLUMNS", "exceedance_table", "hazard_table", "summary_text"]
@@ -134,6 +138,7 @@ def hazard_table(c: HazardCounts, profile: Profile,
                 "reach_prob_q05": float(rq[0, s]) if ok else np.nan,
                 "reach_prob_q95": float(rq[2, s]) if ok else np.nan,
                 "n_blocks_reached": int(n_pass[t, s]),
+                "few_blocks": bool(ok and n_pass[t, s] > 0 and few_blocks(n_pass[t, s])),
                 "energy_p50_kJ": float(e_q[0.5][t, s]) if ok else np.nan,
                 "energy_p95_kJ": e95,
                 "energy_p99_kJ": float(e_q[0.99][t, s]) if ok else np.nan,
@@ -174,7 +179,8 @@ def summary_text(c: HazardCounts, table: pd.DataFrame, road_x_m: float,
         line = (f"  D = {r.block_size_m:g} m: P(reach {label}) = {r.reach_prob_mean:.3g} "
                 f"[5-95 %: {r.reach_prob_q05:.3g}-{r.reach_prob_q95:.3g}]")
         if np.isfinite(r.energy_p95_kJ):
-            line += (f"; from the {r.n_blocks_reached} blocks that reach it: "
+            rough = " (fewer than 20: rough)" if r.few_blocks else ""
+            line += (f"; from the {r.n_blocks_reached} blocks that reach it{rough}: "
                      f"E p95 = {r.energy_p95_kJ:.4g} kJ "
                      f"[{r.energy_p95_kJ_q05:.4g}-{r.energy_p95_kJ_q95:.4g}], "
                      f"E p99 = {r.energy_p99_kJ:.4g} kJ, bounce height p95 = "
@@ -191,4 +197,10 @@ def summary_text(c: HazardCounts, table: pd.DataFrame, road_x_m: float,
             line += (f"; {r.p_unfinished:.2%} of blocks unfinished (still moving at the "
                      f"solver's budget, or invalid), not counted as runouts")
         lines.append(line)
+    few = table[table["few_blocks"]]
+    warning = few_blocks_warning(
+        [(f"D = {r.block_size_m:g} m at x = {r.x_m:g} m", r.n_blocks_reached)
+         for r in few.itertuples()], what="the energy, bounce-height and speed percentiles")
+    if warning:
+        lines.append(warning + " (column few_blocks of hazard_table.csv)")
     return "\n".join(lines)

@@ -11,7 +11,15 @@ import time
 
 import numpy as np
 
-from solvers._cli import CliError, OneLineParser, fail, parse_stations, write_csv_atomic
+from solvers.cli import (
+    CliError,
+    OneLineParser,
+    fail,
+    few_blocks_warning,
+    parse_stations,
+    station_columns,
+    write_csv_atomic,
+)
 from solvers.status import STATUS_NAMES, finished
 
 
@@ -116,12 +124,7 @@ def main(argv: list[str] | None = None) -> int:
         "n_impacts": res.n_impacts,
         "n_events": res.n_events,
     }
-    for j, xs in enumerate(stations):
-        tag = f"{xs:g}"
-        cols[f"passed_{tag}m"] = res.stations.passed[:, j]
-        cols[f"energy_kJ_{tag}m"] = res.stations.energy_kJ[:, j]
-        cols[f"velocity_m_s_{tag}m"] = res.stations.velocity_m_s[:, j]
-        cols[f"bounce_height_m_{tag}m"] = res.stations.bounce_height_m[:, j]
+    cols.update(station_columns(stations, res.stations))
     try:
         write_csv_atomic(pd.DataFrame(cols), args.out)
     except OSError as exc:
@@ -141,11 +144,17 @@ def main(argv: list[str] | None = None) -> int:
         print(f"warning: {int((~done).sum())} blocks did not finish (status budget or "
               "invalid); their rows are in the CSV but not in the statistics above",
               file=sys.stderr)
+    few = [("runout", ro.size)] if ro.size else []
     for j, xs in enumerate(stations):
         passed = res.stations.passed[:, j]
         e = res.stations.energy_kJ[passed, j]
-        e95 = f", E p95 {np.percentile(e, 95):.1f} kJ" if e.size else ""
+        e95 = f", E p95 {np.percentile(e, 95):.1f} kJ from {e.size} blocks" if e.size else ""
         print(f"  station x = {xs:g} m: reached by {passed.mean():.1%}{e95}")
+        if e.size:
+            few.append((f"station x = {xs:g} m", e.size))
+    warning = few_blocks_warning(few)
+    if warning:
+        print(warning, file=sys.stderr)
     print(f"wrote {args.out}")
     return 0
 

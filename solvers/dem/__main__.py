@@ -1,42 +1,55 @@
 """Command line: ``python -m solvers.dem --profile data/postignano_profile.csv
 --block-size-m 0.9 --n-blocks 256 --alpha 0.43 --seed 0 --out dem.csv``.
 
-Writes one row per block or fragment (runout_m, stop_x_m, stop_z_m, stopped,
-exited, status, block_id, fragment_id, plus station columns) and prints one
-summary line. Blocks run in batches of ``--batch-size`` (a progress bar on a
-terminal); block i uses the key fold_in(key(seed), i), so results do not
+Writes one row per block or fragment (block_id, fragment_id, runout_m, stop_x_m,
+stop_z_m, stopped, exited, status, and per station passed_<x>m,
+energy_kJ_per_m_<x>m (kJ per metre of block width: the DEM is 2D),
+velocity_m_s_<x>m, bounce_height_m_<x>m: the names of ``python -m solvers.crsp``,
+``solvers.cli.station_columns``) and prints one summary line. Blocks run in
+batches of ``--batch-size`` (a progress bar on stderr, ``--no-progress`` to
+turn it off); block i uses the key fold_in(key(seed), i), so results do not
 depend on the batch size. Bad arguments: one line on stderr, exit status 2.
 """
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 import time
 
 from tqdm import tqdm
 
-from solvers._cli import CliError, OneLineParser, fail, parse_stations, write_csv_atomic
+from solvers.cli import (
+    CliError,
+    DefaultsHelpFormatter,
+    OneLineParser,
+    fail,
+    few_blocks_warning,
+    parse_stations,
+    station_columns,
+    write_csv_atomic,
+)
+from solvers.dem._alpha_law import DEFAULT_ALPHA_LAW
 from solvers.dem._params import DAMPING_MODES
 
 
-def _parser() -> OneLineParser:
+def build_parser() -> OneLineParser:
     p = OneLineParser(prog="python -m solvers.dem",
                       description="Rigid-block DEM rockfall runs (UDEC-style) on a 2D profile.",
-                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                      formatter_class=DefaultsHelpFormatter)
     p.add_argument("--profile", required=True, help="profile CSV (x_m,z_m,zone)")
     p.add_argument("--materials", default=None,
-                   help="materials CSV (None: the one next to the profile)")
+                   help="materials CSV (default: <site>_materials.csv next to "
+                        "<site>_profile.csv)")
     p.add_argument("--block-size-m", type=float, required=True, help="block side L, m")
     p.add_argument("--n-blocks", type=int, default=256, help="blocks to release")
     p.add_argument("--batch-size", type=int, default=256,
                    help="blocks per vmapped batch (memory / progress granularity only)")
     p.add_argument("--alpha", type=float, default=None,
-                   help="local damping for every fragment (None: from --alpha-law)")
+                   help="local damping for every fragment (default: from --alpha-law)")
     p.add_argument("--alpha-law", default=None,
-                   help='alpha as a function of the fragment side L, e.g. "0.40*L**-0.5" '
-                        "(None: that law)")
+                   help="alpha as a function of the fragment side L, m (default: "
+                        f'"{DEFAULT_ALPHA_LAW}")')
     p.add_argument("--fragments", type=int, default=1, help="1, 4, 16, 64, ... (n x n)")
     p.add_argument("--damping", choices=list(DAMPING_MODES), default="unbalanced",
                    help="unbalanced: Cundall local damping of the whole unbalanced force, "
@@ -45,17 +58,19 @@ def _parser() -> OneLineParser:
                         "contact set from --restitution")
     p.add_argument("--restitution", type=float, default=None,
                    help="viscous mode: target normal restitution e in (0, 1] of the "
-                        "dashpots (None: e = sqrt((1 - alpha) / (1 + alpha)) per fragment)")
+                        "dashpots (default: e = sqrt((1 - alpha) / (1 + alpha)) per fragment)")
     p.add_argument("--stiffness-scale", type=float, default=1.0,
                    help="multiply kn = ks = 50 GPa/m by this (0, 1]; joint strengths are "
                         "scaled by its square root")
     p.add_argument("--smooth", action="store_true", help="softplus contact, tanh signs")
     p.add_argument("--max-time-s", type=float, default=200.0, help="simulated-time bound, s")
-    p.add_argument("--stations", default=None, help='station abscissae "110,230" or a:b:step')
+    p.add_argument("--stations", default=None,
+                   help='station abscissae, m: "110,230" or a:b:step (default: none)')
     p.add_argument("--release-x-m", type=float, default=None,
-                   help="release abscissa (None: first profile vertex)")
+                   help="release abscissa, m (default: the first profile vertex)")
     p.add_argument("--seed", type=int, default=0, help="seed of the release keys")
     p.add_argument("--out", required=True, help="output CSV")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
 
@@ -87,7 +102,7 @@ def _check(args) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = _parser()
+    parser = build_parser()
     args = parser.parse_args(argv)
     prog = parser.prog
     try:
@@ -99,6 +114,7 @@ def main(argv: list[str] | None = None) -> int:
         from solvers.dem import AlphaLawError, Options, make_block, make_params, stable_dt
         from solvers.dem._integrate import simulate_batch
         from solvers.profile import ProfileError, load_profile
+        from solvers.status import finished
 
         try:
             profile = load_profile(args.profile, args.materials)
@@ -120,9 +136,13 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     parts = []
     starts = range(0, args.n_blocks, args.batch_size)
-    for a in tqdm(starts, desc="dem batches", unit="batch", disable=None, file=sys.stderr):
+    bar = tqdm(total=args.n_blocks, desc="DEM", unit="block", disable=args.no_progress,
+               file=sys.stderr)
+    for a in starts:
         parts.append(jax.block_until_ready(
             simulate_batch(params, block, keys[a:a + args.batch_size], options)))
+        bar.update(len(keys[a:a + args.batch_size]))
+    bar.close()
     res = jax.tree.map(lambda *x: np.concatenate([np.asarray(v) for v in x]), *parts)
     wall = time.perf_counter() - t0
     n_frag = block.n_fragments
@@ -137,23 +157,25 @@ def main(argv: list[str] | None = None) -> int:
         "exited": np.asarray(res.exited).ravel(),
         "status": [STATUS_NAMES[int(s)] for s in np.repeat(np.asarray(res.status), n_frag)],
     }
-    for si, xs in enumerate(stations):
-        tag = f"{xs:g}"
-        rows[f"passed_{tag}"] = np.asarray(res.stations.passed[..., si]).ravel()
-        rows[f"energy_kJ_{tag}"] = np.asarray(res.stations.energy_kJ[..., si]).ravel()
-        rows[f"velocity_m_s_{tag}"] = np.asarray(res.stations.velocity_m_s[..., si]).ravel()
-        rows[f"bounce_height_m_{tag}"] = np.asarray(res.stations.bounce_height_m[..., si]).ravel()
+    # the 2D DEM's energies are per metre of block width (plane strain)
+    rows.update(station_columns(stations, res.stations, energy_per_m=True))
     df = pd.DataFrame(rows)
     write_csv_atomic(df, args.out)
-    ro = df["runout_m"].to_numpy()
+    n_done = int(np.sum(finished(np.asarray(res.status))))  # blocks; fragments share one
+    ro = df["runout_m"].to_numpy()[finished(np.repeat(np.asarray(res.status), n_frag))]
+    stats = (f"runout median {np.median(ro):.1f} m (p5 {np.percentile(ro, 5):.1f}, "
+             f"p95 {np.percentile(ro, 95):.1f}) of the {n_done} finished block(s)"
+             if ro.size else "no block finished")
     steps = int(np.sum(res.n_steps))
     print(f"dem: {args.n_blocks} block(s) x {n_frag} fragment(s), L={args.block_size_m:g} m, "
           f"alpha={float(block.alpha[0]):.3f}, damping={args.damping}, dt={dt:.3g} s; "
-          f"runout median {np.median(ro):.1f} m (p5 {np.percentile(ro, 5):.1f}, "
-          f"p95 {np.percentile(ro, 95):.1f}); stopped {int(df['stopped'].sum())}/{len(df)}, "
+          f"{stats}; stopped {int(df['stopped'].sum())}/{len(df)}, "
           f"not stopped {int((~df['stopped'] & ~df['exited']).sum())}, left profile "
           f"{int(df['exited'].sum())}; {steps} block-steps in {wall:.1f} s "
           f"({steps / wall:.3g}/s) -> {args.out}")
+    warning = few_blocks_warning([("runout", n_done)] if n_done else [])
+    if warning:
+        print(warning, file=sys.stderr)
     return 0
 
 

@@ -36,7 +36,7 @@ from jax import lax
 
 from solvers.dem._contact import pair_list_energy
 from solvers.dem._geometry import corner_offsets, joints_of, rotate, segment_lookup
-from solvers.dem._integrate import Consts, State, _consts, _neighbours, _step_with_stations
+from solvers.dem._integrate import Consts, State, consts, neighbours, step_with_stations
 from solvers.dem._params import Block, Options, Params
 from solvers.status import RUNNING
 
@@ -151,7 +151,7 @@ def deposit_check(params: Params, block: Block, st: State, relax_s: float = 5.0,
     """
     relaxed = params._replace(local_damping=0.0, restitution=1.0,
                               stop_hold_s=float("inf"))
-    c = _consts(relaxed, block)
+    c = consts(relaxed, block)
     n = block.n_side
     k_nb = min(options.n_neighbors, n * n - 1)
     n_steps = jnp.ceil(relax_s / c.dt).astype(jnp.int32)
@@ -160,12 +160,12 @@ def deposit_check(params: Params, block: Block, st: State, relax_s: float = 5.0,
     opts = options._replace(max_steps=np.iinfo(np.int32).max)
 
     def chunk(s):
-        nbr = _neighbours(s, k_nb, opts) if n > 1 else None
+        nbr = neighbours(s, k_nb, opts) if n > 1 else None
         if nbr is not None and opts.pair_search != "knn":
             nbr = (*nbr[:3], True)
 
         def one(_, x):
-            y = _step_with_stations(x, relaxed, c, nbr, opts, block)
+            y = step_with_stations(x, relaxed, c, nbr, opts, block)
             return jax.tree.map(lambda new, old: jnp.where(x.n_steps < n_steps, new, old), y, x)
 
         return lax.fori_loop(0, opts.chunk, one, s)

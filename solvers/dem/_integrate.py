@@ -157,7 +157,7 @@ class Result(NamedTuple):
     stations: StationRecord
 
 
-def _consts(params: Params, block: Block) -> Consts:
+def consts(params: Params, block: Block) -> Consts:
     """Per-block constants. Dashpots (``_contact``): c = 2 zeta sqrt(m_eff kn l_c)
     with m_eff = m/2 at a wall corner and m/4 at a fragment-fragment corner or
     joint point; zeta from ``params.restitution`` (or each fragment's alpha)."""
@@ -284,7 +284,7 @@ def _lookup_all(table: SegmentTable, p, params: Params):
                  for f in (table.xa, table.za, table.tx, table.tz, table.tan_phi))
 
 
-def _neighbours(st: State, k: int, options: Options = Options()):
+def neighbours(st: State, k: int, options: Options = Options()):
     """Candidate contacts, rebuilt once per chunk of steps.
 
     "list" (default): the P = k N / 2 closest unordered pairs (i < j) of
@@ -330,12 +330,12 @@ def _chunk(s: State, params, c: Consts, options: Options, block: Block, k_nb: in
 
     def run(nbr):
         return lax.fori_loop(0, options.chunk,
-                             lambda _, x: _step_with_stations(x, params, c, nbr, options, block),
+                             lambda _, x: step_with_stations(x, params, c, nbr, options, block),
                              s)
 
     if n == 1:
         return run(None)
-    nbr = _neighbours(s, k_nb, options)
+    nbr = neighbours(s, k_nb, options)
     if options.pair_search == "knn":
         return run(nbr)
     pi, pj, jid, d2 = nbr
@@ -362,7 +362,7 @@ def init(params: Params, block: Block, key: jax.Array, options: Options = Option
     undamped acceleration, which keeps the scheme second order from t = 0.
     """
     n = block.n_side
-    c = _consts(params, block)
+    c = consts(params, block)
     pose = _release(params, block, key) if pose is None else pose
     n_frag, n_joint = n * n, len(joints_of(n).a)
     st = State(pos=jnp.asarray(pose.pos, jnp.float64), theta=jnp.asarray(pose.theta),
@@ -375,7 +375,7 @@ def init(params: Params, block: Block, key: jax.Array, options: Options = Option
                rec=jax.tree.map(lambda a: jnp.broadcast_to(a, (n_frag,) + a.shape),
                                 empty_record(block.stations_x_m.shape[0])),
                n_steps=jnp.asarray(0, jnp.int32), status=jnp.asarray(RUNNING, jnp.int32))
-    nbr = _neighbours(st, min(options.n_neighbors, n_frag - 1), options) if n > 1 else None
+    nbr = neighbours(st, min(options.n_neighbors, n_frag - 1), options) if n > 1 else None
     if nbr is not None and options.pair_search != "knn":
         nbr = (*nbr[:3], True)
     force, torque, _, _, _ = _forces(st, params, c, nbr, options, n)
@@ -418,7 +418,7 @@ def step(st: State, params: Params, c: Consts, nbr, options: Options, n_side: in
     fs = jnp.where(move[:, None], fs, st.fs)
     intact = jnp.where(running, intact, st.intact)
 
-    rec = st.rec  # stations are recorded by _step_with_stations
+    rec = st.rec  # stations are recorded by step_with_stations
     exited = st.exited | (pos[:, 0] > c.x_end)
     radius = c.half * math.sqrt(2.0)
     # rest test (our rule; see Params and the module docstring)
@@ -477,7 +477,7 @@ def _stations(old: State, new: State, c: Consts, block: Block) -> StationRecord:
                           jnp.broadcast_to(speed[:, None], crossed.shape), height)
 
 
-def _step_with_stations(st, params, c, nbr, options, block):
+def step_with_stations(st, params, c, nbr, options, block):
     n = block.n_side
     new = step(st, params, c, nbr, options, n)
     if block.stations_x_m.shape[0] > 0:
@@ -532,7 +532,7 @@ def rollout(params: Params, block: Block, key: jax.Array, options: Options = Opt
 def simulate_batch(params: Params, block: Block, keys: jax.Array,
                    options: Options = Options()) -> Result:
     """``jit(vmap(simulate))`` over a batch of keys (one block per key)."""
-    return _simulate_batch(params, block, keys, options)
+    return simulate_batch_jit(params, block, keys, options)
 
 
 def _simulate_batch_impl(params, block, keys, options):
@@ -543,7 +543,8 @@ def _simulate_batch_impl(params, block, keys, options):
     return jax.vmap(lambda k: simulate(params, block, k, options))(keys)
 
 
-_simulate_batch = jax.jit(_simulate_batch_impl, static_argnames=("options",))
+# the jitted batch itself (AOT: simulate_batch_jit.lower(...).compile())
+simulate_batch_jit = jax.jit(_simulate_batch_impl, static_argnames=("options",))
 
 
 def trajectory(params: Params, block: Block, key: jax.Array, n_saves: int, every: int,
@@ -557,11 +558,11 @@ def trajectory(params: Params, block: Block, key: jax.Array, n_saves: int, every
     k_nb = min(options.n_neighbors, n * n - 1)
 
     def outer(s, _):
-        nbr = _neighbours(s, k_nb, options) if n > 1 else None
+        nbr = neighbours(s, k_nb, options) if n > 1 else None
         if nbr is not None and options.pair_search != "knn":
             nbr = (*nbr[:3], True)
         s = lax.fori_loop(0, every,
-                          lambda _, x: _step_with_stations(x, params, c, nbr, options, block), s)
+                          lambda _, x: step_with_stations(x, params, c, nbr, options, block), s)
         return s, s
 
     _, hist = lax.scan(outer, st, None, length=n_saves)

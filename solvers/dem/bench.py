@@ -14,7 +14,7 @@ import time
 import jax
 import numpy as np
 
-from solvers.dem._integrate import _simulate_batch, simulate_batch
+from solvers.dem._integrate import simulate_batch, simulate_batch_jit
 from solvers.dem._params import STATUS_NAMES, Options, make_block, make_params, stable_dt
 from solvers.profile import load_profile, make_profile
 
@@ -120,7 +120,7 @@ def _fragment_run(profile, keys, quick, options, fragment_scale, out, damping, c
     dt_f = float(stable_dt(pf, fblock))
     fopts = options._replace(max_steps=int(math.ceil(cap_s / dt_f)))
     t0 = time.perf_counter()
-    compiled = _simulate_batch.lower(pf, fblock, keys[:1], fopts).compile()
+    compiled = simulate_batch_jit.lower(pf, fblock, keys[:1], fopts).compile()
     compile_s = time.perf_counter() - t0
     t0 = time.perf_counter()
     res = jax.block_until_ready(compiled(pf, fblock, keys[:1]))
