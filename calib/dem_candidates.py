@@ -14,7 +14,7 @@ A block of size d is a square of side L = d (``calib.observations``).
   its furthest fragment (the extent a survey of the deposit records); NaN
   when the block did not finish (``calib.unfinished``).
 
-Each is fitted on a fixed grid design (``GRID``): the DEM is too expensive for
+Each is fitted on a fixed grid design (``dem_grid`` of ``calib.effects.EFFECTS``): the DEM is too expensive for
 adaptive designs on two cores; the fragmented candidate, about 30 times dearer
 per block, gets a coarse grid and 4 blocks per point.
 """
@@ -31,7 +31,7 @@ import numpy as np
 from calib.alpha_law import alpha_of
 from calib.dem_run import DEM_RUN, DemRun
 from calib.discrepancy import Candidate
-from calib.effects import DEM_EFFECTS, effect_box
+from calib.effects import DEM_EFFECTS, EFFECTS, effect_box
 from calib.forward import DemForward, dem_lanes, stack_trees
 from calib.observations import dem_side_m
 from calib.unfinished import mask_unfinished
@@ -40,7 +40,6 @@ from solvers.profile import Profile
 __all__ = ["DemEffectForward", "dem_candidates"]
 
 N_FRAGMENTS = 4
-GRID = {"none": (16,), "size_dissipation": (8, 8), "fragmentation": (4, 3)}
 # a 2 x 2 fragmented block costs about 30 single blocks (smaller dt, 4 bodies):
 # its candidate runs 4 blocks per (design point, size)
 FRAG_BLOCKS = 4
@@ -114,6 +113,6 @@ def dem_candidates(profile, effects=DEM_EFFECTS) -> list[Candidate]:
     for e in names:
         box = effect_box(e, profile, "dem")
         out.append(Candidate(e, box, functools.partial(_forward, profile, e),
-                             design=functools.partial(_grid, box, GRID[e]),
+                             design=functools.partial(_grid, box, EFFECTS[e].dem_grid),
                              n_blocks=FRAG_BLOCKS if e == "fragmentation" else None))
     return out

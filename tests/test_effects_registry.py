@@ -1,0 +1,58 @@
+"""The effect registry (issue 16): one declaration per effect, and the invariants
+that tie its parts together (cheap: no simulation)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calib.effects import (
+    CRSP_EFFECTS,
+    DEM_EFFECTS,
+    EFFECTS,
+    crsp_overrides,
+    effect_box,
+    full_box,
+    truth,
+)
+from solvers import crsp
+from solvers.profile import load_profile
+
+PROFILE = load_profile("data/postignano_profile.csv")
+
+
+def test_the_lists_of_effects_come_from_the_registry():
+    assert CRSP_EFFECTS == tuple(EFFECTS) and CRSP_EFFECTS[0] == "none"
+    assert DEM_EFFECTS == ("none", "size_dissipation", "fragmentation")
+    for name in DEM_EFFECTS:
+        assert len(EFFECTS[name].dem_grid) == effect_box(name, PROFILE, "dem").dim
+
+
+@pytest.mark.parametrize("name", CRSP_EFFECTS)
+@pytest.mark.parametrize("strength", [0.5, 1.0, 2.0])
+def test_crsp_truth_lies_in_its_candidate_box_and_reaches_the_solver(name, strength):
+    """Synthetic data's truth is a point of the candidate's own prior; its columns
+    map onto fields that CRSP's Params has."""
+    theta = truth(name, strength, PROFILE)
+    box = full_box(name, PROFILE)
+    assert theta.shape == (box.dim,) and box.contains(theta), (theta, box)
+    fields = set(crsp.Params._fields)
+    over = crsp_overrides(name, theta[None, 3:], PROFILE)
+    assert set(over) <= fields
+    assert all(np.shape(v) == (1,) for v in over.values())
+
+
+@pytest.mark.parametrize("name", DEM_EFFECTS)
+@pytest.mark.parametrize("strength", [0.5, 1.0])
+def test_dem_truth_lies_in_its_candidate_box(name, strength):
+    theta = truth(name, strength, PROFILE, "dem")
+    assert effect_box(name, PROFILE, "dem").contains(theta)
+
+
+def test_unknown_effects_and_models_are_refused_by_name():
+    with pytest.raises(ValueError, match="unknown effect 'teleport'"):
+        effect_box("teleport", PROFILE)
+    with pytest.raises(ValueError, match="not available for the DEM"):
+        effect_box("vegetation_belt", PROFILE, "dem")
+    with pytest.raises(ValueError, match="strength"):
+        truth("none", 0.0, PROFILE)
