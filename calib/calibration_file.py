@@ -28,6 +28,7 @@ it applies, the row (file line) and the column.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 import os
@@ -37,8 +38,8 @@ import numpy as np
 
 from calib.alpha_law import FORMS, PARAMETER_RANGES
 
-__all__ = ["SCHEMA", "Calibration", "CalibrationError", "Draws", "draw_parameters",
-           "load_calibration", "posterior_csv_text"]
+__all__ = ["SCHEMA", "Calibration", "CalibrationError", "CalibrationFile", "Draws",
+           "draw_parameters", "load_calibration", "posterior_csv_text"]
 
 SCHEMA = "rockfall-calibration/1"
 
@@ -198,6 +199,11 @@ def load_calibration(path: str, model: str | None = None) -> Calibration:
     Raises:
         CalibrationError: missing or malformed file, section or value.
     """
+    return _model_from_doc(path, _read_doc(path), model)
+
+
+def _read_doc(path: str) -> dict:
+    """The parsed file, its schema checked."""
     try:
         with open(path) as fh:
             text = fh.read()
@@ -216,6 +222,10 @@ def load_calibration(path: str, model: str | None = None) -> Calibration:
     if doc.get("schema") != SCHEMA:
         raise CalibrationError(f"{path}: key 'schema': expected {SCHEMA!r}, got "
                                f"{doc.get('schema')!r}")
+    return doc
+
+
+def _model_from_doc(path: str, doc: dict, model: str | None) -> Calibration:
     if model is None:
         model = next((m for m in ("crsp", "dem") if m in doc and doc[m] is not None), None)
         if model is None:
@@ -293,3 +303,82 @@ def draw_parameters(cal: Calibration, n_posterior: int, seed: int) -> Draws:
     rng = np.random.default_rng(seed)
     rows = np.sort(rng.choice(n_rows, size=n_posterior, replace=False))
     return Draws(cal.posterior[rows], cal.names, rows + 1, "posterior")
+
+
+@dataclasses.dataclass
+class CalibrationFile:
+    """The whole calibration file, as ``calib.fit`` writes it and everyone reads it.
+
+    ``to_json`` is the one writer (schema version ``SCHEMA`` first, then the
+    inputs, the record and the model sections; no NaN); ``from_json`` the one
+    reader of the whole document: it checks the schema and runs every model
+    section present through ``load_calibration``'s checks, so a file it accepts
+    is one ``calib.hazard`` and ``calib.validate`` accept.
+
+    Attributes:
+        profile_csv, data_csv: the inputs of the fit (paths as written).
+        seed: the fit's PRNG seed.
+        release_x_m: the one release of the DEM fit, the figures and the hazard
+            run's default, m, or None (the profile's first vertex).
+        models: {"crsp": section, "dem": section}, the models fitted.
+        record: every other key (command, provenance, versions, release groups,
+            fit quality per model, timings, ...), kept as written.
+        schema: the schema version.
+        path: the file read (None for a document built in memory).
+    """
+
+    profile_csv: str
+    data_csv: str
+    seed: int
+    release_x_m: float | None
+    models: dict
+    record: dict = dataclasses.field(default_factory=dict)
+    schema: str = SCHEMA
+    path: str | None = None
+
+    _TOP = ("schema", "profile_csv", "data_csv", "seed", "release_x_m")
+
+    @property
+    def doc(self) -> dict:
+        """The document as one dict (what ``to_json`` writes)."""
+        out = {k: getattr(self, k) for k in self._TOP}
+        out.update(self.record)
+        out.update(self.models)
+        return out
+
+    @classmethod
+    def from_dict(cls, doc: dict, path: str | None = None) -> CalibrationFile:
+        """Split a document into its parts; the schema must be ``SCHEMA`` and
+        ``profile_csv``, ``data_csv`` and ``seed`` present."""
+        where = path or "<calibration>"
+        if doc.get("schema") != SCHEMA:
+            raise CalibrationError(f"{where}: key 'schema': expected {SCHEMA!r}, got "
+                                   f"{doc.get('schema')!r}")
+        for key in ("profile_csv", "data_csv", "seed"):
+            if key not in doc:
+                raise CalibrationError(f"{where}: key {key!r} missing")
+        models = {m: doc[m] for m in ("crsp", "dem") if doc.get(m) is not None}
+        record = {k: v for k, v in doc.items() if k not in cls._TOP and k not in
+                  ("crsp", "dem")}
+        return cls(doc["profile_csv"], doc["data_csv"], doc["seed"], doc.get("release_x_m"),
+                   models, record, doc["schema"], path)
+
+    def to_json(self) -> str:
+        return json.dumps(self.doc, indent=1, allow_nan=False) + "\n"
+
+    @classmethod
+    def from_json(cls, path: str) -> CalibrationFile:
+        doc = _read_doc(path)
+        out = cls.from_dict(doc, path)
+        if not out.models:
+            raise CalibrationError(f"{path}: neither a 'crsp' nor a 'dem' section")
+        for m in out.models:
+            _model_from_doc(path, doc, m)
+        return out
+
+    def calibration(self, model: str | None = None) -> Calibration:
+        """One model's ``Calibration`` (what the hazard run and validate use)."""
+        if self.path is None:
+            raise CalibrationError("a calibration built in memory has no file to resolve "
+                                   "its paths against; write it with to_json first")
+        return _model_from_doc(self.path, self.doc, model)

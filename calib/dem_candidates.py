@@ -14,9 +14,10 @@ A block of size d is a square of side L = d (``calib.observations``).
   its furthest fragment (the extent a survey of the deposit records); NaN
   when the block did not finish (``calib.unfinished``).
 
-Each is fitted on a fixed grid design (``dem_grid`` of ``calib.effects.EFFECTS``): the DEM is too expensive for
-adaptive designs on two cores; the fragmented candidate, about 30 times dearer
-per block, gets a coarse grid and 4 blocks per point.
+Each is fitted on a fixed grid design (``dem_grid`` of ``calib.effects.EFFECTS``):
+the DEM is too expensive for adaptive designs on two cores; the fragmented
+candidate, about 30 times dearer per block, gets a coarse grid and 4 blocks
+per point.
 """
 
 from __future__ import annotations

@@ -26,7 +26,6 @@ tolerance (points) or known to lie in an interval.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -35,7 +34,7 @@ import warnings
 import jax
 import numpy as np
 
-from calib.calibration_file import SCHEMA, posterior_csv_text
+from calib.calibration_file import SCHEMA, CalibrationFile, posterior_csv_text
 from calib.provenance import provenance, versions
 from solvers.cli import (
     CliError,
@@ -361,7 +360,7 @@ def _run(args) -> int:
         result["timings_s"][model] = fit.timings_s
     figs["runout_vs_size.png"] = figures.runout_vs_size(obs, predictive)
     result["timings_s"]["total_s"] = time.perf_counter() - t_start
-    files["calibration.json"] = json.dumps(result, indent=1, allow_nan=False) + "\n"
+    files["calibration.json"] = CalibrationFile.from_dict(result).to_json()
     write_outputs(args.out, files, figs, writers)
     _print_summary(result, models, args.out)
     if args.holdout_fraction:

@@ -59,6 +59,7 @@ if not os.path.isdir(os.path.join(ROOT, "calib")):  # run from notebooks/
 os.chdir(ROOT)
 sys.path.insert(0, ROOT)
 
+from calib.calibration_file import CalibrationFile  # noqa: E402
 from calib.site import load_site  # noqa: E402
 
 # NOTEBOOK_RESULTS: reuse a finished `calib.fit` output folder (the test suite does);
@@ -100,7 +101,7 @@ else:
 
     out = "results"
     main(["data/postignano.csv", "--out", out, "--no-progress"] + (["--quick"] if QUICK else []))
-cal = json.load(open(os.path.join(out, "calibration.json")))
+cal = CalibrationFile.from_json(os.path.join(out, "calibration.json")).doc  # the one reader
 print("run:", cal["command"], "| quick:", cal["quick"])
 
 # %% [markdown]

@@ -54,6 +54,7 @@ sys.path.insert(0, ROOT)
 
 from calib import field  # noqa: E402
 from calib import fit as calib_fit  # noqa: E402
+from calib.calibration_file import CalibrationFile  # noqa: E402
 from solvers import load_profile  # noqa: E402
 from solvers import profile as profile_cli  # noqa: E402
 from solvers.raster import read_raster  # noqa: E402
@@ -158,8 +159,7 @@ else:
     calib_fit.main([obs_csv, "--profile", os.path.join(SITE, "profile.csv"), "--model", "crsp",
                     "--holdout-fraction", str(HOLDOUT_FRACTION), "--seed", str(SEED),
                     "--out", out, "--no-progress"] + (["--quick"] if QUICK else []))
-with open(os.path.join(out, "calibration.json")) as fh:
-    cal = json.load(fh)
+cal = CalibrationFile.from_json(os.path.join(out, "calibration.json")).doc  # the one reader
 with open(os.path.join(out, "validation", "validation.json")) as fh:
     val = json.load(fh)
 

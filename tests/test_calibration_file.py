@@ -122,9 +122,8 @@ def test_every_crsp_calibration_the_fit_can_write_is_accepted_by_hazard(tmp_path
 def test_the_fit_checks_its_dem_draws_before_writing():
     """``calib.fit`` runs the hazard's acceptance check on what it would write:
     the box passes; a draw the hazard would refuse stops the fit, named."""
-    from solvers.cli import CliError
-
     from calib.fit import _check_alpha_law
+    from solvers.cli import CliError
 
     box = DEM_BOXES["power"]
     good = _box_points(box, 16, seed=3)
@@ -135,3 +134,28 @@ def test_the_fit_checks_its_dem_draws_before_writing():
     fit = SimpleNamespace(estimate=good[0], posterior=SimpleNamespace(samples=bad))
     with pytest.raises(CliError, match=r"posterior draw 6 would be refused .*a = 0"):
         _check_alpha_law("power", fit, np.array([0.2, 2.0]))
+
+
+def test_calibration_file_round_trips_and_is_the_one_reader(tmp_path):
+    """CalibrationFile: to_json then from_json gives the same document; the reader
+    refuses another schema version and a bad model section (as hazard would),
+    and hands out each model's Calibration."""
+    from test_hazard_fixtures import write_calibration
+
+    from calib.calibration_file import SCHEMA, CalibrationError, CalibrationFile
+
+    path = write_calibration(tmp_path, crsp_posterior=None)
+    doc = CalibrationFile.from_json(path)
+    assert doc.schema == SCHEMA and set(doc.models) == {"crsp", "dem"}
+    again = tmp_path / "again.json"
+    again.write_text(doc.to_json())
+    assert CalibrationFile.from_json(str(again)).doc == doc.doc
+    assert doc.calibration("crsp").names[:3] == ("Kn", "Kt", "roughness_m")
+    bad = dict(doc.doc, schema="rockfall-calibration/0")
+    with pytest.raises(CalibrationError, match="schema"):
+        CalibrationFile.from_dict(bad)
+    broken = dict(doc.doc)
+    broken["crsp"] = dict(broken["crsp"], Kn={"map": 1.5})
+    (tmp_path / "broken.json").write_text(CalibrationFile.from_dict(broken).to_json())
+    with pytest.raises(CalibrationError, match="crsp.Kn"):
+        CalibrationFile.from_json(str(tmp_path / "broken.json"))
