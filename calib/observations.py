@@ -18,7 +18,7 @@ NaN or empty text, and files without them behave exactly as before):
 * ``release_speed_m_s``: speed at release, m/s (>= 0), where tracked;
 * ``run_id``: the run's identifier in its source;
 * ``shape``: CRSP shape class ``sphere``, ``cylinder`` or ``disc`` (empty:
-  unknown), from the block's dimensions (rule in ``calib.field``).
+  unknown), from the block's dimensions (rule in ``calib.field_runs``).
 
 Other columns are ignored.
 

@@ -7,13 +7,13 @@ import os
 import numpy as np
 import pytest
 
-from calib.field import (
+from calib.field import main
+from calib.field_runs import (
     FieldError,
     box_diameter_m,
     crsp_shape,
     field_observations,
     load_runs,
-    main,
     sphere_diameter_m,
 )
 from calib.observations import ObservationError, load_observations
