@@ -152,7 +152,7 @@ def _fit_section(f) -> dict:
 def _run(args) -> int:
     from calib import discovery_figures as figs
     from calib.discrepancy import GAP_METRIC, discover, preset_budget
-    from calib.fit import common_release_m, load_inputs
+    from calib.inputs import common_release_m, load_inputs
     from calib.provenance import versions
     from calib.scores import ELPD_MIN, Z_MIN
     from calib.unfinished import UnfinishedBlocksWarning
