@@ -71,6 +71,9 @@ class Calibration(NamedTuple):
             or None where that file is not found.
         release_x_m: the release abscissa the fit simulated, m (key
             ``release_x_m``), or None (older files: the profile's first vertex).
+        dem_run: DEM only: the DEM numerics the fit used (key ``dem.run``:
+            ``stiffness_scale``, ``max_time_s``, ``dt_size_m``; ``calib.dem_run``),
+            or None (older files: the defaults).
     """
 
     path: str
@@ -83,6 +86,7 @@ class Calibration(NamedTuple):
     alpha_form: str
     data_csv: str | None = None
     release_x_m: float | None = None
+    dem_run: dict | None = None
 
 
 class Draws(NamedTuple):
@@ -272,7 +276,24 @@ def _model_from_doc(path: str, doc: dict, model: str | None) -> Calibration:
     return Calibration(path=path, model=model, profile_csv=profile_csv, names=names,
                        point=np.asarray(point, dtype=np.float64), posterior=posterior,
                        posterior_csv=post_path, alpha_form=form, data_csv=data_csv,
-                       release_x_m=release)
+                       release_x_m=release, dem_run=_dem_run(path, sec) if model == "dem"
+                       else None)
+
+
+def _dem_run(path: str, sec: dict) -> dict | None:
+    """The DEM section's ``run`` (the fit's numerics), checked, or None."""
+    run = sec.get("run")
+    if run is None:
+        return None
+    if not isinstance(run, dict):
+        raise CalibrationError(f"{path}: key 'dem.run': expected an object")
+    out = {}
+    for key, lo, hi in (("stiffness_scale", 0.0, 1.0), ("max_time_s", 0.0, math.inf),
+                        ("dt_size_m", 0.0, math.inf)):
+        if key not in run:
+            raise CalibrationError(f"{path}: key 'dem.run.{key}' missing")
+        out[key] = _number(path, f"key 'dem.run.{key}'", run[key], lo, hi, False)
+    return out
 
 
 def draw_parameters(cal: Calibration, n_posterior: int, seed: int) -> Draws:

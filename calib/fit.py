@@ -26,6 +26,7 @@ tolerance (points) or known to lie in an interval.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import time
@@ -145,6 +146,7 @@ def _model_section(name, fit, forward, law_form=None) -> dict:
     if law_form is None:
         sec.update(stats)
     else:
+        sec["run"] = dataclasses.asdict(forward.run)  # the DEM numerics (calib.dem_run)
         sec["alpha_law"] = {"form": law_form,
                             "expression": "a*L**-b" if law_form == "power" else "alpha",
                             **stats}

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from calib.calibration_file import SCHEMA, draw_parameters, load_calibration, posterior_csv_text
-from calib.dem_run import DEM_RUN
+from calib.dem_run import DEM_RUN, DemRun
 from calib.fit import _model_section
 from calib.forward import CrspForward, DemForward
 from calib.hazard._run import _crsp_units, _dem_units, check_dem_draws
@@ -49,7 +49,8 @@ def _write_fit(folder, model: str, box, estimate, samples, form=None) -> str:
                           quality=[], unfinished=None, adequacy=None, timings_s={},
                           budget=SimpleNamespace(), check_runouts=np.zeros((1, 1)),
                           emulator_check=None)
-    sec = _model_section(model, fit, SimpleNamespace(box=box), form)
+    run = DemRun(stiffness_scale=0.02, max_time_s=140.0)  # not the defaults: must travel
+    sec = _model_section(model, fit, SimpleNamespace(box=box, run=run), form)
     doc = {"schema": SCHEMA, "profile_csv": PROFILE_CSV, "release_x_m": 0.0, model: sec}
     with open(os.path.join(folder, f"{model}_posterior.csv"), "w") as fh:
         fh.write(posterior_csv_text(box.names, samples))
@@ -159,3 +160,12 @@ def test_calibration_file_round_trips_and_is_the_one_reader(tmp_path):
     (tmp_path / "broken.json").write_text(CalibrationFile.from_dict(broken).to_json())
     with pytest.raises(CalibrationError, match="crsp.Kn"):
         CalibrationFile.from_json(str(tmp_path / "broken.json"))
+
+
+def test_the_fit_dem_numerics_travel_to_the_hazard_run(tmp_path):
+    """The DEM section records the fit's numerics (calib.dem_run); the reader hands
+    them to the hazard run, which builds the same DemRun from them."""
+    box = DEM_BOXES["power"]
+    pts = _box_points(box, 4, seed=1)
+    cal = load_calibration(_write_fit(tmp_path, "dem", box, pts[0], pts, "power"), "dem")
+    assert DemRun(**cal.dem_run) == DemRun(stiffness_scale=0.02, max_time_s=140.0)

@@ -9,6 +9,7 @@ written.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import sys
@@ -69,12 +70,13 @@ def build_parser() -> OneLineParser:
     p.add_argument("--pool", type=int, default=1024, help="CRSP lanes per call (default 1024)")
     p.add_argument("--max-events", type=int, default=5000,
                    help="CRSP event budget per block (default 5000)")
-    p.add_argument("--dem-stiffness-scale", type=float, default=DEM_RUN.stiffness_scale,
-                   help="DEM: multiply kn = ks = 50 GPa/m by this (default "
-                        f"{DEM_RUN.stiffness_scale:g}, the fit's)")
-    p.add_argument("--dem-max-time-s", type=float, default=DEM_RUN.max_time_s,
-                   help="DEM: simulated-time bound per block, s (default "
-                        f"{DEM_RUN.max_time_s:g}, the fit's)")
+    p.add_argument("--dem-stiffness-scale", type=float, default=None,
+                   help="DEM: multiply kn = ks = 50 GPa/m by this (default: the fit's, "
+                        f"from the calibration file; {DEM_RUN.stiffness_scale:g} for files "
+                        "without one)")
+    p.add_argument("--dem-max-time-s", type=float, default=None,
+                   help="DEM: simulated-time bound per block, s (default: the fit's, from "
+                        f"the calibration file; {DEM_RUN.max_time_s:g} for files without one)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
@@ -107,10 +109,11 @@ def main(argv: list[str] | None = None) -> int:
         rate = args.release_rate_per_year
         if rate is not None and not (math.isfinite(rate) and rate > 0):
             raise CliError(f"--release-rate-per-year: expected a positive rate, got {rate:g}")
-        if not (0.0 < args.dem_stiffness_scale <= 1.0):
+        if args.dem_stiffness_scale is not None and not (0.0 < args.dem_stiffness_scale <= 1.0):
             raise CliError(f"--dem-stiffness-scale: expected a value in (0, 1], got "
                            f"{args.dem_stiffness_scale:g}")
-        if not (math.isfinite(args.dem_max_time_s) and args.dem_max_time_s > 0):
+        if args.dem_max_time_s is not None and not (math.isfinite(args.dem_max_time_s)
+                                                    and args.dem_max_time_s > 0):
             raise CliError(f"--dem-max-time-s: expected a positive time, got "
                            f"{args.dem_max_time_s:g}")
         if os.path.exists(args.out) and not os.path.isdir(args.out):
@@ -166,6 +169,13 @@ def main(argv: list[str] | None = None) -> int:
     except (CalibrationError, ProfileError, CliError, SiteError) as exc:
         fail(prog, str(exc))
 
+    fitted = DemRun(**cal.dem_run) if cal.dem_run else DEM_RUN
+    dem_run = dataclasses.replace(fitted, **{
+        k: v for k, v in (("stiffness_scale", args.dem_stiffness_scale),
+                          ("max_time_s", args.dem_max_time_s)) if v is not None})
+    if cal.model == "dem" and dem_run != fitted:
+        print(f"note: the DEM runs with {dem_run}, not the fit's {fitted}: its alpha was "
+              "calibrated with the fit's numerics", file=sys.stderr)
     total = len(draws.values) * len(sizes) * n_blocks
     bar = tqdm(total=total, unit="block", disable=args.no_progress, file=sys.stderr,
                desc=f"hazard {cal.model}")
@@ -173,8 +183,7 @@ def main(argv: list[str] | None = None) -> int:
     counts = run_hazard(cal, draws, profile, sizes, np.asarray(stations), n_blocks, args.seed,
                         chunk_blocks=args.chunk_blocks, pool=args.pool,
                         settings=crsp.Settings(max_events=args.max_events),
-                        dem_run=DemRun(stiffness_scale=args.dem_stiffness_scale,
-                                       max_time_s=args.dem_max_time_s),
+                        dem_run=dem_run,
                         progress=bar.update)
     wall = time.perf_counter() - t0
     bar.close()
