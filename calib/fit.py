@@ -221,9 +221,11 @@ def _run(args) -> int:
               "release_groups": None if groups is None else {
                   "tolerance_m": args.release_tolerance_m, "models": ["crsp"],
                   "groups": [{"block_size_m": float(d), "release_x_m": float(x),
+                              "release_speed_m_s": None if not np.isfinite(v) else float(v),
                               "n_rows": int(np.sum(groups.index == g))}
-                             for g, (d, x) in enumerate(zip(groups.sizes_m,
-                                                            groups.release_x_m))]},
+                             for g, (d, x, v) in enumerate(zip(groups.sizes_m,
+                                                               groups.release_x_m,
+                                                               groups.release_speed_m_s))]},
               "quick": bool(args.quick), "methods": list(methods), "versions": versions(),
               "inputs": provenance(PROG, args.seed, {"data": args.data,
                                                      "profile": profile_path})["inputs"],
@@ -246,7 +248,8 @@ def _run(args) -> int:
             else:
                 forward = CrspForward(profile, groups.sizes_m, budget.n_blocks_design,
                                       jax.random.fold_in(mkey, 1), box=box,
-                                      release_x_m=tuple(groups.release_x_m))
+                                      release_x_m=tuple(groups.release_x_m),
+                                      release_speed_m_s=tuple(groups.release_speed_m_s))
         else:
             forward = DemForward(profile, obs.sizes_m, budget.n_blocks_design,
                                  jax.random.fold_in(mkey, 1), form=args.alpha_law,

@@ -106,6 +106,12 @@ class CrspForward:
             first vertex). With one per entry ``sizes_m`` need not be distinct:
             an entry is a (size, release) group, e.g. the held-out rows of
             ``calib.predictive_check``.
+        release_speed_m_s: (S,) release speed of each entry, m/s, or None; NaN
+            keeps the solver's default (1 m/s). Our choice: the tracked speed
+            is the block's horizontal release velocity (``release_vx_m_s``;
+            released on the ground it then rolls along the slope at speed
+            times cos(slope)), the direction of a tracked release being
+            seldom known.
     """
 
     profile: Profile
@@ -119,6 +125,7 @@ class CrspForward:
     stations_x_m: tuple[float, ...] = ()
     settings: crsp.Settings = crsp.Settings()
     release_x_m: float | tuple[float, ...] | None = None
+    release_speed_m_s: tuple[float, ...] | None = None
 
     def __post_init__(self):
         if self.effect != "none":
@@ -173,6 +180,8 @@ class CrspForward:
         radius = np.tile(crsp_radius_m(self.sizes_m), n_t)
         release = (None if self.release_x_m is None else
                    np.tile(np.broadcast_to(np.asarray(self.release_x_m, float), (n_s,)), n_t))
+        speed = (None if self.release_speed_m_s is None else
+                 np.tile(np.asarray(self.release_speed_m_s, float).reshape(n_s), n_t))
         n_tasks = rep.shape[0]
         chunk = self.task_chunk
         pad = (-n_tasks) % chunk
@@ -180,6 +189,8 @@ class CrspForward:
         radius = np.concatenate([radius, np.repeat(radius[-1:], pad)])
         if release is not None:
             release = np.concatenate([release, np.repeat(release[-1:], pad)])
+        if speed is not None:
+            speed = np.concatenate([speed, np.repeat(speed[-1:], pad)])
         stations = jnp.asarray(np.asarray(self.stations_x_m, float).reshape(-1), jnp.float64)
         runs, speeds = [], []
         for c0 in range(0, rep.shape[0], chunk):
@@ -187,6 +198,11 @@ class CrspForward:
             if release is not None:
                 params = params._replace(
                     release_x_m=jnp.asarray(release[c0:c0 + chunk], jnp.float64))
+            if speed is not None:
+                s = speed[c0:c0 + chunk]
+                params = params._replace(release_vx_m_s=jnp.asarray(
+                    np.where(np.isfinite(s), s, np.broadcast_to(params.release_vx_m_s, s.shape)),
+                    jnp.float64))
             blocks = stack_trees([crsp.make_block(float(r)) for r in radius[c0:c0 + chunk]])
             res = crsp.simulate_tasks(params, blocks, self.key, self.profile, stations,
                                       n_per_task=self.n_blocks,

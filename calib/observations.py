@@ -71,11 +71,14 @@ class ReleaseGroups(NamedTuple):
         sizes_m: (G,) block size of each group, m.
         release_x_m: (G,) release abscissa of each group, m.
         index: (n_obs,) group of each row.
+        release_speed_m_s: (G,) mean tracked release speed of the group's rows
+            that give one, m/s; NaN where none does (the solver's default).
     """
 
     sizes_m: np.ndarray
     release_x_m: np.ndarray
     index: np.ndarray
+    release_speed_m_s: np.ndarray
 
 
 def release_groups(obs: Observations, default_release_x_m: float,
@@ -86,7 +89,8 @@ def release_groups(obs: Observations, default_release_x_m: float,
     release of their group share one group, released at the mean of their
     releases (greedy, in ascending order); ``tol_m = 0`` groups only equal
     releases. A row without ``release_x_m`` (NaN) is released at
-    ``default_release_x_m``. Our choice: the tolerance trades simulation cost
+    ``default_release_x_m``. A group's release speed is the mean of its rows'
+    ``release_speed_m_s`` where given. Our choice: the tolerance trades simulation cost
     (one simulated sample per group) against the release error of a row, at
     most ``tol_m``.
 
@@ -100,7 +104,9 @@ def release_groups(obs: Observations, default_release_x_m: float,
     rel = np.asarray(obs.release_x_m, float)
     rel = np.where(np.isfinite(rel), rel, float(default_release_x_m))
     size = np.asarray(obs.block_size_m, float)
-    sizes, releases, index = [], [], np.empty(obs.n_obs, int)
+    speed = getattr(obs, "release_speed_m_s", None)
+    speed = np.full(obs.n_obs, np.nan) if speed is None else np.asarray(speed, float)
+    sizes, releases, speeds, index = [], [], [], np.empty(obs.n_obs, int)
     for d in np.unique(size):
         rows = np.flatnonzero(size == d)
         rows = rows[np.argsort(rel[rows], kind="stable")]
@@ -113,8 +119,11 @@ def release_groups(obs: Observations, default_release_x_m: float,
             index[members] = len(sizes)
             sizes.append(d)
             releases.append(float(np.mean(rel[members])))
+            known = speed[members][np.isfinite(speed[members])]
+            speeds.append(float(np.mean(known)) if known.size else np.nan)
             start = stop
-    return ReleaseGroups(np.asarray(sizes, float), np.asarray(releases, float), index)
+    return ReleaseGroups(np.asarray(sizes, float), np.asarray(releases, float), index,
+                         np.asarray(speeds, float))
 
 
 class ObservationError(ValueError):

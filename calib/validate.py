@@ -93,7 +93,7 @@ def _predictive(cal, heldout, profile, n_posterior, n_blocks, seed):
     from calib.predictive_check import pool_draws
 
     x0 = float(profile.x_m[0]) if cal.release_x_m is None else float(cal.release_x_m)
-    sizes, releases, index = release_groups(heldout, x0)
+    sizes, releases, index, speeds = release_groups(heldout, x0)
     lo, hi = float(profile.x_m[0]), float(profile.x_m[-1])
     bad = np.flatnonzero((releases < lo) | (releases >= hi))
     if bad.size:
@@ -108,7 +108,7 @@ def _predictive(cal, heldout, profile, n_posterior, n_blocks, seed):
         from calib.priors import crsp_box
 
         fw = CrspForward(profile, sizes, n_blocks or 100, key, box=crsp_box(draws.names),
-                         release_x_m=tuple(releases))
+                         release_x_m=tuple(releases), release_speed_m_s=tuple(speeds))
     else:
         if np.any(releases != x0):
             raise CliError("the DEM forward model releases every block at the profile's start; "

@@ -84,7 +84,8 @@ def test_per_size_baseline_falls_back_to_all_rows():
 def test_groups_of_rows_with_and_without_release():
     obs = types.SimpleNamespace(block_size_m=np.array([1.0, 1.0, 0.5, 1.0]), n_obs=4,
                                 release_x_m=np.array([5.0, np.nan, 5.0, 5.0]))
-    sizes, rel, index = release_groups(obs, 0.0)
+    sizes, rel, index, speed = release_groups(obs, 0.0)
+    assert np.isnan(speed).all()
     assert sizes.tolist() == [0.5, 1.0, 1.0] and rel.tolist() == [5.0, 0.0, 5.0]
     assert index.tolist() == [2, 1, 0, 2]
 
@@ -95,11 +96,15 @@ def test_release_groups_within_a_tolerance():
     is at most tol."""
     rel = np.array([10.0, 10.4, 10.9, 11.2, 10.2, 30.0])
     obs = types.SimpleNamespace(block_size_m=np.array([1.0, 1.0, 1.0, 1.0, 0.5, 1.0]),
-                                n_obs=6, release_x_m=rel)
+                                n_obs=6, release_x_m=rel,
+                                release_speed_m_s=np.array([1.0, np.nan, 2.0, 0.5, np.nan,
+                                                            np.nan]))
     g = release_groups(obs, 0.0, tol_m=1.0)
     assert g.sizes_m.tolist() == [0.5, 1.0, 1.0, 1.0]
     np.testing.assert_allclose(g.release_x_m, [10.2, (10.0 + 10.4 + 10.9) / 3, 11.2, 30.0])
     assert g.index.tolist() == [1, 1, 1, 2, 0, 3]
+    # the mean of the speeds its rows give; NaN (the solver's default) where none does
+    np.testing.assert_array_equal(g.release_speed_m_s, [np.nan, 1.5, 0.5, np.nan])
     assert np.all(np.abs(g.release_x_m[g.index] - rel) <= 1.0)
     with pytest.raises(ValueError, match="tolerance"):
         release_groups(obs, 0.0, tol_m=-1.0)
@@ -116,6 +121,11 @@ def test_forward_runs_each_group_from_its_release():
                        release_x_m=(0.0, 150.0)).runouts(theta)[0]
     np.testing.assert_array_equal(both[0], plain)
     assert np.nanmax(both[1]) < 20.0 < np.nanmin(both[0])
+    # a release speed per entry: NaN keeps the default (same blocks), 6 m/s differs
+    fast = CrspForward(PROFILE, np.array([1.0, 1.0]), 32, key, release_x_m=(0.0, 0.0),
+                       release_speed_m_s=(np.nan, 6.0)).runouts(theta)[0]
+    np.testing.assert_array_equal(fast[0], plain)
+    assert not np.array_equal(fast[1], plain)
 
 
 @pytest.fixture(scope="module")
