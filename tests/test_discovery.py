@@ -405,9 +405,10 @@ class _Line:
 
 
 def test_a_fold_with_a_large_khat_reaches_the_discovery_record():
-    from calib.discover import _clean, psis_warnings
+    from calib.discover import psis_warnings
     from calib.discrepancy import Budget, Candidate, discover
     from calib.priors import Box
+    from solvers.cli import json_ready as _clean
 
     # 60 tight rows: the likelihood is far narrower than the 32-point design, so
     # the weights of every fold rest on one or two points (k-hat > 0.7)
