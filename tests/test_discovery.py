@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from calib.discover import noise_warnings, psis_warnings
+from calib.discovery_warnings import noise_warnings, psis_warnings
 from calib.discrepancy import _proposal, size_classes
 from calib.observations import Observations
 from calib.residuals import locate
@@ -227,7 +227,7 @@ def _row(effect, gain, se, sd):
 
 
 def test_noise_warning_only_when_noise_could_flip_the_verdict():
-    from calib.discover import noise_warnings
+    from calib.discovery_warnings import noise_warnings
 
     base = _row("none", 0.0, 0.0, 2.2)
     # null seed 5004 (60 rows): fragmentation +5.1 +- 2.4 against 4.8, noise hypot(8.5, 2.2)
@@ -245,7 +245,7 @@ def test_noise_warning_only_when_noise_could_flip_the_verdict():
 
 
 def test_ess_warnings_name_the_degenerate_fits_only():
-    from calib.discover import ess_warnings
+    from calib.discovery_warnings import ess_warnings
 
     assert ess_warnings({"none": (40.0, 384), "fragmentation": (12.0, 512)}) == []
     (w,) = ess_warnings({"none": (1.5, 384), "fragmentation": (30.0, 512),
@@ -276,7 +276,7 @@ def test_the_two_se_bar_is_a_bar_on_the_effective_rows():
 
 
 def test_concentration_warning_names_the_sizes_that_carry_an_unnamed_gain():
-    from calib.discover import concentration_warnings
+    from calib.discovery_warnings import concentration_warnings
 
     sizes = np.tile([0.2, 0.4, 0.7, 1.0, 1.4, 2.0], 10)
     # rolling resistance, seed 8003 (60 runout rows): +393.1 +- 210.3 from four 0.2 m rows
@@ -405,7 +405,7 @@ class _Line:
 
 
 def test_a_fold_with_a_large_khat_reaches_the_discovery_record():
-    from calib.discover import psis_warnings
+    from calib.discovery_warnings import psis_warnings
     from calib.discrepancy import Budget, Candidate, discover
     from calib.priors import Box
     from solvers.cli import json_ready as _clean
