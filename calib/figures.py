@@ -6,6 +6,7 @@
 * ``alpha_law``: the fitted damping law alpha(L) with its 90 % posterior band,
   with the site's published values where its site file gives them
   (``calib.site``; Postignano: the paper's Table 1).
+* ``validation_figures``: the predictive check's PIT histogram and intervals.
 * ``pairs``: posterior pair plot (scatter below the diagonal, histograms on it).
 """
 
@@ -20,7 +21,7 @@ import numpy as np  # noqa: E402
 from calib.observations import Observations  # noqa: E402
 from calib.unfinished import nan_quantile  # noqa: E402
 
-__all__ = ["alpha_law", "pairs", "runout_vs_size"]
+__all__ = ["alpha_law", "pairs", "runout_vs_size", "validation_figures"]
 
 _COLORS = {"crsp": "tab:blue", "dem": "tab:red"}
 
@@ -97,3 +98,44 @@ def pairs(samples: np.ndarray, names: tuple[str, ...], truth=None, title: str = 
         fig.suptitle(title)
     fig.tight_layout()
     return fig
+
+
+def validation_figures(check) -> dict:
+    """The predictive check's figures (``calib.predictive_check.PredictiveCheck``):
+    the PIT histogram and the held-out rows' observed values against their
+    predicted 50 and 90 % intervals; name -> Figure."""
+    rows = check.rows
+    figs = {}
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    pit = rows["pit"].dropna().to_numpy() if "pit" in rows else np.array([])
+    ax.hist(pit, bins=np.linspace(0, 1, 11), color="0.6", edgecolor="k")
+    if pit.size:
+        ax.axhline(pit.size / 10, color="C3", ls="--", label="uniform (calibrated)")
+        ax.legend(loc="upper center")
+    ax.set(xlabel="PIT = P(predicted <= observed)", ylabel="held-out rows",
+           title=f"PIT histogram ({pit.size} rows)")
+    fig.tight_layout()
+    figs["pit_histogram.png"] = fig
+
+    scored = (rows.dropna(subset=["pred_median_m"]) if "pred_median_m" in rows
+              else rows.iloc[:0])
+    if len(scored):
+        scored = scored.sort_values("observed_m")
+    fig, ax = plt.subplots(figsize=(7, 0.25 * max(len(scored), 8) + 1.0))
+    if len(scored):
+        yy = np.arange(len(scored))
+        ax.hlines(yy, scored["pred_q05_m"], scored["pred_q95_m"], color="C0", lw=1.5,
+                  label="predicted 90 %")
+        ax.hlines(yy, scored["pred_q25_m"], scored["pred_q75_m"], color="C0", lw=4,
+                  label="predicted 50 %")
+        ax.plot(scored["observed_m"], yy, "k.", label="observed")
+        ax.set_yticks(yy, [f"row {r} ({d:g} m)" for r, d in zip(scored["row"],
+                                                                 scored["block_size_m"])],
+                      fontsize=6)
+        ax.legend(loc="lower right", fontsize=7)
+    else:
+        ax.text(0.5, 0.5, "no scored point rows", ha="center", transform=ax.transAxes)
+    ax.set(xlabel="runout, m", title="held-out rows: observed against predicted intervals")
+    fig.tight_layout()
+    figs["intervals.png"] = fig
+    return figs

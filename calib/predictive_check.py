@@ -47,7 +47,7 @@ from calib.observations import Observations
 from solvers.cli import few_blocks
 
 __all__ = ["MIN_ROWS_PER_SIZE", "PredictiveCheck", "in_band", "observed_ensemble",
-           "pool_draws", "score_rows"]
+           "pool_draws", "predictive_runouts", "score_rows"]
 
 MIN_ROWS_PER_SIZE = 3  # fewest calibration rows of one size for a per-size baseline
 
@@ -180,3 +180,45 @@ def score_rows(obs: Observations, predictive: np.ndarray, group_index: np.ndarra
         summary[name] = (1.0 - summary["mean_crps_m"] / summary[ref]
                          if n and summary[ref] > 0 else None)
     return PredictiveCheck(rows, summary)
+
+
+def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
+                       n_blocks: int | None, seed: int):
+    """The posterior predictive runouts of held-out rows, each from its own
+    release (``calib.observations.release_groups``) at ``n_posterior`` draws of
+    the calibration ``cal`` (``calib.calibration_file``).
+
+    Returns:
+        (pooled (G, n_posterior * n_blocks) runouts per (size, release) group,
+        group index per row, the ``Draws``, blocks per draw and group).
+
+    Raises:
+        ValueError: a release outside the profile, more draws than the
+            posterior has, or DEM rows with their own releases.
+    """
+    import jax
+
+    from calib.calibration_file import draw_parameters
+    from calib.forward import CrspForward, DemForward
+    from calib.observations import release_groups
+
+    x0 = float(profile.x_m[0]) if cal.release_x_m is None else float(cal.release_x_m)
+    sizes, releases, index, speeds = release_groups(heldout, x0)
+    lo, hi = float(profile.x_m[0]), float(profile.x_m[-1])
+    bad = np.flatnonzero((releases < lo) | (releases >= hi))
+    if bad.size:
+        raise ValueError(f"release_x_m {releases[bad[0]]:g}: outside the profile {cal.profile_csv} "
+                       f"({lo:g} to {hi:g} m)")
+    draws = draw_parameters(cal, n_posterior, seed)
+    key = jax.random.fold_in(jax.random.key(seed), 7)
+    if cal.model == "crsp":
+        from calib.priors import crsp_box
+
+        fw = CrspForward(profile, sizes, n_blocks or 100, key, box=crsp_box(draws.names),
+                         release_x_m=tuple(releases), release_speed_m_s=tuple(speeds))
+    else:
+        if np.any(releases != x0):
+            raise ValueError("the DEM forward model releases every block at the profile's start; "
+                           "held-out rows with other release_x_m need --model crsp")
+        fw = DemForward(profile, sizes, n_blocks or 4, key, form=cal.alpha_form)
+    return pool_draws(fw.runouts(draws.values)), index, draws, fw.n_blocks

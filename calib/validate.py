@@ -24,8 +24,6 @@ import json
 import os
 import sys
 
-import numpy as np
-
 from solvers.cli import CliError, OneLineParser, few_blocks_warning, run_guarded
 
 PROG = "python -m calib.validate"
@@ -82,94 +80,20 @@ def _load(args):
     return cal, heldout, calib_obs, data, profile
 
 
-def _predictive(cal, heldout, profile, n_posterior, n_blocks, seed):
-    """(G, m) predictive runouts per (size, release) group, group index per row,
-    and the draws' description."""
-    import jax
-
-    from calib.calibration_file import CalibrationError, draw_parameters
-    from calib.forward import CrspForward, DemForward
-    from calib.observations import release_groups
-    from calib.predictive_check import pool_draws
-
-    x0 = float(profile.x_m[0]) if cal.release_x_m is None else float(cal.release_x_m)
-    sizes, releases, index, speeds = release_groups(heldout, x0)
-    lo, hi = float(profile.x_m[0]), float(profile.x_m[-1])
-    bad = np.flatnonzero((releases < lo) | (releases >= hi))
-    if bad.size:
-        raise CliError(f"release_x_m {releases[bad[0]]:g}: outside the profile {cal.profile_csv} "
-                       f"({lo:g} to {hi:g} m)")
-    try:
-        draws = draw_parameters(cal, n_posterior, seed)
-    except CalibrationError as e:
-        raise CliError(str(e)) from None
-    key = jax.random.fold_in(jax.random.key(seed), 7)
-    if cal.model == "crsp":
-        from calib.priors import crsp_box
-
-        fw = CrspForward(profile, sizes, n_blocks or 100, key, box=crsp_box(draws.names),
-                         release_x_m=tuple(releases), release_speed_m_s=tuple(speeds))
-    else:
-        if np.any(releases != x0):
-            raise CliError("the DEM forward model releases every block at the profile's start; "
-                           "held-out rows with other release_x_m need --model crsp")
-        fw = DemForward(profile, sizes, n_blocks or 4, key, form=cal.alpha_form)
-    return pool_draws(fw.runouts(draws.values)), index, draws, fw.n_blocks
-
-
-def _figures(check):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    rows = check.rows
-    figs = {}
-    fig, ax = plt.subplots(figsize=(5, 3.5))
-    pit = rows["pit"].dropna().to_numpy() if "pit" in rows else np.array([])
-    ax.hist(pit, bins=np.linspace(0, 1, 11), color="0.6", edgecolor="k")
-    if pit.size:
-        ax.axhline(pit.size / 10, color="C3", ls="--", label="uniform (calibrated)")
-        ax.legend(loc="upper center")
-    ax.set(xlabel="PIT = P(predicted <= observed)", ylabel="held-out rows",
-           title=f"PIT histogram ({pit.size} rows)")
-    fig.tight_layout()
-    figs["pit_histogram.png"] = fig
-
-    scored = (rows.dropna(subset=["pred_median_m"]) if "pred_median_m" in rows
-              else rows.iloc[:0])
-    if len(scored):
-        scored = scored.sort_values("observed_m")
-    fig, ax = plt.subplots(figsize=(7, 0.25 * max(len(scored), 8) + 1.0))
-    if len(scored):
-        yy = np.arange(len(scored))
-        ax.hlines(yy, scored["pred_q05_m"], scored["pred_q95_m"], color="C0", lw=1.5,
-                  label="predicted 90 %")
-        ax.hlines(yy, scored["pred_q25_m"], scored["pred_q75_m"], color="C0", lw=4,
-                  label="predicted 50 %")
-        ax.plot(scored["observed_m"], yy, "k.", label="observed")
-        ax.set_yticks(yy, [f"row {r} ({d:g} m)" for r, d in zip(scored["row"],
-                                                                 scored["block_size_m"])],
-                      fontsize=6)
-        ax.legend(loc="lower right", fontsize=7)
-    else:
-        ax.text(0.5, 0.5, "no scored point rows", ha="center", transform=ax.transAxes)
-    ax.set(xlabel="runout, m", title="held-out rows: observed against predicted intervals")
-    fig.tight_layout()
-    figs["intervals.png"] = fig
-    return figs
-
-
 def run_validation(args) -> dict:
     """Run the check of ``args`` (parsed options) and write its outputs; returns
     the summary written to validation.json."""
-    from calib.predictive_check import score_rows
+    from calib.figures import validation_figures
+    from calib.predictive_check import predictive_runouts, score_rows
     from calib.provenance import provenance
     from solvers.cli import write_outputs
 
     cal, heldout, calib_obs, data, profile = _load(args)
-    pooled, index, draws, n_blocks = _predictive(cal, heldout, profile, args.n_posterior,
-                                                 args.n_blocks, args.seed)
+    try:
+        pooled, index, draws, n_blocks = predictive_runouts(
+            cal, heldout, profile, args.n_posterior, args.n_blocks, args.seed)
+    except ValueError as e:
+        raise CliError(str(e)) from None
     try:
         check = score_rows(heldout, pooled, index, calib_obs, seed=args.seed)
     except ValueError as e:
@@ -180,7 +104,7 @@ def run_validation(args) -> dict:
                "provenance": provenance(PROG, args.seed, {
                    "calibration": args.calibration, "heldout": args.heldout,
                    "calibration_data": data, "profile": cal.profile_csv})}
-    figs = _figures(check)
+    figs = validation_figures(check)
     files = {"validation.csv": check.rows.to_csv(index=False, float_format="%.6g"),
              "validation.json": json.dumps(summary, indent=1, allow_nan=False) + "\n"}
     write_outputs(args.out, files, figs)
