@@ -41,7 +41,7 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["ALPHA_MAX", "FORMS", "PARAMETER_RANGES", "alpha_of", "check_law"]
+__all__ = ["ALPHA_MAX", "FORMS", "PARAMETER_RANGES", "alpha_of", "check_fit", "check_law"]
 
 ALPHA_MAX = 0.95
 
@@ -120,3 +120,24 @@ def check_law(form: str, theta, side_m) -> tuple[int, str] | None:
                 return t, (f"alpha = {a:g} for square side {s:g} m, outside "
                            f"[0, {ALPHA_MAX:g}]")
     return None
+
+
+def check_fit(form: str, estimate, samples, sizes_m) -> None:
+    """Calibration-time check: every parameter set a fit writes (the estimate
+    and each posterior draw, ``samples`` (R, P) or None) passes ``check_law`` on
+    the fitted sizes, the check ``calib.hazard`` applies before it simulates; with the one
+    clipping rule a set that passes at some sizes passes at all, so the hazard
+    run accepts the calibration and runs the alpha the fit ran.
+
+    Raises:
+        ValueError: naming the first set that would be refused, and why.
+    """
+    from calib.observations import dem_side_m
+
+    est = np.asarray(estimate, float)[None]
+    rows = est if samples is None else np.vstack([est, np.asarray(samples, float)])
+    bad = check_law(form, rows, dem_side_m(sizes_m))
+    if bad is not None:
+        i, why = bad
+        what = "the estimate" if i == 0 else f"posterior draw {i}"
+        raise ValueError(f"DEM calibration: {what} would be refused by calib.hazard: {why}")

@@ -39,7 +39,8 @@ import numpy as np
 from calib.alpha_law import FORMS, PARAMETER_RANGES
 
 __all__ = ["SCHEMA", "Calibration", "CalibrationError", "CalibrationFile", "Draws",
-           "draw_parameters", "load_calibration", "posterior_csv_text"]
+           "draw_parameters", "load_calibration", "model_section", "posterior_csv_text",
+           "summary_stats"]
 
 SCHEMA = "rockfall-calibration/1"
 
@@ -403,3 +404,69 @@ class CalibrationFile:
             raise CalibrationError("a calibration built in memory has no file to resolve "
                                    "its paths against; write it with to_json first")
         return _model_from_doc(self.path, self.doc, model)
+
+
+def summary_stats(values: np.ndarray | None, point: float) -> dict:
+    """``map`` (the point estimate), ``mean``, ``q05``, ``q95`` of one parameter's
+    posterior draws ``values`` (None: the point estimate only)."""
+    if values is None:
+        return {"map": float(point), "mean": None, "q05": None, "q95": None}
+    return {"map": float(point), "mean": float(np.mean(values)),
+            "q05": float(np.quantile(values, 0.05)), "q95": float(np.quantile(values, 0.95))}
+
+
+def _finite(v) -> float | None:
+    """A float for JSON; None for a non-finite value (an objective of +inf where
+    some size had no finished block)."""
+    return float(v) if np.isfinite(v) else None
+
+
+def model_section(name: str, fit, forward, law_form: str | None = None) -> dict:
+    """The section of one model (``calib.calibrate.ModelFit`` ``fit`` of
+    ``forward``) as ``calib.fit`` writes it: parameters with map/mean/q05/q95
+    (DEM: under ``alpha_law``, with the DEM numerics under ``run``), prior,
+    gradient and Bayes records with their diagnostics, fit quality, adequacy,
+    unfinished blocks, budgets and timings; ``posterior_csv`` and
+    ``posterior_netcdf`` name the files written next to it."""
+    from calib.bayes import ESS_MIN, RHAT_MAX
+
+    post = fit.posterior
+    sec = {"parameters": list(fit.names), "estimate_source": fit.estimate_source,
+           "fit_quality": fit.quality, "unfinished_blocks": fit.unfinished,
+           "adequacy": fit.adequacy,
+           "timings_s": fit.timings_s,
+           "budget": {k: v for k, v in vars(fit.budget).items()},
+           "n_blocks_check": int(fit.check_runouts.shape[-1]),
+           "common_random_numbers": True,
+           "prior": {n: [float(lo), float(hi)] for n, lo, hi in
+                     zip(fit.names, forward.box.lo, forward.box.hi)}}
+    stats = {n: summary_stats(None if post is None else post.samples[:, i], fit.estimate[i])
+             for i, n in enumerate(fit.names)}
+    if fit.gradient is not None:
+        g = fit.gradient
+        sec["gradient"] = {
+            "estimate": dict(zip(fit.names, map(float, g.theta))),
+            "starts_final": [dict(zip(fit.names, map(float, t))) for t in g.theta_starts],
+            "objective_final": [_finite(v) for v in g.objective_final],
+            "objective_history": [[_finite(v) for v in row] for row in g.history]}
+    if post is not None:
+        sec["bayes"] = {
+            "summary": post.summary(), "ok": post.ok, "problems": post.problems,
+            "divergences": post.divergences, "accept_prob": post.accept_prob,
+            "n_draws": int(post.samples.shape[0]), "n_chains": post.n_chains,
+            "diagnostics": {"rhat": "rank-normalised split R-hat (Vehtari et al. 2021)",
+                            "rhat_max": RHAT_MAX, "ess": "bulk and tail ESS (same paper)",
+                            "ess_min": ESS_MIN},
+            "emulator": fit.emulator_check}
+        sec["posterior_csv"] = f"{name}_posterior.csv"
+        sec["posterior_netcdf"] = f"{name}_posterior.nc"
+    else:
+        sec["posterior_csv"] = sec["posterior_netcdf"] = None
+    if law_form is None:
+        sec.update(stats)
+    else:
+        sec["run"] = dataclasses.asdict(forward.run)  # the DEM numerics (calib.dem_run)
+        sec["alpha_law"] = {"form": law_form,
+                            "expression": "a*L**-b" if law_form == "power" else "alpha",
+                            **stats}
+    return sec

@@ -26,7 +26,6 @@ tolerance (points) or known to lie in an interval.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import sys
 import time
@@ -95,85 +94,10 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _stats(values: np.ndarray | None, point: float) -> dict:
-    if values is None:
-        return {"map": float(point), "mean": None, "q05": None, "q95": None}
-    return {"map": float(point), "mean": float(np.mean(values)),
-            "q05": float(np.quantile(values, 0.05)), "q95": float(np.quantile(values, 0.95))}
-
-
-def _finite(v) -> float | None:
-    """A float for JSON; None for a non-finite value (an objective of +inf where
-    some size had no finished block)."""
-    return float(v) if np.isfinite(v) else None
-
-
-def _model_section(name, fit, forward, law_form=None) -> dict:
-    from calib.bayes import ESS_MIN, RHAT_MAX
-
-    post = fit.posterior
-    sec = {"parameters": list(fit.names), "estimate_source": fit.estimate_source,
-           "fit_quality": fit.quality, "unfinished_blocks": fit.unfinished,
-           "adequacy": fit.adequacy,
-           "timings_s": fit.timings_s,
-           "budget": {k: v for k, v in vars(fit.budget).items()},
-           "n_blocks_check": int(fit.check_runouts.shape[-1]),
-           "common_random_numbers": True,
-           "prior": {n: [float(lo), float(hi)] for n, lo, hi in
-                     zip(fit.names, forward.box.lo, forward.box.hi)}}
-    stats = {n: _stats(None if post is None else post.samples[:, i], fit.estimate[i])
-             for i, n in enumerate(fit.names)}
-    if fit.gradient is not None:
-        g = fit.gradient
-        sec["gradient"] = {
-            "estimate": dict(zip(fit.names, map(float, g.theta))),
-            "starts_final": [dict(zip(fit.names, map(float, t))) for t in g.theta_starts],
-            "objective_final": [_finite(v) for v in g.objective_final],
-            "objective_history": [[_finite(v) for v in row] for row in g.history]}
-    if post is not None:
-        sec["bayes"] = {
-            "summary": post.summary(), "ok": post.ok, "problems": post.problems,
-            "divergences": post.divergences, "accept_prob": post.accept_prob,
-            "n_draws": int(post.samples.shape[0]), "n_chains": post.n_chains,
-            "diagnostics": {"rhat": "rank-normalised split R-hat (Vehtari et al. 2021)",
-                            "rhat_max": RHAT_MAX, "ess": "bulk and tail ESS (same paper)",
-                            "ess_min": ESS_MIN},
-            "emulator": fit.emulator_check}
-        sec["posterior_csv"] = f"{name}_posterior.csv"
-        sec["posterior_netcdf"] = f"{name}_posterior.nc"
-    else:
-        sec["posterior_csv"] = sec["posterior_netcdf"] = None
-    if law_form is None:
-        sec.update(stats)
-    else:
-        sec["run"] = dataclasses.asdict(forward.run)  # the DEM numerics (calib.dem_run)
-        sec["alpha_law"] = {"form": law_form,
-                            "expression": "a*L**-b" if law_form == "power" else "alpha",
-                            **stats}
-    return sec
-
-
-def _check_alpha_law(form: str, fit, sizes_m) -> None:
-    """Calibration-time check: every parameter set the fit writes (the estimate
-    and each posterior draw) passes ``calib.alpha_law.check_law`` on the fitted
-    sizes, the check ``calib.hazard`` applies before it simulates; with the one
-    clipping rule a set that passes at some sizes passes at all, so the hazard
-    run accepts the calibration and runs the alpha the fit ran."""
-    from calib.alpha_law import check_law
-    from calib.observations import dem_side_m
-
-    rows = fit.estimate[None] if fit.posterior is None else np.vstack(
-        [fit.estimate[None], fit.posterior.samples])
-    bad = check_law(form, rows, dem_side_m(sizes_m))
-    if bad is not None:
-        i, why = bad
-        what = "the estimate" if i == 0 else f"posterior draw {i}"
-        raise CliError(f"DEM calibration: {what} would be refused by calib.hazard: {why}")
-
-
 def _run(args) -> int:
-    from calib.alpha_law import alpha_of
+    from calib.alpha_law import alpha_of, check_fit
     from calib.calibrate import calibrate, presets
+    from calib.calibration_file import model_section, summary_stats
     from calib.forward import CrspForward, DemForward
     from calib.inference_data import inference_data, netcdf_writer
     from calib.inputs import common_release_m, load_inputs
@@ -265,7 +189,7 @@ def _run(args) -> int:
                             groups=groups if model == "crsp" else None)
         bar.close()
         t0 = time.perf_counter()
-        sec = _model_section(model, fit, forward, args.alpha_law if model == "dem" else None)
+        sec = model_section(model, fit, forward, args.alpha_law if model == "dem" else None)
         post = fit.posterior
         if post is not None:
             files[f"{model}_posterior.csv"] = posterior_csv_text(fit.names, post.samples)
@@ -275,14 +199,18 @@ def _run(args) -> int:
                 f"({post.samples.shape[0]} draws{'' if post.ok else ', DIAGNOSTICS FAILED'})")
         predictive[model] = (fit.check_sizes_m, fit.check_runouts)
         if model == "dem":
-            _check_alpha_law(args.alpha_law, fit, obs.sizes_m)
+            try:
+                check_fit(args.alpha_law, fit.estimate,
+                          None if fit.posterior is None else fit.posterior.samples, obs.sizes_m)
+            except ValueError as e:
+                raise CliError(str(e)) from None
             ref = dict(site.alpha_reference)
             ls = np.asarray(sorted(ref) if ref else ALPHA_AT_L)
             at = np.asarray(alpha_of(args.alpha_law, fit.estimate, ls))
             samp = None if post is None else np.asarray(alpha_of(args.alpha_law, post.samples,
                                                                  ls))
             sec["alpha_at_L"] = {
-                f"{L:g}": {**_stats(None if samp is None else samp[:, i], at[i]),
+                f"{L:g}": {**summary_stats(None if samp is None else samp[:, i], at[i]),
                            **({"reference": ref[L]} if ref else {})}
                 for i, L in enumerate(ls)}
             if ref:

@@ -17,9 +17,14 @@ import jax
 import numpy as np
 import pytest
 
-from calib.calibration_file import SCHEMA, draw_parameters, load_calibration, posterior_csv_text
+from calib.calibration_file import (
+    SCHEMA,
+    draw_parameters,
+    load_calibration,
+    model_section,
+    posterior_csv_text,
+)
 from calib.dem_run import DEM_RUN, DemRun
-from calib.fit import _model_section
 from calib.forward import CrspForward, DemForward
 from calib.hazard._run import _crsp_units, _dem_units, check_dem_draws
 from calib.priors import CRSP_BOX, CRSP_ROLLING_BOX, DEM_BOXES
@@ -50,7 +55,7 @@ def _write_fit(folder, model: str, box, estimate, samples, form=None) -> str:
                           budget=SimpleNamespace(), check_runouts=np.zeros((1, 1)),
                           emulator_check=None)
     run = DemRun(stiffness_scale=0.02, max_time_s=140.0)  # not the defaults: must travel
-    sec = _model_section(model, fit, SimpleNamespace(box=box, run=run), form)
+    sec = model_section(model, fit, SimpleNamespace(box=box, run=run), form)
     doc = {"schema": SCHEMA, "profile_csv": PROFILE_CSV, "release_x_m": 0.0, model: sec}
     with open(os.path.join(folder, f"{model}_posterior.csv"), "w") as fh:
         fh.write(posterior_csv_text(box.names, samples))
@@ -123,18 +128,15 @@ def test_every_crsp_calibration_the_fit_can_write_is_accepted_by_hazard(tmp_path
 def test_the_fit_checks_its_dem_draws_before_writing():
     """``calib.fit`` runs the hazard's acceptance check on what it would write:
     the box passes; a draw the hazard would refuse stops the fit, named."""
-    from calib.fit import _check_alpha_law
-    from solvers.cli import CliError
+    from calib.alpha_law import check_fit
 
     box = DEM_BOXES["power"]
     good = _box_points(box, 16, seed=3)
-    fit = SimpleNamespace(estimate=good[0], posterior=SimpleNamespace(samples=good))
-    _check_alpha_law("power", fit, np.array([0.2, 2.0]))
+    check_fit("power", good[0], good, np.array([0.2, 2.0]))
     bad = good.copy()
     bad[5, 0] = 0.0
-    fit = SimpleNamespace(estimate=good[0], posterior=SimpleNamespace(samples=bad))
-    with pytest.raises(CliError, match=r"posterior draw 6 would be refused .*a = 0"):
-        _check_alpha_law("power", fit, np.array([0.2, 2.0]))
+    with pytest.raises(ValueError, match=r"posterior draw 6 would be refused .*a = 0"):
+        check_fit("power", good[0], bad, np.array([0.2, 2.0]))
 
 
 def test_calibration_file_round_trips_and_is_the_one_reader(tmp_path):
