@@ -11,7 +11,8 @@ import sys
 import pandas as pd
 import pytest
 
-from calib.power import detection_table, parse_seeds
+from calib.power import parse_seeds
+from calib.power_study import detection_table
 from solvers.cli import CliError
 
 
