@@ -117,7 +117,7 @@ def test_both_solvers_name_shared_station_quantities_alike():
 
 # ---------------------------------------------------------------- --help shows defaults
 
-COMMANDS = ["solvers.crsp.__main__", "solvers.dem.__main__", "solvers.profile", "solvers.bench",
+COMMANDS = ["solvers.crsp.__main__", "solvers.dem.__main__", "solvers.profile_cli", "solvers.bench",
             "calib.fit", "calib.discover", "calib.power", "calib.synth", "calib.validate",
             "calib.field", "calib.hazard.__main__"]
 
