@@ -1,15 +1,15 @@
 """``python -m calib.discover DATA.csv``: find where the model disagrees with the data,
 name the missing effect, add it and show the gap shrink.
 
-Fits the baseline model and each candidate effect (``calib.effects``: for CRSP
+Fits the baseline model and each candidate effect (``calib.model.effects``: for CRSP
 size_dissipation, fragmentation, rolling_resistance, vegetation_belt; for the
 DEM size_dissipation and fragmentation), locates the baseline's disagreement
 (quantile residuals against block size and stop position), compares the
 candidates by held-out log predictive density and names an effect only when
 its gain over the baseline exceeds 4 nats and 2 standard errors (else
-``none``). The workflow and its sources: ``calib/discrepancy.py``.
+``none``). The workflow and its sources: ``calib/discovery/discrepancy.py``.
 ``--velocities FILE`` adds passage speeds at stations
-(``calib.observations.load_velocities``), scored with the runouts by every
+(``calib.files.observations.load_velocities``), scored with the runouts by every
 candidate (CRSP only): runouts alone cannot tell a forest belt from a lower
 tangential restitution, a speed measured above the belt can.
 
@@ -18,8 +18,8 @@ Writes into ``--out`` (atomically; nothing on error):
 * ``discovery.json``: named_effect, candidates [{effect, score, gap, ...,
   khat, khat_by_fold, psis_flagged_folds}], gap_metric, gap_before, gap_after,
   where (the baseline's disagreement), each candidate's fit (with its
-  unfinished blocks, ``calib.unfinished``, and the Pareto k-hats of its
-  importance weights, ``calib.importance``), warnings, budgets, timings, seed;
+  unfinished blocks, ``calib.model.unfinished``, and the Pareto k-hats of its
+  importance weights, ``calib.inference.importance``), warnings, budgets, timings, seed;
 * ``residuals.png`` (where the baseline fails), ``candidates.png`` (scores),
   ``before_after.png`` (the gap before and after).
 """
@@ -96,7 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _candidates(model: str, effects_arg: str | None, profile, release_x_m=None,
                 rolling: str = "profile"):
-    from calib.effects import CRSP_EFFECTS, DEM_EFFECTS
+    from calib.model.effects import CRSP_EFFECTS, DEM_EFFECTS
 
     allowed = CRSP_EFFECTS if model == "crsp" else DEM_EFFECTS
     if effects_arg is None:
@@ -108,8 +108,8 @@ def _candidates(model: str, effects_arg: str | None, profile, release_x_m=None,
             raise CliError(f"--effects: {', '.join(bad) or '(empty)'}: expected effects of the "
                            f"{model} model among {', '.join(a for a in allowed if a != 'none')}")
     if model == "crsp":
-        from calib.candidates import crsp_candidates
-        from calib.priors import CRSP_BOX, CRSP_ROLLING_BOX
+        from calib.discovery.candidates import crsp_candidates
+        from calib.model.priors import CRSP_BOX, CRSP_ROLLING_BOX
 
         if rolling == "fit":
             if effects_arg is not None and "rolling_resistance" in chosen:
@@ -123,7 +123,7 @@ def _candidates(model: str, effects_arg: str | None, profile, release_x_m=None,
     if rolling == "fit":
         raise CliError("--rolling-resistance fit: the rolling resistance is a CRSP "
                        "parameter; the DEM candidates have none")
-    from calib.dem_candidates import dem_candidates
+    from calib.discovery.dem_candidates import dem_candidates
 
     if release_x_m is not None and release_x_m != float(profile.x_m[0]):
         raise CliError("the DEM candidates release every block at the profile's first "
@@ -147,18 +147,18 @@ def _fit_section(f) -> dict:
 
 
 def _run(args) -> int:
-    from calib import discovery_figures as figs
-    from calib.discovery_warnings import (
+    from calib.discovery.discovery_warnings import (
         concentration_warnings,
         ess_warnings,
         noise_warnings,
         psis_warnings,
     )
-    from calib.discrepancy import GAP_METRIC, discover, preset_budget
-    from calib.inputs import common_release_m, load_inputs
-    from calib.provenance import versions
-    from calib.scores import ELPD_MIN, Z_MIN
-    from calib.unfinished import UnfinishedBlocksWarning
+    from calib.discovery.discrepancy import GAP_METRIC, discover, preset_budget
+    from calib.discovery.scores import ELPD_MIN, Z_MIN
+    from calib.files.inputs import common_release_m, load_inputs
+    from calib.files.provenance import versions
+    from calib.model.unfinished import UnfinishedBlocksWarning
+    from calib.plots import discovery_figures as figs
 
     t0 = time.perf_counter()
     obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
@@ -236,7 +236,7 @@ def _load_velocities(path, model: str, profile):
     or a station off the profile is a one-line error."""
     if path is None:
         return None
-    from calib.observations import ObservationError, load_velocities
+    from calib.files.observations import ObservationError, load_velocities
 
     if model != "crsp":
         raise CliError("--velocities: passage speeds are scored with the crsp model only")

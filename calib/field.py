@@ -3,7 +3,7 @@ runs (release and stop points) as observed runouts on a profile.
 
 The command only: options, reading, writing and printing. The definitions
 (projection, equivalent diameter, shape class), their sources and the
-defaults that are assumptions are in ``calib.field_runs``.
+defaults that are assumptions are in ``calib.files.field_runs``.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import sys
 
 import numpy as np
 
-from calib.field_runs import (
+from calib.files.field_runs import (
     DEFAULT_DENSITY_KG_M3,
     DEFAULT_MAX_OFFSET_M,
     DEFAULT_RUNOUT_SD_M,
@@ -37,7 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog=PROG, description=__doc__.split("\n\n")[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=(
-            "Writes OUT (observations, schema of calib/observations.py): block_size_m, "
+            "Writes OUT (observations, schema of calib/files/observations.py): block_size_m, "
             "runout_m, runout_sd_m,\nrunout_min_m, runout_max_m (empty), source, run_id, "
             "block_id, release_x_m (release abscissa\non the profile), release_speed_m_s, "
             "shape (sphere|cylinder|disc from the dimensions), mass_kg,\nrelease_offset_m, "
@@ -48,7 +48,8 @@ def build_parser() -> argparse.ArgumentParser:
             "only where\nthe mass is missing, d = (a b c)^(1/3) of the three dimensions. "
             "Shape rule (our own, after\nZingg 1935): a >= b >= c; disc if c/b <= 2/3, "
             "cylinder if b/a <= 2/3 < c/b, else sphere.\n"
-            "Defaults marked ASSUMPTION are stated in calib/field_runs.py and data/README.md.\n\n"
+            "Defaults marked ASSUMPTION are stated in calib/files/field_runs.py and "
+            "data/README.md.\n\n"
             "Example (the shipped Tschamut observations):\n"
             "  python -m calib.field data/tschamut2014/runs.csv "
             "--blocks data/tschamut2014/blocks.csv \\\n"

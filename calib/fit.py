@@ -1,6 +1,6 @@
 """``python -m calib.fit DATA.csv``: calibrate CRSP (Kn, Kt, S) and the DEM damping law.
 
-Reads observed runouts (``calib.observations``) and a slope profile, fits each
+Reads observed runouts (``calib.files.observations``) and a slope profile, fits each
 model by gradient (optax on a smoothed common-random-number objective of the
 simulator) and by Bayesian inference (NumPyro NUTS on a Gaussian-process
 emulator of the simulator), checks the fit by re-simulation, and writes into
@@ -10,15 +10,15 @@ temporary name and renamed, so a failure leaves no half-written file):
 * ``calibration.json``: point estimates and 90 % intervals, the damping law and
   alpha at L = 0.2, 0.9, 1.8 m, per-observation fit quality, diagnostics,
   emulator checks, unfinished blocks per stage (``unfinished_blocks``, see
-  ``calib.unfinished``), stage timings, seed and package versions;
+  ``calib.model.unfinished``), stage timings, seed and package versions;
 * ``crsp_posterior.csv``, ``dem_posterior.csv``: posterior draws;
 * ``crsp_posterior.nc``, ``dem_posterior.nc``: the same draws as ArviZ
   InferenceData (NetCDF-4: chains, sampler statistics, the pointwise emulated
-  log-likelihood and the observed rows; ``calib.inference_data``, read back with
+  log-likelihood and the observed rows; ``calib.files.inference_data``, read back with
   ``read_inference_data``);
 * ``runout_vs_size.png``, ``alpha_law.png``, ``crsp_pairs.png``, ``dem_pairs.png``.
 
-The likelihood (``calib.likelihood``): each observed row is one draw from the
+The likelihood (``calib.inference.likelihood``): each observed row is one draw from the
 simulated runout distribution of blocks of its size, seen with a Gaussian
 tolerance (points) or known to lie in an interval.
 """
@@ -34,8 +34,8 @@ import warnings
 import jax
 import numpy as np
 
-from calib.calibration_file import SCHEMA, CalibrationFile, posterior_csv_text
-from calib.provenance import provenance, versions
+from calib.files.calibration_file import SCHEMA, CalibrationFile, posterior_csv_text
+from calib.files.provenance import provenance, versions
 from solvers.cli import (
     CliError,
     OneLineParser,
@@ -95,15 +95,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run(args) -> int:
-    from calib.alpha_law import alpha_of, check_fit
-    from calib.calibrate import calibrate, presets
-    from calib.calibration_file import model_section, summary_stats
-    from calib.forward import CrspForward, DemForward
-    from calib.inference_data import inference_data, netcdf_writer
-    from calib.inputs import common_release_m, load_inputs
-    from calib.priors import CRSP_BOX, CRSP_ROLLING_BOX
-    from calib.site import SiteError, load_site
-    from calib.unfinished import UnfinishedBlocksWarning
+    from calib.files.calibration_file import model_section, summary_stats
+    from calib.files.inference_data import inference_data, netcdf_writer
+    from calib.files.inputs import common_release_m, load_inputs
+    from calib.files.site import SiteError, load_site
+    from calib.inference.calibrate import calibrate, presets
+    from calib.model.alpha_law import alpha_of, check_fit
+    from calib.model.forward import CrspForward, DemForward
+    from calib.model.priors import CRSP_BOX, CRSP_ROLLING_BOX
+    from calib.model.unfinished import UnfinishedBlocksWarning
 
     t_start = time.perf_counter()
     obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
@@ -122,7 +122,7 @@ def _run(args) -> int:
     models = ["crsp", "dem"] if args.model == "both" else [args.model]
     rel = getattr(obs, "release_x_m", None)
     if rel is not None and np.any(np.isfinite(rel)):
-        from calib.observations import release_groups
+        from calib.files.observations import release_groups
 
         groups = release_groups(obs, float(profile.x_m[0]), args.release_tolerance_m)
         if "crsp" in models:
@@ -156,9 +156,9 @@ def _run(args) -> int:
               "block_size_mapping": {"crsp_radius_m": "block_size_m / 2",
                                      "dem_side_m": "block_size_m"},
               "likelihood": "point: (1/n) sum_j N(y; r_j, sd^2 + v_j); interval: (1/n) sum_j "
-                            "[Phi((b-r_j)/w_j) - Phi((a-r_j)/w_j)] (calib/likelihood.py)",
+                            "[Phi((b-r_j)/w_j) - Phi((a-r_j)/w_j)] (calib/inference/likelihood.py)",
               "n_observations": obs.n_obs, "fit_quality": {}, "timings_s": {}}
-    from calib import figures
+    from calib.plots import figures
 
     for m_i, model in enumerate(models):
         budget = presets(model, args.quick)
@@ -238,11 +238,11 @@ def _run(args) -> int:
 
 
 def _split(args, obs, files):
-    """Split the rows (``calib.split``): the fit's observations, and the path its
+    """Split the rows (``calib.files.split``): the fit's observations, and the path its
     calibration rows will have; both row files join the outputs."""
 
-    from calib.observations import read_table
-    from calib.split import holdout_rows, subset
+    from calib.files.observations import read_table
+    from calib.files.split import holdout_rows, subset
 
     try:
         fit_rows, held_rows = holdout_rows(obs.n_obs, args.holdout_fraction, args.seed)

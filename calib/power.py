@@ -2,8 +2,8 @@
 effect, as a function of its strength and of the number of observed blocks?
 
 A power study. For every (effect, strength, rows, seed) it makes synthetic data
-with the effect switched on (``calib.synthetic.synthesize_effect``, the same
-data as ``calib.synth``), runs the whole workflow on it (``calib.discrepancy``,
+with the effect switched on (``calib.discovery.synthetic.synthesize_effect``, the same
+data as ``calib.synth``), runs the whole workflow on it (``calib.discovery.discrepancy``,
 the same fit and naming rule as ``calib.discover``) and records which effect
 was named. Per cell (effect, strength, rows) it reports the detection rate
 (for ``none``: the rate of correctly naming ``none``, i.e. one minus the
@@ -49,7 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="comma-separated effects to hide in the data, 'none' for null data "
                         "(default fragmentation,vegetation_belt)")
     p.add_argument("--strengths", default="1", help="comma-separated strengths (default 1, "
-                   "'moderate'; calib.effects says what they mean)")
+                   "'moderate'; calib.model.effects says what they mean)")
     p.add_argument("--n-obs", default="60", help="comma-separated numbers of rows (default 60)")
     p.add_argument("--seeds", default="3001-3005",
                    help="data seeds: a list '1,2,3' or a range '3001-3005' (default 3001-3005)")
@@ -96,9 +96,9 @@ def _write_json_atomic(path: str, obj) -> None:
 def _run(args) -> int:
     import pandas as pd
 
-    from calib.discrepancy import PRESETS, preset_budget
-    from calib.effects import EFFECT_NAMES
-    from calib.power_study import detection_table, one_run
+    from calib.discovery.discrepancy import PRESETS, preset_budget
+    from calib.discovery.power_study import detection_table, one_run
+    from calib.model.effects import EFFECT_NAMES
     from calib.synth import speed_design
     from solvers.cli import write_csv_atomic
     from solvers.profile import load_profile

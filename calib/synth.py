@@ -1,6 +1,6 @@
 """``python -m calib.synth --effect E --out synth.csv``: observations with a hidden effect.
 
-Simulates blocks with one candidate effect of ``calib.effects`` switched on
+Simulates blocks with one candidate effect of ``calib.model.effects`` switched on
 (inside the solver) and writes them as observed runouts in the schema of
 ``data/postignano.csv``, so that ``python -m calib.discover`` can be tested on
 data whose missing physics is known. Three files are written, atomically:
@@ -12,13 +12,13 @@ data whose missing physics is known. Three files are written, atomically:
   profile used and its materials, where ``calib.discover`` looks by default.
 * with ``--velocity-stations X[,X...]``: ``<OUT stem>_velocities.csv``,
   ``--n-velocity`` passage speeds at those abscissae (schema of
-  ``calib.observations.load_velocities``; noise and tolerance ``--velocity-sd``
+  ``calib.files.observations.load_velocities``; noise and tolerance ``--velocity-sd``
   m/s), for ``calib.discover --velocities``. CRSP only.
 
 Rows: ``--n-obs`` blocks spread over the sizes 0.2, 0.4, 0.7, 1.0, 1.4, 2.0 m;
 each runout is one simulated block plus Gaussian noise of ``--sd`` m, which is
 also the row's stated tolerance. The truths (base CRSP set and strengths) are
-in ``calib.effects``.
+in ``calib.model.effects``.
 """
 
 from __future__ import annotations
@@ -46,14 +46,14 @@ DEFAULT_PROFILE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(_
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from calib.effects import EFFECT_NAMES
+    from calib.model.effects import EFFECT_NAMES
 
     p = OneLineParser(
         prog=PROG, description=__doc__.split("\n\n")[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="Example: python -m calib.synth --effect fragmentation --seed 3 --out synth.csv"
                "\n         python -m calib.discover synth.csv\n"
-               "Effects (calib/effects.py): none, size_dissipation (size-dependent "
+               "Effects (calib/model/effects.py): none, size_dissipation (size-dependent "
                "restitution; DEM: alpha(L)), fragmentation (break on a hard impact), "
                "rolling_resistance (extra rolling resistance), vegetation_belt (a forest "
                "stretch that brakes blocks). The DEM has none, size_dissipation and "
@@ -62,7 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="effect switched on in the simulation")
     p.add_argument("--strength", type=float, default=1.0,
                    help="strength of the effect (1 = moderate, the default; see "
-                        "calib/effects.py for what it means for each effect)")
+                        "calib/model/effects.py for what it means for each effect)")
     p.add_argument("--model", choices=["crsp", "dem"], default="crsp",
                    help="solver that makes the data (default crsp)")
     p.add_argument("--n-obs", type=int, default=60, help="number of rows (default 60)")
@@ -81,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _check(args) -> None:
-    from calib.effects import DEM_EFFECTS
+    from calib.model.effects import DEM_EFFECTS
 
     if args.model == "dem" and args.effect not in DEM_EFFECTS:
         raise CliError(f"--effect {args.effect}: not available for the DEM (it has "
@@ -131,7 +131,7 @@ def speed_design(args, profile):
 
 def _run(args) -> int:
     _check(args)
-    from calib.synthetic import synthesize_effect
+    from calib.discovery.synthetic import synthesize_effect
     from solvers.profile import ProfileError, default_materials_path, load_profile
 
     try:
@@ -144,7 +144,7 @@ def _run(args) -> int:
     files = {}
     speeds = speed_design(args, profile)
     if speeds is not None:
-        from calib.synthetic import synthesize_velocities
+        from calib.discovery.synthetic import synthesize_velocities
 
         try:
             vel = synthesize_velocities(profile, args.effect, args.strength, speeds[1],

@@ -5,7 +5,7 @@ posterior predictive runout distribution of every held-out row (its block size
 and, where the CSV gives ``release_x_m``, its release point) and scores it
 against the row and against a climatology baseline (the calibration rows' own
 observed runouts). The scores and their sources are in
-``calib.predictive_check``.
+``calib.inference.predictive_check``.
 
 Outputs (in ``--out``, all written together or not at all):
 
@@ -53,8 +53,8 @@ def build_parser() -> OneLineParser:
 
 
 def _load(args):
-    from calib.calibration_file import CalibrationError, load_calibration
-    from calib.observations import ObservationError, load_observations
+    from calib.files.calibration_file import CalibrationError, load_calibration
+    from calib.files.observations import ObservationError, load_observations
     from solvers.profile import ProfileError, load_profile
 
     try:
@@ -83,9 +83,9 @@ def _load(args):
 def run_validation(args) -> dict:
     """Run the check of ``args`` (parsed options) and write its outputs; returns
     the summary written to validation.json."""
-    from calib.figures import validation_figures
-    from calib.predictive_check import predictive_runouts, score_rows
-    from calib.provenance import provenance
+    from calib.files.provenance import provenance
+    from calib.inference.predictive_check import predictive_runouts, score_rows
+    from calib.plots.figures import validation_figures
     from solvers.cli import write_outputs
 
     cal, heldout, calib_obs, data, profile = _load(args)

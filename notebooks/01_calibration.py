@@ -59,8 +59,8 @@ if not os.path.isdir(os.path.join(ROOT, "calib")):  # run from notebooks/
 os.chdir(ROOT)
 sys.path.insert(0, ROOT)
 
-from calib.calibration_file import CalibrationFile  # noqa: E402
-from calib.site import load_site  # noqa: E402
+from calib.files.calibration_file import CalibrationFile  # noqa: E402
+from calib.files.site import load_site  # noqa: E402
 
 # NOTEBOOK_RESULTS: reuse a finished `calib.fit` output folder (the test suite does);
 # NOTEBOOK_QUICK=1: small budgets. By hand, leave both unset for the full run (~5 min).

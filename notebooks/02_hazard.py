@@ -43,6 +43,7 @@ import numpy as np  # noqa: E402
 from IPython.display import Image, display  # noqa: E402
 from tqdm.auto import tqdm  # noqa: E402
 
+from calib.files.site import load_site  # noqa: E402
 from calib.hazard import (  # noqa: E402
     BINS,
     draw_parameters,
@@ -53,7 +54,6 @@ from calib.hazard import (  # noqa: E402
     summary_text,
 )
 from calib.hazard._figures import plot_envelopes, plot_exceedance  # noqa: E402
-from calib.site import load_site  # noqa: E402
 from solvers import load_profile  # noqa: E402
 
 SMALL = os.environ.get("HAZARD_NOTEBOOK_SMALL") == "1"

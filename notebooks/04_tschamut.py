@@ -54,7 +54,7 @@ sys.path.insert(0, ROOT)
 
 from calib import field  # noqa: E402
 from calib import fit as calib_fit  # noqa: E402
-from calib.calibration_file import CalibrationFile  # noqa: E402
+from calib.files.calibration_file import CalibrationFile  # noqa: E402
 from solvers import load_profile  # noqa: E402
 from solvers import profile as profile_cli  # noqa: E402
 from solvers.raster import read_raster  # noqa: E402

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from calib.adequacy import adequacy_record, bound_mass, predictive_coverage
-from calib.observations import load_observations
-from calib.priors import CRSP_BOX
+from calib.files.observations import load_observations
+from calib.inference.adequacy import adequacy_record, bound_mass, predictive_coverage
+from calib.model.priors import CRSP_BOX
 
 
 def _obs(tmp_path, sizes, runouts, sd=3.0):

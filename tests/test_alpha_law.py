@@ -1,12 +1,12 @@
-"""The DEM damping law alpha(L) and its one clipping rule (``calib.alpha_law``)."""
+"""The DEM damping law alpha(L) and its one clipping rule (``calib.model.alpha_law``)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from calib.alpha_law import ALPHA_MAX, alpha_of, check_law
-from calib.priors import DEM_BOXES
+from calib.model.alpha_law import ALPHA_MAX, alpha_of, check_law
+from calib.model.priors import DEM_BOXES
 
 
 def test_alpha_laws():

@@ -1,11 +1,11 @@
-"""The NUTS diagnostics of ``calib.bayes`` (rank-normalised R-hat, bulk and tail
+"""The NUTS diagnostics of ``calib.inference.bayes`` (rank-normalised R-hat, bulk and tail
 ESS, computed by ArviZ) on synthetic chains whose answer is known."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from calib.bayes import ESS_MIN, RHAT_MAX, chain_diagnostics
+from calib.inference.bayes import ESS_MIN, RHAT_MAX, chain_diagnostics
 
 
 def test_well_mixed_chains_pass_and_a_stuck_chain_fails():

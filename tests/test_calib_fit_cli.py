@@ -43,7 +43,7 @@ def test_quick_run_writes_every_output(quick_run):
     assert set(cal["dem"]["alpha_at_L"]) == {"0.2", "0.9", "1.8"}
     for v in cal["dem"]["alpha_at_L"].values():
         assert 0 <= v["q05"] <= v["q95"] <= 0.95
-    # Table 1 comes from the site file (calib/site.py), not from a default
+    # Table 1 comes from the site file (calib/files/site.py), not from a default
     assert {L: v["reference"] for L, v in cal["dem"]["alpha_at_L"].items()} == {
         "0.2": 0.90, "0.9": 0.43, "1.8": 0.30}
     assert len(cal["fit_quality"]["crsp"]) == 2 and len(cal["fit_quality"]["dem"]) == 2
@@ -51,7 +51,7 @@ def test_quick_run_writes_every_output(quick_run):
     assert "ok" in cal["crsp"]["bayes"] and "rhat" in cal["crsp"]["bayes"]["summary"]["Kn"]
     assert {"ess_bulk", "ess_tail"} <= set(cal["crsp"]["bayes"]["summary"]["Kn"])
     # the same draws as InferenceData, with the chains, the emulated log-likelihood per row
-    from calib.inference_data import read_inference_data
+    from calib.files.inference_data import read_inference_data
 
     for m in ("crsp", "dem"):
         assert cal[m]["posterior_netcdf"] == f"{m}_posterior.nc"

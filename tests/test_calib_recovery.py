@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 
 import calib  # noqa: F401  (x64)
-from calib.calibrate import calibrate, presets
-from calib.forward import CrspForward, DemForward
-from calib.gradient import smoothed_gradient, theta_of_u, u_of_theta
-from calib.likelihood import log_likelihood
-from calib.priors import CRSP_BOX
-from calib.synthetic import synthesize
+from calib.discovery.synthetic import synthesize
+from calib.inference.calibrate import calibrate, presets
+from calib.inference.gradient import smoothed_gradient, theta_of_u, u_of_theta
+from calib.inference.likelihood import log_likelihood
+from calib.model.forward import CrspForward, DemForward
+from calib.model.priors import CRSP_BOX
 from solvers.profile import load_profile
 
 PROFILE = load_profile("data/postignano_profile.csv")

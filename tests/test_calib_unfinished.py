@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 import calib  # noqa: F401  (x64)
-from calib.calibrate import Budget, calibrate
-from calib.forward import CrspForward
-from calib.likelihood import log_likelihood_jit as log_likelihood
-from calib.observations import Observations
-from calib.unfinished import UNFINISHED_WARN_FRACTION, UnfinishedBlocksWarning
+from calib.files.observations import Observations
+from calib.inference.calibrate import Budget, calibrate
+from calib.inference.likelihood import log_likelihood_jit as log_likelihood
+from calib.model.forward import CrspForward
+from calib.model.unfinished import UNFINISHED_WARN_FRACTION, UnfinishedBlocksWarning
 from solvers import crsp, load_profile
 from solvers.status import BUDGET, finished
 
@@ -101,10 +101,10 @@ def test_discrepancy_fit_counts_unfinished_blocks_and_warns(budget_case):
     """The discovery workflow's fit of one candidate on 2 m rows: unfinished blocks
     are counted in the design and the predictive, one warning, and every design
     point keeps a finite likelihood and the gap a finite value (finished blocks)."""
-    from calib.discrepancy import Budget as FitBudget
-    from calib.discrepancy import Candidate, fit_candidate
-    from calib.priors import CRSP_BOX
-    from calib.scores import folds
+    from calib.discovery.discrepancy import Budget as FitBudget
+    from calib.discovery.discrepancy import Candidate, fit_candidate
+    from calib.discovery.scores import folds
+    from calib.model.priors import CRSP_BOX
 
     profile = budget_case[0]
 
@@ -133,7 +133,7 @@ def test_synthetic_rows_are_finished_blocks(monkeypatch):
     unfinished block is replaced by the next finished one, simulated anew (a
     stand-in forward model: block j's runout is 100 + j m, and blocks 1 and 4 of
     the second size never finish)."""
-    from calib.synthetic import synthesize
+    from calib.discovery.synthetic import synthesize
 
     def runouts(self, theta):
         r = np.tile(100.0 + np.arange(self.n_blocks), (len(self.sizes_m), 1))

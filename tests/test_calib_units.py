@@ -11,9 +11,9 @@ import pytest
 from scipy.stats import norm
 
 import calib  # noqa: F401  (x64)
-from calib.emulator import fit_emulator, holdout_error, variance_inflation
-from calib.likelihood import log_likelihood
-from calib.observations import ObservationError, load_observations
+from calib.files.observations import ObservationError, load_observations
+from calib.inference.emulator import fit_emulator, holdout_error, variance_inflation
+from calib.inference.likelihood import log_likelihood
 
 
 def _write(tmp_path, text, name="obs.csv"):
@@ -98,7 +98,7 @@ def test_emulator_learns_a_smooth_quantile_function_and_its_uncertainty_is_hones
 
 
 def test_same_key_same_forward_runouts():
-    from calib.forward import CrspForward
+    from calib.model.forward import CrspForward
     from solvers.profile import load_profile
 
     prof = load_profile("data/postignano_profile.csv")

@@ -2,7 +2,7 @@
 the hazard run simulates the parameters (DEM: the alpha per size) that the fit
 simulated. Property test over each prior box: its corners and uniform draws
 from it, written through the fit's own writers (``calib.fit._model_section``,
-``calib.calibration_file.posterior_csv_text``), read back by
+``calib.files.calibration_file.posterior_csv_text``), read back by
 ``load_calibration``, and taken through the hazard run's acceptance check and
 the set-up of its work units (no simulation: seconds)."""
 
@@ -17,17 +17,17 @@ import jax
 import numpy as np
 import pytest
 
-from calib.calibration_file import (
+from calib.files.calibration_file import (
     SCHEMA,
     draw_parameters,
     load_calibration,
     model_section,
     posterior_csv_text,
 )
-from calib.dem_run import DEM_RUN, DemRun
-from calib.forward import CrspForward, DemForward
 from calib.hazard._run import _crsp_units, _dem_units, check_dem_draws
-from calib.priors import CRSP_BOX, CRSP_ROLLING_BOX, DEM_BOXES
+from calib.model.dem_run import DEM_RUN, DemRun
+from calib.model.forward import CrspForward, DemForward
+from calib.model.priors import CRSP_BOX, CRSP_ROLLING_BOX, DEM_BOXES
 from solvers import crsp
 from solvers.profile import load_profile
 
@@ -128,7 +128,7 @@ def test_every_crsp_calibration_the_fit_can_write_is_accepted_by_hazard(tmp_path
 def test_the_fit_checks_its_dem_draws_before_writing():
     """``calib.fit`` runs the hazard's acceptance check on what it would write:
     the box passes; a draw the hazard would refuse stops the fit, named."""
-    from calib.alpha_law import check_fit
+    from calib.model.alpha_law import check_fit
 
     box = DEM_BOXES["power"]
     good = _box_points(box, 16, seed=3)
@@ -145,7 +145,7 @@ def test_calibration_file_round_trips_and_is_the_one_reader(tmp_path):
     and hands out each model's Calibration."""
     from test_hazard_fixtures import write_calibration
 
-    from calib.calibration_file import SCHEMA, CalibrationError, CalibrationFile
+    from calib.files.calibration_file import SCHEMA, CalibrationError, CalibrationFile
 
     path = write_calibration(tmp_path, crsp_posterior=None)
     doc = CalibrationFile.from_json(path)
@@ -165,7 +165,7 @@ def test_calibration_file_round_trips_and_is_the_one_reader(tmp_path):
 
 
 def test_the_fit_dem_numerics_travel_to_the_hazard_run(tmp_path):
-    """The DEM section records the fit's numerics (calib.dem_run); the reader hands
+    """The DEM section records the fit's numerics (calib.model.dem_run); the reader hands
     them to the hazard run, which builds the same DemRun from them."""
     box = DEM_BOXES["power"]
     pts = _box_points(box, 4, seed=1)

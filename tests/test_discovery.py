@@ -14,11 +14,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from calib.discovery_warnings import noise_warnings, psis_warnings
-from calib.discrepancy import _proposal, size_classes
-from calib.observations import Observations
-from calib.residuals import locate
-from calib.scores import (
+from calib.discovery.discovery_warnings import noise_warnings, psis_warnings
+from calib.discovery.discrepancy import _proposal, size_classes
+from calib.discovery.residuals import locate
+from calib.discovery.scores import (
     Z_MIN,
     carrying_rows,
     crps_ensemble,
@@ -28,6 +27,7 @@ from calib.scores import (
     folds,
     rows_needed,
 )
+from calib.files.observations import Observations
 from solvers.profile import load_profile
 
 PROFILE = load_profile("data/postignano_profile.csv")
@@ -201,14 +201,14 @@ def test_discover_names_a_strong_hidden_effect_and_shrinks_the_gap(discover_run)
 
 
 def test_loglik_noise_sd_is_the_spread_of_the_summed_rows():
-    from calib.discrepancy import loglik_noise_sd
+    from calib.discovery.discrepancy import loglik_noise_sd
 
     reps = np.array([[-1.0, -2.0, -3.0], [-2.0, -2.0, -3.0], [-1.0, -1.0, -1.0]])
     assert loglik_noise_sd(reps) == pytest.approx(np.std([-6.0, -7.0, -3.0], ddof=1))
 
 
 def test_crsp_replicates_are_independent_block_sets_of_the_fit_size():
-    from calib.forward import CrspForward
+    from calib.model.forward import CrspForward
 
     fw = CrspForward(PROFILE, np.array([0.5, 2.0]), 16, jax.random.key(0))
     theta = np.array([0.41, 0.87, 0.5])
@@ -227,7 +227,7 @@ def _row(effect, gain, se, sd):
 
 
 def test_noise_warning_only_when_noise_could_flip_the_verdict():
-    from calib.discovery_warnings import noise_warnings
+    from calib.discovery.discovery_warnings import noise_warnings
 
     base = _row("none", 0.0, 0.0, 2.2)
     # null seed 5004 (60 rows): fragmentation +5.1 +- 2.4 against 4.8, noise hypot(8.5, 2.2)
@@ -245,7 +245,7 @@ def test_noise_warning_only_when_noise_could_flip_the_verdict():
 
 
 def test_ess_warnings_name_the_degenerate_fits_only():
-    from calib.discovery_warnings import ess_warnings
+    from calib.discovery.discovery_warnings import ess_warnings
 
     assert ess_warnings({"none": (40.0, 384), "fragmentation": (12.0, 512)}) == []
     (w,) = ess_warnings({"none": (1.5, 384), "fragmentation": (30.0, 512),
@@ -276,7 +276,7 @@ def test_the_two_se_bar_is_a_bar_on_the_effective_rows():
 
 
 def test_concentration_warning_names_the_sizes_that_carry_an_unnamed_gain():
-    from calib.discovery_warnings import concentration_warnings
+    from calib.discovery.discovery_warnings import concentration_warnings
 
     sizes = np.tile([0.2, 0.4, 0.7, 1.0, 1.4, 2.0], 10)
     # rolling resistance, seed 8003 (60 runout rows): +393.1 +- 210.3 from four 0.2 m rows
@@ -365,9 +365,9 @@ def test_candidates_on_the_rolling_baseline():
     candidate carries it as its 4th parameter, the rolling_resistance effect is
     left out (one parameter, not two), and a candidate's forward model keeps
     that box through dataclasses.replace and fits it in the solver."""
-    from calib.candidates import crsp_candidates
-    from calib.effects import full_box
-    from calib.priors import CRSP_BOX, CRSP_ROLLING_BOX
+    from calib.discovery.candidates import crsp_candidates
+    from calib.model.effects import full_box
+    from calib.model.priors import CRSP_BOX, CRSP_ROLLING_BOX
 
     cands = crsp_candidates(PROFILE, base=CRSP_ROLLING_BOX)
     assert [c.effect for c in cands] == ["none", "size_dissipation", "fragmentation",
@@ -405,9 +405,9 @@ class _Line:
 
 
 def test_a_fold_with_a_large_khat_reaches_the_discovery_record():
-    from calib.discovery_warnings import psis_warnings
-    from calib.discrepancy import Budget, Candidate, discover
-    from calib.priors import Box
+    from calib.discovery.discovery_warnings import psis_warnings
+    from calib.discovery.discrepancy import Budget, Candidate, discover
+    from calib.model.priors import Box
     from solvers.cli import json_ready as _clean
 
     # 60 tight rows: the likelihood is far narrower than the 32-point design, so

@@ -32,10 +32,10 @@ import jax
 import numpy as np
 import pytest
 
-from calib.candidates import crsp_candidates
-from calib.discrepancy import PRESETS, discover
-from calib.effects import EFFECT_NAMES
-from calib.synthetic import synthesize_effect
+from calib.discovery.candidates import crsp_candidates
+from calib.discovery.discrepancy import PRESETS, discover
+from calib.discovery.synthetic import synthesize_effect
+from calib.model.effects import EFFECT_NAMES
 from solvers.profile import load_profile
 
 pytestmark = pytest.mark.slow

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calib.effects import (
+from calib.model.effects import (
     CRSP_EFFECTS,
     DEM_EFFECTS,
     EFFECTS,

@@ -1,5 +1,5 @@
 """Field runs as observations (calib/field.py, python -m calib.field) and the
-optional field columns of calib/observations.py."""
+optional field columns of calib/files/observations.py."""
 
 import math
 import os
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from calib.field import main
-from calib.field_runs import (
+from calib.files.field_runs import (
     FieldError,
     box_diameter_m,
     crsp_shape,
@@ -16,7 +16,7 @@ from calib.field_runs import (
     load_runs,
     sphere_diameter_m,
 )
-from calib.observations import ObservationError, load_observations
+from calib.files.observations import ObservationError, load_observations
 from solvers.raster import read_profile_trace
 
 RUNS_HEADER = ("run_id,block_id,mass_kg,release_x_m,release_y_m,release_z_m,release_vx_m_s,"

@@ -392,7 +392,7 @@ def test_dem_counts_equal_a_direct_batch_run(tmp_path):
     params = dem.make_params(profile, stiffness_scale=0.01)
     block = dem.make_block(2.0, alpha=0.40 * 2.0**-0.5, release_x_m=0.0,
                            stations=c.stations_x_m)
-    # the fit's step bound (calib.dem_run): 150 s at the step of a 0.2 m square
+    # the fit's step bound (calib.model.dem_run): 150 s at the step of a 0.2 m square
     dt = float(dem.stable_dt(params, dem.make_block(0.2, alpha=0.0)))
     keys = jax.vmap(lambda i: jax.random.fold_in(draw_key(5, 0), i))(np.arange(3))
     res = simulate_batch(params, block, keys, dem.Options(max_steps=math.ceil(150.0 / dt)))

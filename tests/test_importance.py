@@ -1,4 +1,4 @@
-"""Pareto-smoothed importance weights (``calib.importance``): k-hat on sets
+"""Pareto-smoothed importance weights (``calib.inference.importance``): k-hat on sets
 whose tail is known."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calib.importance import KHAT_MAX, MIN_POINTS, ess, psis_weights
+from calib.inference.importance import KHAT_MAX, MIN_POINTS, ess, psis_weights
 
 
 def test_near_uniform_weights_have_a_small_khat_and_stay_put():

@@ -1,4 +1,4 @@
-"""Posteriors as ArviZ InferenceData (``calib.inference_data``): the NetCDF file
+"""Posteriors as ArviZ InferenceData (``calib.files.inference_data``): the NetCDF file
 reads back equal to what was written."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ import os
 import numpy as np
 import xarray as xr
 
-from calib.bayes import Posterior
-from calib.inference_data import inference_data, netcdf_writer, read_inference_data
-from calib.observations import Observations
+from calib.files.inference_data import inference_data, netcdf_writer, read_inference_data
+from calib.files.observations import Observations
+from calib.inference.bayes import Posterior
 from solvers.cli import write_all_atomic
 
 

@@ -1,5 +1,5 @@
-"""The one observation model (``calib.likelihood``): ``calib.fit``'s path
-(``calib.calibrate``) and ``calib.discover``'s (``calib.discrepancy``) score the
+"""The one observation model (``calib.inference.likelihood``): ``calib.fit``'s path
+(``calib.inference.calibrate``) and ``calib.discover``'s (``calib.discovery.discrepancy``) score the
 same rows identically, and both are the model ``README.md`` documents."""
 
 from __future__ import annotations
@@ -9,10 +9,10 @@ import pytest
 from scipy.special import logsumexp, ndtr
 from scipy.stats import norm
 
-from calib.calibrate import _loglik_of_runouts
-from calib.discrepancy import _loglik_design, size_classes
-from calib.likelihood import observed_rows
-from calib.observations import Observations
+from calib.discovery.discrepancy import _loglik_design, size_classes
+from calib.files.observations import Observations
+from calib.inference.calibrate import _loglik_of_runouts
+from calib.inference.likelihood import observed_rows
 
 NAN = np.nan
 

@@ -11,8 +11,8 @@ import sys
 import pandas as pd
 import pytest
 
+from calib.discovery.power_study import detection_table
 from calib.power import parse_seeds
-from calib.power_study import detection_table
 from solvers.cli import CliError
 
 

@@ -7,10 +7,10 @@ import jax
 import numpy as np
 from test_hazard_fixtures import write_calibration
 
-from calib.calibration_file import load_calibration
-from calib.forward import CrspForward
+from calib.files.calibration_file import load_calibration
 from calib.hazard import draw_parameters, run_hazard
-from calib.priors import CRSP_BOX, CRSP_ROLLING_BOX
+from calib.model.forward import CrspForward
+from calib.model.priors import CRSP_BOX, CRSP_ROLLING_BOX
 from solvers.profile import load_profile
 
 PROFILE = load_profile("data/postignano_profile.csv")  # every zone: 30 deg

@@ -13,8 +13,8 @@ import pytest
 from test_hazard_cli import SMALL
 from test_hazard_fixtures import write_calibration
 
+from calib.files.site import SiteError, load_site, site_path
 from calib.hazard.__main__ import main as hazard_main
-from calib.site import SiteError, load_site, site_path
 
 
 def test_site_file_names():

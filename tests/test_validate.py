@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from test_hazard_fixtures import write_calibration
 
-from calib.forward import CrspForward
-from calib.observations import Observations, release_groups
-from calib.predictive_check import score_rows
+from calib.files.observations import Observations, release_groups
+from calib.inference.predictive_check import score_rows
+from calib.model.forward import CrspForward
 from calib.validate import main, print_summary
 from solvers.profile import load_profile
 
@@ -166,7 +166,7 @@ def test_bad_input_one_line_exit_2_nothing_written(cal_path, tmp_path, capsys, c
 
 
 def test_holdout_split_is_reproducible_disjoint_and_complete():
-    from calib.split import holdout_rows
+    from calib.files.split import holdout_rows
 
     a_fit, a_held = holdout_rows(62, 0.3, 4)
     b_fit, b_held = holdout_rows(62, 0.3, 4)
@@ -241,8 +241,8 @@ def test_calibrate_scores_each_row_against_its_own_release():
     slope (x = 150 m): with release groups the check simulates each row from its
     own point (long vs short runout), and each row's fit quality reads its own
     group; the figure's sizes are simulated at the median release."""
-    from calib.calibrate import Budget, calibrate
-    from calib.priors import CRSP_BOX
+    from calib.inference.calibrate import Budget, calibrate
+    from calib.model.priors import CRSP_BOX
 
     obs = Observations(np.array([1.0, 1.0]), np.array([100.0, 5.0]), np.array([2.0, 2.0]),
                        np.full(2, np.nan), np.full(2, np.nan), np.zeros(2, bool),

@@ -12,9 +12,9 @@ import jax
 import numpy as np
 import pytest
 
-from calib.forward import CrspForward
-from calib.likelihood import V_MAX_M_S, VELOCITY_EPS, velocity_log_likelihood
-from calib.observations import ObservationError, load_velocities
+from calib.files.observations import ObservationError, load_velocities
+from calib.inference.likelihood import V_MAX_M_S, VELOCITY_EPS, velocity_log_likelihood
+from calib.model.forward import CrspForward
 from solvers.profile import load_profile
 
 PROFILE = load_profile("data/postignano_profile.csv")
@@ -152,9 +152,9 @@ def test_discover_bad_velocities_is_one_line_exit_2(tmp_path, extra, body, needl
 
 
 def test_discover_refuses_speeds_for_a_model_that_cannot_record_them():
-    from calib.dem_candidates import dem_candidates
-    from calib.discrepancy import PRESETS, discover
-    from calib.observations import Observations, Velocities
+    from calib.discovery.dem_candidates import dem_candidates
+    from calib.discovery.discrepancy import PRESETS, discover
+    from calib.files.observations import Observations, Velocities
 
     obs = Observations.points(np.array([0.5, 2.0]), np.array([120.0, 200.0]), 10.0)
     vel = Velocities(np.array([110.0]), np.array([1.0]), np.array([20.0]), np.array([1.0]),

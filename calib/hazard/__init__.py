@@ -11,7 +11,7 @@ annual frequencies and hazard level. See ``_tables`` for the definitions,
 recalled, not verified: labelled there), ``_units`` for the random numbers,
 ``_stats`` for the bounded-memory reductions, ``_sharding`` for devices.
 
-Modules: ``calib.calibration_file`` (read calibration.json, draw parameter sets),
+Modules: ``calib.files.calibration_file`` (read calibration.json, draw parameter sets),
 ``_units`` (jitted simulate-and-reduce chunks), ``_sharding`` (devices),
 ``_run`` (the Monte Carlo loop), ``_stats`` (counts, histograms, quantiles),
 ``_tables`` (CSV tables and text summary), ``_intensity`` (classes, matrix),
@@ -19,7 +19,7 @@ Modules: ``calib.calibration_file`` (read calibration.json, draw parameter sets)
 """
 
 import solvers  # noqa: F401  (enables float64)
-from calib.calibration_file import (
+from calib.files.calibration_file import (
     SCHEMA,
     Calibration,
     CalibrationError,
@@ -27,7 +27,6 @@ from calib.calibration_file import (
     draw_parameters,
     load_calibration,
 )
-from calib.dem_run import DemRun
 from calib.hazard._intensity import (
     ENERGY_THRESHOLDS_KJ,
     hazard_level,
@@ -37,6 +36,7 @@ from calib.hazard._intensity import (
 from calib.hazard._run import HazardCounts, check_dem_draws, dem_alpha, run_hazard
 from calib.hazard._stats import BINS, Bins, hist_quantile
 from calib.hazard._tables import exceedance_table, hazard_table, summary_text
+from calib.model.dem_run import DemRun
 
 __all__ = [
     "BINS",

@@ -15,7 +15,7 @@ import os
 import sys
 import time
 
-from calib.dem_run import DEM_RUN
+from calib.model.dem_run import DEM_RUN
 from solvers.cli import (
     CliError,
     OneLineParser,
@@ -59,7 +59,7 @@ def build_parser() -> OneLineParser:
     p.add_argument("--road-x-m", type=float, default=None,
                    help="abscissa of the station of interest (a road) where the summary "
                         "reports, m (default: the site file's station_of_interest next to "
-                        "the calibration's profile, calib/site.py; without one, the "
+                        "the calibration's profile, calib/files/site.py; without one, the "
                         "profile's last station)")
     p.add_argument("--out", default="results/hazard/",
                    help="output folder (default results/hazard/)")
@@ -124,6 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     import numpy as np
     from tqdm import tqdm
 
+    from calib.files.site import SiteError, load_site, site_path
     from calib.hazard import (
         CalibrationError,
         DemRun,
@@ -136,7 +137,6 @@ def main(argv: list[str] | None = None) -> int:
         summary_text,
     )
     from calib.hazard._figures import plot_envelopes, plot_exceedance
-    from calib.site import SiteError, load_site, site_path
     from solvers import crsp
     from solvers.profile import ProfileError, load_profile
 

@@ -26,9 +26,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from calib.calibration_file import draw_parameters, load_calibration
+from calib.files.calibration_file import draw_parameters, load_calibration
+from calib.files.observations import crsp_radius_m
 from calib.hazard._run import run_hazard
-from calib.observations import crsp_radius_m
 from solvers import crsp, load_profile
 from solvers.cli import OneLineParser
 

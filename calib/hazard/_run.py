@@ -16,13 +16,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from calib.alpha_law import alpha_of, check_law
-from calib.calibration_file import Calibration, CalibrationError, Draws
-from calib.dem_run import DEM_RUN, DemRun
+from calib.files.calibration_file import Calibration, CalibrationError, Draws
+from calib.files.observations import crsp_radius_m, dem_side_m
 from calib.hazard._sharding import run_units
 from calib.hazard._stats import BINS, hist_quantile
 from calib.hazard._units import crsp_chunk, dem_chunk, draw_key
-from calib.observations import crsp_radius_m, dem_side_m
+from calib.model.alpha_law import alpha_of, check_law
+from calib.model.dem_run import DEM_RUN, DemRun
 from solvers import crsp, dem
 from solvers.profile import Profile
 
@@ -68,13 +68,13 @@ class HazardCounts:
 def dem_alpha(cal: Calibration, values: np.ndarray, size_m: float) -> float:
     """Local damping of the DEM square of a block of size ``size_m`` (average
     diameter, m) for one draw: the calibration's law, clipped, exactly as the
-    fit ran it (``calib.alpha_law.alpha_of`` at L = ``dem_side_m(size_m)``)."""
+    fit ran it (``calib.model.alpha_law.alpha_of`` at L = ``dem_side_m(size_m)``)."""
     side = dem_side_m(np.atleast_1d(size_m))
     return float(alpha_of(cal.alpha_form, np.asarray(values, np.float64), side)[0])
 
 
 def check_dem_draws(cal: Calibration, draws: Draws, sizes_m) -> None:
-    """The hazard run's acceptance check of DEM draws (``calib.alpha_law.check_law``,
+    """The hazard run's acceptance check of DEM draws (``calib.model.alpha_law.check_law``,
     the check the fit applies before it writes a calibration).
 
     Raises:
@@ -116,7 +116,7 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
         chunk_blocks: most blocks per size in one work unit (memory bound).
         pool: CRSP lanes per unit.
         settings: CRSP settings.
-        dem_run: DEM numerics (``calib.dem_run``; default: the fit's).
+        dem_run: DEM numerics (``calib.model.dem_run``; default: the fit's).
         progress: called with the number of blocks finished after each unit.
         devices: JAX devices (default all).
 
@@ -202,7 +202,7 @@ def _dem_units(cal, draws, profile, release, sizes_m, stations, n_blocks, seed, 
                offsets, run: DemRun):
     params = run.params(profile)
     sides = dem_side_m(sizes_m)
-    # one static step bound for every size (one compilation; calib.dem_run)
+    # one static step bound for every size (one compilation; calib.model.dem_run)
     fn = functools.partial(dem_chunk, n_chunk=chunk, options=run.options(params, sides))
     alphas = np.asarray(alpha_of(cal.alpha_form, draws.values, sides))  # (D, T)
     for d in range(len(draws.values)):

@@ -1,0 +1,119 @@
+"""DEM candidates of the discrepancy workflow: one damping coefficient (baseline),
+the size-dependent law alpha(L) = a L^-b, and bonded fragments.
+
+A block of size d is a square of side L = d (``calib.files.observations``).
+
+* ``none``: alpha the same for every size (theta = (alpha,)), the DEM the
+  paper started from before it made alpha depend on size.
+* ``size_dissipation``: alpha(L) = a L^-b (theta = (a, b)), the paper's remedy
+  (Table 1).
+* ``fragmentation``: one alpha and the block pre-split into 2 x 2 bonded
+  fragments whose joints have cohesion = tensile strength = 10^s Pa (theta =
+  (alpha, s)); joints break by the DEM's Mohr-Coulomb joint law (``solvers.dem``,
+  paper eq. 2) and the fragments travel on. The runout of a block is that of
+  its furthest fragment (the extent a survey of the deposit records); NaN
+  when the block did not finish (``calib.model.unfinished``).
+
+Each is fitted on a fixed grid design (``dem_grid`` of ``calib.model.effects.EFFECTS``):
+the DEM is too expensive for adaptive designs on two cores; the fragmented
+candidate, about 30 times dearer per block, gets a coarse grid and 4 blocks
+per point.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from calib.discovery.discrepancy import Candidate
+from calib.files.observations import dem_side_m
+from calib.model.alpha_law import alpha_of
+from calib.model.dem_run import DEM_RUN, DemRun
+from calib.model.effects import DEM_EFFECTS, EFFECTS, effect_box
+from calib.model.forward import DemForward, dem_lanes, stack_trees
+from calib.model.unfinished import mask_unfinished
+from solvers.profile import Profile
+
+__all__ = ["DemEffectForward", "dem_candidates"]
+
+N_FRAGMENTS = 4
+# a 2 x 2 fragmented block costs about 30 single blocks (smaller dt, 4 bodies):
+# its candidate runs 4 blocks per (design point, size)
+FRAG_BLOCKS = 4
+
+
+@dataclasses.dataclass
+class DemEffectForward:
+    """DEM runouts (T, S, n_blocks) of a candidate for theta (T, p), NaN for a
+    block that did not finish; common random numbers (block j of every theta and
+    size uses ``fold_in(key, j)``). ``run``: the DEM numerics (``calib.model.dem_run``),
+    the fit's and the hazard run's."""
+
+    profile: Profile
+    sizes_m: np.ndarray
+    n_blocks: int
+    key: jax.Array
+    effect: str = "none"
+    run: DemRun = DEM_RUN
+
+    def __post_init__(self):
+        if self.effect not in DEM_EFFECTS:
+            raise ValueError(f"effect {self.effect!r} is not available for the DEM")
+        if self.effect != "fragmentation":
+            form = "constant" if self.effect == "none" else "power"
+            self._single = DemForward(self.profile, np.asarray(self.sizes_m, float),
+                                      self.n_blocks, self.key, form=form, run=self.run)
+
+    @property
+    def box(self):
+        return effect_box(self.effect, self.profile, "dem")
+
+    def runouts(self, theta) -> np.ndarray:
+        theta = np.atleast_2d(np.asarray(theta, float))
+        if self.effect != "fragmentation":
+            return self._single.runouts(theta)
+        return np.stack([self._fragmented(a, s) for a, s in theta])
+
+    def _fragmented(self, alpha: float, log10_strength: float) -> np.ndarray:
+        from solvers.dem import make_block
+
+        strength = 10.0 ** float(log10_strength)
+        params = self.run.params(self.profile, c_joint_pa=strength, t_joint_pa=strength)
+        sides = dem_side_m(self.sizes_m)
+        x0 = float(self.profile.x_m[0])
+        # the one clipping rule of calib.model.alpha_law (the box stops at ALPHA_MAX already)
+        a = float(alpha_of("constant", [alpha], sides[:1])[0])
+        blocks = [make_block(float(L), alpha=a, n_fragments=N_FRAGMENTS,
+                             release_x_m=x0) for L in sides]
+        options = self.run.options(params, sides, n_fragments=N_FRAGMENTS, adaptive=False)
+        lanes = [b for b in blocks for _ in range(self.n_blocks)]
+        keys = jax.vmap(lambda j: jax.random.fold_in(self.key, j))(
+            jnp.asarray(np.tile(np.arange(self.n_blocks), len(blocks)), jnp.uint32))
+        res = dem_lanes(params, stack_trees(lanes), keys, options)
+        furthest = mask_unfinished(np.max(np.asarray(res.runout_m), axis=-1), res.status)
+        return furthest.reshape(len(blocks), self.n_blocks)
+
+
+def _grid(box, shape) -> np.ndarray:
+    axes = [np.linspace(lo, hi, n) for lo, hi, n in zip(box.lo, box.hi, shape)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(shape))
+
+
+def _forward(profile, effect, sizes_m, n_blocks, key):
+    return DemEffectForward(profile, sizes_m, n_blocks, key, effect=effect)
+
+
+def dem_candidates(profile, effects=DEM_EFFECTS) -> list[Candidate]:
+    """Baseline (one alpha) first, then size-dependent damping and fragmentation."""
+    names = ["none"] + [e for e in effects if e != "none"]
+    out = []
+    for e in names:
+        box = effect_box(e, profile, "dem")
+        out.append(Candidate(e, box, functools.partial(_forward, profile, e),
+                             design=functools.partial(_grid, box, EFFECTS[e].dem_grid),
+                             n_blocks=FRAG_BLOCKS if e == "fragmentation" else None))
+    return out

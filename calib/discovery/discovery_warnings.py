@@ -1,0 +1,134 @@
+"""The discrepancy workflow's warnings: when a verdict of ``calib.discover``
+rests on too little (few effective design points, heavy-tailed importance
+weights, simulation noise near the naming threshold, a gain carried by few
+rows). Each rule takes the ranked candidate table (``discovery.json``'s
+``candidates``) and returns the warning lines, empty where none applies; the
+command prints them and records them in ``discovery.json``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["MIN_ESS", "concentration_warnings", "ess_warnings", "noise_warnings",
+           "psis_warnings"]
+
+# below this importance-sampling ESS a fit's posterior rests on a handful of
+# design points (measured: ESS 1-14 with 180 rows at the default budget)
+MIN_ESS = 10.0
+
+
+def ess_warnings(ess: dict, min_ess: float = MIN_ESS) -> list[str]:
+    """Warnings for fits whose importance weights rest on few design points.
+
+    ``ess``: effect -> (effective sample size, design points). With few
+    effective points the posterior intervals understate the uncertainty and the
+    held-out score carries Monte Carlo error that its standard error omits.
+    """
+    low = {e: v for e, v in ess.items() if v[0] < min_ess}
+    if not low:
+        return []
+    listing = ", ".join(f"{e} {v[0]:.1f} of {v[1]}" for e, v in low.items())
+    return [f"few effective design points (importance-sampling ESS < {min_ess:g}): {listing}. "
+            f"Their 90 % intervals understate the uncertainty, and their held-out scores carry "
+            f"Monte Carlo error that the reported se omits: treat gains near the naming "
+            f"threshold with care, or rerun with a larger budget."]
+
+
+def psis_warnings(candidates: list[dict]) -> list[str]:
+    """A warning naming the folds whose training weights have a Pareto k-hat above
+    ``calib.inference.importance.KHAT_MAX`` (``psis_flagged_folds`` of each candidate row).
+
+    There the smoothed weights rest on a few design points and the folds'
+    held-out scores (so the gains and their se) are unreliable (Vehtari et al.
+    2024); more design points where the posterior lives help.
+    """
+    from calib.inference.importance import KHAT_MAX
+
+    flagged = [c for c in candidates if c.get("psis_flagged_folds")]
+    if not flagged:
+        return []
+    listing = "; ".join(
+        f"{c['effect']} fold{'s' if len(c['psis_flagged_folds']) > 1 else ''} "
+        + ", ".join(f"{j} ({_khat_text(c['khat_by_fold'][j])})" for j in c["psis_flagged_folds"])
+        for c in flagged)
+    return [f"Pareto k-hat above {KHAT_MAX:g} in the held-out folds' importance weights "
+            f"({listing}): those folds' scores rest on few design points and are unreliable; "
+            f"treat the gains that involve them with care, or rerun with a larger budget."]
+
+
+def _khat_text(k) -> str:
+    return f"k-hat {float('nan') if k is None else k:.2f}"
+
+
+def noise_warnings(candidates: list[dict], n_blocks: int) -> list[str]:
+    """A warning when simulation noise could flip the verdict.
+
+    ``candidates``: rows of the ranked table (``effect``, ``delta_vs_none``,
+    ``se_delta``, ``loglik_noise_sd_nats``; nan or None: not measured). The rule
+    looks at the effect with the largest gain g and names it when g exceeds
+    T = max(ELPD_MIN, Z_MIN se). The candidates are fitted with different
+    blocks, so g carries simulation noise of about s = sqrt(s_effect^2 +
+    s_none^2), from their summed log-likelihood sds (an approximation: the
+    score is a held-out average over the posterior, not the likelihood at one
+    point). If |g - T| < 2 s the verdict may change with other simulated blocks.
+    """
+    from calib.discovery.scores import best_effect, naming_threshold
+
+    rows = {c["effect"]: c for c in candidates}
+    best = best_effect(candidates)
+    if "none" not in rows or best is None:
+        return []
+    sds = [rows["none"].get("loglik_noise_sd_nats"), best.get("loglik_noise_sd_nats")]
+    if any(v is None or not np.isfinite(v) for v in sds):
+        return []
+    noise = float(np.hypot(*sds))
+    gain, threshold = best["delta_vs_none"], naming_threshold(best["se_delta"])
+    if abs(gain - threshold) >= 2 * noise:
+        return []
+    return [f"the verdict may change with other simulated blocks: {best['effect']} gains "
+            f"{gain:+.1f} nats against a naming threshold of {threshold:.1f}, and the simulation "
+            f"noise of that gain is about {noise:.1f} nats (sd of the summed log-likelihood of "
+            f"{best['effect']} and of the baseline, combined; {n_blocks} blocks per size "
+            f"class). --n-blocks {4 * n_blocks} roughly halves the noise (cost about x4)."]
+
+
+def concentration_warnings(candidates: list[dict], runout_sizes_m: np.ndarray,
+                           speed_sizes_m: np.ndarray | None = None) -> list[str]:
+    """A warning when the best effect gains more than ``ELPD_MIN`` but is not
+    named because few rows carry its gain.
+
+    ``candidates``: rows of the ranked table (``effect``, ``delta_vs_none``,
+    ``se_delta``, ``effective_rows``, ``carrying_rows``). The 2-se bar asks that
+    a gain rest on more than ``rows_needed(n)`` effective rows (3.8 of 60), so a
+    gain of hundreds of nats from three rows is not named (the normal
+    approximation behind the se is least trustworthy there: Sivula, Magnusson,
+    Matamoros & Vehtari, arXiv:2008.10296). The warning names the sizes of the
+    rows that carry the gain: more observations of those sizes settle it, and
+    one or two aberrant rows could also be the cause.
+    """
+    from calib.discovery.scores import ELPD_MIN, Z_MIN, best_effect, naming_threshold, rows_needed
+
+    best = best_effect(candidates)
+    if best is None or "effective_rows" not in best:
+        return []
+    gain = best["delta_vs_none"]
+    if not gain > ELPD_MIN or gain > naming_threshold(best["se_delta"]):
+        return []
+    runs = np.asarray(runout_sizes_m, float)
+    speeds = np.zeros(0) if speed_sizes_m is None else np.asarray(speed_sizes_m, float)
+    n = runs.size + speeds.size
+    rows = np.asarray(best["carrying_rows"], int)
+    parts = []
+    for kind, idx, sizes in (("runout", rows[rows < runs.size], runs),
+                             ("speed", rows[rows >= runs.size] - runs.size, speeds)):
+        if idx.size:
+            vals, counts = np.unique(sizes[idx], return_counts=True)
+            what = ", ".join(f"{v:g} m x{c}" for v, c in zip(vals, counts))
+            parts.append(f"{kind} rows of {what}" if speeds.size else what)
+    return [f"{best['effect']} gains {gain:+.1f} nats ({gain / best['se_delta']:.2f} se) but is "
+            f"not named: {rows.size} of the {n} rows carry 90 % of the gain "
+            f"({'; '.join(parts)}), {best['effective_rows']:.1f} effective rows, and the "
+            f"{Z_MIN:g}-se bar needs more than {rows_needed(n):.1f}. More observations of "
+            f"blocks of those sizes would show whether the effect is real; one or two aberrant "
+            f"rows could also give such a gain."]

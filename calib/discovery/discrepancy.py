@@ -1,0 +1,570 @@
+"""The discrepancy workflow: fit the baseline, locate where it fails, fit each
+candidate effect, name the one that clearly predicts better, show the gap shrink.
+
+1. Every candidate (the baseline ``none`` and each effect of ``calib.model.effects``)
+   is fitted the same way: a Bayesian fit by adaptive importance sampling over
+   a simulated design. Stage 0 is a scrambled Sobol design over the prior box.
+   For an effect, a warm stage follows: the baseline's parameters drawn from a
+   Gaussian fitted to the baseline's posterior, the effect's uniformly over
+   their box. Each later stage draws points from a Gaussian fitted to the
+   weighted points so far (covariance inflated x4 plus (0.05)^2 in unit
+   coordinates, truncated to the box). All stages are one deterministic-mixture proposal
+   (Owen & Zhou 2000, "Safe and effective importance sampling", JASA 95,
+   135-143), so the self-normalised weights ``w_k ~ L(theta_k) p(theta_k) /
+   q_mix(theta_k)`` target the posterior under the uniform prior. Every set of
+   weights (each stage's fit, the posterior, each fold's training weights of
+   step 3) is Pareto-smoothed (``calib.inference.importance.psis_weights``); its k-hat
+   is reported per candidate (``khat``) and per fold (``khat_by_fold``), and a
+   fold above ``calib.inference.importance.KHAT_MAX`` = 0.7 is flagged
+   (``psis_flagged_folds``): its held-out scores are unreliable. Runouts are
+   simulated with common random numbers (``calib.model.forward``), and the
+   likelihood is ``calib.inference.likelihood``'s, the one ``calib.fit`` uses (points:
+   the tolerance as kernel; intervals: the Silverman width). Optional passage
+   speeds at stations (``calib.files.observations.Velocities``) add rows scored by
+   ``calib.inference.likelihood.velocity_log_likelihood`` from the same simulations.
+2. The baseline's posterior predictive (``n_draws`` posterior draws re-simulated
+   with fresh blocks) gives quantile residuals, tested against block size and
+   stop position (``calib.discovery.residuals``): WHERE it fails, with p-values.
+3. The candidates are compared by their K-fold held-out log predictive density
+   (``calib.discovery.scores``); an effect is named only when its gain over the baseline
+   exceeds ``ELPD_MIN`` = 4 and ``Z_MIN`` = 2 standard errors, else ``none``.
+   Each effect's row of the table also gives ``effective_rows``, the number of
+   rows that effectively carry its gain (the 2-se bar is a bar on it, see
+   ``calib.discovery.scores.effective_rows``), and ``carrying_rows``, the indices of the
+   rows that carry 90 % of it (runout rows in file order, then speed rows).
+4. The gap metric (``GAP_METRIC``) is computed for every candidate from its own
+   posterior predictive; gap_before is the baseline's, gap_after the named
+   model's (re-fitted on all rows, which its design already is).
+
+Unfinished blocks (NaN runouts and speeds from the forward models,
+``calib.model.unfinished``) are left out of the likelihood, the predictive and the
+gap; each fit counts them (design, predictive and noise simulations,
+``CandidateFit.unfinished``) and warns once (``UnfinishedBlocksWarning``) when
+some (design point, size class) has more than 1 % of them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy.special import logsumexp
+from scipy.stats import qmc
+
+from calib.discovery.residuals import locate, point_view
+from calib.discovery.scores import (
+    best_effect,
+    carrying_rows,
+    crps_ensemble,
+    cv_elpd,
+    effective_rows,
+    elpd_difference,
+    folds,
+    naming_threshold,
+)
+from calib.inference.importance import KHAT_MAX, ess, psis_weights
+from calib.inference.likelihood import log_likelihood, observed_rows, velocity_log_likelihood
+from calib.inference.predictive_check import pool_draws
+from calib.model.priors import Box
+from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
+
+__all__ = [
+    "GAP_METRIC",
+    "Budget",
+    "Candidate",
+    "CandidateFit",
+    "Discovery",
+    "discover",
+    "fit_candidate",
+    "gap",
+    "loglik_noise_sd",
+    "preset_budget",
+    "size_classes",
+]
+
+GAP_METRIC = ("mean CRPS (m) of the observed runouts under the model's posterior predictive "
+              "(simulated runout + the row's measurement noise), averaged over the rows of "
+              "each size class, then over the size classes")
+
+
+@dataclasses.dataclass(frozen=True)
+class Budget:
+    """Simulation budget of one candidate fit.
+
+    Attributes:
+        n_sobol: points of the Sobol stage.
+        n_warm: points of the warm stage (effects only).
+        n_refine: points of each adaptive stage.
+        n_blocks: blocks per (design point, size class), common random numbers.
+        n_draws: posterior draws re-simulated for the predictive (fresh blocks).
+        n_blocks_check: blocks per (draw, size class) of that predictive.
+        k_folds: folds of the held-out score (leave-one-out below this many rows).
+        noise_reps: independent block sets at the best design point that measure
+            the Monte Carlo sd of the summed log-likelihood (``loglik_noise_sd``);
+            below 2 it is skipped, as it is for forward models without
+            ``replicates`` (the DEM's).
+    """
+
+    n_sobol: int = 128
+    n_warm: int = 128
+    n_refine: tuple[int, ...] = (64, 64, 64, 64)
+    n_blocks: int = 128
+    n_draws: int = 16
+    n_blocks_check: int = 128
+    k_folds: int = 5
+    noise_reps: int = 8
+
+    @property
+    def n_design(self) -> int:
+        return self.n_sobol + self.n_warm + sum(self.n_refine)
+
+
+PRESETS = {
+    "crsp": Budget(),
+    "crsp-quick": Budget(n_sobol=32, n_warm=32, n_refine=(32, 32), n_blocks=32, n_draws=8,
+                         n_blocks_check=64),
+    "dem": Budget(n_sobol=0, n_warm=0, n_refine=(), n_blocks=8, n_draws=8, n_blocks_check=0,
+                  noise_reps=0),
+    "dem-quick": Budget(n_sobol=0, n_warm=0, n_refine=(), n_blocks=4, n_draws=8,
+                        n_blocks_check=0, noise_reps=0),
+}
+
+
+def preset_budget(model: str, quick: bool = False, n_blocks: int | None = None) -> Budget:
+    """The preset budget of ``model`` ("crsp" or "dem"; ``PRESETS``), with
+    ``n_blocks`` blocks per (design point, size class) if given (at least 2: the
+    kernel width needs a spread). Candidates with their own ``n_blocks`` (the
+    DEM's fragmentation) keep it."""
+    budget = PRESETS[model + ("-quick" if quick else "")]
+    if n_blocks is None:
+        return budget
+    if n_blocks < 2:
+        raise ValueError(f"expected an integer of at least 2, got {n_blocks}")
+    return dataclasses.replace(budget, n_blocks=n_blocks)
+
+
+@dataclasses.dataclass(frozen=True)
+class Candidate:
+    """A model to fit: its effect name, prior box and forward-model factory.
+
+    ``forward(sizes_m, n_blocks, key)`` returns an object whose ``runouts(theta)``
+    maps (T, p) parameters to (T, S, n_blocks) runouts (``calib.model.forward``);
+    with passage velocities the call gets ``stations_x_m=`` too and the object's
+    ``simulate(theta)`` must also give the speeds there (``CrspForward``).
+    ``design`` (optional) replaces the adaptive design by a fixed one: a
+    callable ``design() -> (N, p)`` (the DEM's grids). ``n_blocks`` (optional)
+    overrides the budget's blocks per (design point, size) for this candidate.
+    """
+
+    effect: str
+    box: Box
+    forward: Callable
+    design: Callable | None = None
+    n_blocks: int | None = None
+
+
+@dataclasses.dataclass
+class CandidateFit:
+    """A fitted candidate.
+
+    Attributes:
+        effect, names: the effect and its parameter names.
+        theta: (N, p) design points; log_q: (N,) proposal / prior density.
+        loglik: (N, n_rows) pointwise log-likelihood at the design points: the
+            runout rows, then the passage-velocity rows (if any).
+        weights: (N,) posterior weights (all rows), Pareto-smoothed.
+        ess: effective sample size of the weights.
+        elpd: (n_rows,) held-out log predictive density of each row (same order).
+        khat: Pareto k-hat of the posterior weights; khat_folds: (K,) that of
+            each fold's training weights (``calib.discovery.scores.cv_elpd``); NaN where
+            not estimated (``calib.inference.importance``).
+        estimate, q05, q95: weighted posterior mean and 90 % interval per parameter;
+            best: the design point of highest weight.
+        samples: (C, M) posterior-predictive runouts per size class (fresh blocks).
+        gap_by_class: (C,) mean CRPS per class, m; gap: their mean, m.
+        loglik_noise_sd_nats: Monte Carlo sd of the summed log-likelihood at
+            ``best`` over ``noise_reps`` independent block sets of the fit's size
+            (nan if not measured); see ``loglik_noise_sd``.
+        seconds: wall time of the fit.
+        unfinished: counts of unfinished blocks per stage (design, predictive,
+            noise) and the warning text (``calib.model.unfinished.unfinished_record``).
+    """
+
+    effect: str
+    names: tuple[str, ...]
+    theta: np.ndarray
+    log_q: np.ndarray
+    loglik: np.ndarray
+    weights: np.ndarray
+    ess: float
+    elpd: np.ndarray
+    estimate: np.ndarray
+    q05: np.ndarray
+    q95: np.ndarray
+    best: np.ndarray
+    samples: np.ndarray
+    gap_by_class: np.ndarray
+    gap: float
+    loglik_noise_sd_nats: float
+    seconds: float
+    unfinished: dict | None = None
+    khat: float = float("nan")
+    khat_folds: np.ndarray | None = None
+
+
+def size_classes(sizes_m: np.ndarray, max_classes: int = 8):
+    """Size classes of the rows: the distinct sizes, or (more than ``max_classes``)
+    ``max_classes`` bins of equal width in log size, represented by their
+    members' geometric mean (an approximation stated in the output).
+
+    Returns:
+        (class_sizes_m (C,), row_class (n_obs,)).
+    """
+    sizes = np.asarray(sizes_m, float)
+    uniq = np.unique(sizes)
+    if uniq.size <= max_classes:
+        return uniq, np.searchsorted(uniq, sizes)
+    edges = np.linspace(np.log(uniq[0]), np.log(uniq[-1]), max_classes + 1)
+    idx = np.clip(np.searchsorted(edges, np.log(sizes), side="right") - 1, 0, max_classes - 1)
+    used = np.unique(idx)
+    reps = np.array([np.exp(np.mean(np.log(sizes[idx == u]))) for u in used])
+    return reps, np.searchsorted(used, idx)
+
+
+@jax.jit
+def _loglik_design(runs, row_class, y, sd, lo, hi, is_interval):
+    """(N, n_obs) log-likelihood of every row at every design point: the
+    observation model of ``calib.fit`` (``calib.inference.likelihood``, no extra variance)."""
+    return jax.vmap(lambda r: log_likelihood(r[row_class], y, sd, lo, hi, is_interval))(runs)
+
+
+@dataclasses.dataclass(frozen=True)
+class VelocityRows:
+    """Passage-velocity rows prepared for the fits (``calib.files.observations.Velocities``).
+
+    Attributes:
+        stations_m: (K,) distinct station abscissae, m.
+        station: (n_v,) station index of each row; size_class: (n_v,) its size class.
+        v_m_s, sd_m_s: (n_v,) observed speed and tolerance, m/s.
+    """
+
+    stations_m: np.ndarray
+    station: np.ndarray
+    size_class: np.ndarray
+    v_m_s: np.ndarray
+    sd_m_s: np.ndarray
+
+    @property
+    def n_obs(self) -> int:
+        return int(self.v_m_s.shape[0])
+
+
+@jax.jit
+def _vel_loglik_design(speeds, size_class, station, v, sd):
+    """(N, n_v) log-likelihood of every velocity row at every design point,
+    from speeds (N, C, K, n)."""
+    return jax.vmap(lambda u: velocity_log_likelihood(u[size_class, station], v, sd))(speeds)
+
+
+def _weighted_quantile(x, w, q):
+    order = np.argsort(x)
+    cw = np.cumsum(w[order])
+    return np.interp(q, cw / cw[-1], x[order])
+
+
+def _gaussian_fit(z, w, inflate=2.0, floor=0.05):
+    """Mean and inflated covariance of unit-cube points with normalised weights w."""
+    mean = w @ z
+    cov = (z - mean).T @ ((z - mean) * w[:, None])
+    return mean, inflate**2 * cov + floor**2 * np.eye(z.shape[1])
+
+
+def _proposal(mean, cov, rng, n, dim):
+    """n draws in the unit cube [0, 1]^dim: the first ``len(mean)`` coordinates from
+    N(mean, cov) truncated to the cube, the others uniform. Returns (draws,
+    log-density function relative to the uniform prior)."""
+    k = mean.size
+    chol = np.linalg.cholesky(cov)
+    draws = np.empty((0, k))
+    tried = accepted = 0
+    while draws.shape[0] < n and tried < 1000 * n:
+        pool = mean + rng.standard_normal((20 * n, k)) @ chol.T
+        inside = np.all((pool >= 0) & (pool <= 1), axis=1)
+        tried += pool.shape[0]
+        accepted += int(inside.sum())
+        draws = np.concatenate([draws, pool[inside]])
+    p_in = max(accepted, 1) / tried
+    if draws.shape[0] < n:  # the Gaussian lies almost wholly outside: pad from the prior
+        draws = np.concatenate([draws, rng.uniform(size=(n - draws.shape[0], k))])
+    draws = np.concatenate([draws[:n], rng.uniform(size=(n, dim - k))], axis=1)
+    inv = np.linalg.inv(cov)
+    logdet = np.linalg.slogdet(cov)[1]
+
+    def logpdf(x):
+        d = x[:, :k] - mean
+        return (-0.5 * np.einsum("ij,jk,ik->i", d, inv, d) - 0.5 * logdet
+                - 0.5 * k * np.log(2 * np.pi) - np.log(p_in))
+
+    return draws, logpdf
+
+
+def gap(samples: np.ndarray, obs, row_class: np.ndarray, rng: np.random.Generator):
+    """The gap metric (``GAP_METRIC``): (per-class mean CRPS (C,), their mean), m,
+    over the finished blocks (NaN samples left out; a class with none: NaN)."""
+    y, sd = point_view(obs)
+    per_row = np.array([_crps_finished(samples[row_class[i]] + sd[i] * rng.standard_normal(
+        samples.shape[1]), y[i]) for i in range(obs.n_obs)])
+    classes = np.unique(row_class)
+    by_class = np.full(samples.shape[0], np.nan)
+    for c in classes:
+        by_class[c] = per_row[row_class == c].mean()
+    return by_class, float(np.nanmean(by_class))
+
+
+def _crps_finished(samples: np.ndarray, y: float) -> float:
+    x = samples[np.isfinite(samples)]
+    return crps_ensemble(x, y) if x.size else float("nan")
+
+
+def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array,
+                  budget: Budget, fold: np.ndarray, progress=None,
+                  warm: tuple[np.ndarray, np.ndarray] | None = None,
+                  velocities: VelocityRows | None = None) -> CandidateFit:
+    """Fit one candidate by adaptive importance sampling; score it (see module doc).
+
+    ``warm``: (mean, cov) in unit coordinates of the first parameters (the
+    baseline's posterior), used for the warm stage. ``velocities``: passage-
+    velocity rows scored with the runout rows (``fold`` then covers both).
+    """
+    t0 = time.perf_counter()
+    box = cand.box
+    dim = box.dim
+    rng = np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel()[-1])
+    vel = velocities if velocities is not None and velocities.n_obs else None
+    st_kw = {} if vel is None else {"stations_x_m": tuple(map(float, vel.stations_m))}
+    try:
+        fw = cand.forward(class_sizes_m, cand.n_blocks or budget.n_blocks,
+                          jax.random.fold_in(key, 1), **st_kw)
+    except TypeError:
+        if vel is None:
+            raise
+        raise ValueError(f"candidate {cand.effect!r}: its forward model cannot record "
+                         f"passage speeds (CRSP candidates can)") from None
+    y, sd, lo, hi, is_int = observed_rows(obs)
+    rc = jnp.asarray(row_class)
+
+    vel_arrays = None if vel is None else tuple(
+        jnp.asarray(a) for a in (vel.size_class, vel.station, vel.v_m_s, vel.sd_m_s))
+
+    def loglik(runs, speeds):
+        ll = np.asarray(_loglik_design(jnp.asarray(runs), rc, y, sd, lo, hi, is_int))
+        if vel is None:
+            return ll
+        lv = _vel_loglik_design(jnp.asarray(speeds), *vel_arrays)
+        return np.concatenate([ll, np.asarray(lv)], axis=1)
+
+    tallies = {"design": UnfinishedTally(tuple(map(float, class_sizes_m)))}
+
+    def simulate(z):
+        theta = box.from_unit(z)
+        runs, speeds = fw.simulate(theta) if vel else (fw.runouts(theta), None)
+        tallies["design"].add(runs, theta, box.names)
+        return loglik(runs, speeds)
+
+    if cand.design is not None:  # fixed design (grids): uniform over the box
+        z = box.to_unit(np.atleast_2d(cand.design()))
+        parts = []
+        for i in range(0, z.shape[0], 8):  # in pieces, for the progress bar
+            parts.append(simulate(z[i:i + 8]))
+            if progress:
+                progress(cand.effect, min(i + 8, z.shape[0]), z.shape[0])
+        ll = np.concatenate(parts)
+        log_q = np.zeros(z.shape[0])
+    else:
+        total = budget.n_design - (budget.n_warm if warm is None else 0)
+        z = qmc.Sobol(dim, scramble=True, seed=rng).random(budget.n_sobol)
+        ll = simulate(z)
+        if progress:
+            progress(cand.effect, budget.n_sobol, total)
+        logpdfs, counts = [], [budget.n_sobol]
+        stages = ([("warm", budget.n_warm)] if warm is not None and budget.n_warm else []) + \
+            [("refine", n) for n in budget.n_refine]
+        for kind, n_new in stages:
+            log_q = _mixture_log_q(z, counts, logpdfs)
+            if kind == "warm":
+                new, logpdf = _proposal(warm[0], warm[1], rng, n_new, dim)
+            else:
+                mean, cov = _gaussian_fit(z, psis_weights(ll.sum(axis=1) - log_q)[0])
+                new, logpdf = _proposal(mean, cov, rng, n_new, dim)
+            logpdfs.append(logpdf)
+            counts.append(n_new)
+            z = np.concatenate([z, new])
+            ll = np.concatenate([ll, simulate(new)])
+            if progress:
+                progress(cand.effect, sum(counts), total)
+        log_q = _mixture_log_q(z, counts, logpdfs)
+    w, khat = psis_weights(ll.sum(axis=1) - log_q)
+    theta = box.from_unit(z)
+    est = w @ theta
+    q05 = np.array([_weighted_quantile(theta[:, j], w, 0.05) for j in range(dim)])
+    q95 = np.array([_weighted_quantile(theta[:, j], w, 0.95) for j in range(dim)])
+    elpd, khat_folds = cv_elpd(ll, log_q, fold)
+    samples = _predictive(cand, fw, theta, w, class_sizes_m, key, budget, rng, tallies)
+    gap_c, gap_m = gap(samples, obs, row_class, rng)
+    best = theta[np.argmax(w)]
+    noise = float("nan")
+    if budget.noise_reps > 1 and hasattr(fw, "replicate_sims"):
+        reps = fw.replicate_sims(best, budget.noise_reps, jax.random.fold_in(key, 3))
+        tallies["noise"] = UnfinishedTally(tuple(map(float, class_sizes_m)))
+        tallies["noise"].add(reps[0], np.broadcast_to(best, (budget.noise_reps, dim)),
+                             box.names)
+        noise = loglik_noise_sd(loglik(*reps))
+    record = unfinished_record(tallies, f"candidate {cand.effect!r}")
+    warn_unfinished(record)
+    return CandidateFit(cand.effect, box.names, theta, log_q, ll, w, ess(w),
+                        elpd, est, q05, q95, best, samples, gap_c, gap_m, noise,
+                        time.perf_counter() - t0, record, khat, khat_folds)
+
+
+def loglik_noise_sd(loglik_reps: np.ndarray) -> float:
+    """Monte Carlo sd (nats) of the summed log-likelihood, from (R, n_obs)
+    pointwise values at one theta under R independent block sets.
+
+    The likelihood is a simulation estimate (``calib.inference.likelihood``), so its
+    logarithm carries noise that grows with the number of rows and falls
+    roughly as 1 / sqrt(n_blocks) (measured on 180 rows of null data at the
+    baseline's best point: 3.4 nats with 128 blocks, 1.7 with 512). With R = 8
+    the sd itself is uncertain by about 1 / sqrt(2 (R - 1)) = 27 %.
+
+    How large is too large, by analogy with pseudo-marginal MCMC (Doucet, Pitt,
+    Deligiannidis & Kohn 2015, "Efficient implementation of Markov chain Monte
+    Carlo when using an unbiased likelihood estimator", Biometrika 102,
+    295-313): there the cost-optimal sd of the log-likelihood estimator is
+    about 1.0-1.7 nats. Importance weights carrying independent log-normal noise
+    of sd s lose a factor exp(s^2) of their ESS (E[w^2] / E[w]^2 = exp(s^2) for
+    log-normal w). Within one fit the design points share their blocks (common
+    random numbers), so what moves the weights is the noise of log-likelihood
+    DIFFERENCES, small between close points and up to sqrt(2) times this sd
+    between distant ones; the CRN surface is also rough (jumps of several nats between neighbouring
+    roughness values were measured at 180 rows). Candidates are fitted with
+    different block sets, so their score gains carry noise of this order that
+    the data se of the gain does not include.
+    """
+    total = np.asarray(loglik_reps, float).sum(axis=1)
+    return float(np.std(total, ddof=1))
+
+
+def _mixture_log_q(z, counts, logpdfs):
+    """log of the deterministic-mixture density (relative to the uniform prior)."""
+    terms = [np.full(z.shape[0], np.log(counts[0]))]
+    terms += [np.log(n) + f(z) for n, f in zip(counts[1:], logpdfs)]
+    return logsumexp(np.stack(terms), axis=0) - np.log(sum(counts))
+
+
+def _predictive(cand, fw, theta, w, class_sizes_m, key, budget, rng, tallies):
+    """(C, M) posterior-predictive runouts: ``n_draws`` systematic-resampled
+    posterior draws, each simulated with fresh blocks (a key the fit never used;
+    their unfinished blocks are counted in ``tallies["predictive"]``). With
+    ``n_blocks_check`` = 0 the design's own simulations are resampled."""
+    m = budget.n_draws
+    u = (rng.uniform() + np.arange(m)) / m
+    idx = np.minimum(np.searchsorted(np.cumsum(w), u), len(w) - 1)
+    if budget.n_blocks_check > 0:
+        fresh = cand.forward(class_sizes_m, budget.n_blocks_check, jax.random.fold_in(key, 2))
+        runs = fresh.runouts(theta[idx])  # (M, C, n)
+        tallies["predictive"] = UnfinishedTally(tuple(map(float, class_sizes_m)))
+        tallies["predictive"].add(runs, theta[idx], cand.box.names)
+    else:
+        runs = fw.runouts(theta[idx])
+    return pool_draws(runs)
+
+
+@dataclasses.dataclass
+class Discovery:
+    """Outcome of the workflow (``discover``)."""
+
+    named_effect: str
+    fits: dict[str, CandidateFit]
+    table: list[dict]
+    where_before: dict
+    where_after: dict | None
+    class_sizes_m: np.ndarray
+    row_class: np.ndarray
+    gap_before: float
+    gap_after: float
+    timings_s: dict
+
+
+def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: Budget,
+             progress=None, velocities=None, release_x_m: float | None = None) -> Discovery:
+    """Run the whole workflow on observations ``obs`` (see module docstring).
+
+    ``candidates[0]`` must be the baseline (effect ``none``). ``velocities``
+    (optional, ``calib.files.observations.Velocities``): passage speeds at stations,
+    scored with the runouts by every candidate (forward models with
+    ``simulate``, i.e. CRSP); the gap metric and the residuals stay on runouts.
+    ``release_x_m``: where the candidates release their blocks (None: the
+    profile's first vertex), for the stop positions of the residual tests.
+    """
+    if candidates[0].effect != "none":
+        raise ValueError("the first candidate must be the baseline (effect 'none')")
+    n_run = obs.n_obs
+    vel = None
+    if velocities is not None and velocities.n_obs:
+        class_sizes, all_class = size_classes(np.concatenate([obs.block_size_m,
+                                                              velocities.block_size_m]))
+        row_class = all_class[:n_run]
+        vel = VelocityRows(velocities.stations_m, velocities.station_index, all_class[n_run:],
+                           velocities.velocity_m_s, velocities.velocity_sd_m_s)
+        # velocity rows are their own fold strata (after the runout rows' strata,
+        # so the runout rows keep the folds they have without velocities)
+        fold = folds(np.concatenate([all_class[:n_run], all_class[n_run:] + class_sizes.size]),
+                     budget.k_folds, seed=0)
+    else:
+        class_sizes, row_class = size_classes(obs.block_size_m)
+        fold = folds(row_class, budget.k_folds, seed=0)
+    fits, timings = {}, {}
+    warm = None
+    for i, cand in enumerate(candidates):
+        fits[cand.effect] = fit_candidate(cand, obs, class_sizes, row_class,
+                                          jax.random.fold_in(key, i), budget, fold, progress,
+                                          warm=warm, velocities=vel)
+        timings[cand.effect] = fits[cand.effect].seconds
+        if i == 0 and cand.design is None:  # the baseline's posterior seeds the effects
+            b = fits["none"]
+            zb = cand.box.to_unit(b.theta)
+            warm = _gaussian_fit(zb, b.weights)
+    base = fits["none"]
+    rng = np.random.default_rng(0)
+    where_before = locate(obs, row_class, class_sizes, base.samples, profile, rng, release_x_m)
+    table = []
+    for eff, f in fits.items():
+        gains = f.elpd - base.elpd  # per row
+        d, se = (0.0, 0.0) if eff == "none" else elpd_difference(f.elpd, base.elpd)
+        table.append({"effect": eff, "score": float(f.elpd.sum()), "delta_vs_none": d,
+                      "se_delta": se, "gap": f.gap, "n_params": len(f.names),
+                      "ess": f.ess, "loglik_noise_sd_nats": f.loglik_noise_sd_nats,
+                      "khat": f.khat, "khat_by_fold": [float(k) for k in f.khat_folds],
+                      "psis_flagged_folds": [int(j) for j in
+                                             np.flatnonzero(f.khat_folds > KHAT_MAX)]})
+        if eff != "none":  # how many rows carry the gain (the 2-se rule is a bar on it)
+            table[-1]["effective_rows"] = effective_rows(gains)
+            table[-1]["carrying_rows"] = [int(i) for i in carrying_rows(gains)]
+        if vel is not None:  # the part of the gain that the speeds carry
+            table[-1]["delta_velocity_rows"] = float(gains[n_run:].sum())
+    table.sort(key=lambda r: -r["score"])
+    named = "none"
+    best = best_effect(table)
+    if best is not None and best["delta_vs_none"] > naming_threshold(best["se_delta"]):
+        named = best["effect"]
+    for r in table:
+        r["clear_gain"] = r["effect"] == named and named != "none"
+    where_after = None if named == "none" else locate(
+        obs, row_class, class_sizes, fits[named].samples, profile, np.random.default_rng(0),
+        release_x_m)
+    return Discovery(named, fits, table, where_before, where_after, class_sizes, row_class,
+                     base.gap, fits[named].gap, timings)

@@ -1,0 +1,472 @@
+"""The calibration file: ``results/calibration.json``, its one reader, and
+drawing parameter sets from it.
+
+``python -m calib.fit`` writes it (``SCHEMA``); every consumer reads it through
+``load_calibration`` (``python -m calib.hazard``, ``python -m calib.validate``,
+the notebooks), never by re-parsing the JSON with its own names. Schema
+``rockfall-calibration/1``:
+
+* ``crsp``: ``Kn``, ``Kt``, ``roughness_m`` (and ``rolling_friction_deg`` when
+  it was fitted: one angle for every zone) with ``map``/``mean``/``q05``/``q95``
+  and ``posterior_csv`` (columns ``Kn,Kt,roughness_m[,rolling_friction_deg]``;
+  null after a gradient-only fit);
+* ``dem``: ``alpha_law`` (``form`` "power" with ``a``, ``b``: alpha = a L^-b, L
+  the square side in m; or ``form`` "constant" with ``alpha``; every model runs
+  it clipped to [0, 0.95], ``calib.model.alpha_law``) and ``posterior_csv`` (columns
+  ``a,b`` or ``alpha``; may be null);
+* ``block_size_mapping``: a block of average diameter D is a CRSP sphere of
+  radius D/2 and a DEM square of side D.
+
+``posterior_csv`` is relative to the folder of the json file; ``profile_csv``
+is relative to the working directory (as ``calib.fit`` writes it, run from the
+repository root) or, failing that, to the json's folder.
+
+Every error is a ``CalibrationError`` whose message names the file and, where
+it applies, the row (file line) and the column.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import os
+from typing import NamedTuple
+
+import numpy as np
+
+from calib.model.alpha_law import FORMS, PARAMETER_RANGES
+
+__all__ = ["SCHEMA", "Calibration", "CalibrationError", "CalibrationFile", "Draws",
+           "draw_parameters", "load_calibration", "model_section", "posterior_csv_text",
+           "summary_stats"]
+
+SCHEMA = "rockfall-calibration/1"
+
+# name -> (lower, upper, lower bound inclusive) for every calibrated scalar
+_CRSP_RANGES = {"Kn": (0.0, 1.0, False), "Kt": (0.0, 1.0, False),
+                "roughness_m": (0.0, math.inf, True),
+                "rolling_friction_deg": (0.0, 90.0 - 1e-9, True)}
+_DEM_RANGES = PARAMETER_RANGES
+_DEM_COLUMNS = FORMS
+
+
+class CalibrationError(ValueError):
+    """A calibration file (or its posterior CSV) that cannot be used."""
+
+
+class Calibration(NamedTuple):
+    """What the hazard run needs from one model's calibration.
+
+    Attributes:
+        path: the json file.
+        model: "crsp" or "dem".
+        profile_csv: resolved path of the slope profile.
+        names: parameter names (CRSP: Kn, Kt, roughness_m; DEM: a, b or alpha).
+        point: (P,) the point estimate (``map``) of each parameter.
+        posterior: (R, P) posterior sample, or None (gradient-only fit).
+        posterior_csv: its resolved path, or None.
+        alpha_form: DEM only: "power" or "constant" ("" for CRSP).
+        data_csv: the observations the fit used, resolved like ``profile_csv``,
+            or None where that file is not found.
+        release_x_m: the release abscissa the fit simulated, m (key
+            ``release_x_m``), or None (older files: the profile's first vertex).
+        dem_run: DEM only: the DEM numerics the fit used (key ``dem.run``:
+            ``stiffness_scale``, ``max_time_s``, ``dt_size_m``; ``calib.model.dem_run``),
+            or None (older files: the defaults).
+    """
+
+    path: str
+    model: str
+    profile_csv: str
+    names: tuple[str, ...]
+    point: np.ndarray
+    posterior: np.ndarray | None
+    posterior_csv: str | None
+    alpha_form: str
+    data_csv: str | None = None
+    release_x_m: float | None = None
+    dem_run: dict | None = None
+
+
+class Draws(NamedTuple):
+    """Parameter sets to simulate.
+
+    Attributes:
+        values: (D, P) one row per draw, columns ``names``.
+        names: parameter names.
+        rows: (D,) posterior CSV data row (1-based) of each draw, or -1 for the
+            point estimate.
+        source: "posterior", "point estimate" or "point estimate (no posterior
+            sample: replicate runs)".
+    """
+
+    values: np.ndarray
+    names: tuple[str, ...]
+    rows: np.ndarray
+    source: str
+
+
+def _number(path: str, where: str, value, lo: float, hi: float, lo_incl: bool) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise CalibrationError(f"{path}: {where}: expected a number, got {value!r}")
+    v = float(value)
+    ok_lo = v >= lo if lo_incl else v > lo
+    if not (math.isfinite(v) and ok_lo and v <= hi):
+        bracket = "[" if lo_incl else "("
+        raise CalibrationError(f"{path}: {where}: {v:g} outside {bracket}{lo:g}, {hi:g}]")
+    return v
+
+
+def _section(path: str, doc: dict, key: str) -> dict:
+    sec = doc.get(key)
+    if not isinstance(sec, dict):
+        raise CalibrationError(f"{path}: key {key!r}: expected an object")
+    return sec
+
+
+def _summary_value(path: str, sec: dict, prefix: str, name: str, rng) -> float:
+    entry = sec.get(name)
+    if not isinstance(entry, dict) or "map" not in entry:
+        raise CalibrationError(f"{path}: key {prefix}.{name}: expected an object with 'map'")
+    return _number(path, f"{prefix}.{name}.map", entry["map"], *rng)
+
+
+def _resolve(path: str, rel: str, json_dir: str, what: str, prefer_cwd: bool) -> str:
+    if not isinstance(rel, str) or not rel:
+        raise CalibrationError(f"{path}: key {what!r}: expected a file name")
+    if os.path.isabs(rel):
+        candidates = [rel]
+    elif prefer_cwd:
+        candidates = [rel, os.path.join(json_dir, rel)]
+    else:
+        candidates = [os.path.join(json_dir, rel)]
+    for c in candidates:
+        if os.path.isfile(c):
+            return c
+    raise CalibrationError(f"{path}: key {what!r}: file {candidates[0]} not found")
+
+
+def _read_posterior(csv_path: str, names: tuple[str, ...], ranges: dict) -> np.ndarray:
+    try:
+        with open(csv_path, newline="") as fh:
+            reader = csv.DictReader(fh)
+            header = reader.fieldnames or []
+            missing = [n for n in names if n not in header]
+            if missing:
+                raise CalibrationError(f"{csv_path}: line 1: missing column(s) "
+                                       f"{', '.join(missing)}")
+            rows = []
+            for i, row in enumerate(reader):
+                line = i + 2
+                vals = []
+                for n in names:
+                    text = (row.get(n) or "").strip()
+                    try:
+                        v = float(text)
+                    except ValueError:
+                        raise CalibrationError(f"{csv_path}: line {line}, column {n}: expected "
+                                               f"a number, got {text!r}") from None
+                    lo, hi, incl = ranges[n]
+                    ok_lo = v >= lo if incl else v > lo
+                    if not (math.isfinite(v) and ok_lo and v <= hi):
+                        raise CalibrationError(f"{csv_path}: line {line}, column {n}: value "
+                                               f"{v:g} out of range")
+                    vals.append(v)
+                rows.append(vals)
+    except OSError as exc:
+        raise CalibrationError(f"{csv_path}: cannot read ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        raise CalibrationError(f"{csv_path}: not a text CSV file") from None
+    if not rows:
+        raise CalibrationError(f"{csv_path}: no data rows")
+    return np.asarray(rows, dtype=np.float64)
+
+
+def posterior_csv_text(names, samples) -> str:
+    """The posterior CSV that ``load_calibration`` reads: a header ``names`` and one
+    row per draw of ``samples`` (R, P), 8 significant digits."""
+    body = "\n".join(",".join(f"{v:.8g}" for v in row) for row in np.asarray(samples, float))
+    return ",".join(names) + "\n" + body + "\n"
+
+
+def load_calibration(path: str, model: str | None = None) -> Calibration:
+    """Read and validate a calibration file for one model.
+
+    Args:
+        path: ``calibration.json``.
+        model: "crsp", "dem", or None for the first of those present.
+
+    Returns:
+        ``Calibration``.
+
+    Raises:
+        CalibrationError: missing or malformed file, section or value.
+    """
+    return _model_from_doc(path, _read_doc(path), model)
+
+
+def _read_doc(path: str) -> dict:
+    """The parsed file, its schema checked."""
+    try:
+        with open(path) as fh:
+            text = fh.read()
+    except FileNotFoundError:
+        raise CalibrationError(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CalibrationError(f"{path}: cannot read ({getattr(exc, 'strerror', None) or exc})"
+                               ) from None
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise CalibrationError(f"{path}: line {exc.lineno}, column {exc.colno}: invalid JSON "
+                               f"({exc.msg})") from None
+    if not isinstance(doc, dict):
+        raise CalibrationError(f"{path}: expected a JSON object at the top level")
+    if doc.get("schema") != SCHEMA:
+        raise CalibrationError(f"{path}: key 'schema': expected {SCHEMA!r}, got "
+                               f"{doc.get('schema')!r}")
+    return doc
+
+
+def _model_from_doc(path: str, doc: dict, model: str | None) -> Calibration:
+    if model is None:
+        model = next((m for m in ("crsp", "dem") if m in doc and doc[m] is not None), None)
+        if model is None:
+            raise CalibrationError(f"{path}: neither a 'crsp' nor a 'dem' section")
+    if model not in ("crsp", "dem"):
+        raise CalibrationError(f"model: expected crsp or dem, got {model!r}")
+    if doc.get(model) is None:
+        present = ", ".join(m for m in ("crsp", "dem") if doc.get(m)) or "nothing"
+        raise CalibrationError(f"{path}: no {model!r} section (this file calibrates "
+                               f"{present})")
+    json_dir = os.path.dirname(os.path.abspath(path))
+    profile_csv = _resolve(path, doc.get("profile_csv"), json_dir, "profile_csv", True)
+    sec = _section(path, doc, model)
+    if model == "crsp":
+        names = ("Kn", "Kt", "roughness_m") + (
+            ("rolling_friction_deg",) if "rolling_friction_deg" in sec else ())
+        ranges = _CRSP_RANGES
+        point = [_summary_value(path, sec, "crsp", n, ranges[n]) for n in names]
+        form = ""
+    else:
+        law = sec.get("alpha_law")
+        if not isinstance(law, dict):
+            raise CalibrationError(f"{path}: key 'dem.alpha_law': expected an object")
+        form = law.get("form")
+        if form not in _DEM_COLUMNS:
+            raise CalibrationError(f"{path}: key 'dem.alpha_law.form': expected 'power' or "
+                                   f"'constant', got {form!r}")
+        names = _DEM_COLUMNS[form]
+        ranges = _DEM_RANGES
+        point = [_summary_value(path, law, "dem.alpha_law", n, ranges[n]) for n in names]
+    post_rel = sec.get("posterior_csv")
+    if post_rel is None:
+        posterior, post_path = None, None
+    else:
+        post_path = _resolve(path, post_rel, json_dir, f"{model}.posterior_csv", False)
+        posterior = _read_posterior(post_path, names, ranges)
+    try:
+        data_csv = _resolve(path, doc.get("data_csv"), json_dir, "data_csv", True)
+    except CalibrationError:
+        data_csv = None
+    release = doc.get("release_x_m")
+    if release is not None:
+        release = _number(path, "release_x_m", release, -math.inf, math.inf, True)
+    return Calibration(path=path, model=model, profile_csv=profile_csv, names=names,
+                       point=np.asarray(point, dtype=np.float64), posterior=posterior,
+                       posterior_csv=post_path, alpha_form=form, data_csv=data_csv,
+                       release_x_m=release, dem_run=_dem_run(path, sec) if model == "dem"
+                       else None)
+
+
+def _dem_run(path: str, sec: dict) -> dict | None:
+    """The DEM section's ``run`` (the fit's numerics), checked, or None."""
+    run = sec.get("run")
+    if run is None:
+        return None
+    if not isinstance(run, dict):
+        raise CalibrationError(f"{path}: key 'dem.run': expected an object")
+    out = {}
+    for key, lo, hi in (("stiffness_scale", 0.0, 1.0), ("max_time_s", 0.0, math.inf),
+                        ("dt_size_m", 0.0, math.inf)):
+        if key not in run:
+            raise CalibrationError(f"{path}: key 'dem.run.{key}' missing")
+        out[key] = _number(path, f"key 'dem.run.{key}'", run[key], lo, hi, False)
+    return out
+
+
+def draw_parameters(cal: Calibration, n_posterior: int, seed: int) -> Draws:
+    """The parameter sets of a hazard run.
+
+    ``n_posterior == 1``: the point estimate (``map``). Otherwise ``n_posterior``
+    distinct rows of the posterior sample, chosen without replacement by a NumPy
+    generator seeded with ``seed`` (the same seed gives the same rows) and kept
+    in file order. Without a posterior sample (gradient-only fit) every draw is
+    the point estimate: the draws are then replicate runs with independent
+    random numbers, and their spread is Monte Carlo noise only.
+
+    Raises:
+        CalibrationError: more draws asked for than the posterior has rows.
+    """
+    if n_posterior < 1:
+        raise CalibrationError(f"--n-posterior: expected a positive count, got {n_posterior}")
+    if n_posterior == 1:
+        return Draws(cal.point[None, :], cal.names, np.array([-1]), "point estimate")
+    if cal.posterior is None:
+        return Draws(np.repeat(cal.point[None, :], n_posterior, axis=0), cal.names,
+                     np.full(n_posterior, -1),
+                     "point estimate (no posterior sample: replicate runs)")
+    n_rows = cal.posterior.shape[0]
+    if n_posterior > n_rows:
+        raise CalibrationError(f"--n-posterior {n_posterior}: {cal.posterior_csv} has only "
+                               f"{n_rows} rows")
+    rng = np.random.default_rng(seed)
+    rows = np.sort(rng.choice(n_rows, size=n_posterior, replace=False))
+    return Draws(cal.posterior[rows], cal.names, rows + 1, "posterior")
+
+
+@dataclasses.dataclass
+class CalibrationFile:
+    """The whole calibration file, as ``calib.fit`` writes it and everyone reads it.
+
+    ``to_json`` is the one writer (schema version ``SCHEMA`` first, then the
+    inputs, the record and the model sections; no NaN); ``from_json`` the one
+    reader of the whole document: it checks the schema and runs every model
+    section present through ``load_calibration``'s checks, so a file it accepts
+    is one ``calib.hazard`` and ``calib.validate`` accept.
+
+    Attributes:
+        profile_csv, data_csv: the inputs of the fit (paths as written).
+        seed: the fit's PRNG seed.
+        release_x_m: the one release of the DEM fit, the figures and the hazard
+            run's default, m, or None (the profile's first vertex).
+        models: {"crsp": section, "dem": section}, the models fitted.
+        record: every other key (command, provenance, versions, release groups,
+            fit quality per model, timings, ...), kept as written.
+        schema: the schema version.
+        path: the file read (None for a document built in memory).
+    """
+
+    profile_csv: str
+    data_csv: str
+    seed: int
+    release_x_m: float | None
+    models: dict
+    record: dict = dataclasses.field(default_factory=dict)
+    schema: str = SCHEMA
+    path: str | None = None
+
+    _TOP = ("schema", "profile_csv", "data_csv", "seed", "release_x_m")
+
+    @property
+    def doc(self) -> dict:
+        """The document as one dict (what ``to_json`` writes)."""
+        out = {k: getattr(self, k) for k in self._TOP}
+        out.update(self.record)
+        out.update(self.models)
+        return out
+
+    @classmethod
+    def from_dict(cls, doc: dict, path: str | None = None) -> CalibrationFile:
+        """Split a document into its parts; the schema must be ``SCHEMA`` and
+        ``profile_csv``, ``data_csv`` and ``seed`` present."""
+        where = path or "<calibration>"
+        if doc.get("schema") != SCHEMA:
+            raise CalibrationError(f"{where}: key 'schema': expected {SCHEMA!r}, got "
+                                   f"{doc.get('schema')!r}")
+        for key in ("profile_csv", "data_csv", "seed"):
+            if key not in doc:
+                raise CalibrationError(f"{where}: key {key!r} missing")
+        models = {m: doc[m] for m in ("crsp", "dem") if doc.get(m) is not None}
+        record = {k: v for k, v in doc.items() if k not in cls._TOP and k not in
+                  ("crsp", "dem")}
+        return cls(doc["profile_csv"], doc["data_csv"], doc["seed"], doc.get("release_x_m"),
+                   models, record, doc["schema"], path)
+
+    def to_json(self) -> str:
+        return json.dumps(self.doc, indent=1, allow_nan=False) + "\n"
+
+    @classmethod
+    def from_json(cls, path: str) -> CalibrationFile:
+        doc = _read_doc(path)
+        out = cls.from_dict(doc, path)
+        if not out.models:
+            raise CalibrationError(f"{path}: neither a 'crsp' nor a 'dem' section")
+        for m in out.models:
+            _model_from_doc(path, doc, m)
+        return out
+
+    def calibration(self, model: str | None = None) -> Calibration:
+        """One model's ``Calibration`` (what the hazard run and validate use)."""
+        if self.path is None:
+            raise CalibrationError("a calibration built in memory has no file to resolve "
+                                   "its paths against; write it with to_json first")
+        return _model_from_doc(self.path, self.doc, model)
+
+
+def summary_stats(values: np.ndarray | None, point: float) -> dict:
+    """``map`` (the point estimate), ``mean``, ``q05``, ``q95`` of one parameter's
+    posterior draws ``values`` (None: the point estimate only)."""
+    if values is None:
+        return {"map": float(point), "mean": None, "q05": None, "q95": None}
+    return {"map": float(point), "mean": float(np.mean(values)),
+            "q05": float(np.quantile(values, 0.05)), "q95": float(np.quantile(values, 0.95))}
+
+
+def _finite(v) -> float | None:
+    """A float for JSON; None for a non-finite value (an objective of +inf where
+    some size had no finished block)."""
+    return float(v) if np.isfinite(v) else None
+
+
+def model_section(name: str, fit, forward, law_form: str | None = None) -> dict:
+    """The section of one model (``calib.inference.calibrate.ModelFit`` ``fit`` of
+    ``forward``) as ``calib.fit`` writes it: parameters with map/mean/q05/q95
+    (DEM: under ``alpha_law``, with the DEM numerics under ``run``), prior,
+    gradient and Bayes records with their diagnostics, fit quality, adequacy,
+    unfinished blocks, budgets and timings; ``posterior_csv`` and
+    ``posterior_netcdf`` name the files written next to it."""
+    from calib.inference.bayes import ESS_MIN, RHAT_MAX
+
+    post = fit.posterior
+    sec = {"parameters": list(fit.names), "estimate_source": fit.estimate_source,
+           "fit_quality": fit.quality, "unfinished_blocks": fit.unfinished,
+           "adequacy": fit.adequacy,
+           "timings_s": fit.timings_s,
+           "budget": {k: v for k, v in vars(fit.budget).items()},
+           "n_blocks_check": int(fit.check_runouts.shape[-1]),
+           "common_random_numbers": True,
+           "prior": {n: [float(lo), float(hi)] for n, lo, hi in
+                     zip(fit.names, forward.box.lo, forward.box.hi)}}
+    stats = {n: summary_stats(None if post is None else post.samples[:, i], fit.estimate[i])
+             for i, n in enumerate(fit.names)}
+    if fit.gradient is not None:
+        g = fit.gradient
+        sec["gradient"] = {
+            "estimate": dict(zip(fit.names, map(float, g.theta))),
+            "starts_final": [dict(zip(fit.names, map(float, t))) for t in g.theta_starts],
+            "objective_final": [_finite(v) for v in g.objective_final],
+            "objective_history": [[_finite(v) for v in row] for row in g.history]}
+    if post is not None:
+        sec["bayes"] = {
+            "summary": post.summary(), "ok": post.ok, "problems": post.problems,
+            "divergences": post.divergences, "accept_prob": post.accept_prob,
+            "n_draws": int(post.samples.shape[0]), "n_chains": post.n_chains,
+            "diagnostics": {"rhat": "rank-normalised split R-hat (Vehtari et al. 2021)",
+                            "rhat_max": RHAT_MAX, "ess": "bulk and tail ESS (same paper)",
+                            "ess_min": ESS_MIN},
+            "emulator": fit.emulator_check}
+        sec["posterior_csv"] = f"{name}_posterior.csv"
+        sec["posterior_netcdf"] = f"{name}_posterior.nc"
+    else:
+        sec["posterior_csv"] = sec["posterior_netcdf"] = None
+    if law_form is None:
+        sec.update(stats)
+    else:
+        sec["run"] = dataclasses.asdict(forward.run)  # the DEM numerics (calib.model.dem_run)
+        sec["alpha_law"] = {"form": law_form,
+                            "expression": "a*L**-b" if law_form == "power" else "alpha",
+                            **stats}
+    return sec

@@ -1,0 +1,381 @@
+"""Field rockfall runs (release and stop points) as observed runouts on a profile:
+the library of ``python -m calib.field`` (the command is ``calib/field.py``).
+
+Reads tracked field runs, one row per run: a release point and a stop point in
+plan (east, north, in the coordinates of the profile's raster), the block's
+mass (or its three dimensions), optionally the velocity at release; projects
+both points onto the profile's plan trace (the ``east_m,north_m`` columns that
+``python -m solvers.profile cut`` writes); and writes one observation row per
+run in the schema of ``calib.files.observations``.
+
+Definitions (the equations are standard; which one applies is our choice):
+
+* Along-line position: the orthogonal projection onto the plan trace
+  (``solvers.raster.Polyline.project``); ``release_x_m`` is the release's
+  profile abscissa, and ``runout_m = x(stop) - x(release)``, a horizontal
+  distance along the profile. The lateral offset of each point from the trace
+  (m, positive to the left looking downslope) is reported per row; the 2D
+  profile ignores it, so rows beyond ``--max-offset-m`` are flagged and named
+  in a warning (and kept).
+* Block size ``block_size_m`` (the "average diameter" d of
+  ``calib.files.observations``): by default the VOLUME-EQUIVALENT SPHERE diameter
+  from the mass, d = (6 m / (pi rho))^(1/3), with density rho from
+  ``--density-kg-m3``. Only when a run's mass is missing (empty) it is the
+  geometric mean of the three block dimensions, d = (a b c)^(1/3): the edge of
+  the cube with the volume of the bounding box, which overestimates a natural
+  rock's volume-equivalent diameter (a rock fills only part of its box).
+* ``shape`` (CRSP's classes sphere / cylinder / disc, ``solvers.crsp.make_block``)
+  from the dimensions where known. OUR OWN RULE, after Zingg's (1935) form
+  classes: with a >= b >= c, p = b / a and q = c / b (both rounded to 6
+  decimals), a block is a ``disc`` if q <= 2/3 (flat: Zingg's discs and
+  blades), a ``cylinder`` if p <= 2/3 < q (one long axis: Zingg's rods), else a
+  ``sphere`` (equant). A ratio on a class boundary goes to the less equant
+  class. The CRSP 4.0 manual's own rule, if it has one, was not found.
+* ``release_speed_m_s``: |v| = sqrt(vx^2 + vy^2 + vz^2) of the release velocity
+  columns, where they are given.
+
+Defaults that are ASSUMPTIONS (state them with the data they make):
+
+* ``--density-kg-m3`` 2650: the density of quartz and a common value for
+  granite and gneiss; field data sets give masses, seldom densities.
+* ``--runout-sd-m`` 2 m: a tracking system's metre-scale position error at
+  each end of a run, plus the last tracked sample preceding the final rest.
+* ``--max-offset-m`` 20 m: four 5 m cells of a typical terrain raster.
+
+Bad input (one line naming the file, line and column; exit 2; nothing
+written): a missing or non-numeric coordinate; a mass or dimension that is
+negative, zero, NaN or not a number; a run with neither a mass nor three
+dimensions; a run whose stop lies upslope of (before) its release along the
+line; a point that projects beyond either end of the profile.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import math
+import os
+from collections.abc import Sequence
+
+import numpy as np
+
+from solvers.cli import (
+    cell_float,
+    read_csv_rows,
+)
+
+__all__ = [
+    "DEFAULT_DENSITY_KG_M3",
+    "DEFAULT_MAX_OFFSET_M",
+    "DEFAULT_RUNOUT_SD_M",
+    "FieldError",
+    "FieldRuns",
+    "RunColumns",
+    "box_diameter_m",
+    "crsp_shape",
+    "field_observations",
+    "load_runs",
+    "observations_csv_text",
+    "sphere_diameter_m",
+]
+
+DEFAULT_DENSITY_KG_M3 = 2650.0
+DEFAULT_RUNOUT_SD_M = 2.0
+DEFAULT_MAX_OFFSET_M = 20.0
+OUTPUT_COLUMNS = ("block_size_m", "runout_m", "runout_sd_m", "runout_min_m", "runout_max_m",
+                  "source", "run_id", "block_id", "release_x_m", "release_speed_m_s", "shape",
+                  "mass_kg", "release_offset_m", "stop_offset_m", "beyond_max_offset")
+
+
+class FieldError(ValueError):
+    """Bad field-run input; the message names the file, line and column."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RunColumns:
+    """Column names of a runs table (and of a blocks table joined on ``block_id``).
+
+    The defaults are those of the Tschamut 2014 files (``data/tschamut2014``).
+    """
+
+    run_id: str = "run_id"
+    block_id: str = "block_id"
+    mass: str = "mass_kg"
+    release: tuple[str, str] = ("release_x_m", "release_y_m")
+    stop: tuple[str, str] = ("stop_x_m", "stop_y_m")
+    velocity: tuple[str, str, str] = ("release_vx_m_s", "release_vy_m_s", "release_vz_m_s")
+    size: tuple[str, str, str] = ("size_x_m", "size_y_m", "size_z_m")
+
+
+@dataclasses.dataclass(frozen=True)
+class FieldRuns:
+    """Validated field runs (arrays of length R, one entry per run).
+
+    Attributes:
+        run_id, block_id: identifiers (text; row numbers when the column is absent).
+        line: the file line of each run (header = line 1), for messages.
+        release_east_m, release_north_m, stop_east_m, stop_north_m: plan points, m.
+        mass_kg: block mass, kg; NaN where unknown.
+        size_m: (R, 3) block dimensions, m; NaN rows where unknown.
+        release_speed_m_s: speed at release, m/s; NaN where not given.
+        path: the runs file.
+    """
+
+    run_id: tuple[str, ...]
+    block_id: tuple[str, ...]
+    line: tuple[int, ...]
+    release_east_m: np.ndarray
+    release_north_m: np.ndarray
+    stop_east_m: np.ndarray
+    stop_north_m: np.ndarray
+    mass_kg: np.ndarray
+    size_m: np.ndarray
+    release_speed_m_s: np.ndarray
+    path: str = "<memory>"
+
+    @property
+    def n_runs(self) -> int:
+        return len(self.run_id)
+
+
+def sphere_diameter_m(mass_kg, density_kg_m3: float) -> np.ndarray:
+    """Volume-equivalent sphere diameter d = (6 m / (pi rho))^(1/3), m.
+
+    Args:
+        mass_kg: any shape, kg.
+        density_kg_m3: rock density rho, kg/m^3.
+    """
+    return np.cbrt(6.0 * np.asarray(mass_kg, float) / (math.pi * density_kg_m3))
+
+
+def box_diameter_m(size_m) -> np.ndarray:
+    """Geometric mean of three dimensions, d = (a b c)^(1/3), m: the edge of the
+    cube of the bounding box's volume.
+
+    Args:
+        size_m: (..., 3) dimensions, m.
+    """
+    return np.cbrt(np.prod(np.asarray(size_m, float), axis=-1))
+
+
+def crsp_shape(size_m) -> str:
+    """CRSP shape class of a block of dimensions (a, b, c), m (module docstring:
+    our own rule after Zingg 1935)."""
+    c, b, a = np.sort(np.asarray(size_m, float))
+    p, q = round(b / a, 6), round(c / b, 6)
+    limit = round(2.0 / 3.0, 6)
+    if q <= limit:
+        return "disc"
+    if p <= limit:
+        return "cylinder"
+    return "sphere"
+
+
+def _read(path: str, what: str) -> tuple[list[str], list[tuple[int, dict[str, str]]]]:
+    return read_csv_rows(path, what, FieldError)
+
+
+def _value(path: str, line: int, row: dict, col: str, *, positive: bool = False,
+           required: bool = True) -> float:
+    """A cell as a float; empty -> NaN unless required; errors name line and column."""
+    text = row.get(col, "")
+    if text == "":
+        if required:
+            raise FieldError(f"{path}: line {line}: column {col!r}: missing value")
+        return math.nan
+    v = cell_float(path, line, row, col, FieldError)
+    if positive and v <= 0:
+        raise FieldError(f"{path}: line {line}: column {col!r}: expected a positive value, "
+                         f"got {text!r}")
+    return v
+
+
+def load_runs(path: str | os.PathLike, blocks_path: str | os.PathLike | None = None,
+              columns: RunColumns = RunColumns()) -> FieldRuns:
+    """Read and validate a runs CSV, joining a blocks table on the block id.
+
+    A run's mass is its own ``mass`` cell; if that is empty (or the column
+    absent), the blocks table's. Dimensions likewise (``size`` columns). A
+    non-empty mass or dimension must be a positive finite number.
+
+    Args:
+        path: runs CSV (columns named by ``columns``).
+        blocks_path: optional blocks CSV with the block id column and mass
+            and/or size columns.
+        columns: the column names.
+
+    Returns:
+        ``FieldRuns``.
+
+    Raises:
+        FieldError: naming file, line and column (module docstring).
+    """
+    path = os.fspath(path)
+    c = columns
+    header, rows = _read(path, ",".join(c.release + c.stop))
+    missing = [k for k in c.release + c.stop if k not in header]
+    if missing:
+        raise FieldError(f"{path}: line 1: missing column(s) {', '.join(missing)} (found "
+                         f"{', '.join(header)})")
+    if not rows:
+        raise FieldError(f"{path}: no runs after the header")
+    blocks: dict[str, tuple[int, dict]] = {}
+    bpath = os.fspath(blocks_path) if blocks_path is not None else None
+    if bpath is not None:
+        if c.block_id not in header:
+            raise FieldError(f"{path}: line 1: missing column {c.block_id!r} to join "
+                             f"{bpath} on")
+        bheader, brows = _read(bpath, c.block_id)
+        if c.block_id not in bheader:
+            raise FieldError(f"{bpath}: line 1: missing column {c.block_id!r}")
+        for bline, brow in brows:
+            key = brow[c.block_id]
+            if key in blocks:
+                raise FieldError(f"{bpath}: line {bline}: column {c.block_id!r}: duplicate "
+                                 f"block {key!r}")
+            blocks[key] = (bline, brow)
+    vel_cols = all(k in header for k in c.velocity)
+    out: dict[str, list] = {k: [] for k in ("run_id", "block_id", "line", "re", "rn", "se", "sn",
+                                            "mass", "size", "speed")}
+    for i, (line, row) in enumerate(rows):
+        run_id = row.get(c.run_id) or f"row {i + 1}"
+        block = row.get(c.block_id, "")
+        brow = None
+        if bpath is not None:
+            if block not in blocks:
+                raise FieldError(f"{path}: line {line}: column {c.block_id!r}: block {block!r} "
+                                 f"is not in {bpath}")
+            brow = blocks[block]
+        re_, rn = (_value(path, line, row, k) for k in c.release)
+        se, sn = (_value(path, line, row, k) for k in c.stop)
+        mass = _value(path, line, row, c.mass, positive=True, required=False)
+        if math.isnan(mass) and brow is not None:
+            mass = _value(bpath, brow[0], brow[1], c.mass, positive=True, required=False)
+        size = _size(path, line, row, c.size)
+        if np.isnan(size).all() and brow is not None:
+            size = _size(bpath, brow[0], brow[1], c.size)
+        if math.isnan(mass) and np.isnan(size).all():
+            where = f" or in {bpath} for block {block!r}" if bpath else ""
+            raise FieldError(f"{path}: line {line}: column {c.mass!r}: run {run_id} has no mass "
+                             f"and no dimensions ({', '.join(c.size)}){where}")
+        speed = math.nan
+        if vel_cols:
+            v = [_value(path, line, row, k, required=False) for k in c.velocity]
+            if not any(math.isnan(x) for x in v):
+                speed = math.sqrt(sum(x * x for x in v))
+        for key, val in (("run_id", run_id), ("block_id", block), ("line", line), ("re", re_),
+                         ("rn", rn), ("se", se), ("sn", sn), ("mass", mass), ("size", size),
+                         ("speed", speed)):
+            out[key].append(val)
+    return FieldRuns(tuple(out["run_id"]), tuple(out["block_id"]), tuple(out["line"]),
+                     np.array(out["re"]), np.array(out["rn"]), np.array(out["se"]),
+                     np.array(out["sn"]), np.array(out["mass"]), np.array(out["size"]),
+                     np.array(out["speed"]), path)
+
+
+def _size(path: str, line: int, row: dict, cols: Sequence[str]) -> np.ndarray:
+    """Three dimensions, or NaNs when all are absent; a partial set is an error."""
+    vals = np.array([_value(path, line, row, k, positive=True, required=False)
+                     if k in row else math.nan for k in cols])
+    if np.isnan(vals).any() and not np.isnan(vals).all():
+        k = cols[int(np.flatnonzero(np.isnan(vals))[0])]
+        raise FieldError(f"{path}: line {line}: column {k!r}: missing value (a block needs all "
+                         f"three dimensions {', '.join(cols)}, or none)")
+    return vals
+
+
+def field_observations(runs: FieldRuns, profile_x_m: np.ndarray, trace, *,
+                       density_kg_m3: float = DEFAULT_DENSITY_KG_M3,
+                       runout_sd_m: float = DEFAULT_RUNOUT_SD_M,
+                       max_offset_m: float = DEFAULT_MAX_OFFSET_M,
+                       source: str = "", columns: RunColumns = RunColumns(),
+                       profile_path: str = "<profile>") -> list[dict]:
+    """One observation row per run (columns ``OUTPUT_COLUMNS``).
+
+    Args:
+        runs: the validated runs.
+        profile_x_m: (V,) profile abscissae, m.
+        trace: the profile's plan trace (``solvers.raster.Polyline``, V vertices).
+        density_kg_m3: rho of d = (6 m / (pi rho))^(1/3).
+        runout_sd_m: tolerance written to every row, m.
+        max_offset_m: rows with a point farther than this from the trace are
+            flagged (``beyond_max_offset``).
+        source: provenance text; each row's ``source`` is ``"<source>: run <id>"``.
+        columns: column names (for messages).
+        profile_path: name of the profile (for messages).
+
+    Returns:
+        A list of dicts, one per run, in file order.
+
+    Raises:
+        FieldError: a stop upslope of its release, or a point beyond an end of
+            the profile (naming the runs file, line and column).
+    """
+    c = columns
+    x0 = float(profile_x_m[0])
+    x_end = float(profile_x_m[-1])
+    r_along, r_off = trace.project(runs.release_east_m, runs.release_north_m)
+    s_along, s_off = trace.project(runs.stop_east_m, runs.stop_north_m)
+    r_x, s_x = r_along + x0, s_along + x0
+    for i in range(runs.n_runs):
+        for what, col, x in (("release", c.release[0], r_x[i]), ("stop", c.stop[0], s_x[i])):
+            if not (x0 <= x <= x_end):
+                raise FieldError(
+                    f"{runs.path}: line {runs.line[i]}: column {col!r}: the {what} of run "
+                    f"{runs.run_id[i]} projects to {x:.2f} m along the profile, outside "
+                    f"{profile_path} ({x0:g} to {x_end:.2f} m); cut a longer profile")
+        if s_x[i] < r_x[i]:
+            raise FieldError(
+                f"{runs.path}: line {runs.line[i]}: column {c.stop[0]!r}: the stop of run "
+                f"{runs.run_id[i]} lies upslope of its release along the profile ({s_x[i]:.2f} m "
+                f"< {r_x[i]:.2f} m)")
+    use_mass = ~np.isnan(runs.mass_kg)
+    d = np.where(use_mass, sphere_diameter_m(np.where(use_mass, runs.mass_kg, 1.0),
+                                             density_kg_m3),
+                 box_diameter_m(np.nan_to_num(runs.size_m, nan=1.0)))
+    rows = []
+    for i in range(runs.n_runs):
+        size = runs.size_m[i]
+        flag = bool(max(abs(r_off[i]), abs(s_off[i])) > max_offset_m)
+        rows.append({
+            "block_size_m": float(d[i]),
+            "runout_m": float(s_x[i] - r_x[i]),
+            "runout_sd_m": runout_sd_m,
+            "runout_min_m": None, "runout_max_m": None,
+            "source": f"{source}: run {runs.run_id[i]}" if source else f"run {runs.run_id[i]}",
+            "run_id": runs.run_id[i], "block_id": runs.block_id[i],
+            "release_x_m": float(r_x[i]),
+            "release_speed_m_s": float(runs.release_speed_m_s[i]),
+            "shape": "" if np.isnan(size).any() else crsp_shape(size),
+            "mass_kg": float(runs.mass_kg[i]),
+            "release_offset_m": float(r_off[i]), "stop_offset_m": float(s_off[i]),
+            "beyond_max_offset": flag,
+        })
+    return rows
+
+
+_FORMATS = {"block_size_m": "{:.4f}", "runout_m": "{:.3f}", "runout_sd_m": "{:g}",
+            "release_x_m": "{:.3f}", "release_speed_m_s": "{:.3f}", "mass_kg": "{:g}",
+            "release_offset_m": "{:.3f}", "stop_offset_m": "{:.3f}"}
+
+
+def observations_csv_text(rows: list[dict]) -> str:
+    """Rows of ``field_observations`` as CSV text (NaN and None as empty cells)."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(OUTPUT_COLUMNS)
+    for r in rows:
+        cells = []
+        for k in OUTPUT_COLUMNS:
+            v = r[k]
+            if v is None or (isinstance(v, float) and math.isnan(v)):
+                cells.append("")
+            elif isinstance(v, bool):
+                cells.append("true" if v else "false")
+            elif k in _FORMATS:
+                cells.append(_FORMATS[k].format(v))
+            else:
+                cells.append(str(v))
+        w.writerow(cells)
+    return buf.getvalue()

@@ -1,0 +1,88 @@
+"""Posteriors as ArviZ InferenceData: ``{model}_posterior.nc`` (NetCDF-4), built
+from a NUTS run (``calib.inference.bayes.Posterior``) and read back.
+
+ArviZ's InferenceData schema (https://python.arviz.org/projects/base/en/latest/
+schema/schema.html; here an ``xarray.DataTree`` of ``arviz_base``) with groups:
+
+* ``posterior``: one variable per parameter, dims (chain, draw), in the units
+  of the calibration (``calib.model.priors``);
+* ``sample_stats``: NumPyro's per-draw statistics under ArviZ's names
+  (``diverging``, ``acceptance_rate``, ``n_steps``, ``energy``, ``lp``,
+  ``step_size``), dims (chain, draw);
+* ``log_likelihood``: ``runout_m`` (chain, draw, row), nats: log p(y_i | theta)
+  of each observation row at each draw, the EMULATED likelihood that NUTS
+  sampled (``calib.inference.likelihood`` on the emulator's quantiles, its variance
+  added; the group's ``likelihood`` attribute says so), not a re-simulation;
+* ``observed_data``: the rows (dim row, file order): ``block_size_m``,
+  ``runout_m``, ``runout_sd_m`` (NaN for intervals), ``runout_min_m``,
+  ``runout_max_m`` (NaN for points), ``is_interval``.
+
+``runout_m`` is named alike in ``log_likelihood`` and ``observed_data``, as
+ArviZ pairs them (e.g. for PSIS-LOO with ``arviz_stats.loo``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["LIKELIHOOD_NOTE", "inference_data", "netcdf_writer", "read_inference_data"]
+
+LIKELIHOOD_NOTE = ("emulated: calib.inference.likelihood on the Gaussian-process emulator's runout "
+                   "quantiles with its predictive variance added (calib.inference.calibrate), the "
+                   "density NUTS sampled; not a re-simulation")
+
+
+def inference_data(post, obs, model: str):
+    """The InferenceData of one NUTS posterior (see module docstring).
+
+    Args:
+        post: ``calib.inference.bayes.Posterior`` with C = ``n_chains`` chains of N draws.
+        obs: ``calib.files.observations.Observations`` the fit used (n_obs rows).
+        model: "crsp" or "dem" (stored as the ``model`` attribute).
+
+    Returns:
+        ``xarray.DataTree`` with groups posterior, sample_stats, log_likelihood,
+        observed_data.
+    """
+    from arviz_base import from_dict
+
+    c = int(post.n_chains)
+    by_chain = np.asarray(post.samples).reshape(c, -1, len(post.names))
+    n_draws = by_chain.shape[1]
+    loglik = np.asarray(post.pointwise_loglik).reshape(c, n_draws, -1)
+    if loglik.shape[-1] != obs.n_obs:
+        raise ValueError(f"the posterior's log-likelihood has {loglik.shape[-1]} rows, the "
+                         f"observations {obs.n_obs}")
+    rows = {"block_size_m": obs.block_size_m, "runout_m": obs.runout_m,
+            "runout_sd_m": obs.runout_sd_m, "runout_min_m": obs.runout_min_m,
+            "runout_max_m": obs.runout_max_m, "is_interval": obs.is_interval}
+    tree = from_dict(
+        {"posterior": {n: by_chain[..., i] for i, n in enumerate(post.names)},
+         "sample_stats": {k: np.asarray(v) for k, v in post.sample_stats.items()},
+         "log_likelihood": {"runout_m": loglik},
+         "observed_data": {k: np.asarray(v) for k, v in rows.items()}},
+        dims={k: ["row"] for k in rows}, coords={"row": np.arange(obs.n_obs)})
+    tree.attrs.update(model=model, observations=obs.path)
+    tree["log_likelihood"].attrs["likelihood"] = LIKELIHOOD_NOTE
+    tree["log_likelihood"]["runout_m"].attrs["units"] = "nats"
+    return tree
+
+
+def netcdf_writer(tree):
+    """A ``write(path)`` callable for ``solvers.cli.write_all_atomic`` that writes
+    ``tree`` as NetCDF-4 (h5netcdf engine)."""
+    def write(path):
+        tree.to_netcdf(path, engine="h5netcdf")
+    return write
+
+
+def read_inference_data(path: str):
+    """Read a ``{model}_posterior.nc`` back, fully loaded (the file is closed).
+
+    Returns:
+        ``xarray.DataTree`` with the groups of ``inference_data``.
+    """
+    import xarray as xr
+
+    with xr.open_datatree(path, engine="h5netcdf") as tree:
+        return tree.load()

@@ -1,0 +1,396 @@
+"""Observed runouts: the table every fit reads, and the block-size mapping.
+
+Schema (CSV, one row per observation; ``data/README.md``)::
+
+    block_size_m, runout_m, runout_sd_m, runout_min_m, runout_max_m, source
+
+* ``block_size_m``: average block diameter d, m (the paper's wording, Sect. 4.1).
+* A row is either a POINT (``runout_m`` with tolerance ``runout_sd_m`` > 0) or an
+  INTERVAL (``runout_min_m`` <= ``runout_max_m``; the runout was seen to lie in
+  it). A row that gives both uses the interval.
+* ``source``: free text (where the number comes from); optional column.
+
+Optional columns of tracked field runs (``calib.field``; absent columns read as
+NaN or empty text, and files without them behave exactly as before):
+
+* ``release_x_m``: abscissa of the release point on the profile, m (NOT the
+  east coordinate that a runs file may call by the same name);
+* ``release_speed_m_s``: speed at release, m/s (>= 0), where tracked;
+* ``run_id``: the run's identifier in its source;
+* ``shape``: CRSP shape class ``sphere``, ``cylinder`` or ``disc`` (empty:
+  unknown), from the block's dimensions (rule in ``calib.files.field_runs``).
+
+Other columns are ignored.
+
+A second, optional table holds PASSAGE VELOCITIES at stations (``load_velocities``)::
+
+    station_x_m, block_size_m, velocity_m_s, velocity_sd_m_s, source
+
+* one row per block seen passing the abscissa ``station_x_m`` (m, profile
+  coordinates) with speed ``velocity_m_s`` (speed of the centre of mass at its
+  first downslope passage, ``solvers.stations``), tolerance ``velocity_sd_m_s``
+  > 0. Such speeds come from video or radar tracking of natural or induced
+  rockfalls (e.g. the induced-rockfall campaigns of Dorren et al. 2006, Volkwein
+  et al. 2018, whose blocks were filmed through a forest and an instrumented
+  slope). Runouts and sizes alone cannot tell a lower tangential restitution
+  from a belt of trees that brakes blocks lower down; a speed measured ABOVE the
+  belt can (``README.md``, "Vegetation belt").
+
+Block-size mapping, used everywhere (CRSP, DEM, hazard, discrepancy):
+
+* CRSP sphere radius r = d / 2.
+* DEM square side L = d. The paper's UDEC squares were meant to match the CRSP
+  masses, but its Table 1 sides (0.2, 0.9, 1.8 m) do not follow from its radii
+  (``data/README.md``); we take the square side equal to the average diameter,
+  which reproduces Table 1's L for d = 0.2 and 1.8 m within 10 %.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from typing import NamedTuple
+
+import numpy as np
+import pandas as pd
+
+__all__ = ["ObservationError", "Observations", "ReleaseGroups", "Velocities", "crsp_radius_m",
+           "dem_side_m", "load_observations", "load_velocities", "read_table", "release_groups"]
+
+REQUIRED = ("block_size_m",)
+OPTIONAL = ("runout_m", "runout_sd_m", "runout_min_m", "runout_max_m", "source",
+            "release_x_m", "release_speed_m_s", "run_id", "shape")
+SHAPES = ("sphere", "cylinder", "disc")
+
+
+class ReleaseGroups(NamedTuple):
+    """Simulation groups of the rows: the solvers run once per group.
+
+    Attributes:
+        sizes_m: (G,) block size of each group, m.
+        release_x_m: (G,) release abscissa of each group, m.
+        index: (n_obs,) group of each row.
+        release_speed_m_s: (G,) mean tracked release speed of the group's rows
+            that give one, m/s; NaN where none does (the solver's default).
+    """
+
+    sizes_m: np.ndarray
+    release_x_m: np.ndarray
+    index: np.ndarray
+    release_speed_m_s: np.ndarray
+
+
+def release_groups(obs: Observations, default_release_x_m: float,
+                   tol_m: float = 0.0) -> ReleaseGroups:
+    """Group the rows by (block size, release abscissa).
+
+    Rows of one size whose releases lie within ``tol_m`` of the first (lowest)
+    release of their group share one group, released at the mean of their
+    releases (greedy, in ascending order); ``tol_m = 0`` groups only equal
+    releases. A row without ``release_x_m`` (NaN) is released at
+    ``default_release_x_m``. A group's release speed is the mean of its rows'
+    ``release_speed_m_s`` where given. Our choice: the tolerance trades simulation cost
+    (one simulated sample per group) against the release error of a row, at
+    most ``tol_m``.
+
+    Args:
+        obs: the rows.
+        default_release_x_m: release of rows that give none, m.
+        tol_m: grouping tolerance, m (>= 0).
+    """
+    if not tol_m >= 0:
+        raise ValueError(f"release grouping tolerance must be >= 0 m, got {tol_m!r}")
+    rel = np.asarray(obs.release_x_m, float)
+    rel = np.where(np.isfinite(rel), rel, float(default_release_x_m))
+    size = np.asarray(obs.block_size_m, float)
+    speed = getattr(obs, "release_speed_m_s", None)
+    speed = np.full(obs.n_obs, np.nan) if speed is None else np.asarray(speed, float)
+    sizes, releases, speeds, index = [], [], [], np.empty(obs.n_obs, int)
+    for d in np.unique(size):
+        rows = np.flatnonzero(size == d)
+        rows = rows[np.argsort(rel[rows], kind="stable")]
+        start = 0
+        while start < rows.size:
+            stop = start + 1
+            while stop < rows.size and rel[rows[stop]] - rel[rows[start]] <= tol_m:
+                stop += 1
+            members = rows[start:stop]
+            index[members] = len(sizes)
+            sizes.append(d)
+            releases.append(float(np.mean(rel[members])))
+            known = speed[members][np.isfinite(speed[members])]
+            speeds.append(float(np.mean(known)) if known.size else np.nan)
+            start = stop
+    return ReleaseGroups(np.asarray(sizes, float), np.asarray(releases, float), index,
+                         np.asarray(speeds, float))
+
+
+class ObservationError(ValueError):
+    """Bad observation file; the message names file, row and column."""
+
+
+def crsp_radius_m(block_size_m):
+    """CRSP sphere radius for an average block diameter d: r = d / 2."""
+    return 0.5 * np.asarray(block_size_m, dtype=float)
+
+
+def dem_side_m(block_size_m):
+    """DEM square side for an average block diameter d: L = d (see module docstring)."""
+    return np.asarray(block_size_m, dtype=float)
+
+
+@dataclasses.dataclass(frozen=True)
+class Observations:
+    """Validated observations (NumPy arrays of length n_obs).
+
+    Attributes:
+        block_size_m: average diameter d, m.
+        runout_m, runout_sd_m: point value and tolerance, m (NaN for intervals).
+        runout_min_m, runout_max_m: interval ends, m (NaN for points).
+        is_interval: True where the row is an interval.
+        source: provenance text per row.
+        path: file the rows came from.
+        release_x_m: release abscissa on the profile, m (NaN where not given).
+        release_speed_m_s: speed at release, m/s (NaN where not given).
+        run_id: run identifier per row ("" where not given), str array.
+        shape: CRSP shape class per row ("" where not given), str array.
+    """
+
+    block_size_m: np.ndarray
+    runout_m: np.ndarray
+    runout_sd_m: np.ndarray
+    runout_min_m: np.ndarray
+    runout_max_m: np.ndarray
+    is_interval: np.ndarray
+    source: tuple[str, ...]
+    path: str = "<memory>"
+    release_x_m: np.ndarray | None = None
+    release_speed_m_s: np.ndarray | None = None
+    run_id: np.ndarray | None = None
+    shape: np.ndarray | None = None
+
+    def __post_init__(self):
+        n = int(np.shape(self.block_size_m)[0])
+        for name in ("release_x_m", "release_speed_m_s"):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, np.full(n, np.nan))
+        for name in ("run_id", "shape"):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, np.full(n, "", dtype=object))
+
+    @property
+    def n_obs(self) -> int:
+        return int(self.block_size_m.shape[0])
+
+    @property
+    def sizes_m(self) -> np.ndarray:
+        """Distinct block sizes, ascending (the solvers run once per size)."""
+        return np.unique(self.block_size_m)
+
+    @property
+    def size_index(self) -> np.ndarray:
+        """Index of each row's size in ``sizes_m``."""
+        return np.searchsorted(self.sizes_m, self.block_size_m)
+
+    @property
+    def centre_m(self) -> np.ndarray:
+        """The point value, or the interval's mid-point, m (for plots and residuals)."""
+        mid = 0.5 * (self.runout_min_m + self.runout_max_m)
+        return np.where(self.is_interval, mid, self.runout_m)
+
+    @staticmethod
+    def points(block_size_m, runout_m, runout_sd_m, source=None) -> Observations:
+        """Point observations from arrays (synthetic data, tests)."""
+        d = np.asarray(block_size_m, float)
+        n = d.shape[0]
+        nan = np.full(n, np.nan)
+        return Observations(d, np.asarray(runout_m, float) * np.ones(n),
+                            np.asarray(runout_sd_m, float) * np.ones(n), nan, nan.copy(),
+                            np.zeros(n, bool), tuple(source or ("synthetic",) * n))
+
+
+@dataclasses.dataclass(frozen=True)
+class Velocities:
+    """Validated passage-velocity observations (NumPy arrays of length n_obs).
+
+    Attributes:
+        station_x_m: abscissa of the station, m.
+        block_size_m: average diameter d, m.
+        velocity_m_s, velocity_sd_m_s: observed speed and its tolerance, m/s.
+        source: provenance text per row.
+        path: file the rows came from.
+    """
+
+    station_x_m: np.ndarray
+    block_size_m: np.ndarray
+    velocity_m_s: np.ndarray
+    velocity_sd_m_s: np.ndarray
+    source: tuple[str, ...]
+    path: str = "<memory>"
+
+    @property
+    def n_obs(self) -> int:
+        return int(self.block_size_m.shape[0])
+
+    @property
+    def stations_m(self) -> np.ndarray:
+        """Distinct station abscissae, ascending (the solver records each once)."""
+        return np.unique(self.station_x_m)
+
+    @property
+    def station_index(self) -> np.ndarray:
+        """Index of each row's station in ``stations_m``."""
+        return np.searchsorted(self.stations_m, self.station_x_m)
+
+
+def _number(df: pd.DataFrame, col: str, path: str) -> np.ndarray:
+    """Column as floats; a non-number names its file line and column."""
+    out = np.full(len(df), np.nan)
+    if col not in df.columns:
+        return out
+    for i, v in enumerate(df[col].tolist()):
+        if v is None or (isinstance(v, float) and math.isnan(v)) or str(v).strip() == "":
+            continue
+        try:
+            out[i] = float(v)
+        except ValueError:
+            raise ObservationError(f"{path}: line {i + 2}, column {col!r}: expected a number, "
+                                   f"got {v!r}") from None
+    return out
+
+
+def read_table(path: str, header: str) -> pd.DataFrame:
+    """The CSV at ``path`` as strings; a missing, empty or unreadable file raises."""
+    if not os.path.isfile(path):
+        raise ObservationError(f"{path}: no such file")
+    try:
+        df = pd.read_csv(path, dtype=str, keep_default_na=False, comment="#")
+    except pd.errors.EmptyDataError:
+        raise ObservationError(f"{path}: empty file (expected a header '{header}')") from None
+    except (pd.errors.ParserError, UnicodeDecodeError) as e:
+        raise ObservationError(f"{path}: not a readable CSV ({e})") from None
+    df.columns = [c.strip() for c in df.columns]
+    return df
+
+
+def load_observations(path: str | os.PathLike) -> Observations:
+    """Read and validate an observation CSV.
+
+    Raises:
+        ObservationError: missing file, empty table, missing column, non-numeric,
+            non-finite or non-positive sizes, a row that is neither a point with a
+            positive tolerance nor an interval, or an interval with min > max.
+            The message names the file, line (header = line 1) and column.
+    """
+    path = os.fspath(path)
+    df = read_table(path, "block_size_m,runout_m,runout_sd_m,...")
+    for col in REQUIRED:
+        if col not in df.columns:
+            raise ObservationError(f"{path}: line 1: missing column {col!r} (columns: "
+                                   f"{', '.join(df.columns)})")
+    if not ({"runout_m", "runout_sd_m"} <= set(df.columns)
+            or {"runout_min_m", "runout_max_m"} <= set(df.columns)):
+        raise ObservationError(f"{path}: line 1: expected columns 'runout_m' and "
+                               f"'runout_sd_m', or 'runout_min_m' and 'runout_max_m'")
+    if len(df) == 0:
+        raise ObservationError(f"{path}: no observation rows after the header")
+    d = _number(df, "block_size_m", path)
+    y = _number(df, "runout_m", path)
+    sd = _number(df, "runout_sd_m", path)
+    lo = _number(df, "runout_min_m", path)
+    hi = _number(df, "runout_max_m", path)
+    for i in range(len(df)):
+        line = i + 2
+        if not (np.isfinite(d[i]) and d[i] > 0):
+            raise ObservationError(f"{path}: line {line}, column 'block_size_m': expected a "
+                                   f"positive size in metres, got {df['block_size_m'][i]!r}")
+        has_lo, has_hi = np.isfinite(lo[i]), np.isfinite(hi[i])
+        if has_lo != has_hi:
+            col = "runout_max_m" if has_lo else "runout_min_m"
+            raise ObservationError(f"{path}: line {line}, column {col!r}: an interval needs "
+                                   f"both runout_min_m and runout_max_m")
+        if has_lo:
+            if lo[i] < 0:
+                raise ObservationError(f"{path}: line {line}, column 'runout_min_m': expected "
+                                       f"a runout >= 0 m, got {lo[i]:g}")
+            if lo[i] > hi[i]:
+                raise ObservationError(f"{path}: line {line}, column 'runout_min_m': interval "
+                                       f"min {lo[i]:g} > max {hi[i]:g}")
+            continue
+        if not np.isfinite(y[i]):
+            raise ObservationError(f"{path}: line {line}, column 'runout_m': expected a runout "
+                                   f"in metres (or an interval runout_min_m/runout_max_m)")
+        if y[i] < 0:
+            raise ObservationError(f"{path}: line {line}, column 'runout_m': expected a runout "
+                                   f">= 0 m, got {y[i]:g}")
+        if not (np.isfinite(sd[i]) and sd[i] > 0):
+            raise ObservationError(f"{path}: line {line}, column 'runout_sd_m': expected a "
+                                   f"positive tolerance in metres for a point observation")
+    is_int = np.isfinite(lo)
+    src = tuple(df["source"].tolist()) if "source" in df.columns else ("",) * len(df)
+    x0, speed, run_id, shape = _field_columns(df, path)
+    return Observations(d, np.where(is_int, np.nan, y), np.where(is_int, np.nan, sd),
+                        lo, hi, is_int, src, path, x0, speed, run_id, shape)
+
+
+def _field_columns(df: pd.DataFrame, path: str):
+    """The optional field-run columns (module docstring), validated."""
+    x0 = _number(df, "release_x_m", path)
+    speed = _number(df, "release_speed_m_s", path)
+    bad = np.flatnonzero(np.isinf(x0))
+    if bad.size:
+        raise ObservationError(f"{path}: line {bad[0] + 2}, column 'release_x_m': expected a "
+                               f"finite abscissa in metres, got {df['release_x_m'][bad[0]]!r}")
+    bad = np.flatnonzero(~(np.isnan(speed) | (np.isfinite(speed) & (speed >= 0))))
+    if bad.size:
+        raise ObservationError(f"{path}: line {bad[0] + 2}, column 'release_speed_m_s': "
+                               f"expected a speed >= 0 m/s, got "
+                               f"{df['release_speed_m_s'][bad[0]]!r}")
+    text = {}
+    for col in ("run_id", "shape"):
+        vals = df[col].tolist() if col in df.columns else [""] * len(df)
+        text[col] = np.array([str(v).strip() for v in vals], dtype=object)
+    bad = [i for i, v in enumerate(text["shape"]) if v not in SHAPES + ("",)]
+    if bad:
+        raise ObservationError(f"{path}: line {bad[0] + 2}, column 'shape': expected one of "
+                               f"{', '.join(SHAPES)} or empty, got {text['shape'][bad[0]]!r}")
+    return x0, speed, text["run_id"], text["shape"]
+
+
+VELOCITY_COLUMNS = ("station_x_m", "block_size_m", "velocity_m_s", "velocity_sd_m_s")
+
+
+def load_velocities(path: str | os.PathLike) -> Velocities:
+    """Read and validate a passage-velocity CSV (schema in the module docstring).
+
+    Raises:
+        ObservationError: missing file, empty table, missing column, or a row
+            whose station is not a finite number, whose size or tolerance is not
+            positive, or whose speed is negative. The message names the file,
+            line (header = line 1) and column.
+    """
+    path = os.fspath(path)
+    df = read_table(path, ",".join(VELOCITY_COLUMNS))
+    for col in VELOCITY_COLUMNS:
+        if col not in df.columns:
+            raise ObservationError(f"{path}: line 1: missing column {col!r} (columns: "
+                                   f"{', '.join(df.columns)})")
+    if len(df) == 0:
+        raise ObservationError(f"{path}: no observation rows after the header")
+    x, d, v, sd = (_number(df, c, path) for c in VELOCITY_COLUMNS)
+    checks = (("station_x_m", x, lambda a: np.isfinite(a), "an abscissa in metres"),
+              ("block_size_m", d, lambda a: np.isfinite(a) & (a > 0),
+               "a positive size in metres"),
+              ("velocity_m_s", v, lambda a: np.isfinite(a) & (a >= 0),
+               "a speed >= 0 m/s"),
+              ("velocity_sd_m_s", sd, lambda a: np.isfinite(a) & (a > 0),
+               "a positive tolerance in m/s"))
+    for col, a, ok, what in checks:
+        bad = np.flatnonzero(~ok(a))
+        if bad.size:
+            i = int(bad[0])
+            raise ObservationError(f"{path}: line {i + 2}, column {col!r}: expected {what}, "
+                                   f"got {df[col][i]!r}")
+    src = tuple(df["source"].tolist()) if "source" in df.columns else ("",) * len(df)
+    return Velocities(x, d, v, sd, src, path)

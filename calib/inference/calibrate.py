@@ -1,0 +1,360 @@
+"""Calibrate one forward model against observations: gradient fit, Bayesian fit, check.
+
+Stages (each timed; ``Budget`` sets the sizes, ``QUICK`` / ``DEFAULT`` the presets):
+
+1. Bayesian (``method`` includes "bayes"):
+   a. design: simulate the runout distribution at ``n_design`` points of the
+      prior box (CRSP: scrambled Sobol in theta; DEM: a grid in alpha per size)
+      with common random numbers, ``n_blocks_design`` blocks per point and size;
+   b. emulator: GPs of the runout quantiles (``calib.inference.emulator``); CRSP adds a
+      second design of ``n_design2`` points drawn from a pilot posterior, so the
+      emulator is accurate where the posterior lives (sequential design, as in
+      history matching: Vernon et al. 2010);
+   c. hold-out check of the emulator; its predictive variance is inflated by the
+      factor c >= 1 with which it accounts for the held-out errors, weighted by
+      the variance the likelihood uses (the median kernel variance of the rows
+      plus c times the emulator's; ``calib.inference.emulator.variance_inflation``);
+   d. NUTS (``calib.inference.bayes``).
+2. Gradient (``method`` includes "gradient"): Adam on the smoothed CRN
+   objective of the SIMULATOR itself (``calib.inference.gradient``) from several starts:
+   J(theta) = -sum_i log p(y_i | theta), the negative log-likelihood of
+   ``calib.inference.likelihood`` with ``n_blocks_grad`` blocks per size.
+3. Check: the point estimate is re-simulated with fresh random numbers
+   (``n_check`` blocks per size) and every observation gets its fit quality:
+   simulated 5/50/95 % runouts, its PIT value P(R <= y) and log-likelihood.
+4. Adequacy (``calib.inference.adequacy``): posterior mass near each prior bound and the
+   posterior predictive coverage of the calibration rows (``n_predictive_draws``
+   draws x ``n_blocks_predictive`` fresh blocks per size), flagged when the
+   model looks unable to fit the data.
+
+Unfinished blocks (NaN runouts from the forward model, ``calib.model.unfinished``)
+are left out of every stage and counted per stage (design, gradient, check):
+``ModelFit.unfinished``; one ``UnfinishedBlocksWarning`` per fit when some
+(parameter point, block size) has more than ``UNFINISHED_WARN_FRACTION`` of them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy.special import ndtr
+
+from calib.files.observations import Observations, ReleaseGroups
+from calib.inference.adequacy import adequacy_record
+from calib.inference.bayes import Posterior, run_nuts
+from calib.inference.emulator import fit_emulator, holdout_error
+from calib.inference.gradient import GradientFit, fit_gradient
+from calib.inference.likelihood import log_likelihood, observed_rows
+from calib.inference.predictive_check import pool_draws
+from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
+from solvers.cli import few_blocks
+
+__all__ = ["Budget", "ModelFit", "calibrate", "fit_quality", "presets"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Budget:
+    """Sizes of every stage (blocks are per parameter point and block size)."""
+
+    n_design: int = 96
+    n_design2: int = 64
+    n_blocks_design: int = 256
+    n_levels: int = 10
+    nuts_warmup: int = 500
+    nuts_samples: int = 1000
+    nuts_chains: int = 4
+    grad_starts: int = 3
+    grad_steps: int = 40
+    grad_k: int = 3
+    n_blocks_grad: int = 256
+    n_check: int = 2000
+    n_predictive_draws: int = 32
+    n_blocks_predictive: int = 64
+
+
+def presets(model: str, quick: bool) -> Budget:
+    """Stage sizes per model (``--quick`` for tests; the default for real use)."""
+    if model == "crsp":
+        if quick:
+            return Budget(n_design=48, n_design2=32, n_blocks_design=128, nuts_warmup=200,
+                          nuts_samples=400, nuts_chains=2, grad_starts=2, grad_steps=8,
+                          grad_k=2, n_blocks_grad=64, n_check=128, n_predictive_draws=16,
+                          n_blocks_predictive=32)
+        return Budget()
+    if model == "dem":
+        if quick:
+            return Budget(n_design=8, n_design2=0, n_blocks_design=4, nuts_warmup=200,
+                          nuts_samples=400, nuts_chains=2, grad_starts=1, grad_steps=2,
+                          grad_k=1, n_blocks_grad=4, n_check=4, n_predictive_draws=2,
+                          n_blocks_predictive=2)
+        return Budget(n_design=16, n_design2=0, n_blocks_design=12, grad_starts=2,
+                      grad_steps=8, grad_k=1, n_blocks_grad=8, n_check=16,
+                      n_predictive_draws=4, n_blocks_predictive=4)
+    raise ValueError(f"unknown model {model!r}")
+
+
+@dataclasses.dataclass
+class ModelFit:
+    """Everything one model's calibration produced (``unfinished``: the counts of
+    unfinished blocks per stage and the warning, ``calib.model.unfinished.unfinished_record``)."""
+
+    names: tuple[str, ...]
+    estimate: np.ndarray
+    estimate_source: str
+    posterior: Posterior | None
+    gradient: GradientFit | None
+    emulator_check: dict | None
+    quality: list[dict]
+    check_sizes_m: np.ndarray
+    check_runouts: np.ndarray
+    timings_s: dict
+    budget: Budget
+    unfinished: dict | None = None
+    adequacy: dict | None = None
+
+
+def _obs_arrays(obs: Observations):
+    """The rows for ``log_likelihood`` (``calib.inference.likelihood.observed_rows``, the
+    encoding and tolerance rule ``calib.discovery.discrepancy`` uses too)."""
+    return observed_rows(obs)
+
+
+def _median_kernel_var_m2(obs: Observations) -> float:
+    """Median over rows of the kernel variance the likelihood gives one sample:
+    the tolerance sd^2 of a point row, the smallest kernel width h^2 (0.5 m) of
+    an interval row (``calib.inference.likelihood``)."""
+    return float(np.median(np.where(obs.is_interval, 0.5**2, np.nan_to_num(obs.runout_sd_m)**2)))
+
+
+def _loglik_of_runouts(obs: Observations, index=None):
+    """runouts (T, S, n) -> pointwise log-likelihood (T, n_obs) (jitted); row i
+    reads simulated entry ``index[i]`` (default ``obs.size_index``)."""
+    y, sd, lo, hi, is_int = _obs_arrays(obs)
+    idx = jnp.asarray(obs.size_index if index is None else index)
+
+    @jax.jit
+    def f(runouts):
+        return jax.vmap(lambda r: log_likelihood(r[idx], y, sd, lo, hi, is_int))(runouts)
+
+    return f
+
+
+def _emulated_loglik(obs: Observations, emu, forward, inflation: float, index=None):
+    """theta (d,) -> pointwise log-likelihood (n_obs,) from the emulator (row i:
+    entry ``index[i]`` of the forward model, default ``obs.size_index``)."""
+    y, sd, lo, hi, is_int = _obs_arrays(obs)
+    idx = jnp.asarray(obs.size_index if index is None else index)
+
+    def f(theta):
+        mean, var = emu.predict(forward.emulator_inputs(theta))
+        return log_likelihood(mean[idx], y, sd, lo, hi, is_int, inflation * var[idx])
+
+    return f
+
+
+def fit_quality(obs: Observations, runouts: np.ndarray, index=None) -> list[dict]:
+    """Per-observation fit: simulated 5/50/95 % runouts, PIT and log-likelihood.
+
+    Args:
+        runouts: (S, n) runouts per simulated entry, m; NaN for an unfinished
+            block (left out).
+        index: (n_obs,) entry of each row (default ``obs.size_index``: one entry
+            per distinct size, ``obs.sizes_m``).
+
+    PIT = P(R + e <= y), e ~ N(0, sd^2), for a point (the predictive CDF of the
+    OBSERVED value, tolerance included) (about uniform on [0, 1] if the model is right;
+    below 0.05 or above 0.95 means the observation lies outside the simulated
+    90 % band) and P(a <= R <= b) for an interval; all over the finished blocks
+    (``sim_n_finished`` of them). With none, the simulated values are None;
+    ``sim_few_blocks`` is True where 1 to 19 blocks finished, too few for the
+    5/95 % values (``solvers.cli.few_blocks``).
+    """
+    index = obs.size_index if index is None else np.asarray(index)
+    ll = np.asarray(_loglik_of_runouts(obs, index)(jnp.asarray(runouts)[None]))[0]
+    out = []
+    for i in range(obs.n_obs):
+        r = runouts[index[i]]
+        r = r[np.isfinite(r)]
+        some = r.size > 0
+        q05, q50, q95 = (map(float, np.quantile(r, [0.05, 0.5, 0.95])) if some
+                         else (None,) * 3)
+        row = {"row": i + 1, "block_size_m": float(obs.block_size_m[i]),
+               "sim_q05_m": q05, "sim_median_m": q50, "sim_q95_m": q95,
+               "sim_n_finished": int(r.size), "sim_few_blocks": bool(some and few_blocks(r.size)),
+               "loglik": float(ll[i]) if np.isfinite(ll[i]) else None}
+        if obs.is_interval[i]:
+            a, b = obs.runout_min_m[i], obs.runout_max_m[i]
+            row.update(observed_min_m=float(a), observed_max_m=float(b),
+                       p_in_interval=float(np.mean((r >= a) & (r <= b))) if some else None)
+        else:
+            y, sd = obs.runout_m[i], obs.runout_sd_m[i]
+            pit = float(np.mean(ndtr((y - r) / sd))) if some else None
+            row.update(observed_m=float(y), observed_sd_m=float(obs.runout_sd_m[i]), pit=pit,
+                       in_90_band=bool(some and 0.05 <= pit <= 0.95))
+        out.append(row)
+    return out
+
+
+def _pilot_draws(pointwise_loglik, box, n: int, key: jax.Array) -> np.ndarray:
+    """n draws from a pilot posterior: sampling-importance-resampling of 4096
+    scrambled-Sobol points of the box weighted by the emulated likelihood
+    (Rubin 1988), jittered by 2 % of the box so that repeats differ."""
+    from scipy.stats import qmc
+
+    seed = int(jax.random.randint(key, (), 0, 2**31 - 1))
+    pts = box.from_unit(qmc.Sobol(box.dim, scramble=True, seed=seed).random_base2(12))
+    ll = np.asarray(jax.jit(jax.vmap(pointwise_loglik))(jnp.asarray(pts))).sum(1)
+    w = np.exp(ll - ll.max())
+    w /= w.sum()
+    rng = np.random.default_rng(seed)
+    pick = pts[rng.choice(len(pts), n, p=w)]
+    pick = pick + 0.02 * (box.hi - box.lo) * rng.standard_normal(pick.shape)
+    return np.clip(pick, box.lo, box.hi)
+
+
+def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ...],
+              budget: Budget, progress: Callable[[str, int, int], None] | None = None,
+              extra_sizes_m=(), groups: ReleaseGroups | None = None) -> ModelFit:
+    """Run the stages of the module docstring for one forward model.
+
+    Args:
+        forward: ``CrspForward`` or ``DemForward`` built on ``obs.sizes_m``, or
+            (``groups`` given) a ``CrspForward`` built on the groups' sizes and
+            releases.
+        obs: observations.
+        key: PRNG key of the fit (common random numbers, directions, NUTS, check).
+        methods: subset of ("gradient", "bayes").
+        budget: stage sizes.
+        progress: optional callable(stage, done, total).
+        extra_sizes_m: more block sizes to simulate in the check (for figures);
+            ``ModelFit.check_sizes_m`` lists every size checked.
+        groups: the rows' (size, release) groups (``calib.files.observations.
+            release_groups``): each row is scored against its group's blocks.
+            The figure's sizes (``check_sizes_m``) are then released at the
+            median of the rows' releases.
+    """
+    index = obs.size_index if groups is None else groups.index
+    if groups is not None and len(forward.sizes_m) != len(groups.sizes_m):
+        raise ValueError("forward must be built on the groups' sizes and releases")
+    k_design, k_grad, k_nuts, k_pilot, k_check = jax.random.split(key, 5)
+    tick = progress or (lambda *a: None)
+    timings, posterior, gfit, emu_check = {}, None, None, None
+    loglik_runs = _loglik_of_runouts(obs, index)
+    box = forward.box
+    sizes = np.unique(np.concatenate([obs.sizes_m, np.asarray(extra_sizes_m, float)]))
+    tallies = {}
+
+    def tally(stage, runouts, theta=None, sizes_m=forward.sizes_m):
+        t = tallies.setdefault(stage, UnfinishedTally(tuple(map(float, sizes_m))))
+        t.add(runouts, theta, tuple(box.names))
+
+    if "bayes" in methods:
+        t0 = time.perf_counter()
+        tick("design", 0, 1)
+        x, r = forward.design(budget.n_design, seed=int(jax.random.randint(k_design, (), 0,
+                                                                              2**31 - 1)))
+        tick("design", 1, 1)
+        tally("design", r)
+        timings["design_s"] = time.perf_counter() - t0
+        ibox = forward.input_box
+        if budget.n_design2 > 0:
+            t0 = time.perf_counter()
+            emu = fit_emulator(x, r, ibox.lo, ibox.hi, budget.n_levels)
+            x2 = _pilot_draws(_emulated_loglik(obs, emu, forward, 1.0, index), box,
+                              budget.n_design2, k_pilot)
+            tick("design2", 0, 1)
+            r2 = forward.runouts(x2)
+            tick("design2", 1, 1)
+            tally("design", r2, x2)
+            x, r = np.concatenate([x, np.asarray(forward.to_input(x2))]), np.concatenate([r, r2])
+            timings["design2_s"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        emu_check = holdout_error(x, r, ibox.lo, ibox.hi, budget.n_levels,
+                                  kernel_var_m2=_median_kernel_var_m2(obs))
+        inflation = emu_check["variance_inflation"]
+        emu_check["n_design"] = int(x.shape[0])
+        emu_check["n_blocks_per_point"] = int(r.shape[-1])
+        emu = fit_emulator(x, r, ibox.lo, ibox.hi, budget.n_levels)
+        timings["emulator_s"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        tick("nuts", 0, 1)
+        posterior = run_nuts(_emulated_loglik(obs, emu, forward, inflation, index), box, k_nuts,
+                             budget.nuts_warmup, budget.nuts_samples, budget.nuts_chains)
+        tick("nuts", 1, 1)
+        timings["nuts_s"] = time.perf_counter() - t0
+
+    if "gradient" in methods:
+        t0 = time.perf_counter()
+        grad_forward = dataclasses.replace(forward, n_blocks=budget.n_blocks_grad, key=k_grad)
+
+        def objective(theta):
+            runs = grad_forward.runouts(theta)
+            tally("gradient", runs, theta)
+            return -np.asarray(loglik_runs(jnp.asarray(runs))).sum(1)
+
+        from scipy.stats import qmc
+
+        starts = [0.5 * (box.lo + box.hi)]
+        if budget.grad_starts > 1:
+            z = qmc.Halton(box.dim, scramble=True, seed=1).random(budget.grad_starts - 1)
+            starts += list(box.from_unit(0.15 + 0.7 * z))
+        gfit = fit_gradient(objective, box, np.array(starts), k_grad, n_steps=budget.grad_steps,
+                            k=budget.grad_k,
+                            progress=lambda i: tick("gradient", i + 1, budget.grad_steps))
+        timings["gradient_s"] = time.perf_counter() - t0
+
+    if gfit is not None:
+        estimate, source = gfit.theta, "gradient"
+    else:
+        estimate, source = posterior.map, "posterior_mode"
+    t0 = time.perf_counter()
+    if groups is None:
+        check_forward = dataclasses.replace(forward, sizes_m=sizes, n_blocks=budget.n_check,
+                                            key=k_check)
+        check = check_forward.runouts(estimate[None])[0]
+        tally("check", check[None], estimate[None], sizes)
+        at_rows = check[np.searchsorted(sizes, obs.sizes_m)]
+    else:
+        row_forward = dataclasses.replace(forward, n_blocks=budget.n_check, key=k_check)
+        at_rows = row_forward.runouts(estimate[None])[0]
+        tally("check", at_rows[None], estimate[None])
+        median_release = float(np.median(groups.release_x_m[groups.index]))
+        check_forward = dataclasses.replace(forward, sizes_m=sizes, n_blocks=budget.n_check,
+                                            key=k_check, release_x_m=median_release)
+        check = check_forward.runouts(estimate[None])[0]
+    quality = fit_quality(obs, at_rows, index)
+    timings["check_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    adequacy = _adequacy(forward, obs, posterior, at_rows, budget,
+                         jax.random.fold_in(k_check, 1), tally, index)
+    timings["adequacy_s"] = time.perf_counter() - t0
+    record = unfinished_record(tallies, f"{type(forward).__name__} calibration")
+    warn_unfinished(record)
+    return ModelFit(tuple(box.names), np.asarray(estimate), source, posterior, gfit, emu_check,
+                    quality, sizes, check, timings, budget, record, adequacy)
+
+
+def _adequacy(forward, obs: Observations, posterior: Posterior | None, check: np.ndarray,
+              budget: Budget, key: jax.Array, tally, index) -> dict:
+    """``calib.inference.adequacy`` of one fit: posterior predictive runouts at
+    ``n_predictive_draws`` draws spread evenly over the chains' output, with
+    ``n_blocks_predictive`` fresh blocks per draw and size; without a posterior,
+    the check's runouts at the point estimate (plug-in)."""
+    if posterior is None:
+        return adequacy_record(None, forward.box, obs, check,
+                               f"plug-in at the point estimate, {check.shape[-1]} blocks "
+                               "per size (no posterior)", index)
+    n = posterior.samples.shape[0]
+    pick = np.linspace(0, n - 1, min(budget.n_predictive_draws, n)).round().astype(int)
+    draws = posterior.samples[pick]
+    pred = dataclasses.replace(forward, n_blocks=budget.n_blocks_predictive, key=key)
+    runs = pred.runouts(draws)  # (T, S, n)
+    tally("predictive", runs, draws)
+    return adequacy_record(posterior.samples, forward.box, obs, pool_draws(runs),
+                           f"posterior predictive, {len(pick)} draws x "
+                           f"{budget.n_blocks_predictive} blocks per size", index)

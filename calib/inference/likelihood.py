@@ -1,0 +1,200 @@
+"""The observation model: an observed runout against a simulated runout distribution.
+
+Each observed row i (block size d_i) is taken as ONE draw from the runout
+distribution of blocks of that size, seen with a measurement tolerance. The
+simulated distribution is represented by samples r_1..r_n (the runouts of n
+blocks of size d_i, or the K quantiles of an emulated distribution).
+
+Point observation y_i with tolerance s_i (Gaussian kernel density of the
+simulated runouts, the kernel being the measurement error):
+
+    p(y_i | theta) = (1/n) sum_j N(y_i ; r_j(theta), s_i^2 + v_j),
+
+Interval observation [a_i, b_i] (the runout was seen to lie in it):
+
+    P_i(theta) = (1/n) sum_j [Phi((b_i - r_j)/w_j) - Phi((a_i - r_j)/w_j)],
+    w_j^2 = h^2 + v_j,
+
+with h a kernel width (Silverman's rule on the samples, at least 0.5 m) that
+turns the empirical distribution into a smooth one, and v_j an extra variance
+per sample (the emulator's predictive variance; 0 for raw simulations).
+
+Unfinished blocks (``calib.model.unfinished``) come as NaN samples and are left out:
+the sums run over the n finished samples of the row, the kernel width comes
+from them, and a row with no finished sample has log p = -inf (the parameters
+produce no runout of that size at all).
+
+Passage velocity v_i of a block of size d_i seen at station x_s (``calib.
+observations.Velocities``): the kernel density of the simulated speeds of the
+blocks of that size that passed x_s, i.e. the distribution CONDITIONAL on
+passing (a speed is only recorded for blocks that got there), mixed with a
+small defensive uniform component (Hesterberg 1995, Technometrics 37, 185-194)
+so that a parameter set under which no simulated block reaches the station
+gets a finite, very low density instead of minus infinity:
+
+    p(v_i | theta) = (1 - eps) (1/m) sum_{j passed} N(v_i ; u_j, s_i^2 + h_v^2)
+                     + eps / V_MAX,
+
+with m the number of passing samples, h_v = 0.9 sd m^(-1/5) from the sd of
+their speeds (Silverman's rule without its IQR branch, which would need a
+percentile over a varying subset; at least 0.1 m/s), eps = 1e-3 and
+V_MAX = 100 m/s (faster than any rockfall on record); with m = 0 only the
+uniform term is left (log p = -11.5).
+
+Assumptions: rows are independent given theta (distinct blocks); every
+observed block is a random draw from the release conditions the solver uses;
+the tolerance is Gaussian. With few rows per size the likelihood says where
+the distribution must put mass, not its full shape.
+
+This is the one observation model of the project (``README.md``, "Observation
+model"): ``calib.fit`` (``calib.inference.calibrate``) and ``calib.discover``
+(``calib.discovery.discrepancy``) both score runout rows with ``log_likelihood`` on the
+rows of ``observed_rows``, with v_j = 0 for simulated runouts (the kernel of a
+point row is the tolerance alone, that of an interval row the width h alone)
+and v_j the inflated emulator variance for emulated quantiles.
+
+Tolerance rule (ours): a point row needs a finite tolerance s_i > 0, in the file
+(``calib.files.observations.load_observations`` refuses the row otherwise) and in
+observations built in memory (``observed_rows`` refuses them); no default is
+filled in. An interval row has no tolerance: the interval is what was seen.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.scipy.special import log_ndtr, logsumexp
+
+__all__ = ["ObservedRows", "log_likelihood", "observed_rows", "silverman_width_m",
+           "velocity_log_likelihood"]
+
+_LOG_2PI = 1.8378770664093453
+
+
+class ObservedRows(NamedTuple):
+    """Runout rows as ``log_likelihood`` takes them (``log_likelihood(samples, *rows)``).
+
+    Attributes:
+        y_m, sd_m: (n_obs,) point value and tolerance, m (0 and 1 on interval rows,
+            where they are not used).
+        lo_m, hi_m: (n_obs,) interval ends, m (0 on point rows, not used).
+        is_interval: (n_obs,) bool.
+    """
+
+    y_m: jax.Array
+    sd_m: jax.Array
+    lo_m: jax.Array
+    hi_m: jax.Array
+    is_interval: jax.Array
+
+
+def observed_rows(obs) -> ObservedRows:
+    """The rows of ``obs`` (``calib.files.observations.Observations``) for ``log_likelihood``.
+
+    Raises:
+        ValueError: a point row without a finite tolerance > 0 (the tolerance
+            rule of the module docstring), naming the file and line.
+    """
+    is_int = np.asarray(obs.is_interval, bool)
+    sd = np.asarray(obs.runout_sd_m, float)
+    bad = np.flatnonzero(~is_int & ~(np.isfinite(sd) & (sd > 0)))
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"{obs.path}: line {i + 2}, column 'runout_sd_m': a point "
+                         f"observation needs a positive tolerance in metres, got {sd[i]:g}")
+    y = np.where(is_int, 0.0, np.asarray(obs.runout_m, float))
+    lo = np.where(is_int, np.asarray(obs.runout_min_m, float), 0.0)
+    hi = np.where(is_int, np.asarray(obs.runout_max_m, float), 0.0)
+    return ObservedRows(jnp.asarray(y), jnp.asarray(np.where(is_int, 1.0, sd)),
+                        jnp.asarray(lo), jnp.asarray(hi), jnp.asarray(is_int))
+
+
+def silverman_width_m(samples: jax.Array, floor_m: float = 0.5) -> jax.Array:
+    """Kernel width h = 0.9 min(sd, IQR/1.34) n^(-1/5) (Silverman 1986), >= floor_m,
+    over the finite samples (n of them; ``floor_m`` where n < 2)."""
+    n = jnp.isfinite(samples).sum(axis=-1)
+    sd = jnp.nanstd(samples, axis=-1)
+    q75, q25 = jnp.nanpercentile(samples, jnp.array([75.0, 25.0]), axis=-1)
+    spread = jnp.minimum(sd, (q75 - q25) / 1.34)
+    h = jnp.maximum(0.9 * spread * jnp.maximum(n, 1) ** (-0.2), floor_m)
+    return jnp.where(n >= 2, h, floor_m)
+
+
+def _log_diff_ndtr(hi: jax.Array, lo: jax.Array) -> jax.Array:
+    """log(Phi(hi) - Phi(lo)) for hi >= lo, stable in both tails."""
+    upper = lo > 0  # both in the upper tail: use symmetry Phi(x) = 1 - Phi(-x)
+    a = jnp.where(upper, -lo, hi)
+    b = jnp.where(upper, -hi, lo)
+    la, lb = log_ndtr(a), log_ndtr(b)
+    return la + jnp.log1p(-jnp.exp(jnp.minimum(lb - la, -1e-12)))
+
+
+def log_likelihood(samples: jax.Array, y_m: jax.Array, sd_m: jax.Array, lo_m: jax.Array,
+                   hi_m: jax.Array, is_interval: jax.Array,
+                   extra_var_m2: jax.Array | float = 0.0) -> jax.Array:
+    """Pointwise log-likelihood of observations given simulated runout samples.
+
+    Args:
+        samples: (n_obs, n) simulated runouts for each row's block size, m; NaN
+            for an unfinished block (left out).
+        y_m, sd_m: (n_obs,) point value and tolerance (ignored for intervals).
+        lo_m, hi_m: (n_obs,) interval ends (ignored for points).
+        is_interval: (n_obs,) bool.
+        extra_var_m2: per-sample extra variance, broadcastable to ``samples``.
+
+    Returns:
+        (n_obs,) log p(y_i | theta) (points, a density in 1/m) or log P_i(theta)
+        (intervals, a probability), following the module docstring.
+    """
+    ok = jnp.isfinite(samples)  # finished blocks (NaN: unfinished, left out)
+    log_n = jnp.log(jnp.maximum(ok.sum(axis=-1), 1))
+    h = silverman_width_m(samples)[:, None]
+    r = jnp.where(ok, samples, 0.0)
+    extra = jnp.broadcast_to(jnp.asarray(extra_var_m2, samples.dtype), samples.shape)
+    # points: Gaussian kernel with the measurement tolerance
+    y = jnp.where(is_interval, 0.0, y_m)[:, None]
+    var = jnp.where(is_interval, 1.0, sd_m)[:, None] ** 2 + extra
+    lp = -0.5 * ((y - r) ** 2 / var + jnp.log(var) + _LOG_2PI)
+    point = logsumexp(jnp.where(ok, lp, -jnp.inf), axis=-1) - log_n
+    # intervals: probability mass of the kernel-smoothed distribution
+    w = jnp.sqrt(h**2 + extra)
+    lo = jnp.where(is_interval, lo_m, 0.0)[:, None]
+    hi = jnp.where(is_interval, hi_m, 1.0)[:, None]
+    li = _log_diff_ndtr((hi - r) / w, (lo - r) / w)
+    interval = logsumexp(jnp.where(ok, li, -jnp.inf), axis=-1) - log_n
+    return jnp.where(is_interval, interval, point)
+
+
+log_likelihood_jit = jax.jit(log_likelihood)
+
+VELOCITY_EPS = 1e-3  # weight of the defensive uniform component
+V_MAX_M_S = 100.0  # its upper end, m/s
+H_V_FLOOR_M_S = 0.1  # smallest kernel width of the speeds, m/s
+
+
+def velocity_log_likelihood(speeds_m_s: jax.Array, v_m_s: jax.Array,
+                            sd_m_s: jax.Array) -> jax.Array:
+    """Pointwise log-likelihood of observed passage speeds (module docstring).
+
+    Args:
+        speeds_m_s: (n_obs, n) simulated speeds at each row's station for blocks
+            of the row's size; NaN where the simulated block did not pass.
+        v_m_s, sd_m_s: (n_obs,) observed speed and its tolerance, m/s.
+
+    Returns:
+        (n_obs,) log p(v_i | theta), a density in s/m.
+    """
+    passed = jnp.isfinite(speeds_m_s)
+    m = passed.sum(axis=-1)
+    u = jnp.where(passed, speeds_m_s, 0.0)
+    mean = u.sum(axis=-1) / jnp.maximum(m, 1)
+    var = jnp.where(passed, (u - mean[:, None]) ** 2, 0.0).sum(axis=-1) / jnp.maximum(m - 1, 1)
+    h = jnp.maximum(0.9 * jnp.sqrt(var) * jnp.maximum(m, 1) ** (-0.2), H_V_FLOOR_M_S)
+    s2 = (sd_m_s**2 + h**2)[:, None]
+    lp = -0.5 * ((v_m_s[:, None] - u) ** 2 / s2 + jnp.log(s2) + _LOG_2PI)
+    kde = logsumexp(jnp.where(passed, lp, -jnp.inf), axis=-1) - jnp.log(jnp.maximum(m, 1))
+    kde = jnp.where(m > 0, kde, -jnp.inf)
+    return jnp.logaddexp(jnp.log1p(-VELOCITY_EPS) + kde, jnp.log(VELOCITY_EPS / V_MAX_M_S))

@@ -1,0 +1,375 @@
+"""Forward models: a batch of parameter vectors -> simulated runouts per block size.
+
+Both run every parameter vector with COMMON RANDOM NUMBERS: block j of every
+size and every parameter vector uses the key ``fold_in(key, j)``, so the
+runouts are a deterministic function of theta for a fixed key, and differences
+between parameter vectors come from the parameters, not from the draws. That
+makes finite differences and emulator designs far less noisy (Glasserman &
+Yao 1992, "Some guidelines and guarantees for common random numbers").
+``CrspForward.replicates`` deliberately does not: it draws independent block
+sets at one theta, to measure the Monte Carlo error itself.
+
+* ``CrspForward``: theta = (Kn, Kt, roughness_m), one set for the whole slope
+  (with ``box=CRSP_ROLLING_BOX`` also the rolling resistance angle);
+  sphere radius d / 2 (``calib.files.observations``). One lane pool runs all
+  (theta, size) tasks (``solvers.crsp.simulate_tasks``).
+* ``DemForward``: theta = the damping law's parameters; a block of size d is a
+  single square of side L = d with alpha(L) (``calib.model.alpha_law``, clipped as
+  everywhere), run with ``calib.model.dem_run``'s numerics. The DEM runout of one
+  size depends on theta only through alpha(L), so the emulator design runs
+  each size on a grid of alpha values (``runouts_at_alpha``).
+
+Unfinished blocks (status BUDGET or INVALID, ``solvers.status``) have no
+runout: both return NaN for them, as runout and as passage speed, and every
+consumer weights the finished blocks only (``calib.model.unfinished``). A block that
+left the profile is finished; its runout is the one at the profile's end.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import solvers.crsp as crsp
+from calib.files.observations import crsp_radius_m, dem_side_m
+from calib.model.alpha_law import ALPHA_MAX, alpha_of
+from calib.model.dem_run import DEM_RUN, DemRun
+from calib.model.priors import CRSP_BOX, DEM_BOXES, Box
+from calib.model.unfinished import mask_unfinished
+from solvers.profile import Profile
+
+__all__ = ["CrspForward", "DemForward", "default_lanes", "dem_lanes", "stack_trees"]
+
+
+@functools.partial(jax.jit, static_argnames=("with_rolling",))
+def _crsp_params(base: crsp.Params, theta: jax.Array, with_rolling: bool = False
+                 ) -> crsp.Params:
+    """Per-task parameters: theta (T, 3) sets Kn, Kt, roughness_m in every zone;
+    with ``with_rolling`` theta (T, 4) also sets rolling_friction_deg."""
+    n_t, n_z = theta.shape[0], base.Kn.shape[0]
+    zone = lambda v: jnp.broadcast_to(v[:, None], (n_t, n_z))  # noqa: E731
+    p = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (n_t,) + a.shape), base)
+    p = p._replace(Kn=zone(theta[:, 0]), Kt=zone(theta[:, 1]),
+                   roughness_m=zone(theta[:, 2]))
+    if with_rolling:
+        p = p._replace(rolling_friction_deg=zone(theta[:, 3]))
+    return p
+
+
+@functools.partial(jax.jit, static_argnames=("options",))
+def dem_lanes(params, blocks, keys, options):
+    """DEM ``simulate`` vmapped over (block, key) lanes; one cache for every forward."""
+    from solvers.dem import simulate
+
+    return jax.vmap(lambda b, k: simulate(params, b, k, options))(blocks, keys)
+
+
+def default_lanes() -> int:
+    """Lanes of the CRSP pool when none is given: 128 on a CPU, 4096 on an accelerator.
+
+    On a CPU a small pool runs fastest: the same 192 tasks x 32 blocks ran at
+    989 blocks/s with 2048 lanes and 32 tasks per call, 2,700 with 1024 lanes
+    and 6,500-6,900 with 128 lanes and 96 tasks per call (2 cores, 2026-11-21).
+    Accelerators want wide pools to fill their cores.
+    """
+    return 128 if jax.default_backend() == "cpu" else 4096
+
+
+def stack_trees(trees):
+    """Stack a list of pytrees (blocks) leaf by leaf into one batched pytree."""
+    return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *trees)
+
+
+@dataclasses.dataclass
+class CrspForward:
+    """CRSP runouts for parameter vectors theta = (Kn, Kt, roughness_m).
+
+    Attributes:
+        profile: slope (its materials give the fixed parameters, e.g. rolling friction).
+        sizes_m: (S,) average block diameters d, m.
+        n_blocks: blocks per (theta, size).
+        key: PRNG key shared by all thetas (common random numbers).
+        pool: lanes of the scheduler (default ``default_lanes()``); results do
+            not depend on it, only the speed does.
+        task_chunk: (theta, size) tasks per compiled call (default 96).
+        effect: a candidate effect of ``calib.model.effects`` switched on ("none": plain
+            CRSP); its parameters follow (Kn, Kt, roughness_m) in theta, and the
+            box becomes ``calib.model.effects.full_box``.
+        stations_x_m: abscissae (m) at which ``simulate`` records passage speeds.
+        settings: CRSP solver settings (event budget, search window).
+        release_x_m: release abscissa, m: one for every entry, or (S,) one per
+            entry of ``sizes_m``, or None (every block starts at the profile's
+            first vertex). With one per entry ``sizes_m`` need not be distinct:
+            an entry is a (size, release) group, e.g. the held-out rows of
+            ``calib.inference.predictive_check``.
+        release_speed_m_s: (S,) release speed of each entry, m/s, or None; NaN
+            keeps the solver's default (1 m/s). Our choice: the tracked speed
+            is the block's horizontal release velocity (``release_vx_m_s``;
+            released on the ground it then rolls along the slope at speed
+            times cos(slope)), the direction of a tracked release being
+            seldom known.
+    """
+
+    profile: Profile
+    sizes_m: np.ndarray
+    n_blocks: int
+    key: jax.Array
+    pool: int = dataclasses.field(default_factory=default_lanes)
+    task_chunk: int = 96
+    box: Box = CRSP_BOX
+    effect: str = "none"
+    stations_x_m: tuple[float, ...] = ()
+    settings: crsp.Settings = crsp.Settings()
+    release_x_m: float | tuple[float, ...] | None = None
+    release_speed_m_s: tuple[float, ...] | None = None
+
+    def __post_init__(self):
+        if self.effect != "none":
+            from calib.model.effects import full_box
+            from calib.model.priors import CRSP_ROLLING_BOX
+
+            # the baseline is CRSP_ROLLING_BOX where box fits the rolling resistance,
+            # else CRSP_BOX (recomputed, so dataclasses.replace keeps one box)
+            base = CRSP_ROLLING_BOX if "rolling_friction_deg" in self.box.names else CRSP_BOX
+            self.box = full_box(self.effect, self.profile, base=base)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.box.names
+
+    @property
+    def fits_rolling(self) -> bool:
+        """theta's 4th column is the rolling resistance angle (``CRSP_ROLLING_BOX``)."""
+        return len(self.box.names) > 3 and self.box.names[3] == "rolling_friction_deg"
+
+    def params(self, theta) -> crsp.Params:
+        """Per-task CRSP parameters (T, ...) from theta (T, 3 + k), one set for all zones."""
+        theta = np.atleast_2d(np.asarray(theta, float))
+        n_core = 4 if self.fits_rolling else 3
+        p = _crsp_params(crsp.params_from_profile(self.profile),
+                         jnp.asarray(theta[:, :n_core], jnp.float64), self.fits_rolling)
+        if self.effect == "none":
+            return p
+        from calib.model.effects import crsp_overrides
+
+        extra = crsp_overrides(self.effect, theta[:, n_core:], self.profile)
+        return p._replace(**{k: jnp.asarray(v, jnp.float64) for k, v in extra.items()})
+
+    def runouts(self, theta) -> np.ndarray:
+        """Runouts (T, S, n_blocks), m, for theta (T, 3 + k); NaN for a block
+        that did not finish (module docstring)."""
+        return self.simulate(theta)[0]
+
+    def simulate(self, theta) -> tuple[np.ndarray, np.ndarray]:
+        """Runouts (T, S, n_blocks), m, and passage speeds (T, S, n_stations,
+        n_blocks), m/s (NaN where a block did not pass), for theta (T, 3 + k).
+        Both are NaN for every block that did not finish (status BUDGET or
+        INVALID): its runout and its passages are not results.
+
+        Tasks (theta, size) run in chunks of ``task_chunk`` (the last one padded by
+        repeating a task), so every call with the same ``n_blocks`` reuses one
+        compiled program.
+        """
+        theta = np.atleast_2d(np.asarray(theta, float))
+        n_t, n_s = theta.shape[0], len(self.sizes_m)
+        rep = np.repeat(theta, n_s, axis=0)  # task = (t, s)
+        radius = np.tile(crsp_radius_m(self.sizes_m), n_t)
+        release = (None if self.release_x_m is None else
+                   np.tile(np.broadcast_to(np.asarray(self.release_x_m, float), (n_s,)), n_t))
+        speed = (None if self.release_speed_m_s is None else
+                 np.tile(np.asarray(self.release_speed_m_s, float).reshape(n_s), n_t))
+        n_tasks = rep.shape[0]
+        chunk = self.task_chunk
+        pad = (-n_tasks) % chunk
+        rep = np.concatenate([rep, np.repeat(rep[-1:], pad, axis=0)])
+        radius = np.concatenate([radius, np.repeat(radius[-1:], pad)])
+        if release is not None:
+            release = np.concatenate([release, np.repeat(release[-1:], pad)])
+        if speed is not None:
+            speed = np.concatenate([speed, np.repeat(speed[-1:], pad)])
+        stations = jnp.asarray(np.asarray(self.stations_x_m, float).reshape(-1), jnp.float64)
+        runs, speeds = [], []
+        for c0 in range(0, rep.shape[0], chunk):
+            params = self.params(rep[c0:c0 + chunk])
+            if release is not None:
+                params = params._replace(
+                    release_x_m=jnp.asarray(release[c0:c0 + chunk], jnp.float64))
+            if speed is not None:
+                s = speed[c0:c0 + chunk]
+                params = params._replace(release_vx_m_s=jnp.asarray(
+                    np.where(np.isfinite(s), s, np.broadcast_to(params.release_vx_m_s, s.shape)),
+                    jnp.float64))
+            blocks = stack_trees([crsp.make_block(float(r)) for r in radius[c0:c0 + chunk]])
+            res = crsp.simulate_tasks(params, blocks, self.key, self.profile, stations,
+                                      n_per_task=self.n_blocks,
+                                      pool=min(self.pool, chunk * self.n_blocks),
+                                      settings=self.settings)
+            status = np.asarray(res.status)  # (chunk, n)
+            runs.append(mask_unfinished(res.runout_m, status))
+            v = np.where(np.asarray(res.stations.passed), res.stations.velocity_m_s, np.nan)
+            speeds.append(mask_unfinished(v, status))  # (chunk, n, K)
+        n_st = stations.shape[0]
+        r = np.concatenate(runs)[:n_tasks].reshape(n_t, n_s, self.n_blocks)
+        v = np.concatenate(speeds)[:n_tasks].reshape(n_t, n_s, self.n_blocks, n_st)
+        return r, np.moveaxis(v, 3, 2)
+
+    def replicates(self, theta, reps: int, key: jax.Array) -> np.ndarray:
+        """Runouts (reps, S, n_blocks), m, of ONE theta (p,) with ``reps``
+        independent block sets drawn from ``key`` (not the common random numbers):
+        the spread across them is the Monte Carlo error of anything computed from
+        ``n_blocks`` blocks per size."""
+        return self.replicate_sims(theta, reps, key)[0]
+
+    def replicate_sims(self, theta, reps: int, key: jax.Array) -> tuple[np.ndarray, np.ndarray]:
+        """``simulate`` of ONE theta (p,) with ``reps`` independent block sets
+        (``replicates``): runouts (reps, S, n) and speeds (reps, S, n_stations, n)."""
+        wide = dataclasses.replace(self, n_blocks=reps * self.n_blocks, key=key,
+                                   task_chunk=len(self.sizes_m))
+        r, v = wide.simulate(np.asarray(theta, float)[None])
+        r = r[0].reshape(len(self.sizes_m), reps, self.n_blocks).transpose(1, 0, 2)
+        v = v[0].reshape(len(self.sizes_m), -1, reps, self.n_blocks).transpose(2, 0, 1, 3)
+        return r, v
+
+    def design(self, n_design: int, seed: int):
+        """Scrambled-Sobol design over the prior box.
+
+        Returns:
+            (X, runouts): X (n_design, 3) emulator inputs (``to_input`` of the
+            thetas); runouts (n_design, S, n_blocks).
+        """
+        from scipy.stats import qmc
+
+        z = qmc.Sobol(self.box.dim, scramble=True, seed=seed).random_base2(
+            int(np.ceil(np.log2(n_design))))[:n_design]
+        x = self.box.from_unit(z)
+        return self.to_input(x), self.runouts(x)
+
+    def to_input(self, theta):
+        """Emulator coordinates (Kn, log(1 - Kt), log S[, tan(phi_r)]): runouts change
+        fastest as Kt -> 1 and S -> 0; in these coordinates the response is closer to
+        stationary, which a GP with one length scale per input assumes (input
+        warping). The rolling resistance enters the motion as tan(phi_r)."""
+        t = jnp.asarray(theta)
+        cols = [t[..., 0], jnp.log1p(-t[..., 1]), jnp.log(t[..., 2])]
+        if self.fits_rolling:
+            cols.append(jnp.tan(jnp.deg2rad(t[..., 3])))
+        return jnp.stack(cols, axis=-1)
+
+    def emulator_inputs(self, theta):
+        """Emulator input of each size for theta (d,) -> (S, d)."""
+        return jnp.broadcast_to(self.to_input(theta), (len(self.sizes_m), self.box.dim))
+
+    @property
+    def input_box(self) -> Box:
+        a, b = np.asarray(self.to_input(self.box.lo)), np.asarray(self.to_input(self.box.hi))
+        names = ("Kn", "log(1-Kt)", "log(S)", "tan(phi_r)")[:len(a)]
+        return Box(names, tuple(np.minimum(a, b)), tuple(np.maximum(a, b)))
+
+
+@dataclasses.dataclass
+class DemForward:
+    """DEM runouts of single square blocks for the damping law alpha(L).
+
+    Attributes:
+        profile: slope.
+        sizes_m: (S,) average block diameters d (square side L = d), m.
+        n_blocks: blocks per (alpha, size); few, the DEM is expensive.
+        key: PRNG key shared by all (common random numbers).
+        form: "power" or "constant" (``calib.model.alpha_law``).
+        run: DEM numerics (stiffness scale, time limit, step bound;
+            ``calib.model.dem_run``), the hazard run's too.
+        lane_batch: blocks per compiled call (the last call is padded), so every
+            call reuses one compiled program.
+        release_x_m: release abscissa of every block, m (None: the profile's
+            first vertex).
+    """
+
+    profile: Profile
+    sizes_m: np.ndarray
+    n_blocks: int
+    key: jax.Array
+    form: str = "power"
+    run: DemRun = DEM_RUN
+    lane_batch: int = 32
+    release_x_m: float | None = None
+
+    def __post_init__(self):
+        if self.form not in DEM_BOXES:
+            raise ValueError(f"unknown alpha law form {self.form!r}; expected one of "
+                             f"{', '.join(DEM_BOXES)}")
+        self._params = self.run.params(self.profile)
+        self._fn = None
+
+    @property
+    def box(self) -> Box:
+        return DEM_BOXES[self.form]
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.box.names
+
+    @property
+    def input_box(self) -> Box:
+        return Box(("alpha",), (0.0,), (ALPHA_MAX,))
+
+    def _compiled(self):
+        if self._fn is None:
+            options = self.run.options(self._params, dem_side_m(self.sizes_m))
+            self._fn = functools.partial(dem_lanes, self._params, options=options)
+        return self._fn
+
+    def runouts_at_alpha(self, alpha) -> np.ndarray:
+        """Runouts (T, S, n_blocks), m, for per-size damping alpha (T, S); NaN for
+        a block that did not finish (status BUDGET or INVALID)."""
+        from solvers.dem import make_block
+
+        alpha = np.asarray(alpha, float)
+        n_t, n_s = alpha.shape
+        x0 = float(self.profile.x_m[0]) if self.release_x_m is None else float(self.release_x_m)
+        proto = [make_block(float(L), alpha=0.5, release_x_m=x0)
+                 for L in dem_side_m(self.sizes_m)]
+        lanes, keys = [], []
+        for t in range(n_t):
+            for s in range(n_s):
+                for j in range(self.n_blocks):
+                    lanes.append(proto[s]._replace(alpha=jnp.full((1,), alpha[t, s])))
+                    keys.append(j)
+        n_lanes = len(lanes)
+        pad = (-n_lanes) % self.lane_batch
+        lanes += [lanes[-1]] * pad
+        keys += [keys[-1]] * pad
+        fn = self._compiled()
+        out = []
+        for c0 in range(0, len(lanes), self.lane_batch):
+            blocks = stack_trees(lanes[c0:c0 + self.lane_batch])
+            k = jax.vmap(lambda j: jax.random.fold_in(self.key, j))(
+                jnp.asarray(keys[c0:c0 + self.lane_batch], jnp.uint32))
+            res = fn(blocks, k)  # runout_m (lanes, 1 fragment), status (lanes,)
+            out.append(mask_unfinished(np.asarray(res.runout_m)[:, 0], res.status))
+        return np.concatenate(out)[:n_lanes].reshape(n_t, n_s, self.n_blocks)
+
+    def alphas(self, theta) -> np.ndarray:
+        """alpha per size (T, S) for theta (T, n_params)."""
+        return np.asarray(alpha_of(self.form, np.atleast_2d(theta), dem_side_m(self.sizes_m)))
+
+    def runouts(self, theta) -> np.ndarray:
+        """Runouts (T, S, n_blocks), m, for law parameters theta (T, n_params)."""
+        return self.runouts_at_alpha(self.alphas(theta))
+
+    def design(self, n_design: int, seed: int):
+        """alpha grid (same for every size; seed unused, the grid is deterministic).
+
+        Returns:
+            (X, runouts): X (n_design, 1) alpha; runouts (n_design, S, n_blocks).
+        """
+        del seed
+        a = np.linspace(0.02, ALPHA_MAX, n_design)
+        return a[:, None], self.runouts_at_alpha(np.repeat(a[:, None], len(self.sizes_m), 1))
+
+    def emulator_inputs(self, theta):
+        """Emulator input of each size: its alpha(L) -> (S, 1)."""
+        return alpha_of(self.form, jnp.asarray(theta), dem_side_m(self.sizes_m))[:, None]

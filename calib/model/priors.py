@@ -1,0 +1,107 @@
+"""Prior ranges of the calibrated parameters, with their sources.
+
+All priors are uniform on a box: the published ranges are ranges, not
+distributions, and a uniform box makes the posterior's shape come from the data
+alone. The gradient fit searches the same box.
+
+CRSP (restitution coefficients are velocity ratios, dimensionless):
+
+* Kn in [0.15, 0.60]. CRSP's parameter tables (Jones et al. 2000, CRSP 4.0
+  manual, as reproduced in a Colorado DRMS mine-permit report, "Table 4: CRSP3
+  Parameter Ranges for Representative Site Conditions") give normal
+  coefficients 0.28-0.37 for colluvium, talus and sandstone faces; NOTES.md
+  recalls 0.37-0.42 for smooth hard surfaces (unverified). The paper uses 0.41.
+  The box doubles the width around 0.28-0.42 (assumption).
+* Kt in [0.60, 0.98]. Same sources: tangential 0.78-0.87 (0.87-0.92 for smooth
+  hard surfaces, recalled); the paper uses 0.87. Widened below to 0.60 so that
+  soft ground is admitted (assumption); 1.0 (no tangential loss) excluded.
+* roughness_m S in [0.25, 4.0] m. The paper: "2 m, which is typical for talus
+  and firm soil slopes (Jones et al., 2000)". The box spans smooth rock
+  (S ~ 0.3 m) to very blocky talus (assumption; CRSP's surface roughness is the
+  relief within one rock radius of the surface).
+
+* rolling_friction_deg phi_r in [5, 40] deg (``CRSP_ROLLING_BOX``, fitted by
+  default by ``python -m calib.fit``): the Coulomb rolling resistance
+  mu = tan(phi_r) of the rolling phase (``solvers.crsp._contact``), a site
+  parameter. Published values: tan(phi_r) = 0.30 for carbonate rock, lava and
+  intrusive rock, 0.35-0.40 for clastic deposits, marl, flysch and schists,
+  0.65 for anthropic, landslide and glacial deposits, 0.80 for alluvial and
+  colluvial deposits (STONE, Guzzetti et al. 2002, Computers & Geosciences 28,
+  1079-1093), i.e. 16.7-38.7 deg; RocFall's lumped-mass rolling friction
+  arctan((1 - Rt) / Rt) is 8.5 deg at Rt = 0.87, 5 deg at Rt = 0.92 and
+  6-14 deg for Rt 0.8-0.9. The box spans 5-40 deg (rounded out from those,
+  assumption).
+* In ``CRSP_ROLLING_BOX`` (the default of ``python -m calib.fit``) S goes down to
+  0.01 m: a grassy or soil slope has centimetres of relief within one radius of a
+  0.3 m block, and with S >= 0.25 m such blocks (S / R >= 1.4, theta_max >= 54
+  deg) cannot roll at all (measured on the Tschamut profile: every block stopped
+  at the same point whatever Kn, Kt and phi_r). Assumption; the three-parameter
+  ``CRSP_BOX`` of the discrepancy studies keeps 0.25 m.
+
+DEM damping law:
+
+* power law alpha(L) = a L^-b (L in m): a in [0.05, 0.95] (alpha of a 1 m
+  block; local damping lies in [0, 1), Cundall's default 0.8; Table 1 gives
+  0.30-0.90), b in [0.0, 1.5] (b = 0 is constant damping; Table 1 follows
+  b ~ 0.5). Evaluated alphas are clipped to [0, 0.95] everywhere
+  (``calib.model.alpha_law``: why a clip and not a smaller box).
+* constant alpha in [0.02, 0.95].
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+__all__ = ["Box", "CRSP_BOX", "CRSP_ROLLING_BOX", "DEM_BOXES", "crsp_box"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Box:
+    """Named parameters with lower and upper bounds (a uniform prior)."""
+
+    names: tuple[str, ...]
+    lower: tuple[float, ...]
+    upper: tuple[float, ...]
+
+    @property
+    def dim(self) -> int:
+        return len(self.names)
+
+    @property
+    def lo(self) -> np.ndarray:
+        return np.asarray(self.lower, float)
+
+    @property
+    def hi(self) -> np.ndarray:
+        return np.asarray(self.upper, float)
+
+    def to_unit(self, theta):
+        """theta -> [0, 1]^d."""
+        return (theta - self.lo) / (self.hi - self.lo)
+
+    def from_unit(self, z):
+        """[0, 1]^d -> theta."""
+        return self.lo + z * (self.hi - self.lo)
+
+    def contains(self, theta) -> bool:
+        t = np.asarray(theta, float)
+        return bool(np.all((t >= self.lo) & (t <= self.hi)))
+
+
+CRSP_BOX = Box(("Kn", "Kt", "roughness_m"), (0.15, 0.60, 0.25), (0.60, 0.98, 4.0))
+CRSP_ROLLING_BOX = Box(("Kn", "Kt", "roughness_m", "rolling_friction_deg"),
+                       (0.15, 0.60, 0.01, 5.0), (0.60, 0.98, 4.0, 40.0))
+DEM_BOXES = {
+    "power": Box(("a", "b"), (0.05, 0.0), (0.95, 1.5)),
+    "constant": Box(("alpha",), (0.02,), (0.95,)),
+}
+
+
+def crsp_box(names) -> Box:
+    """The CRSP prior box whose parameters are ``names`` (a calibration's)."""
+    for box in (CRSP_BOX, CRSP_ROLLING_BOX):
+        if tuple(names) == box.names:
+            return box
+    raise ValueError(f"no CRSP prior box has the parameters {', '.join(names)}")
