@@ -246,16 +246,22 @@ def test_calibrate_scores_each_row_against_its_own_release():
 
     obs = Observations(np.array([1.0, 1.0]), np.array([100.0, 5.0]), np.array([2.0, 2.0]),
                        np.full(2, np.nan), np.full(2, np.nan), np.zeros(2, bool),
-                       ("top", "low"), release_x_m=np.array([0.0, 150.0]))
+                       ("top", "low"), release_x_m=np.array([0.0, 150.0]),
+                       release_speed_m_s=np.array([1.5, np.nan]))
     groups = release_groups(obs, 0.0)
     assert groups.release_x_m.tolist() == [0.0, 150.0]
     fw = CrspForward(PROFILE, groups.sizes_m, 16, jax.random.key(3), box=CRSP_BOX,
-                     release_x_m=tuple(groups.release_x_m))
+                     release_x_m=tuple(groups.release_x_m),
+                     release_speed_m_s=tuple(groups.release_speed_m_s))
     budget = Budget(grad_starts=1, grad_steps=1, grad_k=1, n_blocks_grad=16, n_check=64)
     fit = calibrate(fw, obs, jax.random.key(4), ("gradient",), budget, groups=groups)
     top, low = fit.quality
     assert low["sim_median_m"] < 20.0 < top["sim_median_m"]
     assert fit.check_sizes_m.tolist() == [1.0]
+    # the figure's sizes (other entries than the groups) run without the groups' speeds
+    fit = calibrate(fw, obs, jax.random.key(4), ("gradient",), budget, groups=groups,
+                    extra_sizes_m=(0.5, 2.0))
+    assert fit.check_sizes_m.tolist() == [0.5, 1.0, 2.0]
     with pytest.raises(ValueError, match="groups"):
         calibrate(CrspForward(PROFILE, np.array([1.0]), 16, jax.random.key(3)), obs,
                   jax.random.key(4), ("gradient",), budget, groups=groups)

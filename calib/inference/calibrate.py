@@ -325,7 +325,8 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
         tally("check", at_rows[None], estimate[None])
         median_release = float(np.median(groups.release_x_m[groups.index]))
         check_forward = dataclasses.replace(forward, sizes_m=sizes, n_blocks=budget.n_check,
-                                            key=k_check, release_x_m=median_release)
+                                            key=k_check, release_x_m=median_release,
+                                            release_speed_m_s=None)
         check = check_forward.runouts(estimate[None])[0]
     quality = fit_quality(obs, at_rows, index)
     timings["check_s"] = time.perf_counter() - t0
