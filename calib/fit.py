@@ -124,14 +124,19 @@ def _run(args) -> int:
     if rel is not None and np.any(np.isfinite(rel)):
         from calib.files.observations import release_groups
 
-        groups = release_groups(obs, float(profile.x_m[0]), args.release_tolerance_m)
         if "crsp" in models:
+            groups = release_groups(obs, float(profile.x_m[0]), args.release_tolerance_m)
             err = np.abs(groups.release_x_m[groups.index] - np.where(
                 np.isfinite(rel), rel, float(profile.x_m[0])))
+            speed = np.asarray(obs.release_speed_m_s, float)
+            gspeed = groups.release_speed_m_s[groups.index]
+            known = np.isfinite(speed) & np.isfinite(gspeed)
+            shift = (f", largest release-speed shift {np.abs(gspeed - speed)[known].max():.2f} "
+                     "m/s" if known.any() else "")
             print(f"CRSP: each row released from its own point, rows of one size within "
                   f"{args.release_tolerance_m:g} m grouped: {len(groups.sizes_m)} simulated "
                   f"releases for {obs.n_obs} rows (largest release shift "
-                  f"{err.max():.2f} m)")
+                  f"{err.max():.2f} m{shift})")
         if "dem" in models:
             print(f"DEM: every block released at x = {release:.1f} m, the median of the "
                   f"rows' release_x_m ({np.nanmin(rel):.1f} to {np.nanmax(rel):.1f} m)")

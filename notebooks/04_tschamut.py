@@ -116,7 +116,7 @@ profile = load_profile(os.path.join(SITE, "profile.csv"))
 # distance between the two projections. A point far off the line (here more
 # than 20 m: blocks fanned out across the slope) is kept and flagged. The block
 # size is the diameter of the sphere of the block's mass at 2650 kg/m3 (an
-# assumption, `calib/field.py`).
+# assumption, `calib/files/field_runs.py`).
 
 # %%
 obs_csv = os.path.join(WORK, "observations.csv")

@@ -1,7 +1,7 @@
 """Every calibration ``calib.fit`` can write is one ``calib.hazard`` accepts, and
 the hazard run simulates the parameters (DEM: the alpha per size) that the fit
 simulated. Property test over each prior box: its corners and uniform draws
-from it, written through the fit's own writers (``calib.fit._model_section``,
+from it, written through the fit's own writers (``calib.files.calibration_file.model_section``,
 ``calib.files.calibration_file.posterior_csv_text``), read back by
 ``load_calibration``, and taken through the hazard run's acceptance check and
 the set-up of its work units (no simulation: seconds)."""

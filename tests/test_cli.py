@@ -16,9 +16,8 @@ import pytest
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 PACKAGES = ("calib", "solvers")
 
-# Private names still imported across modules, each with the change that removes it.
-# calib.model.forward and calib.hazard._run belong to the parallel "one DEM run config"
-# change (issue 16), which removes _check_dem_alphas; rename _dem_lanes / _stack there.
+# Private names still imported across modules (none left; an entry must name the
+# change that removes it).
 KNOWN: set[tuple[str, str, str]] = set()
 
 

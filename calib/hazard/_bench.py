@@ -29,6 +29,7 @@ import numpy as np
 from calib.files.calibration_file import draw_parameters, load_calibration
 from calib.files.observations import crsp_radius_m
 from calib.hazard._run import run_hazard
+from calib.model.forward import stack_trees
 from solvers import crsp, load_profile
 from solvers.cli import OneLineParser
 
@@ -58,7 +59,7 @@ def main(argv=None) -> int:
     profile = load_profile(PROFILE)
     stations = np.arange(0.0, 301.0, 5.0)
     params = crsp.params_from_profile(profile, Kn=0.41, Kt=0.87, roughness_m=2.0)
-    stack = lambda xs: jax.tree_util.tree_map(lambda *a: jnp.stack(a), *xs)  # noqa: E731
+    stack = stack_trees
     ps = stack([params] * len(SIZES_M))
     bs = stack([crsp.make_block(float(r)) for r in crsp_radius_m(SIZES_M)])
     st = jnp.asarray(stations)

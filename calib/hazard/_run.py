@@ -12,7 +12,6 @@ import dataclasses
 import functools
 from collections.abc import Callable
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -23,6 +22,7 @@ from calib.hazard._stats import BINS, hist_quantile
 from calib.hazard._units import crsp_chunk, dem_chunk, draw_key
 from calib.model.alpha_law import alpha_of, check_law
 from calib.model.dem_run import DEM_RUN, DemRun
+from calib.model.forward import stack_trees
 from solvers import crsp, dem
 from solvers.profile import Profile
 
@@ -172,21 +172,17 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
                         **acc)
 
 
-def _stack(trees):
-    return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *trees)
-
-
 def _crsp_units(draws, profile, release_x, sizes_m, stations, n_blocks, seed, chunk, offsets,
                 pool, settings):
     n_sizes = len(sizes_m)
-    blocks = _stack([crsp.make_block(float(r)) for r in crsp_radius_m(sizes_m)])
+    blocks = stack_trees([crsp.make_block(float(r)) for r in crsp_radius_m(sizes_m)])
     fn = functools.partial(crsp_chunk, n_chunk=chunk, pool=min(pool, n_sizes * chunk),
                            settings=settings)
     for d, values in enumerate(draws.values):
         p = crsp.params_from_profile(profile, release_x_m=release_x,
                                      **{n: float(v) for n, v in
                                         zip(draws.names, values, strict=True)})
-        params = _stack([p] * n_sizes)
+        params = stack_trees([p] * n_sizes)
         key = draw_key(seed, d)
         for off in offsets:
             n_valid = min(chunk, n_blocks - off)

@@ -77,7 +77,10 @@ class Posterior:
         n_chains: chains; ``samples`` reshapes to (n_chains, n_samples, d).
         sample_stats: ArviZ name -> (n_chains, n_samples) per-draw sampler
             statistics (diverging, acceptance_rate, n_steps, energy, lp =
-            log density up to a constant, step_size).
+            minus NumPyro's potential energy: the log density in the sampler's
+            unconstrained coordinates, so it includes the log-Jacobian of the
+            box's transform and differs from ``log_density`` by a function of
+            theta, step_size).
     """
 
     names: tuple[str, ...]

@@ -118,12 +118,6 @@ class ModelFit:
     adequacy: dict | None = None
 
 
-def _obs_arrays(obs: Observations):
-    """The rows for ``log_likelihood`` (``calib.inference.likelihood.observed_rows``, the
-    encoding and tolerance rule ``calib.discovery.discrepancy`` uses too)."""
-    return observed_rows(obs)
-
-
 def _median_kernel_var_m2(obs: Observations) -> float:
     """Median over rows of the kernel variance the likelihood gives one sample:
     the tolerance sd^2 of a point row, the smallest kernel width h^2 (0.5 m) of
@@ -134,7 +128,7 @@ def _median_kernel_var_m2(obs: Observations) -> float:
 def _loglik_of_runouts(obs: Observations, index=None):
     """runouts (T, S, n) -> pointwise log-likelihood (T, n_obs) (jitted); row i
     reads simulated entry ``index[i]`` (default ``obs.size_index``)."""
-    y, sd, lo, hi, is_int = _obs_arrays(obs)
+    y, sd, lo, hi, is_int = observed_rows(obs)
     idx = jnp.asarray(obs.size_index if index is None else index)
 
     @jax.jit
@@ -147,7 +141,7 @@ def _loglik_of_runouts(obs: Observations, index=None):
 def _emulated_loglik(obs: Observations, emu, forward, inflation: float, index=None):
     """theta (d,) -> pointwise log-likelihood (n_obs,) from the emulator (row i:
     entry ``index[i]`` of the forward model, default ``obs.size_index``)."""
-    y, sd, lo, hi, is_int = _obs_arrays(obs)
+    y, sd, lo, hi, is_int = observed_rows(obs)
     idx = jnp.asarray(obs.size_index if index is None else index)
 
     def f(theta):

@@ -202,13 +202,18 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
     from calib.files.observations import release_groups
     from calib.model.forward import CrspForward, DemForward
 
-    x0 = float(profile.x_m[0]) if cal.release_x_m is None else float(cal.release_x_m)
-    sizes, releases, index, speeds = release_groups(heldout, x0)
-    lo, hi = float(profile.x_m[0]), float(profile.x_m[-1])
+    start = float(profile.x_m[0])
+    common = start if cal.release_x_m is None else float(cal.release_x_m)
+    # the fit's rules: CRSP rows without release_x_m start at the profile's first
+    # vertex (calib.fit's release groups); the DEM fit ran every block at the
+    # calibration's one release
+    default = start if cal.model == "crsp" else common
+    sizes, releases, index, speeds = release_groups(heldout, default)
+    lo, hi = start, float(profile.x_m[-1])
     bad = np.flatnonzero((releases < lo) | (releases >= hi))
     if bad.size:
-        raise ValueError(f"release_x_m {releases[bad[0]]:g}: outside the profile {cal.profile_csv} "
-                       f"({lo:g} to {hi:g} m)")
+        raise ValueError(f"release_x_m {releases[bad[0]]:g}: outside the profile "
+                         f"{cal.profile_csv} ({lo:g} to {hi:g} m)")
     draws = draw_parameters(cal, n_posterior, seed)
     key = jax.random.fold_in(jax.random.key(seed), 7)
     if cal.model == "crsp":
@@ -217,8 +222,12 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
         fw = CrspForward(profile, sizes, n_blocks or 100, key, box=crsp_box(draws.names),
                          release_x_m=tuple(releases), release_speed_m_s=tuple(speeds))
     else:
-        if np.any(releases != x0):
-            raise ValueError("the DEM forward model releases every block at the profile's start; "
-                           "held-out rows with other release_x_m need --model crsp")
-        fw = DemForward(profile, sizes, n_blocks or 4, key, form=cal.alpha_form)
+        from calib.model.dem_run import DEM_RUN, DemRun
+
+        if np.any(releases != common):
+            raise ValueError(f"the DEM fit released every block at x = {common:g} m; held-out "
+                             "rows with other release_x_m need --model crsp")
+        fw = DemForward(profile, sizes, n_blocks or 4, key, form=cal.alpha_form,
+                        release_x_m=common,
+                        run=DemRun(**cal.dem_run) if cal.dem_run else DEM_RUN)
     return pool_draws(fw.runouts(draws.values)), index, draws, fw.n_blocks

@@ -128,6 +128,12 @@ class CrspForward:
     release_speed_m_s: tuple[float, ...] | None = None
 
     def __post_init__(self):
+        n_s = len(np.atleast_1d(self.sizes_m))
+        for name in ("release_x_m", "release_speed_m_s"):
+            v = getattr(self, name)
+            if v is not None and np.ndim(v) > 0 and len(v) != n_s:
+                raise ValueError(f"{name}: {len(v)} entries for {n_s} entries of sizes_m "
+                                 "(one per entry, or one for all)")
         if self.effect != "none":
             from calib.model.effects import full_box
             from calib.model.priors import CRSP_ROLLING_BOX
