@@ -211,6 +211,17 @@ def _pilot_draws(pointwise_loglik, box, n: int, key: jax.Array) -> np.ndarray:
     return np.clip(pick, box.lo, box.hi)
 
 
+def _built_on(forward, groups: ReleaseGroups) -> bool:
+    """The forward model's entries are the groups: same sizes and same releases
+    (not only as many: a forward on ``obs.sizes_m`` would ignore the releases)."""
+    sizes = np.asarray(forward.sizes_m, float)
+    rel = getattr(forward, "release_x_m", None)
+    if sizes.shape != groups.sizes_m.shape or not np.array_equal(sizes, groups.sizes_m):
+        return False
+    return rel is not None and np.array_equal(
+        np.broadcast_to(np.asarray(rel, float), sizes.shape), groups.release_x_m)
+
+
 def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ...],
               budget: Budget, progress: Callable[[str, int, int], None] | None = None,
               extra_sizes_m=(), groups: ReleaseGroups | None = None) -> ModelFit:
@@ -233,7 +244,7 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
             median of the rows' releases.
     """
     index = obs.size_index if groups is None else groups.index
-    if groups is not None and len(forward.sizes_m) != len(groups.sizes_m):
+    if groups is not None and not _built_on(forward, groups):
         raise ValueError("forward must be built on the groups' sizes and releases")
     k_design, k_grad, k_nuts, k_pilot, k_check = jax.random.split(key, 5)
     tick = progress or (lambda *a: None)
