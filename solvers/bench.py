@@ -30,7 +30,8 @@ import jax
 import numpy as np
 
 from solvers import crsp, load_profile
-from solvers.cli import OneLineParser
+from solvers.cli import CliError, OneLineParser, run_guarded
+from solvers.parallel import default_workers
 from solvers.status import status_counts
 
 PROFILE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
@@ -46,32 +47,38 @@ BENCH_STATIONS_M = tuple(float(x) for x in np.arange(0.0, 300.0 + 1e-9, 5.0))  #
 
 
 def crsp_throughput(n_blocks: int, roughness_m: float = 2.0, radius_m: float = 0.5,
-                    seed: int = 0, stations_x_m=None, pool: int | None = None) -> dict:
+                    seed: int = 0, stations_x_m=None, pool: int | None = None,
+                    workers: int | None = None) -> dict:
     """Compile time and steady-state blocks/s for one N (the run is repeated
     after a warm-up call on the same chunk shape)."""
     prof = load_profile(PROFILE).with_materials(Kn=0.41, Kt=0.87, roughness_m=roughness_m)
     params = crsp.params_from_profile(prof)
     block = crsp.make_block(radius_m)
     key = jax.random.key(seed)
-    chunk = min(16384, n_blocks)
+    workers = default_workers() if workers is None else workers
+    chunk = 16384
+    size, _ = crsp.chunk_plan(n_blocks, chunk, workers)
     kw = {} if pool is None else {"pool": pool}
+    kw.update(chunk_size=chunk, workers=workers)
+    # warm-up on the run's chunk shape (the same compiled program), twice
+    n_warm = min(size * workers, n_blocks)
     t0 = time.perf_counter()
-    warm = crsp.run_blocks(params, block, jax.random.key(seed + 1), chunk, prof,
-                           stations_x_m=stations_x_m, chunk_size=chunk, **kw)
+    crsp.run_blocks(params, block, jax.random.key(seed + 1), n_warm, prof,
+                    stations_x_m=stations_x_m, **dict(kw, chunk_size=size))
     first = time.perf_counter() - t0
     t0 = time.perf_counter()
-    crsp.run_blocks(params, block, jax.random.key(seed + 1), chunk, prof,
-                    stations_x_m=stations_x_m, chunk_size=chunk, **kw)
+    crsp.run_blocks(params, block, jax.random.key(seed + 1), n_warm, prof,
+                    stations_x_m=stations_x_m, **dict(kw, chunk_size=size))
     second = time.perf_counter() - t0
-    del warm
     t0 = time.perf_counter()
-    res = crsp.run_blocks(params, block, key, n_blocks, prof, stations_x_m=stations_x_m,
-                          chunk_size=chunk, **kw)
+    res = crsp.run_blocks(params, block, key, n_blocks, prof, stations_x_m=stations_x_m, **kw)
     wall = time.perf_counter() - t0
     return {
         "n": n_blocks,
         "diameter_m": 2.0 * radius_m,
         "stations": 0 if stations_x_m is None else len(stations_x_m),
+        "workers": workers,
+        "chunk_blocks": size,
         "blocks_per_s": n_blocks / wall,
         "wall_s": wall,
         "compile_s": max(first - second, 0.0),
@@ -101,15 +108,25 @@ def build_parser() -> OneLineParser:
                    help="lanes of the CRSP pool (default: run_blocks' default)")
     p.add_argument("--pyrockfall-python", help="python of a venv with pyrockfall 0.1.2 "
                    "(default: .bench-venv/bin/python if it exists)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="threads running CRSP chunks side by side (default: the usable CPU "
+                   "cores on the CPU backend, one per device elsewhere)")
     p.add_argument("--no-dem", action="store_true", help="skip the DEM benchmarks")
     return p
 
 
 def main(argv=None) -> int:
+    return run_guarded("python -m solvers.bench", _main, argv)
+
+
+def _main(argv) -> int:
     args = build_parser().parse_args(argv)
 
     n = 10000 if args.quick else 100000
-    rows = [crsp_throughput(n, radius_m=0.5 * d, stations_x_m=st, pool=args.pool)
+    if args.workers is not None and args.workers < 1:
+        raise CliError(f"--workers: expected a positive number of threads, got {args.workers}")
+    rows = [crsp_throughput(n, radius_m=0.5 * d, stations_x_m=st, pool=args.pool,
+                            workers=args.workers)
             for st in (None, BENCH_STATIONS_M) for d in BENCH_DIAMETERS_M]
     out = {
         "device": str(jax.devices()[0]),
@@ -142,12 +159,12 @@ def main(argv=None) -> int:
         return 0
     print(f"device: {out['device']}, {out['cpu_count']} CPU cores")
     print("CRSP, Postignano profile, Kn 0.41, Kt 0.87, S 2 m (steady state, compile excluded)")
-    print(f"{'N':>7} {'diam m':>6} {'stations':>8} {'blocks/s':>10} {'wall s':>7} "
+    print(f"{'N':>7} {'diam m':>6} {'stations':>8} {'workers':>7} {'blocks/s':>10} {'wall s':>7} "
           f"{'compile s':>9} {'mean ev':>7} {'max ev':>6} {'median m':>8} {'unfinished':>10} "
           f"{'RSS MB':>7}")
     for r in rows:
         unfinished = r["status"]["budget"] + r["status"]["invalid"]
-        print(f"{r['n']:>7} {r['diameter_m']:>6.1f} {r['stations']:>8} "
+        print(f"{r['n']:>7} {r['diameter_m']:>6.1f} {r['stations']:>8} {r['workers']:>7} "
               f"{r['blocks_per_s']:>10,.0f} {r['wall_s']:>7.2f} {r['compile_s']:>9.2f} "
               f"{r['mean_events']:>7.1f} {r['max_events']:>6} {r['median_runout_m']:>8.1f} "
               f"{unfinished:>10} {r['peak_rss_mb']:>7.0f}")

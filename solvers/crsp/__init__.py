@@ -9,6 +9,7 @@ the rolling phase. ``python -m solvers.crsp --help`` for the command line.
 import solvers  # noqa: F401  (enables float64)
 from solvers.crsp._batch import (
     block_keys,
+    chunk_plan,
     run_blocks,
     simulate_batch,
     simulate_pooled,
@@ -52,6 +53,7 @@ __all__ = [
     "make_block",
     "params_from_profile",
     "roughness_tilt",
+    "chunk_plan",
     "run_blocks",
     "simulate",
     "simulate_batch",

@@ -20,21 +20,24 @@ import numpy as np
 
 from solvers._rng import key_words
 from solvers.crsp._model import (
-    CONTACT,
-    FLIGHT,
     Block,
     Params,
     Result,
     Settings,
     init,
-    result_from_state,
+    raw_result,
+    running,
     segment_table,
     simulate,
+    sorted_stations,
     step,
 )
-from solvers.profile import Profile, ground_z
+from solvers.crsp._stations import empty_values, record
+from solvers.parallel import default_workers, map_ordered
+from solvers.profile import Profile
 
-__all__ = ["block_keys", "run_blocks", "simulate_batch", "simulate_pooled", "simulate_tasks"]
+__all__ = ["block_keys", "chunk_plan", "run_blocks", "simulate_batch", "simulate_pooled",
+           "simulate_tasks"]
 
 
 def block_keys(key: jax.Array, start: int, count: int) -> jax.Array:
@@ -50,10 +53,6 @@ def simulate_batch(params: Params, block: Block, keys: jax.Array, profile: Profi
     fn = functools.partial(simulate, profile=profile, stations_x_m=stations_x_m,
                            settings=settings)
     return jax.vmap(fn, in_axes=(None, None, 0))(params, block, keys)
-
-
-def _moving(s) -> jax.Array:
-    return (s.mode == FLIGHT) | (s.mode == CONTACT)
 
 
 @functools.partial(jax.jit, static_argnames=("n_blocks", "pool", "settings", "refill_every"))
@@ -110,9 +109,7 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
     """
     n_tasks = jax.tree_util.tree_leaves(params)[0].shape[0]
     n_items = n_tasks * n_per_task
-    stations_x_m = jnp.asarray(stations_x_m, jnp.float64)
-    stations_z_m = ground_z(profile, stations_x_m)
-    n_st = stations_x_m.shape[0]
+    stations_x_m, stations_z_m, order = sorted_stations(profile, stations_x_m)
     tables = jax.vmap(segment_table, in_axes=(None, 0, 0))(profile, params, block)
 
     def task_of(t):
@@ -123,16 +120,16 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
         p, b, _ = task_of(t)
         gi = (j + offset).astype(jnp.uint32)
         release_key, event_key = jax.random.split(jax.random.fold_in(key, gi))
-        s = init(p, b, release_key, profile, n_st, settings)
+        s = init(p, b, release_key, profile, stations_x_m, settings)
         return s, key_words(event_key)
 
     def lane_step(s, words, t):
         p, b, table = task_of(t)
-        new = step(s, p, b, words, profile, table, stations_x_m, stations_z_m, settings)
-        go = _moving(s) & (s.n_events < s.budget)
-        return jax.tree_util.tree_map(lambda a, c: jnp.where(go, a, c), new, s)
+        # a finished lane is left unchanged by ``step`` (and emits nothing)
+        return step(s, p, b, words, profile, table, stations_x_m, stations_z_m, settings)
 
-    finalize = result_from_state
+    def finalize(s, x0):
+        return raw_result(s, x0), s.stations.first, s.stations.next
 
     lane = jnp.arange(pool)
     states, words = jax.vmap(lane_init)(jnp.minimum(lane, n_items - 1))
@@ -140,16 +137,27 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
     active = lane < n_items
     proto = jax.eval_shape(finalize, jax.tree_util.tree_map(lambda a: a[0], states), x0[0])
     out = jax.tree_util.tree_map(lambda a: jnp.zeros((n_items,) + a.shape, a.dtype), proto)
+    # station passages go straight from the lanes into the output (one
+    # (n_items, n_stations) array per quantity), never through the lanes' state
+    values = empty_values((n_items, stations_x_m.shape[0]))
 
     def cond(carry):
         return jnp.any(carry[4])
 
     def body(carry):
-        states, words, x0, idx, active, nxt, out = carry
+        states, words, x0, idx, active, nxt, out, values = carry
         task = idx // n_per_task
-        states = jax.lax.fori_loop(
-            0, refill_every, lambda _, s: jax.vmap(lane_step)(s, words, task), states)
-        done = active & ~(_moving(states) & (states.n_events < states.budget))
+        item = jnp.where(active, idx, n_items)  # inactive lanes: dropped
+
+        def steps(_, c):
+            s, values = c
+            s, w = jax.vmap(lane_step)(s, words, task)
+            values = tuple(v.at[item[:, None], w.index].set(x, mode="drop")
+                           for v, x in zip(values, w[1:], strict=True))
+            return s, values
+
+        states, values = jax.lax.fori_loop(0, refill_every, steps, (states, values))
+        done = active & ~jax.vmap(running)(states)
         res = jax.vmap(finalize)(states, x0)
         target = jnp.where(done, idx, n_items)  # out of bounds: dropped
         out = jax.tree_util.tree_map(lambda o, r: o.at[target].set(r, mode="drop"), out, res)
@@ -167,13 +175,39 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
         idx = jnp.where(refill, new_idx, idx)
         active = (active & ~done) | refill
         nxt = nxt + jnp.sum(done)
-        return states, words, x0, idx, active, nxt, out
+        return states, words, x0, idx, active, nxt, out, values
 
     carry = (states, words, x0, jnp.minimum(lane, n_items - 1), active,
-             jnp.asarray(pool), out)
-    out = jax.lax.while_loop(cond, body, carry)[-1]
+             jnp.asarray(pool), out, values)
+    *_, (res, first, last), values = jax.lax.while_loop(cond, body, carry)
+    out = res._replace(stations=record(first, last, values, order))
     return jax.tree_util.tree_map(
         lambda a: a.reshape((n_tasks, n_per_task) + a.shape[1:]), out)
+
+
+_LANE_QUANTUM = 16
+
+
+def chunk_plan(n_blocks: int, chunk_size: int, workers: int) -> tuple[int, list[int]]:
+    """Equal chunks covering ``n_blocks``: (size, first block of each chunk).
+
+    At least one chunk per worker and at most ``chunk_size`` blocks per chunk,
+    the number of chunks a multiple of ``workers`` when there are enough blocks;
+    equal sizes, a multiple of 16, so that one compiled program serves every
+    chunk (the last chunk is padded to the size and its padding dropped)."""
+    if n_blocks <= 0:
+        raise ValueError(f"n_blocks must be positive, got {n_blocks}")
+    if chunk_size <= 0 or workers <= 0:
+        raise ValueError(f"chunk_size and workers must be positive, got {chunk_size}, "
+                         f"{workers}")
+    n_chunks = -(-n_blocks // chunk_size)
+    n_chunks = min(n_blocks, -(-n_chunks // workers) * workers)
+    size = -(-n_blocks // n_chunks)
+    # a multiple of the lane quantum: XLA:CPU runs a vector loop over the lanes
+    # and a scalar tail, which round differently (1e-13 m), so lane counts that
+    # leave a tail would make results depend on the chunking
+    size = -(-size // _LANE_QUANTUM) * _LANE_QUANTUM
+    return size, list(range(0, n_blocks, size))
 
 
 def run_blocks(
@@ -187,33 +221,44 @@ def run_blocks(
     chunk_size: int = 65536,
     progress=None,
     pool: int = 1024,
+    workers: int | None = None,
 ) -> Result:
     """Simulate ``n_blocks`` blocks in chunks and return NumPy arrays.
+
+    Chunks run side by side on ``workers`` threads (``solvers.parallel``);
+    block i always uses ``fold_in(key, i)``, so the result does not depend on
+    ``chunk_size``, ``pool`` or ``workers``.
 
     Args:
         params, block, profile, settings: as for ``simulate``.
         key: PRNG key of the run.
         n_blocks: number of blocks (> 0).
         stations_x_m: analysis abscissae, m, or None.
-        chunk_size: blocks per compiled call (memory grows linearly with it).
-        progress: optional callable ``progress(n_done)`` called after each chunk.
+        chunk_size: most blocks per compiled call (memory grows linearly with it
+            and with ``workers``).
+        progress: optional callable ``progress(n_done)`` called after each chunk,
+            in block order.
         pool: lanes of ``simulate_pooled`` (at most the chunk size).
+        workers: threads (default ``solvers.parallel.default_workers()``).
 
     Returns:
         ``Result`` whose leaves are NumPy arrays with leading dimension n_blocks.
     """
-    if n_blocks <= 0:
-        raise ValueError(f"n_blocks must be positive, got {n_blocks}")
     st = jnp.zeros((0,), jnp.float64) if stations_x_m is None else jnp.asarray(
         stations_x_m, jnp.float64)
-    chunk = min(chunk_size, n_blocks)
+    workers = default_workers() if workers is None else workers
+    chunk, starts = chunk_plan(n_blocks, chunk_size, workers)
     lanes = min(pool, chunk)
-    parts = []
-    for start in range(0, n_blocks, chunk):
-        count = min(chunk, n_blocks - start)
+
+    def one(start: int):
         res = simulate_pooled(params, block, key, profile, st, n_blocks=chunk, pool=lanes,
                               settings=settings, offset=start)
-        parts.append(jax.tree_util.tree_map(lambda a, c=count: np.asarray(a)[:c], res))
+        count = min(chunk, n_blocks - start)
+        return jax.tree_util.tree_map(lambda a: np.asarray(a)[:count], res)
+
+    parts = []
+    for part in map_ordered(one, starts, workers):
+        parts.append(part)
         if progress is not None:
-            progress(count)
+            progress(part.runout_m.shape[0])
     return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, axis=0), *parts)

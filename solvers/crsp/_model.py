@@ -55,12 +55,24 @@ import jax.numpy as jnp
 import numpy as np
 
 from solvers._rng import key_words, uniform_from_counter
-from solvers.crsp._contact import asperity_loss, contact_move, speed2_after
+from solvers.crsp._contact import asperity_loss, contact_move
 from solvers.crsp._effects import breaks, in_belt, size_scaled
 from solvers.crsp._flight import next_impact
 from solvers.crsp._impact import crsp_impact, roughness_tilt
+from solvers.crsp._stations import (
+    Cursor,
+    Passage,
+    Written,
+    after_event,
+    backlog,
+    emit,
+    empty_values,
+    store,
+)
+from solvers.crsp._stations import record as station_record
+from solvers.crsp._stations import start as stations_at_release
 from solvers.profile import Profile, ground_z, segment_index
-from solvers.stations import StationRecord, empty_record, record_passage
+from solvers.stations import StationRecord
 from solvers.status import BUDGET, GROUND_TOL_M, INVALID, LEFT_PROFILE, STOPPED
 
 __all__ = [
@@ -79,8 +91,11 @@ __all__ = [
     "event_budget",
     "make_block",
     "params_from_profile",
+    "raw_result",
     "result_from_state",
+    "running",
     "simulate",
+    "sorted_stations",
 ]
 
 # modes of a moving block (State.mode); a block that is not moving holds its
@@ -230,11 +245,16 @@ class Settings:
         max_events: a fixed bound on flight + contact events per block, or None
             (default) for the per-block budget of ``event_budget``.
         window: segments tested per flight event (local search).
+        station_slots: station passages written per event (``_stations``); an
+            event that passes more stations is followed by loop iterations that
+            write the rest before the next event. Speed only: results do not
+            depend on it.
     """
 
     g_m_s2: float = 9.81
     max_events: int | None = None
     window: int = 4
+    station_slots: int = 4
 
 
 # per-block event budget (``event_budget``); see its docstring for the measurements
@@ -280,7 +300,8 @@ class State(NamedTuple):
         pending: bool, the next event is an immediate CRSP impact on ``seg``
             (a rebound into the mean slope, or a rolling rock meeting a
             concave break fast enough).
-        stations: first-passage records, fields of shape (n_stations,).
+        stations: the station ``Cursor`` (``_stations``): first passages
+            written so far, in ascending station order.
         radius_m: current radius (the fragment's after a break), m.
         fragmented: bool, the block has broken (``_effects``).
         budget: int, the event budget of this block (``event_budget``).
@@ -296,7 +317,7 @@ class State(NamedTuple):
     n_events: jax.Array
     n_impacts: jax.Array
     pending: jax.Array
-    stations: StationRecord
+    stations: Cursor
     radius_m: jax.Array
     fragmented: jax.Array
     budget: jax.Array
@@ -394,8 +415,9 @@ def segment_table(profile: Profile, params: Params, block: Block) -> SegmentTabl
 
 
 def init(params: Params, block: Block, key: jax.Array, profile: Profile,
-         n_stations: int, settings: Settings = Settings()) -> State:
-    """Initial state at the release point (``key``: release key).
+         stations_x_m: jax.Array, settings: Settings = Settings()) -> State:
+    """Initial state at the release point (``key``: release key; ``stations_x_m``
+    in ascending order).
 
     The block starts in flight, or in ground contact when it is released on the
     ground (height 0) with a velocity that does not leave the slope (normal
@@ -417,15 +439,14 @@ def init(params: Params, block: Block, key: jax.Array, profile: Profile,
         vz_m_s=jnp.where(on_ground, u0 * jnp.sin(beta), vz0), spin_rad_s=zero,
         seg=seg, mode=jnp.where(on_ground, CONTACT, FLIGHT).astype(jnp.int32),
         n_events=jnp.asarray(0, jnp.int32), n_impacts=jnp.asarray(0, jnp.int32),
-        pending=jnp.asarray(False), stations=empty_record(n_stations),
+        pending=jnp.asarray(False), stations=stations_at_release(stations_x_m, x0),
         radius_m=zero + block.radius_m, fragmented=jnp.asarray(False),
         budget=event_budget(profile, block.radius_m, settings),
     )
 
 
 def _flight_event(state: State, params: Params, block: Block, key, profile: Profile,
-                  table: SegmentTable, stations_x_m, stations_z_m,
-                  settings: Settings) -> tuple[State, tuple]:
+                  table: SegmentTable, settings: Settings) -> tuple[State, Passage]:
     g = settings.g_m_s2
     x, z, vx, vz = state.x_m, state.z_m, state.vx_m_s, state.vz_m_s
     fh = next_impact(profile, state.seg, x, z, vx, vz, g, settings.window)
@@ -439,17 +460,14 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
     z1 = z + vz * t - 0.5 * g * t * t
     vz1 = vz - g * t
 
-    # first passages during this flight
+    # this flight, for the stations it passes (_stations)
     r, k = state.radius_m, block.inertia_ratio
     m = jnp.where(state.fragmented, table.mass_frag_kg, block.mass_kg)
-    safe_vx = jnp.where(vx > 0.0, vx, 1.0)
-    ts = (stations_x_m - x) / safe_vx
-    crossed = (vx > 0.0) & (stations_x_m > x) & (stations_x_m <= x1)
-    vzs = vz - g * ts
-    speed2 = vx * vx + vzs * vzs
-    zs = z + vz * ts - 0.5 * g * ts * ts
-    energy = 0.5 * m * (speed2 + k * (r * state.spin_rad_s) ** 2) / 1000.0
-    passage = (crossed, energy, jnp.sqrt(speed2), zs - stations_z_m)
+    zero = jnp.zeros_like(x)
+    passage = Passage(x0_m=x, flight=jnp.asarray(True), z0_m=z, vx_m_s=vx, vz_m_s=vz,
+                      spin_energy_m2_s2=k * (r * state.spin_rad_s) ** 2, u2_m2_s2=zero,
+                      accel_m_s2=zero, drag_per_m=zero, slope_cos=zero + 1.0, mass_kg=m,
+                      inertia_ratio=k)
 
     seg = fh.seg
     xa, xb = profile.x_m[seg], profile.x_m[seg + 1]
@@ -617,7 +635,7 @@ def vertex_transition(speed_m_s, direction, beta, beta_next, radius_m, inertia_r
 
 
 def _contact_event(state: State, params: Params, block: Block, profile: Profile,
-                   table: SegmentTable, stations_x_m, settings: Settings) -> tuple[State, tuple]:
+                   table: SegmentTable, settings: Settings) -> tuple[State, Passage]:
     g = settings.g_m_s2
     n_seg = profile.x_m.shape[0] - 1
     seg = state.seg
@@ -639,13 +657,13 @@ def _contact_event(state: State, params: Params, block: Block, profile: Profile,
     z1 = jnp.where(mv.at_end, jnp.where(mv.direction > 0, zb, za),
                    za + (zb - za) * (x1 - xa) / (xb - xa))
 
-    # first passages while rolling downslope
+    # this move, for the stations it passes (_stations)
     m = jnp.where(state.fragmented, table.mass_frag_kg, block.mass_kg)
-    crossed = (mv.direction > 0) & (stations_x_m > x) & (stations_x_m <= x1)
-    d_s = jnp.maximum((stations_x_m - x) / cb, 0.0)
-    v2 = speed2_after(u * u, mv.accel_m_s2, mv.drag_per_m, d_s)
-    energy = 0.5 * m * (1.0 + k) * v2 / 1000.0
-    passage = (crossed, energy, jnp.sqrt(v2), jnp.zeros_like(v2))
+    zero = jnp.zeros_like(x)
+    passage = Passage(x0_m=x, flight=jnp.asarray(False), z0_m=zero, vx_m_s=zero,
+                      vz_m_s=zero, spin_energy_m2_s2=zero, u2_m2_s2=u * u,
+                      accel_m_s2=mv.accel_m_s2, drag_per_m=mv.drag_per_m, slope_cos=cb,
+                      mass_kg=m, inertia_ratio=k)
 
     # what happens at the segment's end
     step = mv.direction.astype(jnp.int32)
@@ -697,28 +715,55 @@ def _moving(mode) -> jax.Array:
     return (mode == FLIGHT) | (mode == CONTACT)
 
 
+def running(state: State) -> jax.Array:
+    """bool: the block's loop goes on: it is moving within its event budget, or
+    station passages of its last event are still to be written."""
+    return ((_moving(state.mode) & (state.n_events < state.budget))
+            | backlog(state.stations))
+
+
 def step(state: State, params: Params, block: Block, key: jax.Array, profile: Profile,
          table: SegmentTable, stations_x_m: jax.Array, stations_z_m: jax.Array,
-         settings: Settings) -> State:
-    """One event: a flight to the next impact, or a contact move (pure).
+         settings: Settings) -> tuple[State, Written]:
+    """One loop iteration (pure): the next event (a flight to the next impact,
+    or a contact move), then up to ``settings.station_slots`` station passages,
+    returned as ``_stations.Written`` for the caller to store.
 
-    Afterwards the block must be on or above the ground of its segment
+    The event happens only if the block is moving within its budget and no
+    passage of the previous event waits to be written; otherwise the state is
+    unchanged but for the passages written. A finished block is unchanged.
+    After an event the block must be on or above the ground of its segment
     (``z >= ground - GROUND_TOL_M``) with finite values, else its mode becomes
     ``INVALID``. ``key`` is the event key's two uint32 words
-    (``solvers._rng.key_words``)."""
-    fl, fl_pass = _flight_event(state, params, block, key, profile, table, stations_x_m,
-                                stations_z_m, settings)
-    co, co_pass = _contact_event(state, params, block, profile, table, stations_x_m, settings)
+    (``solvers._rng.key_words``); ``stations_x_m`` ascending, ``stations_z_m``
+    the ground under them."""
+    go = (_moving(state.mode) & (state.n_events < state.budget)
+          & ~backlog(state.stations))
+    fl, fl_pass = _flight_event(state, params, block, key, profile, table, settings)
+    co, co_pass = _contact_event(state, params, block, profile, table, settings)
     in_flight = state.mode == FLIGHT
     new = jax.tree_util.tree_map(lambda a, b: jnp.where(in_flight, a, b), fl, co)
-    # one station update per event, from the passage of the branch taken
-    passage = [jnp.where(in_flight, a, b) for a, b in zip(fl_pass, co_pass)]
-    new = new._replace(stations=record_passage(state.stations, *passage))
+    passage = jax.tree_util.tree_map(lambda a, b: jnp.where(in_flight, a, b), fl_pass, co_pass)
     ground = _line_z(profile, new.seg, new.x_m)
     finite = (jnp.isfinite(new.x_m) & jnp.isfinite(new.z_m) & jnp.isfinite(new.vx_m_s)
               & jnp.isfinite(new.vz_m_s))
     bad = ~finite | (new.z_m < ground - GROUND_TOL_M)
-    return new._replace(mode=jnp.where(bad, INVALID, new.mode).astype(jnp.int32))
+    new = new._replace(mode=jnp.where(bad, INVALID, new.mode).astype(jnp.int32),
+                       stations=after_event(state.stations, passage, new.x_m,
+                                                      stations_x_m))
+    new = jax.tree_util.tree_map(lambda a, b: jnp.where(go, a, b), new, state)
+    cursor, written = emit(new.stations, stations_x_m, stations_z_m,
+                                     settings.g_m_s2, settings.station_slots)
+    return new._replace(stations=cursor), written
+
+
+def sorted_stations(profile: Profile, stations_x_m) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """(ascending stations, ground under them, the argsort that sorts them)."""
+    st = jnp.zeros((0,), jnp.float64) if stations_x_m is None else jnp.asarray(
+        stations_x_m, jnp.float64).reshape(-1)
+    order = jnp.argsort(st)
+    xs = st[order]
+    return xs, ground_z(profile, xs), order
 
 
 def simulate(
@@ -743,27 +788,36 @@ def simulate(
     Returns:
         ``Result``.
     """
-    if stations_x_m is None:
-        stations_x_m = jnp.zeros((0,), jnp.float64)
-    stations_x_m = jnp.asarray(stations_x_m, jnp.float64)
-    stations_z_m = ground_z(profile, stations_x_m)
+    xs, zs, order = sorted_stations(profile, stations_x_m)
     release_key, event_key = jax.random.split(key)
-    state0 = init(params, block, release_key, profile, stations_x_m.shape[0], settings)
-
-    def cond(s: State):
-        return _moving(s.mode) & (s.n_events < s.budget)
-
+    state0 = init(params, block, release_key, profile, xs, settings)
     body = functools.partial(step, params=params, block=block, key=key_words(event_key),
                              profile=profile, table=segment_table(profile, params, block),
-                             stations_x_m=stations_x_m, stations_z_m=stations_z_m,
-                             settings=settings)
-    final = jax.lax.while_loop(cond, lambda s: body(s), state0)
-    return result_from_state(final, state0.x_m)
+                             stations_x_m=xs, stations_z_m=zs, settings=settings)
+
+    def loop(carry):
+        s, values = carry
+        s, written = body(s)
+        return s, store(values, written)
+
+    final, values = jax.lax.while_loop(lambda c: running(c[0]), loop,
+                                       (state0, empty_values(xs.shape)))
+    return result_from_state(final, state0.x_m, values, order)
 
 
-def result_from_state(final: State, release_x_m: jax.Array) -> Result:
+def result_from_state(final: State, release_x_m: jax.Array, values: tuple,
+                      order: jax.Array) -> Result:
     """The ``Result`` of a block whose loop has ended in state ``final``; a block
-    still moving (event budget spent) gets status ``BUDGET``."""
+    still moving (event budget spent) gets status ``BUDGET``. ``values``: the
+    stored station passages (``_stations.store``); ``order``: the argsort of
+    the caller's stations (``sorted_stations``)."""
+    return raw_result(final, release_x_m)._replace(stations=station_record(
+        final.stations.first, final.stations.next, values, order))
+
+
+def raw_result(final: State, release_x_m: jax.Array) -> Result:
+    """``result_from_state`` without the station record (``stations=None``): a
+    batch that stores the passages itself builds the record once at the end."""
     moving = _moving(final.mode)
     return Result(
         runout_m=final.x_m - release_x_m,
@@ -774,5 +828,5 @@ def result_from_state(final: State, release_x_m: jax.Array) -> Result:
         n_events=final.n_events,
         n_impacts=final.n_impacts,
         release_x_m=release_x_m,
-        stations=final.stations,
+        stations=None,
     )
