@@ -40,6 +40,7 @@ from calib.model.alpha_law import ALPHA_MAX, alpha_of
 from calib.model.dem_run import DEM_RUN, DemRun
 from calib.model.priors import CRSP_BOX, DEM_BOXES, Box
 from calib.model.unfinished import mask_unfinished
+from solvers.parallel import default_workers, map_ordered
 from solvers.profile import Profile
 
 __all__ = ["CrspForward", "DemForward", "default_lanes", "dem_lanes", "stack_trees"]
@@ -95,7 +96,8 @@ class CrspForward:
         key: PRNG key shared by all thetas (common random numbers).
         pool: lanes of the scheduler (default ``default_lanes()``); results do
             not depend on it, only the speed does.
-        task_chunk: (theta, size) tasks per compiled call (default 96).
+        task_chunk: (theta, size) tasks per compiled call on one worker
+            (default 96), divided by the number of worker threads.
         effect: a candidate effect of ``calib.model.effects`` switched on ("none": plain
             CRSP); its parameters follow (Kn, Kt, roughness_m) in theta, and the
             box becomes ``calib.model.effects.full_box``.
@@ -176,9 +178,10 @@ class CrspForward:
         Both are NaN for every block that did not finish (status BUDGET or
         INVALID): its runout and its passages are not results.
 
-        Tasks (theta, size) run in chunks of ``task_chunk`` (the last one padded by
-        repeating a task), so every call with the same ``n_blocks`` reuses one
-        compiled program.
+        Tasks (theta, size) run in chunks of ``task_chunk`` divided among the
+        worker threads (``solvers.parallel``: 48 tasks per chunk on 2 CPU
+        cores, chunks side by side; the last one padded by repeating a task),
+        so every call with the same ``n_blocks`` reuses one compiled program.
         """
         theta = np.atleast_2d(np.asarray(theta, float))
         n_t, n_s = theta.shape[0], len(self.sizes_m)
@@ -189,7 +192,7 @@ class CrspForward:
         speed = (None if self.release_speed_m_s is None else
                  np.tile(np.asarray(self.release_speed_m_s, float).reshape(n_s), n_t))
         n_tasks = rep.shape[0]
-        chunk = self.task_chunk
+        chunk = max(1, -(-self.task_chunk // default_workers()))
         pad = (-n_tasks) % chunk
         rep = np.concatenate([rep, np.repeat(rep[-1:], pad, axis=0)])
         radius = np.concatenate([radius, np.repeat(radius[-1:], pad)])
@@ -198,8 +201,8 @@ class CrspForward:
         if speed is not None:
             speed = np.concatenate([speed, np.repeat(speed[-1:], pad)])
         stations = jnp.asarray(np.asarray(self.stations_x_m, float).reshape(-1), jnp.float64)
-        runs, speeds = [], []
-        for c0 in range(0, rep.shape[0], chunk):
+
+        def one_chunk(c0: int):
             params = self.params(rep[c0:c0 + chunk])
             if release is not None:
                 params = params._replace(
@@ -215,9 +218,14 @@ class CrspForward:
                                       pool=min(self.pool, chunk * self.n_blocks),
                                       settings=self.settings)
             status = np.asarray(res.status)  # (chunk, n)
-            runs.append(mask_unfinished(res.runout_m, status))
             v = np.where(np.asarray(res.stations.passed), res.stations.velocity_m_s, np.nan)
-            speeds.append(mask_unfinished(v, status))  # (chunk, n, K)
+            return mask_unfinished(res.runout_m, status), mask_unfinished(v, status)
+
+        # task chunks side by side on the CPU cores (solvers.parallel), in order
+        runs, speeds = [], []
+        for r, v in map_ordered(one_chunk, range(0, rep.shape[0], chunk)):
+            runs.append(r)
+            speeds.append(v)  # (chunk, n, K)
         n_st = stations.shape[0]
         r = np.concatenate(runs)[:n_tasks].reshape(n_t, n_s, self.n_blocks)
         v = np.concatenate(speeds)[:n_tasks].reshape(n_t, n_s, self.n_blocks, n_st)
