@@ -18,7 +18,8 @@ from scipy import stats
 
 from solvers import crsp, ground_z, load_profile, make_profile
 from solvers.crsp._contact import asperity_loss
-from solvers.crsp._model import State, event_budget, segment_table, step, vertex_transition
+from solvers.crsp._model import State, event_budget, segment_table, step
+from solvers.crsp._vertex import vertex_transition
 from solvers.profile import refine
 from solvers.status import BUDGET, INVALID, LEFT_PROFILE, STOPPED
 
