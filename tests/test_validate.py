@@ -43,7 +43,7 @@ def test_scores_of_a_known_ensemble():
 
 def test_rows_whose_quantiles_rest_on_few_blocks_are_flagged_and_named(capsys):
     """10 finished blocks behind row 2, 100 behind row 1: only row 2 is flagged
-    (solvers.cli.few_blocks), listed in the summary and named on stderr."""
+    (solvers.percentiles.few_blocks), listed in the summary and named on stderr."""
     obs = Observations.points([1.0, 1.0], [30.0, 40.0], 1.0)
     ens = np.full((2, 100), np.nan)  # NaN: unfinished blocks, left out
     ens[0] = np.linspace(0.0, 100.0, 100)

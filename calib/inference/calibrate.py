@@ -52,7 +52,7 @@ from calib.inference.gradient import GradientFit, fit_gradient
 from calib.inference.likelihood import log_likelihood, observed_rows
 from calib.inference.predictive_check import pool_draws
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
-from solvers.cli import few_blocks
+from solvers.percentiles import few_blocks
 
 __all__ = ["Budget", "ModelFit", "calibrate", "fit_quality", "presets"]
 
@@ -166,7 +166,7 @@ def fit_quality(obs: Observations, runouts: np.ndarray, index=None) -> list[dict
     90 % band) and P(a <= R <= b) for an interval; all over the finished blocks
     (``sim_n_finished`` of them). With none, the simulated values are None;
     ``sim_few_blocks`` is True where 1 to 19 blocks finished, too few for the
-    5/95 % values (``solvers.cli.few_blocks``).
+    5/95 % values (``solvers.percentiles.few_blocks``).
     """
     index = obs.size_index if index is None else np.asarray(index)
     ll = np.asarray(_loglik_of_runouts(obs, index)(jnp.asarray(runouts)[None]))[0]
