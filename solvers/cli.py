@@ -4,10 +4,10 @@ One-line errors with exit code 2 (``CliError``, ``OneLineParser``,
 ``run_guarded``), option and CSV parsing, progress bars on stderr
 (``Progress``), atomic writes of all of a command's outputs
 (``write_all_atomic``, ``write_outputs``), JSON-ready values (``json_ready``),
-the station columns both solvers write (``station_columns``) and the rule for
-percentiles that rest on too few blocks (``few_blocks``,
-``few_blocks_warning``). No physics here. Commands import these names from this
-module, never another command's private helpers.
+the station columns both solvers write (``station_columns``) and the warning
+line for percentiles that rest on too few blocks (``few_blocks_warning``; the
+rule itself is ``solvers.percentiles.few_blocks``). No physics here. Commands
+import these names from this module, never another command's private helpers.
 """
 
 from __future__ import annotations
@@ -22,14 +22,14 @@ import time
 
 import numpy as np
 
+from solvers.percentiles import MIN_BLOCKS_FOR_PERCENTILE, few_blocks
+
 __all__ = [
-    "MIN_BLOCKS_FOR_PERCENTILE",
     "CliError",
     "DefaultsHelpFormatter",
     "OneLineParser",
     "Progress",
     "fail",
-    "few_blocks",
     "few_blocks_warning",
     "json_ready",
     "parse_floats",
@@ -45,10 +45,6 @@ __all__ = [
     "write_outputs",
     "write_text_atomic",
 ]
-
-
-# a percentile of simulated blocks from fewer finished blocks than this is flagged
-MIN_BLOCKS_FOR_PERCENTILE = 20
 
 
 class CliError(Exception):
@@ -305,24 +301,9 @@ def write_csv_atomic(df, path: str) -> None:
     write_text_atomic(path, df.to_csv(index=False))
 
 
-def few_blocks(n_blocks):
-    """True where a percentile rests on fewer than ``MIN_BLOCKS_FOR_PERCENTILE``
-    (20) blocks: for n < 20 the p95 lies between the two largest of the n values
-    (rank 0.95 (n - 1) > n - 2), so one block more or less moves it. The one copy of
-    the rule; every command flags and warns through it.
-
-    Args:
-        n_blocks: count(s) of finished blocks behind the percentile (int or array).
-
-    Returns:
-        bool, or a bool array of the same shape.
-    """
-    out = np.asarray(n_blocks) < MIN_BLOCKS_FOR_PERCENTILE
-    return bool(out) if out.ndim == 0 else out
-
-
 def few_blocks_warning(rows, what: str = "percentiles", max_named: int = 8) -> str | None:
-    """One warning line naming the rows whose percentiles rest on too few blocks.
+    """One warning line naming the rows whose percentiles rest on too few blocks
+    (``solvers.percentiles.few_blocks``).
 
     Args:
         rows: iterable of ``(label, n_blocks)``, e.g. ``("D = 0.5 m, x = 110 m", 7)``.

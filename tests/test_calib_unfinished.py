@@ -92,7 +92,7 @@ def test_calibration_counts_unfinished_blocks_and_warns(budget_case):
         s = int(np.searchsorted(fit.check_sizes_m, q["block_size_m"]))
         r = fit.check_runouts[s][np.isfinite(fit.check_runouts[s])]
         assert q["sim_n_finished"] == r.size
-        assert q["sim_few_blocks"] == (0 < r.size < 20)  # solvers.cli.few_blocks
+        assert q["sim_few_blocks"] == (0 < r.size < 20)  # solvers.percentiles.few_blocks
         assert q["sim_median_m"] == (pytest.approx(np.median(r)) if r.size else None)
     assert fit.quality[1]["sim_n_finished"] > 0  # 2 m
 

@@ -174,7 +174,8 @@ def test_help_shows_defaults(module, needles, capsys):
 def test_few_blocks_is_the_one_rule_below_20():
     import numpy as np
 
-    from solvers.cli import MIN_BLOCKS_FOR_PERCENTILE, few_blocks, few_blocks_warning
+    from solvers.cli import few_blocks_warning
+    from solvers.percentiles import MIN_BLOCKS_FOR_PERCENTILE, few_blocks
 
     assert MIN_BLOCKS_FOR_PERCENTILE == 20
     assert few_blocks(19) is True and few_blocks(20) is False

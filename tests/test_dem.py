@@ -16,6 +16,7 @@ from solvers.dem import (
     AlphaLawError,
     Options,
     Pose,
+    check_run_numerics,
     make_block,
     make_params,
     parse_alpha_law,
@@ -486,6 +487,25 @@ def test_alpha_law_table1_trend_and_safety():
         make_block(0.01, alpha_law="0.40*L**-0.5")  # alpha > 1 for a 1 cm block
 
 
+def test_run_numerics_have_one_check_that_names_the_callers_value():
+    """check_run_numerics: the stiffness scale in (0, 1], the simulated time finite
+    and positive; None is not checked; the message names the value as the caller
+    does (python -m solvers.dem and python -m calib.hazard pass their options,
+    calib's DemRun its fields)."""
+    check_run_numerics(0.01, 150.0)
+    check_run_numerics(1.0, None)
+    check_run_numerics()
+    with pytest.raises(ValueError, match=r"^--stiffness-scale: expected a value in \(0, 1\], "
+                                         r"got 0$"):
+        check_run_numerics(0.0, 150.0, {"stiffness_scale": "--stiffness-scale"})
+    for bad in (1.5, math.nan, math.inf):
+        with pytest.raises(ValueError, match="^stiffness_scale: expected a value in"):
+            check_run_numerics(bad)
+    for bad in (0.0, -1.0, math.nan, math.inf):
+        with pytest.raises(ValueError, match="^max_time_s: expected a positive time"):
+            check_run_numerics(max_time_s=bad)
+
+
 # ---------------------------------------------------------------- CLI
 
 BAD_ARGS = [
@@ -508,6 +528,9 @@ BAD_ARGS = [
     ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--damping", "rayleigh",
      "--out", "x.csv"],
     ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--batch-size", "0", "--out", "x.csv"],
+    ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--stiffness-scale", "0",
+     "--out", "x.csv"],
+    ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--max-time-s", "nan", "--out", "x.csv"],
 ]
 
 

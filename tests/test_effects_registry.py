@@ -56,3 +56,37 @@ def test_unknown_effects_and_models_are_refused_by_name():
         effect_box("vegetation_belt", PROFILE, "dem")
     with pytest.raises(ValueError, match="strength"):
         truth("none", 0.0, PROFILE)
+
+
+def test_a_forward_with_an_effect_keeps_the_base_box_it_was_given():
+    """CrspForward(box=base, effect=E) fits base's ranges plus E's columns: a custom
+    base box (here a narrower Kn range, and a narrower rolling angle) is not
+    swapped for the stock CRSP_BOX or CRSP_ROLLING_BOX; dataclasses.replace keeps
+    the one box (E's columns not added twice); a box that already ends with E's
+    columns is taken as given (a custom range of the effect too)."""
+    import dataclasses
+
+    import jax
+
+    from calib.model.forward import CrspForward
+    from calib.model.priors import CRSP_BOX, CRSP_ROLLING_BOX, Box
+
+    narrow = Box(CRSP_BOX.names, (0.30,) + CRSP_BOX.lower[1:], (0.50,) + CRSP_BOX.upper[1:])
+    fw = CrspForward(PROFILE, np.array([1.0]), 4, jax.random.key(0), box=narrow,
+                     effect="size_dissipation")
+    assert fw.box == full_box("size_dissipation", PROFILE, base=narrow)
+    assert (fw.box.lower[0], fw.box.upper[0]) == (0.30, 0.50)
+    assert dataclasses.replace(fw, n_blocks=8).box == fw.box
+
+    rolling = Box(CRSP_ROLLING_BOX.names, CRSP_ROLLING_BOX.lower[:3] + (10.0,),
+                  CRSP_ROLLING_BOX.upper[:3] + (20.0,))
+    fw = CrspForward(PROFILE, np.array([1.0]), 4, jax.random.key(0), box=rolling,
+                     effect="vegetation_belt")
+    assert fw.fits_rolling and (fw.box.lower[3], fw.box.upper[3]) == (10.0, 20.0)
+    assert fw.box.names == rolling.names + ("belt_start_m", "belt_loss")
+
+    mine = Box(narrow.names + ("gamma",), narrow.lower + (-0.2,), narrow.upper + (0.2,))
+    assert CrspForward(PROFILE, np.array([1.0]), 4, jax.random.key(0), box=mine,
+                       effect="size_dissipation").box == mine
+    with pytest.raises(ValueError, match="already has the size_dissipation effect's"):
+        full_box("size_dissipation", PROFILE, base=mine)  # gamma would come twice

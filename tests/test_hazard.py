@@ -315,7 +315,7 @@ def test_release_rate_gives_frequencies(small_run):
 
 def test_percentiles_from_few_blocks_are_flagged_and_named(small_run):
     """A row whose percentiles rest on 1 to 19 passers has few_blocks set, and
-    summary_text names it in a warning line (solvers.cli.few_blocks, the one rule)."""
+    summary_text names it in a warning line (solvers.percentiles.few_blocks, the one rule)."""
     _, profile, c = small_run
     t = hazard_table(c, profile)
     n = t.n_blocks_reached

@@ -148,6 +148,9 @@ def bad(tmp_path):
     ("ok", ["--n-blocks", "0"], "--n-blocks: expected a positive count"),
     ("ok", ["--n-posterior", "-2"], "--n-posterior: expected a positive count"),
     ("ok", ["--release-rate-per-year", "0"], "--release-rate-per-year"),
+    ("ok", ["--dem-stiffness-scale", "1.5"],
+     "--dem-stiffness-scale: expected a value in (0, 1], got 1.5"),
+    ("ok", ["--dem-max-time-s", "0"], "--dem-max-time-s: expected a positive time, got 0"),
     ("ok", ["--road-x-m", "400"], "--road-x-m 400"),
     ("ok", ["--bogus"], "unrecognized arguments"),
 ])

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from test_hazard_fixtures import write_calibration
 
-from calib.files.observations import Observations, release_groups
+from calib.files.observations import Observations, one_release_groups, release_groups
 from calib.inference.predictive_check import score_rows
 from calib.model.forward import CrspForward
 from calib.validate import main, print_summary
@@ -43,7 +43,7 @@ def test_scores_of_a_known_ensemble():
 
 def test_rows_whose_quantiles_rest_on_few_blocks_are_flagged_and_named(capsys):
     """10 finished blocks behind row 2, 100 behind row 1: only row 2 is flagged
-    (solvers.cli.few_blocks), listed in the summary and named on stderr."""
+    (solvers.percentiles.few_blocks), listed in the summary and named on stderr."""
     obs = Observations.points([1.0, 1.0], [30.0, 40.0], 1.0)
     ens = np.full((2, 100), np.nan)  # NaN: unfinished blocks, left out
     ens[0] = np.linspace(0.0, 100.0, 100)
@@ -265,3 +265,31 @@ def test_calibrate_scores_each_row_against_its_own_release():
     with pytest.raises(ValueError, match="groups"):
         calibrate(CrspForward(PROFILE, np.array([1.0]), 16, jax.random.key(3)), obs,
                   jax.random.key(4), ("gradient",), budget, groups=groups)
+
+
+def test_calibrate_without_groups_is_the_one_release_grouping():
+    """Without release groups every row of a size is in one group, released at the
+    forward's one release (one_release_groups): the same fit as with that grouping
+    passed; the rows read the figure's simulation (its sizes include theirs), so
+    the check simulates the figure's sizes only. A forward with release speeds is
+    not built on that grouping."""
+    from calib.inference.calibrate import Budget, calibrate
+
+    obs = Observations.points([0.5, 2.0, 0.5], [60.0, 112.0, 70.0], 10.0)
+    groups = one_release_groups(obs, float(PROFILE.x_m[0]))
+    assert groups.sizes_m.tolist() == [0.5, 2.0] and groups.index.tolist() == [0, 1, 0]
+    assert groups.release_x_m.tolist() == [float(PROFILE.x_m[0])] * 2
+    assert np.isnan(groups.release_speed_m_s).all()
+    fw = CrspForward(PROFILE, obs.sizes_m, 16, jax.random.key(3))
+    budget = Budget(grad_starts=1, grad_steps=1, grad_k=1, n_blocks_grad=16, n_check=32)
+    plain = calibrate(fw, obs, jax.random.key(4), ("gradient",), budget, extra_sizes_m=(1.0,))
+    given = calibrate(fw, obs, jax.random.key(4), ("gradient",), budget, extra_sizes_m=(1.0,),
+                      groups=groups)
+    assert plain.quality == given.quality
+    np.testing.assert_array_equal(plain.check_runouts, given.check_runouts)
+    assert plain.check_sizes_m.tolist() == [0.5, 1.0, 2.0]
+    assert plain.unfinished["stages"]["check"]["n_blocks"] == 3 * 32
+    with pytest.raises(ValueError, match="groups"):
+        calibrate(CrspForward(PROFILE, obs.sizes_m, 16, jax.random.key(3),
+                              release_speed_m_s=(2.0, 2.0)),
+                  obs, jax.random.key(4), ("gradient",), budget)

@@ -56,7 +56,8 @@ import numpy as np
 import pandas as pd
 
 __all__ = ["ObservationError", "Observations", "ReleaseGroups", "Velocities", "crsp_radius_m",
-           "dem_side_m", "load_observations", "load_velocities", "read_table", "release_groups"]
+           "dem_side_m", "load_observations", "load_velocities", "one_release_groups", "read_table",
+           "release_groups"]
 
 REQUIRED = ("block_size_m",)
 OPTIONAL = ("runout_m", "runout_sd_m", "runout_min_m", "runout_max_m", "source",
@@ -124,6 +125,16 @@ def release_groups(obs: Observations, default_release_x_m: float,
             start = stop
     return ReleaseGroups(np.asarray(sizes, float), np.asarray(releases, float), index,
                          np.asarray(speeds, float))
+
+
+def one_release_groups(obs: Observations, release_x_m: float) -> ReleaseGroups:
+    """The grouping of a fit that releases every block from one point (the DEM
+    fit, a CRSP fit of rows without ``release_x_m``): one group per block size
+    (``obs.sizes_m``, ``obs.size_index``), released at ``release_x_m`` (m) at the
+    solver's default speed (NaN), whatever the rows' own releases say."""
+    sizes = obs.sizes_m
+    return ReleaseGroups(sizes, np.full(sizes.shape, float(release_x_m)), obs.size_index,
+                         np.full(sizes.shape, np.nan))
 
 
 class ObservationError(ValueError):

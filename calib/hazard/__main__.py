@@ -24,6 +24,7 @@ from solvers.cli import (
     parse_stations,
     write_outputs,
 )
+from solvers.dem import check_run_numerics
 
 # model -> (blocks per draw and size, posterior draws); DEM defaults keep the
 # default DEM run under 10 minutes on 2 CPU cores (measured 4.3 min: see README.md)
@@ -109,13 +110,12 @@ def main(argv: list[str] | None = None) -> int:
         rate = args.release_rate_per_year
         if rate is not None and not (math.isfinite(rate) and rate > 0):
             raise CliError(f"--release-rate-per-year: expected a positive rate, got {rate:g}")
-        if args.dem_stiffness_scale is not None and not (0.0 < args.dem_stiffness_scale <= 1.0):
-            raise CliError(f"--dem-stiffness-scale: expected a value in (0, 1], got "
-                           f"{args.dem_stiffness_scale:g}")
-        if args.dem_max_time_s is not None and not (math.isfinite(args.dem_max_time_s)
-                                                    and args.dem_max_time_s > 0):
-            raise CliError(f"--dem-max-time-s: expected a positive time, got "
-                           f"{args.dem_max_time_s:g}")
+        try:
+            check_run_numerics(args.dem_stiffness_scale, args.dem_max_time_s,
+                               {"stiffness_scale": "--dem-stiffness-scale",
+                                "max_time_s": "--dem-max-time-s"})
+        except ValueError as exc:
+            raise CliError(str(exc)) from None
         if os.path.exists(args.out) and not os.path.isdir(args.out):
             raise CliError(f"--out {args.out}: exists and is not a folder")
     except CliError as exc:

@@ -30,7 +30,7 @@ Definitions (station x, block size D; draws d = 1..M, N blocks each):
 * ``n_blocks_reached``: passers over all draws, the sample behind the design
   values (a p95 from a handful of blocks is not a design value);
   ``few_blocks``: True where 0 < n_blocks_reached < 20, the percentiles of the
-  row rest on too few blocks (``solvers.cli.few_blocks``); ``summary_text``
+  row rest on too few blocks (``solvers.percentiles.few_blocks``); ``summary_text``
   names those rows in a warning line.
 * intensity class: Swiss class (``_intensity``) of the design energy, E p95
   (the percentile UNI 11211-4 designs on, per NOTES.md, checked via a
@@ -48,7 +48,8 @@ import pandas as pd
 from calib.hazard._intensity import hazard_level, intensity_class
 from calib.hazard._run import HazardCounts
 from calib.hazard._stats import BINS, hist_quantile
-from solvers.cli import few_blocks, few_blocks_warning
+from solvers.cli import few_blocks_warning
+from solvers.percentiles import few_blocks
 from solvers.profile import Profile
 
 __all__ = ["EXCEEDANCE_COLUMNS", "exceedance_table", "hazard_table", "summary_text"]

@@ -20,8 +20,10 @@ Stages (each timed; ``Budget`` sets the sizes, ``QUICK`` / ``DEFAULT`` the prese
    J(theta) = -sum_i log p(y_i | theta), the negative log-likelihood of
    ``calib.inference.likelihood`` with ``n_blocks_grad`` blocks per size.
 3. Check: the point estimate is re-simulated with fresh random numbers
-   (``n_check`` blocks per size) and every observation gets its fit quality:
-   simulated 5/50/95 % runouts, its PIT value P(R <= y) and log-likelihood.
+   (``n_check`` blocks per entry: the figure's sizes at the rows' median release,
+   and every row's (size, release) group that is not one of them) and every
+   observation gets its fit quality against its group's blocks: simulated
+   5/50/95 % runouts, its PIT value P(R <= y) and log-likelihood.
 4. Adequacy (``calib.inference.adequacy``): posterior mass near each prior bound and the
    posterior predictive coverage of the calibration rows (``n_predictive_draws``
    draws x ``n_blocks_predictive`` fresh blocks per size), flagged when the
@@ -44,7 +46,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.special import ndtr
 
-from calib.files.observations import Observations, ReleaseGroups
+from calib.files.observations import Observations, ReleaseGroups, one_release_groups
 from calib.inference.adequacy import adequacy_record
 from calib.inference.bayes import Posterior, run_nuts
 from calib.inference.emulator import fit_emulator, holdout_error
@@ -52,7 +54,7 @@ from calib.inference.gradient import GradientFit, fit_gradient
 from calib.inference.likelihood import log_likelihood, observed_rows
 from calib.inference.predictive_check import pool_draws
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
-from solvers.cli import few_blocks
+from solvers.percentiles import few_blocks
 
 __all__ = ["Budget", "ModelFit", "calibrate", "fit_quality", "presets"]
 
@@ -166,7 +168,7 @@ def fit_quality(obs: Observations, runouts: np.ndarray, index=None) -> list[dict
     90 % band) and P(a <= R <= b) for an interval; all over the finished blocks
     (``sim_n_finished`` of them). With none, the simulated values are None;
     ``sim_few_blocks`` is True where 1 to 19 blocks finished, too few for the
-    5/95 % values (``solvers.cli.few_blocks``).
+    5/95 % values (``solvers.percentiles.few_blocks``).
     """
     index = obs.size_index if index is None else np.asarray(index)
     ll = np.asarray(_loglik_of_runouts(obs, index)(jnp.asarray(runouts)[None]))[0]
@@ -211,15 +213,65 @@ def _pilot_draws(pointwise_loglik, box, n: int, key: jax.Array) -> np.ndarray:
     return np.clip(pick, box.lo, box.hi)
 
 
-def _built_on(forward, groups: ReleaseGroups) -> bool:
-    """The forward model's entries are the groups: same sizes and same releases
-    (not only as many: a forward on ``obs.sizes_m`` would ignore the releases)."""
+def _entries(forward) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The forward model's entries: (S,) sizes, m, releases, m (None: the profile's
+    first vertex, where both solvers release by default) and release speeds, m/s
+    (NaN: the solver's default; a ``DemForward`` has none)."""
     sizes = np.asarray(forward.sizes_m, float)
-    rel = getattr(forward, "release_x_m", None)
-    if sizes.shape != groups.sizes_m.shape or not np.array_equal(sizes, groups.sizes_m):
-        return False
-    return rel is not None and np.array_equal(
-        np.broadcast_to(np.asarray(rel, float), sizes.shape), groups.release_x_m)
+    rel = forward.release_x_m
+    rel = np.broadcast_to(np.asarray(forward.profile.x_m[0] if rel is None else rel, float),
+                          sizes.shape)
+    speed = getattr(forward, "release_speed_m_s", None)
+    speed = np.full(sizes.shape, np.nan) if speed is None else np.asarray(speed, float)
+    return sizes, rel, speed
+
+
+def _built_on(forward, groups: ReleaseGroups) -> bool:
+    """The forward model's entries are the groups: same sizes, releases and release
+    speeds (not only as many: a forward on ``obs.sizes_m`` would ignore the
+    releases)."""
+    sizes, rel, speed = _entries(forward)
+    return (sizes.shape == groups.sizes_m.shape and np.array_equal(sizes, groups.sizes_m)
+            and np.array_equal(rel, groups.release_x_m)
+            and np.array_equal(speed, groups.release_speed_m_s, equal_nan=True))
+
+
+def _on_entries(forward, sizes_m, release_x_m, release_speed_m_s, n_blocks: int,
+                key: jax.Array):
+    """``forward`` on other entries: (E,) sizes, m, releases, m, and release speeds,
+    m/s (NaN: the solver's default), with ``n_blocks`` blocks each and ``key``.
+    One release for all is passed as one number and no speed as None, the only
+    form a ``DemForward`` takes."""
+    rel = np.asarray(release_x_m, float)
+    speed = np.asarray(release_speed_m_s, float)
+    fields = {"sizes_m": np.asarray(sizes_m, float), "n_blocks": n_blocks, "key": key,
+              "release_x_m": float(rel[0]) if np.all(rel == rel[0]) else tuple(rel)}
+    if np.any(np.isfinite(speed)) or getattr(forward, "release_speed_m_s", None) is not None:
+        fields["release_speed_m_s"] = tuple(speed) if np.any(np.isfinite(speed)) else None
+    return dataclasses.replace(forward, **fields)
+
+
+def _check_entries(groups: ReleaseGroups, sizes_m: np.ndarray):
+    """What the check simulates: first the figure's sizes ``sizes_m`` at the
+    median of the rows' releases and the solver's release speed, then every
+    group that is not one of these entries.
+
+    Returns:
+        (sizes, releases, speeds) of the entries (E,), and the entry of each group (G,).
+    """
+    median = float(np.median(groups.release_x_m[groups.index]))
+    sizes, rel = list(sizes_m), [median] * len(sizes_m)
+    speed, entry = [np.nan] * len(sizes_m), np.empty(len(groups.sizes_m), int)
+    for g, (d, x, v) in enumerate(zip(groups.sizes_m, groups.release_x_m,
+                                      groups.release_speed_m_s)):
+        if x == median and np.isnan(v):
+            entry[g] = int(np.searchsorted(sizes_m, d))
+        else:
+            entry[g] = len(sizes)
+            sizes.append(d)
+            rel.append(x)
+            speed.append(v)
+    return np.asarray(sizes, float), np.asarray(rel, float), np.asarray(speed, float), entry
 
 
 def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ...],
@@ -227,25 +279,36 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
               extra_sizes_m=(), groups: ReleaseGroups | None = None) -> ModelFit:
     """Run the stages of the module docstring for one forward model.
 
+    Every row is scored against the blocks of its (size, release) group, one
+    entry of the forward model (``groups``); without ``groups``, every row of a
+    size is in one group released at the forward's one release
+    (``calib.files.observations.one_release_groups``).
+
     Args:
-        forward: ``CrspForward`` or ``DemForward`` built on ``obs.sizes_m``, or
-            (``groups`` given) a ``CrspForward`` built on the groups' sizes and
-            releases.
+        forward: ``CrspForward`` or ``DemForward`` built on the groups: one entry
+            per group, with its size, release and release speed (without
+            ``groups``: on ``obs.sizes_m`` with one release for all).
         obs: observations.
         key: PRNG key of the fit (common random numbers, directions, NUTS, check).
         methods: subset of ("gradient", "bayes").
         budget: stage sizes.
         progress: optional callable(stage, done, total).
         extra_sizes_m: more block sizes to simulate in the check (for figures);
-            ``ModelFit.check_sizes_m`` lists every size checked.
+            ``ModelFit.check_sizes_m`` lists every size checked, simulated at
+            the median of the rows' releases (``ModelFit.check_runouts``).
         groups: the rows' (size, release) groups (``calib.files.observations.
-            release_groups``): each row is scored against its group's blocks.
-            The figure's sizes (``check_sizes_m``) are then released at the
-            median of the rows' releases.
+            release_groups``); None: ``one_release_groups`` at the forward's
+            release.
     """
-    index = obs.size_index if groups is None else groups.index
-    if groups is not None and not _built_on(forward, groups):
-        raise ValueError("forward must be built on the groups' sizes and releases")
+    if groups is None:
+        if np.ndim(forward.release_x_m) > 0:
+            raise ValueError("a forward with one release per entry needs its release groups "
+                             "(groups=...)")
+        groups = one_release_groups(obs, _entries(forward)[1][0])
+    if not _built_on(forward, groups):
+        raise ValueError("forward must be built on the groups' sizes, releases and release "
+                         "speeds")
+    index = groups.index
     k_design, k_grad, k_nuts, k_pilot, k_check = jax.random.split(key, 5)
     tick = progress or (lambda *a: None)
     timings, posterior, gfit, emu_check = {}, None, None, None
@@ -318,21 +381,11 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     else:
         estimate, source = posterior.map, "posterior_mode"
     t0 = time.perf_counter()
-    if groups is None:
-        check_forward = dataclasses.replace(forward, sizes_m=sizes, n_blocks=budget.n_check,
-                                            key=k_check)
-        check = check_forward.runouts(estimate[None])[0]
-        tally("check", check[None], estimate[None], sizes)
-        at_rows = check[np.searchsorted(sizes, obs.sizes_m)]
-    else:
-        row_forward = dataclasses.replace(forward, n_blocks=budget.n_check, key=k_check)
-        at_rows = row_forward.runouts(estimate[None])[0]
-        tally("check", at_rows[None], estimate[None])
-        median_release = float(np.median(groups.release_x_m[groups.index]))
-        check_forward = dataclasses.replace(forward, sizes_m=sizes, n_blocks=budget.n_check,
-                                            key=k_check, release_x_m=median_release,
-                                            release_speed_m_s=None)
-        check = check_forward.runouts(estimate[None])[0]
+    e_sizes, e_rel, e_speed, entry = _check_entries(groups, sizes)
+    runs = _on_entries(forward, e_sizes, e_rel, e_speed, budget.n_check,
+                       k_check).runouts(estimate[None])[0]
+    tally("check", runs[None], estimate[None], e_sizes)
+    check, at_rows = runs[:len(sizes)], runs[entry]
     quality = fit_quality(obs, at_rows, index)
     timings["check_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()

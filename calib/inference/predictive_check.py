@@ -27,7 +27,7 @@ the observed distribution, < 0: worse).
 
 A row whose ensemble holds 1 to 19 finished blocks (``n_predictive``) has
 ``few_blocks`` set: its quantiles and bands rest on too few blocks
-(``solvers.cli.few_blocks``); the summary lists those rows
+(``solvers.percentiles.few_blocks``); the summary lists those rows
 (``few_blocks_rows``: [row, n_predictive] pairs).
 
 Interval rows (runout seen to lie in [a, b]) have no CRPS here; they are
@@ -44,7 +44,7 @@ import pandas as pd
 import scoringrules as sr
 
 from calib.files.observations import Observations
-from solvers.cli import few_blocks
+from solvers.percentiles import few_blocks
 
 __all__ = ["MIN_ROWS_PER_SIZE", "PredictiveCheck", "in_band", "observed_ensemble",
            "pool_draws", "predictive_runouts", "score_rows"]

@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from solvers.dem import check_run_numerics
 from solvers.profile import Profile
 
 __all__ = ["DEM_RUN", "DemRun"]
@@ -48,11 +49,7 @@ class DemRun:
     dt_size_m: float = 0.2
 
     def __post_init__(self):
-        if not (math.isfinite(self.stiffness_scale) and 0.0 < self.stiffness_scale <= 1.0):
-            raise ValueError(f"stiffness_scale: expected a value in (0, 1], got "
-                             f"{self.stiffness_scale:g}")
-        if not (math.isfinite(self.max_time_s) and self.max_time_s > 0):
-            raise ValueError(f"max_time_s: expected a positive time, got {self.max_time_s:g}")
+        check_run_numerics(self.stiffness_scale, self.max_time_s)
         if not (math.isfinite(self.dt_size_m) and self.dt_size_m > 0):
             raise ValueError(f"dt_size_m: expected a positive size, got {self.dt_size_m:g}")
 

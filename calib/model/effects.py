@@ -174,6 +174,10 @@ def full_box(name: str, profile, model: str = "crsp", base: Box = CRSP_BOX) -> B
         raise ValueError("the rolling_resistance effect adds to a rolling resistance the "
                          "baseline already fits (rolling_friction_deg): the two are one "
                          "parameter")
+    twice = [n for n in extra.names if n in base.names]
+    if twice:
+        raise ValueError(f"the base box already has the {name} effect's parameter(s) "
+                         f"{', '.join(twice)}")
     return Box(base.names + extra.names, base.lower + extra.lower, base.upper + extra.upper)
 
 

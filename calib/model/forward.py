@@ -98,9 +98,17 @@ class CrspForward:
             not depend on it, only the speed does.
         task_chunk: (theta, size) tasks per compiled call on one worker
             (default 96), divided by the number of worker threads.
+        box: prior box of theta. Without an effect: (Kn, Kt, roughness_m), e.g.
+            ``CRSP_BOX``, or with the rolling resistance angle fourth
+            (``CRSP_ROLLING_BOX``), or a narrower box of the same names. With an
+            effect: that baseline box, to which the effect's columns and their
+            stock ranges are appended (``calib.model.effects.full_box``; the
+            baseline's ranges are kept), or a box that already ends with the
+            effect's columns, taken as given (a custom range of the effect; also
+            what ``dataclasses.replace`` passes back, so the columns are never
+            added twice).
         effect: a candidate effect of ``calib.model.effects`` switched on ("none": plain
-            CRSP); its parameters follow (Kn, Kt, roughness_m) in theta, and the
-            box becomes ``calib.model.effects.full_box``.
+            CRSP); its parameters follow the baseline's in theta.
         stations_x_m: abscissae (m) at which ``simulate`` records passage speeds.
         settings: CRSP solver settings (event budget, search window).
         release_x_m: release abscissa, m: one for every entry, or (S,) one per
@@ -137,13 +145,16 @@ class CrspForward:
                 raise ValueError(f"{name}: {len(v)} entries for {n_s} entries of sizes_m "
                                  "(one per entry, or one for all)")
         if self.effect != "none":
-            from calib.model.effects import full_box
-            from calib.model.priors import CRSP_ROLLING_BOX
+            from calib.model.effects import effect_box, full_box
 
-            # the baseline is CRSP_ROLLING_BOX where box fits the rolling resistance,
-            # else CRSP_BOX (recomputed, so dataclasses.replace keeps one box)
-            base = CRSP_ROLLING_BOX if "rolling_friction_deg" in self.box.names else CRSP_BOX
-            self.box = full_box(self.effect, self.profile, base=base)
+            extra = effect_box(self.effect, self.profile)
+            n_base = self.box.dim - extra.dim
+            if n_base < 0 or self.box.names[n_base:] != extra.names:
+                # box is the baseline: the effect's columns follow it
+                self.box = full_box(self.effect, self.profile, base=self.box)
+            else:  # box already ends with them: kept, its baseline checked as full_box does
+                full_box(self.effect, self.profile, base=Box(
+                    *(v[:n_base] for v in (self.box.names, self.box.lower, self.box.upper))))
 
     @property
     def names(self) -> tuple[str, ...]:

@@ -30,7 +30,7 @@ from solvers.cli import (
     write_csv_atomic,
 )
 from solvers.dem._alpha_law import DEFAULT_ALPHA_LAW
-from solvers.dem._params import DAMPING_MODES
+from solvers.dem._params import DAMPING_MODES, check_run_numerics
 
 
 def build_parser() -> OneLineParser:
@@ -94,11 +94,11 @@ def _check(args) -> None:
         raise CliError("--alpha and --alpha-law are exclusive; give one")
     if args.alpha is not None and not (0.0 <= args.alpha < 1.0):
         raise CliError(f"--alpha: local damping must lie in [0, 1), got {args.alpha}")
-    if not (0.0 < args.stiffness_scale <= 1.0):
-        raise CliError(f"--stiffness-scale: expected a value in (0, 1], got "
-                       f"{args.stiffness_scale}")
-    if not (math.isfinite(args.max_time_s) and args.max_time_s > 0):
-        raise CliError(f"--max-time-s: expected a positive time, got {args.max_time_s}")
+    try:
+        check_run_numerics(args.stiffness_scale, args.max_time_s,
+                           {"stiffness_scale": "--stiffness-scale", "max_time_s": "--max-time-s"})
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -37,6 +37,7 @@ __all__ = [
     "Block",
     "Options",
     "Params",
+    "check_run_numerics",
     "contact_damping_ratio",
     "make_block",
     "make_params",
@@ -245,6 +246,35 @@ def make_params(profile: Profile, *, damping: str = "unbalanced",
         raise ValueError(f"restitution: expected a value in (0, 1], got {restitution}")
     return Params(profile=profile, damp_gravity=0.0, local_damping=0.0,
                   restitution=-1.0 if restitution is None else float(restitution), **kw)
+
+
+def check_run_numerics(stiffness_scale: float | None = None, max_time_s: float | None = None,
+                       names: dict[str, str] | None = None) -> None:
+    """Check the two numerics a user sets for a DEM run: the stiffness scale
+    (``Params.stiffness_scale``) and the simulated time every block gets (the
+    caller turns it into ``Options.max_steps`` with the stable step). The one
+    copy of the check, used by ``python -m solvers.dem``, calib's DEM run
+    configuration (``calib.model.dem_run``) and ``python -m calib.hazard``.
+
+    Args:
+        stiffness_scale: multiplies kn and ks; in (0, 1] (1: the paper's
+            stiffness). None: not given, not checked.
+        max_time_s: simulated time, s; finite and > 0. None: not checked.
+        names: the name of each value in the message, by argument name (a
+            command passes its options, e.g. ``{"stiffness_scale":
+            "--stiffness-scale"}``); default the argument names.
+
+    Raises:
+        ValueError: ``"<name>: expected a value in (0, 1], got <v>"`` or
+            ``"<name>: expected a positive time, got <v>"``.
+    """
+    names = {"stiffness_scale": "stiffness_scale", "max_time_s": "max_time_s", **(names or {})}
+    if stiffness_scale is not None and not (math.isfinite(stiffness_scale)
+                                            and 0.0 < stiffness_scale <= 1.0):
+        raise ValueError(f"{names['stiffness_scale']}: expected a value in (0, 1], got "
+                         f"{stiffness_scale:g}")
+    if max_time_s is not None and not (math.isfinite(max_time_s) and max_time_s > 0):
+        raise ValueError(f"{names['max_time_s']}: expected a positive time, got {max_time_s:g}")
 
 
 def contact_damping_ratio(e):
