@@ -19,6 +19,7 @@ import pytest
 
 from calib.files.calibration_file import (
     SCHEMA,
+    CalibrationError,
     draw_parameters,
     load_calibration,
     model_section,
@@ -171,3 +172,25 @@ def test_the_fit_dem_numerics_travel_to_the_hazard_run(tmp_path):
     pts = _box_points(box, 4, seed=1)
     cal = load_calibration(_write_fit(tmp_path, "dem", box, pts[0], pts, "power"), "dem")
     assert DemRun(**cal.dem_run) == DemRun(stiffness_scale=0.02, max_time_s=140.0)
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("stiffness_scale", 0.0, "dem.run.stiffness_scale': expected a value in \\(0, 1\\], got 0"),
+    ("stiffness_scale", 1.5, "dem.run.stiffness_scale': expected a value in \\(0, 1\\]"),
+    ("max_time_s", -5.0, "dem.run.max_time_s': expected a positive time, got -5"),
+    ("dt_size_m", 0.0, "dem.run.dt_size_m': expected a positive size"),
+    ("max_time_s", "long", "dem.run.max_time_s': expected a number"),
+])
+def test_a_calibration_with_bad_dem_numerics_is_refused(tmp_path, key, value, message):
+    """The reader checks the DEM run's numerics with the solver's one check
+    (``solvers.dem.check_run_numerics``), naming the file and the key."""
+    box = DEM_BOXES["power"]
+    pts = _box_points(box, 4, seed=1)
+    path = _write_fit(tmp_path, "dem", box, pts[0], pts, "power")
+    with open(path) as fh:
+        doc = json.load(fh)
+    doc["dem"]["run"][key] = value
+    with open(path, "w") as fh:
+        json.dump(doc, fh)
+    with pytest.raises(CalibrationError, match=message):
+        load_calibration(path, "dem")

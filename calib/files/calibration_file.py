@@ -37,6 +37,7 @@ from typing import NamedTuple
 import numpy as np
 
 from calib.model.alpha_law import FORMS, PARAMETER_RANGES
+from solvers.dem import check_run_numerics
 
 __all__ = ["SCHEMA", "Calibration", "CalibrationError", "CalibrationFile", "Draws",
            "draw_parameters", "load_calibration", "model_section", "posterior_csv_text",
@@ -289,11 +290,18 @@ def _dem_run(path: str, sec: dict) -> dict | None:
     if not isinstance(run, dict):
         raise CalibrationError(f"{path}: key 'dem.run': expected an object")
     out = {}
-    for key, lo, hi in (("stiffness_scale", 0.0, 1.0), ("max_time_s", 0.0, math.inf),
-                        ("dt_size_m", 0.0, math.inf)):
+    for key in ("stiffness_scale", "max_time_s", "dt_size_m"):
         if key not in run:
             raise CalibrationError(f"{path}: key 'dem.run.{key}' missing")
-        out[key] = _number(path, f"key 'dem.run.{key}'", run[key], lo, hi, False)
+        out[key] = _number(path, f"key 'dem.run.{key}'", run[key], -math.inf, math.inf, True)
+    try:  # the solver's one check of these numerics
+        check_run_numerics(out["stiffness_scale"], out["max_time_s"],
+                           names={k: f"key 'dem.run.{k}'" for k in out})
+    except ValueError as e:
+        raise CalibrationError(f"{path}: {e}") from None
+    if not out["dt_size_m"] > 0.0:
+        raise CalibrationError(f"{path}: key 'dem.run.dt_size_m': expected a positive size, "
+                               f"got {out['dt_size_m']:g}")
     return out
 
 
