@@ -77,8 +77,7 @@ class DemRun:
 
         side = min(self.dt_size_m, float(np.min(np.asarray(sides_m, float))))
         block = dem.make_block(side, alpha=0.0, n_fragments=n_fragments)
-        dt = float(dem.stable_dt(params, block))
-        return dem.Options(max_steps=int(math.ceil(self.max_time_s / dt)), **kw)
+        return dem.Options(max_steps=dem.max_steps_for(self.max_time_s, params, block), **kw)
 
 
 DEM_RUN = DemRun()

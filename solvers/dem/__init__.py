@@ -43,6 +43,7 @@ from solvers.dem._params import (
     contact_damping_ratio,
     make_block,
     make_params,
+    max_steps_for,
     stable_dt,
 )
 
@@ -70,6 +71,7 @@ __all__ = [
     "rollout",
     "simulate",
     "simulate_batch",
+    "max_steps_for",
     "stable_dt",
     "step",
     "trajectory",

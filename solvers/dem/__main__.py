@@ -111,7 +111,14 @@ def main(argv: list[str] | None = None) -> int:
         import numpy as np
         import pandas as pd
 
-        from solvers.dem import AlphaLawError, Options, make_block, make_params, stable_dt
+        from solvers.dem import (
+            AlphaLawError,
+            Options,
+            make_block,
+            make_params,
+            max_steps_for,
+            stable_dt,
+        )
         from solvers.dem._integrate import simulate_batch
         from solvers.profile import ProfileError, load_profile
         from solvers.status import finished
@@ -130,7 +137,8 @@ def main(argv: list[str] | None = None) -> int:
     params = make_params(profile, damping=args.damping, restitution=args.restitution,
                          stiffness_scale=args.stiffness_scale)
     dt = float(stable_dt(params, block))
-    options = Options(max_steps=int(math.ceil(args.max_time_s / dt)), smooth=args.smooth)
+    options = Options(max_steps=max_steps_for(args.max_time_s, params, block),
+                      smooth=args.smooth)
     keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.key(args.seed), i))(
         np.arange(args.n_blocks))
     t0 = time.perf_counter()

@@ -277,6 +277,13 @@ def check_run_numerics(stiffness_scale: float | None = None, max_time_s: float |
         raise ValueError(f"{names['max_time_s']}: expected a positive time, got {max_time_s:g}")
 
 
+def max_steps_for(max_time_s: float, params: Params, block: Block) -> int:
+    """Steps that give ``block`` at least ``max_time_s`` of simulated time at its
+    stable step: ceil(max_time_s / stable_dt). The one copy of this bound, used
+    by ``python -m solvers.dem`` and calib's DEM run configuration."""
+    return int(math.ceil(max_time_s / float(stable_dt(params, block))))
+
+
 def contact_damping_ratio(e):
     """Damping ratio zeta of a linear spring-dashpot contact of restitution e.
 
