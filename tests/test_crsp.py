@@ -197,14 +197,18 @@ def test_station_records_match_per_block_passage():
         assert np.all(np.isnan(res.stations.energy_kJ[~res.stations.passed[:, j], j]))
 
 
-def _same_results(a, b):
-    np.testing.assert_array_equal(a.runout_m, b.runout_m)
+def _same_results(a, b, exact=True):
+    if exact:
+        np.testing.assert_array_equal(a.runout_m, b.runout_m)
+    else:  # another XLA program (vmap of simulate): round-off only
+        np.testing.assert_allclose(a.runout_m, b.runout_m, rtol=1e-9)
     np.testing.assert_array_equal(a.status, b.status)
     np.testing.assert_array_equal(a.n_events, b.n_events)
     np.testing.assert_array_equal(a.stations.passed, b.stations.passed)
+    tol = 1e-12 if exact else 1e-9  # round-off grows along a trajectory
     for f in ("energy_kJ", "velocity_m_s", "bounce_height_m"):
         np.testing.assert_allclose(getattr(a.stations, f), getattr(b.stations, f),
-                                   rtol=1e-12, atol=1e-12, equal_nan=True)
+                                   rtol=tol, atol=tol, equal_nan=True)
 
 
 def test_station_records_do_not_depend_on_slots_order_or_batching():
@@ -238,7 +242,7 @@ def test_station_records_do_not_depend_on_slots_order_or_batching():
     # one block at a time (jax.vmap of simulate) gives the pool's records
     keys = crsp.block_keys(key, 0, 64)
     one = crsp.simulate_batch(params, block, keys, prof, jnp.asarray(st), crsp.Settings())
-    _same_results(ref, jax.tree_util.tree_map(np.asarray, one))
+    _same_results(ref, jax.tree_util.tree_map(np.asarray, one), exact=False)
 
 
 def test_workers_and_chunks_do_not_change_results():

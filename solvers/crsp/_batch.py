@@ -110,6 +110,18 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
     n_tasks = jax.tree_util.tree_leaves(params)[0].shape[0]
     n_items = n_tasks * n_per_task
     stations_x_m, stations_z_m, order = sorted_stations(profile, stations_x_m)
+    # the task axis padded to the lane quantum (the padding is never simulated):
+    # XLA:CPU compiles a call with one task differently from one with several
+    # (and a vector loop differently from its scalar tail), which rounds the
+    # runouts differently (1.7e-13 m); a task's blocks must not depend on how
+    # many tasks share the call
+    pad = (-n_tasks) % _LANE_QUANTUM
+
+    def padded(tree):
+        return jax.tree_util.tree_map(
+            lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]), tree)
+
+    params, block = padded(params), padded(block)
     tables = jax.vmap(segment_table, in_axes=(None, 0, 0))(profile, params, block)
 
     def task_of(t):
