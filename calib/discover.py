@@ -155,13 +155,16 @@ def _run(args) -> int:
     )
     from calib.discovery.discrepancy import GAP_METRIC, discover, preset_budget
     from calib.discovery.scores import ELPD_MIN, Z_MIN
-    from calib.files.inputs import common_release_m, load_inputs
+    from calib.files.inputs import InputError, common_release_m, load_inputs
     from calib.files.provenance import versions
     from calib.model.unfinished import UnfinishedBlocksWarning
     from calib.plots import discovery_figures as figs
 
     t0 = time.perf_counter()
-    obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
+    try:
+        obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
+    except InputError as e:
+        raise CliError(str(e)) from None
     velocities = _load_velocities(args.velocities, args.model, profile)
     release = common_release_m(obs, profile)
     cands = _candidates(args.model, args.effects, profile, release, args.rolling_resistance)

@@ -40,10 +40,10 @@ from solvers.cli import (
     CliError,
     OneLineParser,
     Progress,
-    few_blocks_warning,
     run_guarded,
     write_outputs,
 )
+from solvers.percentiles import few_blocks_warning
 
 __all__ = ["main"]
 
@@ -97,7 +97,8 @@ def build_parser() -> argparse.ArgumentParser:
 def _run(args) -> int:
     from calib.files.calibration_file import model_section, summary_stats
     from calib.files.inference_data import inference_data, netcdf_writer
-    from calib.files.inputs import common_release_m, load_inputs
+    from calib.files.inputs import InputError, common_release_m, load_inputs
+    from calib.files.observations import one_release_groups
     from calib.files.site import SiteError, load_site
     from calib.inference.calibrate import calibrate, presets
     from calib.model.alpha_law import alpha_of, check_fit
@@ -106,7 +107,10 @@ def _run(args) -> int:
     from calib.model.unfinished import UnfinishedBlocksWarning
 
     t_start = time.perf_counter()
-    obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
+    try:
+        obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
+    except InputError as e:
+        raise CliError(str(e)) from None
     try:
         site = load_site(profile_path)
     except SiteError as e:
@@ -170,15 +174,12 @@ def _run(args) -> int:
         mkey = jax.random.fold_in(key, m_i)
         if model == "crsp":
             box = CRSP_ROLLING_BOX if args.rolling_resistance == "fit" else CRSP_BOX
-            if groups is None:
-                forward = CrspForward(profile, obs.sizes_m, budget.n_blocks_design,
-                                      jax.random.fold_in(mkey, 1), box=box,
-                                      release_x_m=release)
-            else:
-                forward = CrspForward(profile, groups.sizes_m, budget.n_blocks_design,
-                                      jax.random.fold_in(mkey, 1), box=box,
-                                      release_x_m=tuple(groups.release_x_m),
-                                      release_speed_m_s=tuple(groups.release_speed_m_s))
+            # rows without their own release: one group per size at the common one
+            crsp_groups = groups if groups is not None else one_release_groups(obs, release)
+            forward = CrspForward(profile, crsp_groups.sizes_m, budget.n_blocks_design,
+                                  jax.random.fold_in(mkey, 1), box=box,
+                                  release_x_m=tuple(crsp_groups.release_x_m),
+                                  release_speed_m_s=tuple(crsp_groups.release_speed_m_s))
         else:
             forward = DemForward(profile, obs.sizes_m, budget.n_blocks_design,
                                  jax.random.fold_in(mkey, 1), form=args.alpha_law,
@@ -191,7 +192,7 @@ def _run(args) -> int:
             warnings.simplefilter("ignore", UnfinishedBlocksWarning)
             fit = calibrate(forward, obs, jax.random.fold_in(mkey, 2), methods, budget, bar,
                             extra_sizes_m=extra,
-                            groups=groups if model == "crsp" else None)
+                            groups=crsp_groups if model == "crsp" else None)
         bar.close()
         t0 = time.perf_counter()
         sec = model_section(model, fit, forward, args.alpha_law if model == "dem" else None)

@@ -24,7 +24,8 @@ import json
 import os
 import sys
 
-from solvers.cli import CliError, OneLineParser, few_blocks_warning, run_guarded
+from solvers.cli import CliError, OneLineParser, run_guarded
+from solvers.percentiles import few_blocks_warning
 
 PROG = "python -m calib.validate"
 

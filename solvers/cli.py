@@ -1,12 +1,11 @@
 """The command-line kit every ``python -m`` command of the project uses.
 
 One-line errors with exit code 2 (``CliError``, ``OneLineParser``,
-``run_guarded``), option and CSV parsing, progress bars on stderr
+``run_guarded``), option parsing, progress bars on stderr
 (``Progress``), atomic writes of all of a command's outputs
 (``write_all_atomic``, ``write_outputs``), JSON-ready values (``json_ready``),
-the station columns both solvers write (``station_columns``) and the warning
-line for percentiles that rest on too few blocks (``few_blocks_warning``; the
-rule itself is ``solvers.percentiles.few_blocks``). No physics here. Commands
+and the station columns both solvers write (``station_columns``). No physics
+here. Commands
 import these names from this module, never another command's private helpers.
 """
 
@@ -14,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import math
 import os
 import sys
 import tempfile
@@ -22,23 +20,18 @@ import time
 
 import numpy as np
 
-from solvers.percentiles import MIN_BLOCKS_FOR_PERCENTILE, few_blocks
-
 __all__ = [
     "CliError",
     "DefaultsHelpFormatter",
     "OneLineParser",
     "Progress",
     "fail",
-    "few_blocks_warning",
     "json_ready",
     "parse_floats",
     "parse_stations",
     "run_guarded",
     "station_column_names",
     "station_columns",
-    "cell_float",
-    "read_csv_rows",
     "text_writer",
     "write_all_atomic",
     "write_csv_atomic",
@@ -241,48 +234,6 @@ def json_ready(v):
     return v
 
 
-def read_csv_rows(path: str, what: str, error=CliError) -> tuple[list[str], list[tuple[int, dict]]]:
-    """A CSV's stripped header and its non-blank rows as ``(file line, {column: text})``.
-
-    Args:
-        path: the file.
-        what: what the header should be, for the message of an empty file.
-        error: exception class raised for a missing, empty or non-UTF-8 file.
-    """
-    import csv
-
-    if not os.path.isfile(path):
-        raise error(f"{path}: file not found")
-    try:
-        with open(path, newline="", encoding="utf-8") as fh:
-            reader = csv.DictReader(fh)
-            if not reader.fieldnames:
-                raise error(f"{path}: line 1: empty file; expected a header ({what})")
-            header = [h.strip() for h in reader.fieldnames]
-            rows = []
-            for raw in reader:
-                row = {k.strip(): (v or "").strip() for k, v in raw.items() if k is not None}
-                if any(row.values()):
-                    rows.append((reader.line_num, row))
-    except UnicodeDecodeError:
-        raise error(f"{path}: not a UTF-8 text CSV file") from None
-    return header, rows
-
-
-def cell_float(path: str, line: int, row: dict, col: str, error=CliError) -> float:
-    """A CSV cell as a finite float; otherwise ``error`` naming file, line and column."""
-    text = row.get(col, "")
-    try:
-        value = float(text)
-    except ValueError:
-        raise error(f"{path}: line {line}: column '{col}': expected a number, "
-                    f"got {text!r}") from None
-    if not math.isfinite(value):
-        raise error(f"{path}: line {line}: column '{col}': expected a finite number, "
-                    f"got {text!r}")
-    return value
-
-
 def text_writer(text: str):
     """A ``write(path)`` callable for ``write_all_atomic`` that writes ``text``."""
     def write(path):
@@ -299,29 +250,6 @@ def write_text_atomic(path: str, text: str) -> None:
 def write_csv_atomic(df, path: str) -> None:
     """Write a pandas DataFrame to ``path`` atomically (``write_text_atomic``)."""
     write_text_atomic(path, df.to_csv(index=False))
-
-
-def few_blocks_warning(rows, what: str = "percentiles", max_named: int = 8) -> str | None:
-    """One warning line naming the rows whose percentiles rest on too few blocks
-    (``solvers.percentiles.few_blocks``).
-
-    Args:
-        rows: iterable of ``(label, n_blocks)``, e.g. ``("D = 0.5 m, x = 110 m", 7)``.
-        what: what rests on the blocks, for the message.
-        max_named: rows named before "and k more".
-
-    Returns:
-        ``"warning: <what> rest on fewer than 20 blocks in N row(s): label (n blocks);
-        ..."``, or None where no row is below the threshold.
-    """
-    bad = [(label, int(n)) for label, n in rows if few_blocks(n)]
-    if not bad:
-        return None
-    named = "; ".join(f"{label} ({n} block{'s' if n != 1 else ''})"
-                      for label, n in bad[:max_named])
-    more = f"; and {len(bad) - max_named} more" if len(bad) > max_named else ""
-    return (f"warning: {what} rest on fewer than {MIN_BLOCKS_FOR_PERCENTILE} blocks in "
-            f"{len(bad)} row(s), treat them as rough: {named}{more}")
 
 
 def station_column_names(x_m: float, energy_per_m: bool = False) -> dict[str, str]:

@@ -49,7 +49,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from solvers.cli import cell_float
+from solvers.csv_rows import cell_float
 
 __all__ = [
     "MATERIAL_COLUMNS",

@@ -73,6 +73,35 @@ def cross_module_private_imports() -> list[str]:
     return list(dict.fromkeys(bad))
 
 
+def _is_command(name: str) -> bool:
+    """A command module (or a benchmark run as one): calib/<x>.py, any
+    ``__main__``, ``bench``/``_bench`` and the profile command's code."""
+    parts = name.split(".")
+    return ((parts[0] == "calib" and len(parts) == 2) or parts[-1] in
+            ("__main__", "bench", "_bench", "profile_cli") or name == "solvers.cli")
+
+
+def library_imports_of_the_cli_kit() -> list[str]:
+    """``file:line`` of library modules that import ``solvers.cli``."""
+    bad = []
+    for path, name, is_pkg in _modules():
+        if is_pkg or _is_command(name):
+            continue
+        for line, src, what in _imports(path, name, is_pkg):
+            if src == "solvers.cli" or (src == "solvers" and what == "cli"):
+                bad.append(f"{path.relative_to(ROOT)}:{line}: imports solvers.cli")
+    return list(dict.fromkeys(bad))
+
+
+def test_library_code_does_not_import_the_cli_kit():
+    """The kit is for commands; library code raises its own errors and reads its
+    CSVs through ``solvers.csv_rows`` (before: calib/files/inputs.py raised
+    CliError, raster, profile and field_runs read CSVs through the kit, the
+    hazard tables and the fit's check took the few-blocks rule from it)."""
+    bad = library_imports_of_the_cli_kit()
+    assert not bad, "\n".join(bad)
+
+
 def test_no_private_name_is_imported_across_modules():
     bad = cross_module_private_imports()
     assert not bad, "import these from the public kit (solvers.cli) or make them public:\n" \
@@ -174,8 +203,7 @@ def test_help_shows_defaults(module, needles, capsys):
 def test_few_blocks_is_the_one_rule_below_20():
     import numpy as np
 
-    from solvers.cli import few_blocks_warning
-    from solvers.percentiles import MIN_BLOCKS_FOR_PERCENTILE, few_blocks
+    from solvers.percentiles import MIN_BLOCKS_FOR_PERCENTILE, few_blocks, few_blocks_warning
 
     assert MIN_BLOCKS_FOR_PERCENTILE == 20
     assert few_blocks(19) is True and few_blocks(20) is False

@@ -60,10 +60,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from solvers.cli import (
-    cell_float,
-    read_csv_rows,
-)
+from solvers.csv_rows import cell_float, read_csv_rows
 
 __all__ = [
     "DEFAULT_DENSITY_KG_M3",

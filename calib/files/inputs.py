@@ -2,8 +2,8 @@
 checked together, and the one release of a data set.
 
 Shared by ``python -m calib.fit`` and ``python -m calib.discover`` (the
-commands only parse options and print). Bad input is a ``CliError`` naming the
-file, line and column (the commands turn it into one line and exit 2).
+commands only parse options and print). Bad input is an ``InputError`` naming
+the file, line and column (the commands turn it into one line and exit 2).
 """
 
 from __future__ import annotations
@@ -12,9 +12,11 @@ import os
 
 import numpy as np
 
-from solvers.cli import CliError
+__all__ = ["InputError", "common_release_m", "default_profile", "load_inputs"]
 
-__all__ = ["common_release_m", "default_profile", "load_inputs"]
+
+class InputError(ValueError):
+    """Bad calibration input; the message names the file, line and column."""
 
 
 def default_profile(data: str) -> str:
@@ -47,20 +49,20 @@ def _check_reach(obs, profile, profile_path: str) -> None:
     for i in range(obs.n_obs):
         x0 = rel[i] if np.isfinite(rel[i]) else start
         if not start <= x0 < x1:
-            raise CliError(f"{obs.path}: line {i + 2}, column 'release_x_m': release {x0:g} m "
+            raise InputError(f"{obs.path}: line {i + 2}, column 'release_x_m': release {x0:g} m "
                            f"lies outside the profile {profile_path} ({start:g} to {x1:g} m)")
         col, val = (("runout_min_m", obs.runout_min_m[i]) if obs.is_interval[i]
                     else ("runout_m", obs.runout_m[i]))
         if val > x1 - x0:
-            raise CliError(f"{obs.path}: line {i + 2}, column {col!r}: runout {val:g} m lies "
+            raise InputError(f"{obs.path}: line {i + 2}, column {col!r}: runout {val:g} m lies "
                            f"beyond the end of the profile {profile_path} (it covers "
                            f"{x1 - x0:g} m from the release at x = {x0:g} m); the blocks can "
                            f"never reach it")
 
 
 def load_inputs(data: str, profile_arg: str | None, out: str):
-    """Observations, profile and its path, checked for a command (``CliError`` on bad
-    input): the files exist and parse, every runout lies on the profile, ``out``
+    """Observations, profile and its path, checked for a command (``InputError``
+    on bad input): the files exist and parse, every runout lies on the profile, ``out``
     can be a folder. Shared by ``calib.fit`` and ``calib.discover``."""
     from calib.files.observations import ObservationError, load_observations
     from solvers.profile import ProfileError, load_profile
@@ -69,14 +71,14 @@ def load_inputs(data: str, profile_arg: str | None, out: str):
     try:
         obs = load_observations(data)
     except ObservationError as e:
-        raise CliError(str(e)) from None
+        raise InputError(str(e)) from None
     if not os.path.isfile(profile_path):
-        raise CliError(f"{profile_path}: no such profile file (give --profile)")
+        raise InputError(f"{profile_path}: no such profile file (give --profile)")
     try:
         profile = load_profile(profile_path)
     except ProfileError as e:
-        raise CliError(str(e)) from None
+        raise InputError(str(e)) from None
     _check_reach(obs, profile, profile_path)
     if os.path.exists(out) and not os.path.isdir(out):
-        raise CliError(f"--out {out}: exists and is not a folder")
+        raise InputError(f"--out {out}: exists and is not a folder")
     return obs, profile, profile_path

@@ -48,8 +48,7 @@ import pandas as pd
 from calib.hazard._intensity import hazard_level, intensity_class
 from calib.hazard._run import HazardCounts
 from calib.hazard._stats import BINS, hist_quantile
-from solvers.cli import few_blocks_warning
-from solvers.percentiles import few_blocks
+from solvers.percentiles import few_blocks, few_blocks_warning
 from solvers.profile import Profile
 
 __all__ = ["EXCEEDANCE_COLUMNS", "exceedance_table", "hazard_table", "summary_text"]

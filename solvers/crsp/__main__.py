@@ -15,11 +15,11 @@ from solvers.cli import (
     CliError,
     OneLineParser,
     fail,
-    few_blocks_warning,
     parse_stations,
     station_columns,
     write_csv_atomic,
 )
+from solvers.percentiles import few_blocks_warning
 from solvers.status import STATUS_NAMES, finished
 
 

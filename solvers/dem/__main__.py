@@ -24,13 +24,13 @@ from solvers.cli import (
     DefaultsHelpFormatter,
     OneLineParser,
     fail,
-    few_blocks_warning,
     parse_stations,
     station_columns,
     write_csv_atomic,
 )
 from solvers.dem._alpha_law import DEFAULT_ALPHA_LAW
 from solvers.dem._params import DAMPING_MODES, check_run_numerics
+from solvers.percentiles import few_blocks_warning
 
 
 def build_parser() -> OneLineParser:
