@@ -90,12 +90,17 @@ def build_parser() -> argparse.ArgumentParser:
                         "rolling resistance angle too, as calib.fit does by default (then "
                         "the rolling_resistance candidate is part of the baseline and is "
                         "left out)")
+    p.add_argument("--release-tolerance-m", type=float, default=1.0,
+                   help="where the rows give release_x_m, each row is simulated from its own "
+                        "point, as calib.fit does: rows of one size class whose releases lie "
+                        "within this distance share one simulated release (their mean); 0 "
+                        "simulates every distinct release (slower). Rows without "
+                        "release_x_m start at the profile's first vertex (default 1.0 m)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     return p
 
 
-def _candidates(model: str, effects_arg: str | None, profile, release_x_m=None,
-                rolling: str = "profile"):
+def _candidates(model: str, effects_arg: str | None, profile, rolling: str = "profile"):
     from calib.model.effects import CRSP_EFFECTS, DEM_EFFECTS
 
     allowed = CRSP_EFFECTS if model == "crsp" else DEM_EFFECTS
@@ -119,15 +124,11 @@ def _candidates(model: str, effects_arg: str | None, profile, release_x_m=None,
             base = CRSP_ROLLING_BOX
         else:
             base = CRSP_BOX
-        return crsp_candidates(profile, chosen, release_x_m, base)
+        return crsp_candidates(profile, chosen, base)
     if rolling == "fit":
         raise CliError("--rolling-resistance fit: the rolling resistance is a CRSP "
                        "parameter; the DEM candidates have none")
     from calib.discovery.dem_candidates import dem_candidates
-
-    if release_x_m is not None and release_x_m != float(profile.x_m[0]):
-        raise CliError("the DEM candidates release every block at the profile's first "
-                       "vertex; data with release_x_m need --model crsp")
 
     return dem_candidates(profile, chosen)
 
@@ -155,7 +156,7 @@ def _run(args) -> int:
     )
     from calib.discovery.discrepancy import GAP_METRIC, discover, preset_budget
     from calib.discovery.scores import ELPD_MIN, Z_MIN
-    from calib.files.inputs import InputError, common_release_m, load_inputs
+    from calib.files.inputs import InputError, load_inputs
     from calib.files.provenance import versions
     from calib.model.unfinished import UnfinishedBlocksWarning
     from calib.plots import discovery_figures as figs
@@ -166,8 +167,9 @@ def _run(args) -> int:
     except InputError as e:
         raise CliError(str(e)) from None
     velocities = _load_velocities(args.velocities, args.model, profile)
-    release = common_release_m(obs, profile)
-    cands = _candidates(args.model, args.effects, profile, release, args.rolling_resistance)
+    if not args.release_tolerance_m >= 0:
+        raise CliError(f"--release-tolerance-m must be >= 0, got {args.release_tolerance_m:g}")
+    cands = _candidates(args.model, args.effects, profile, args.rolling_resistance)
     try:
         budget = preset_budget(args.model, args.quick, args.n_blocks)
     except ValueError as e:
@@ -176,7 +178,7 @@ def _run(args) -> int:
     with warnings.catch_warnings():  # reported in the summary and discovery.json
         warnings.simplefilter("ignore", UnfinishedBlocksWarning)
         d = discover(cands, obs, profile, jax.random.key(args.seed), budget, bar, velocities,
-                     release)
+                     args.release_tolerance_m)
     bar.close()
     named_fit = d.fits[d.named_effect]
     result = {
@@ -185,6 +187,7 @@ def _run(args) -> int:
         "data_csv": args.data, "profile_csv": profile_path, "model": args.model,
         "seed": args.seed, "quick": bool(args.quick), "n_observations": obs.n_obs,
         "rolling_resistance": args.rolling_resistance if args.model == "crsp" else None,
+        "release_groups": _release_record(d.entries, obs.n_obs, args.release_tolerance_m),
         "velocities_csv": args.velocities,
         "n_velocity_observations": 0 if velocities is None else velocities.n_obs,
         "velocity_stations_m": ([] if velocities is None
@@ -224,14 +227,27 @@ def _run(args) -> int:
                                         f"{len(d.where_before['flagged'])} flagged"),
         "candidates.png": figs.candidates(d.table, d.named_effect, ELPD_MIN),
         "before_after.png": figs.before_after(
-            obs, d.class_sizes_m, d.row_class, base.samples,
-            None if d.named_effect == "none" else named_fit.samples, d.named_effect,
+            obs, d.class_sizes_m, d.row_class, base.class_samples,
+            None if d.named_effect == "none" else named_fit.class_samples, d.named_effect,
             (d.gap_before, d.gap_after)),
     }
     text = json.dumps(json_ready(result), indent=1, allow_nan=False) + "\n"
     write_outputs(args.out, {"discovery.json": text}, out_figs)
     _print_summary(result, args.out)
     return 0
+
+
+def _release_record(entries, n_runout_rows: int, tol_m: float) -> dict | None:
+    """Where the candidates released the blocks: None (every block at the
+    profile's first vertex) or the simulated (size class, release) groups."""
+    if entries is None:
+        return None
+    return {"tolerance_m": tol_m,
+            "groups": [{"block_size_m": float(d), "release_x_m": float(x),
+                        "release_speed_m_s": None if not np.isfinite(v) else float(v),
+                        "n_runout_rows": int(np.sum(entries.index[:n_runout_rows] == g))}
+                       for g, (d, x, v) in enumerate(zip(entries.sizes_m, entries.release_x_m,
+                                                         entries.release_speed_m_s))]}
 
 
 def _load_velocities(path, model: str, profile):
@@ -257,6 +273,11 @@ def _load_velocities(path, model: str, profile):
 
 
 def _print_summary(r: dict, out: str) -> None:
+    groups = r["release_groups"]
+    if groups is not None:
+        print(f"each row simulated from its own release: {len(groups['groups'])} simulated "
+              f"(size class, release) groups, rows within {groups['tolerance_m']:g} m "
+              f"grouped (discovery.json: release_groups)")
     print(f"where the baseline ({r['model']}) disagrees with the {r['n_observations']} rows:")
     flagged = r["where"]["flagged"]
     for line in flagged[:6] or [r["where"]["summary"]]:

@@ -86,7 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(python -m calib.validate; written to OUT/validation/). Default 0: "
                         "fit every row")
     p.add_argument("--release-tolerance-m", type=float, default=1.0,
-                   help="CRSP: rows of one block size whose release_x_m lie within this "
+                   help="rows of one block size whose release_x_m lie within this "
                         "distance share one simulated release (their mean); 0 simulates "
                         "every distinct release (slower). Rows without release_x_m start at "
                         "the profile's first vertex (default 1.0 m)")
@@ -128,22 +128,21 @@ def _run(args) -> int:
     if rel is not None and np.any(np.isfinite(rel)):
         from calib.files.observations import release_groups
 
-        if "crsp" in models:
-            groups = release_groups(obs, float(profile.x_m[0]), args.release_tolerance_m)
-            err = np.abs(groups.release_x_m[groups.index] - np.where(
-                np.isfinite(rel), rel, float(profile.x_m[0])))
-            speed = np.asarray(obs.release_speed_m_s, float)
-            gspeed = groups.release_speed_m_s[groups.index]
-            known = np.isfinite(speed) & np.isfinite(gspeed)
-            shift = (f", largest release-speed shift {np.abs(gspeed - speed)[known].max():.2f} "
-                     "m/s" if known.any() else "")
-            print(f"CRSP: each row released from its own point, rows of one size within "
-                  f"{args.release_tolerance_m:g} m grouped: {len(groups.sizes_m)} simulated "
-                  f"releases for {obs.n_obs} rows (largest release shift "
-                  f"{err.max():.2f} m{shift})")
-        if "dem" in models:
-            print(f"DEM: every block released at x = {release:.1f} m, the median of the "
-                  f"rows' release_x_m ({np.nanmin(rel):.1f} to {np.nanmax(rel):.1f} m)")
+        groups = release_groups(obs, float(profile.x_m[0]), args.release_tolerance_m)
+        err = np.abs(groups.release_x_m[groups.index] - np.where(
+            np.isfinite(rel), rel, float(profile.x_m[0])))
+        print(f"each row released from its own point, rows of one size within "
+              f"{args.release_tolerance_m:g} m grouped: {len(groups.sizes_m)} simulated "
+              f"releases for {obs.n_obs} rows (largest release shift {err.max():.2f} m)")
+        speed = np.asarray(obs.release_speed_m_s, float)
+        gspeed = groups.release_speed_m_s[groups.index]
+        known = np.isfinite(speed) & np.isfinite(gspeed)
+        if "crsp" in models and known.any():
+            print(f"CRSP: each group released at its rows' mean tracked speed (largest "
+                  f"release-speed shift {np.abs(gspeed - speed)[known].max():.2f} m/s)")
+        if "dem" in models and known.any():
+            print("DEM: blocks released at rest (the DEM has no release speed); the rows' "
+                  "release_speed_m_s are not used")
 
     methods = ("gradient", "bayes") if args.method == "both" else (args.method,)
     key = jax.random.key(args.seed)
@@ -152,7 +151,7 @@ def _run(args) -> int:
               "data_csv": data_csv, "profile_csv": profile_path, "seed": args.seed,
               "release_x_m": release,
               "release_groups": None if groups is None else {
-                  "tolerance_m": args.release_tolerance_m, "models": ["crsp"],
+                  "tolerance_m": args.release_tolerance_m, "models": models,
                   "groups": [{"block_size_m": float(d), "release_x_m": float(x),
                               "release_speed_m_s": None if not np.isfinite(v) else float(v),
                               "n_rows": int(np.sum(groups.index == g))}
@@ -181,9 +180,14 @@ def _run(args) -> int:
                                   release_x_m=tuple(crsp_groups.release_x_m),
                                   release_speed_m_s=tuple(crsp_groups.release_speed_m_s))
         else:
-            forward = DemForward(profile, obs.sizes_m, budget.n_blocks_design,
+            # the same groups released at rest, or one group per size at the common release
+            dem_groups = (one_release_groups(obs, release) if groups is None else
+                          groups._replace(release_speed_m_s=np.full(len(groups.sizes_m),
+                                                                    np.nan)))
+            forward = DemForward(profile, dem_groups.sizes_m, budget.n_blocks_design,
                                  jax.random.fold_in(mkey, 1), form=args.alpha_law,
-                                 release_x_m=release)
+                                 release_x_m=(release if groups is None
+                                              else tuple(dem_groups.release_x_m)))
         bar = Progress(not args.no_progress, model.upper())
         # the check also simulates a grid of sizes for the runout-vs-size figure
         extra = (np.geomspace(0.2, 2.0, 6) if model == "crsp" else
@@ -192,7 +196,7 @@ def _run(args) -> int:
             warnings.simplefilter("ignore", UnfinishedBlocksWarning)
             fit = calibrate(forward, obs, jax.random.fold_in(mkey, 2), methods, budget, bar,
                             extra_sizes_m=extra,
-                            groups=crsp_groups if model == "crsp" else None)
+                            groups=crsp_groups if model == "crsp" else dem_groups)
         bar.close()
         t0 = time.perf_counter()
         sec = model_section(model, fit, forward, args.alpha_law if model == "dem" else None)

@@ -19,21 +19,22 @@ from calib.model.priors import CRSP_BOX, Box
 __all__ = ["crsp_candidates"]
 
 
-def _crsp_forward(profile, effect, release_x_m, base, sizes_m, n_blocks, key,
-                  stations_x_m=()):
+def _crsp_forward(profile, effect, base, sizes_m, n_blocks, key, stations_x_m=(),
+                  release_x_m=None, release_speed_m_s=None):
     return CrspForward(profile, sizes_m, n_blocks, key, box=base, effect=effect,
-                       stations_x_m=tuple(stations_x_m), release_x_m=release_x_m)
+                       stations_x_m=tuple(stations_x_m), release_x_m=release_x_m,
+                       release_speed_m_s=release_speed_m_s)
 
 
-def crsp_candidates(profile, effects=CRSP_EFFECTS, release_x_m=None,
-                    base: Box = CRSP_BOX) -> list[Candidate]:
-    """Baseline first, then one candidate per effect (blocks released at
-    ``release_x_m``, m; None: the profile's first vertex). With a baseline that
-    fits the rolling resistance (``base = CRSP_ROLLING_BOX``) the
-    ``rolling_resistance`` effect is part of the baseline and is left out."""
+def crsp_candidates(profile, effects=CRSP_EFFECTS, base: Box = CRSP_BOX) -> list[Candidate]:
+    """Baseline first, then one candidate per effect. Blocks start where
+    ``calib.discovery.discrepancy.discover`` releases them (each row's own
+    point, or the profile's first vertex). With a baseline that fits the
+    rolling resistance (``base = CRSP_ROLLING_BOX``) the ``rolling_resistance``
+    effect is part of the baseline and is left out."""
     names = ["none"] + [e for e in effects if e != "none"]
     if "rolling_friction_deg" in base.names:
         names = [e for e in names if e != "rolling_resistance"]
     return [Candidate(e, full_box(e, profile, base=base),
-                      functools.partial(_crsp_forward, profile, e, release_x_m, base))
+                      functools.partial(_crsp_forward, profile, e, base))
             for e in names]

@@ -34,7 +34,7 @@ from calib.files.observations import dem_side_m
 from calib.model.alpha_law import alpha_of
 from calib.model.dem_run import DEM_RUN, DemRun
 from calib.model.effects import DEM_EFFECTS, EFFECTS, effect_box
-from calib.model.forward import DemForward, dem_lanes, stack_trees
+from calib.model.forward import DemForward, dem_lanes, entry_releases, stack_trees
 from calib.model.unfinished import mask_unfinished
 from solvers.profile import Profile
 
@@ -51,7 +51,9 @@ class DemEffectForward:
     """DEM runouts (T, S, n_blocks) of a candidate for theta (T, p), NaN for a
     block that did not finish; common random numbers (block j of every theta and
     size uses ``fold_in(key, j)``). ``run``: the DEM numerics (``calib.model.dem_run``),
-    the fit's and the hazard run's."""
+    the fit's and the hazard run's. ``release_x_m``: one release for all entries,
+    one per entry of ``sizes_m``, or None (the profile's first vertex); blocks
+    start at rest."""
 
     profile: Profile
     sizes_m: np.ndarray
@@ -59,14 +61,17 @@ class DemEffectForward:
     key: jax.Array
     effect: str = "none"
     run: DemRun = DEM_RUN
+    release_x_m: float | tuple[float, ...] | None = None
 
     def __post_init__(self):
         if self.effect not in DEM_EFFECTS:
             raise ValueError(f"effect {self.effect!r} is not available for the DEM")
+        self._x0 = entry_releases(self.profile, self.sizes_m, self.release_x_m)
         if self.effect != "fragmentation":
             form = "constant" if self.effect == "none" else "power"
             self._single = DemForward(self.profile, np.asarray(self.sizes_m, float),
-                                      self.n_blocks, self.key, form=form, run=self.run)
+                                      self.n_blocks, self.key, form=form, run=self.run,
+                                      release_x_m=self.release_x_m)
 
     @property
     def box(self):
@@ -84,11 +89,10 @@ class DemEffectForward:
         strength = 10.0 ** float(log10_strength)
         params = self.run.params(self.profile, c_joint_pa=strength, t_joint_pa=strength)
         sides = dem_side_m(self.sizes_m)
-        x0 = float(self.profile.x_m[0])
         # the one clipping rule of calib.model.alpha_law (the box stops at ALPHA_MAX already)
         a = float(alpha_of("constant", [alpha], sides[:1])[0])
         blocks = [make_block(float(L), alpha=a, n_fragments=N_FRAGMENTS,
-                             release_x_m=x0) for L in sides]
+                             release_x_m=float(x0)) for L, x0 in zip(sides, self._x0)]
         options = self.run.options(params, sides, n_fragments=N_FRAGMENTS, adaptive=False)
         lanes = [b for b in blocks for _ in range(self.n_blocks)]
         keys = jax.vmap(lambda j: jax.random.fold_in(self.key, j))(
@@ -103,8 +107,12 @@ def _grid(box, shape) -> np.ndarray:
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(shape))
 
 
-def _forward(profile, effect, sizes_m, n_blocks, key):
-    return DemEffectForward(profile, sizes_m, n_blocks, key, effect=effect)
+def _forward(profile, effect, sizes_m, n_blocks, key, release_x_m=None,
+             release_speed_m_s=None):
+    # the DEM releases its blocks at rest: release speeds are not used
+    del release_speed_m_s
+    return DemEffectForward(profile, sizes_m, n_blocks, key, effect=effect,
+                            release_x_m=release_x_m)
 
 
 def dem_candidates(profile, effects=DEM_EFFECTS) -> list[Candidate]:

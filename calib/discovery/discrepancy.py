@@ -66,6 +66,7 @@ from calib.discovery.scores import (
     folds,
     naming_threshold,
 )
+from calib.files.observations import ReleaseGroups, release_groups
 from calib.inference.importance import KHAT_MAX, ess, psis_weights
 from calib.inference.likelihood import log_likelihood, observed_rows, velocity_log_likelihood
 from calib.inference.predictive_check import pool_draws
@@ -152,8 +153,11 @@ class Candidate:
     """A model to fit: its effect name, prior box and forward-model factory.
 
     ``forward(sizes_m, n_blocks, key)`` returns an object whose ``runouts(theta)``
-    maps (T, p) parameters to (T, S, n_blocks) runouts (``calib.model.forward``);
-    with passage velocities the call gets ``stations_x_m=`` too and the object's
+    maps (T, p) parameters to (T, S, n_blocks) runouts (``calib.model.forward``),
+    its blocks released at the profile's first vertex; where the rows give their
+    own releases the call gets ``release_x_m=`` and ``release_speed_m_s=`` too
+    (one per entry of ``sizes_m``: an entry is then a (size, release) group);
+    with passage velocities it gets ``stations_x_m=`` and the object's
     ``simulate(theta)`` must also give the speeds there (``CrspForward``).
     ``design`` (optional) replaces the adaptive design by a fixed one: a
     callable ``design() -> (N, p)`` (the DEM's grids). ``n_blocks`` (optional)
@@ -184,7 +188,10 @@ class CandidateFit:
             not estimated (``calib.inference.importance``).
         estimate, q05, q95: weighted posterior mean and 90 % interval per parameter;
             best: the design point of highest weight.
-        samples: (C, M) posterior-predictive runouts per size class (fresh blocks).
+        samples: (E, M) posterior-predictive runouts per simulated entry (a size
+            class, or a (size class, release) group; fresh blocks).
+        class_samples: (C, M') the same pooled per size class: each row of the
+            class contributes its entry's samples (for figures).
         gap_by_class: (C,) mean CRPS per class, m; gap: their mean, m.
         loglik_noise_sd_nats: Monte Carlo sd of the summed log-likelihood at
             ``best`` over ``noise_reps`` independent block sets of the fit's size
@@ -214,6 +221,7 @@ class CandidateFit:
     unfinished: dict | None = None
     khat: float = float("nan")
     khat_folds: np.ndarray | None = None
+    class_samples: np.ndarray | None = None
 
 
 def size_classes(sizes_m: np.ndarray, max_classes: int = 8):
@@ -312,17 +320,36 @@ def _proposal(mean, cov, rng, n, dim):
     return draws, logpdf
 
 
-def gap(samples: np.ndarray, obs, row_class: np.ndarray, rng: np.random.Generator):
+def gap(samples: np.ndarray, obs, row_class: np.ndarray, rng: np.random.Generator,
+        row_entry: np.ndarray | None = None):
     """The gap metric (``GAP_METRIC``): (per-class mean CRPS (C,), their mean), m,
-    over the finished blocks (NaN samples left out; a class with none: NaN)."""
+    over the finished blocks (NaN samples left out; a class with none: NaN).
+
+    ``samples``: (E, M) predictive runouts per entry; row i is scored against
+    ``samples[row_entry[i]]`` (default: entries are the size classes, ``row_class``).
+    C is E without ``row_entry``, else ``row_class.max() + 1``."""
+    entry = row_class if row_entry is None else row_entry
     y, sd = point_view(obs)
-    per_row = np.array([_crps_finished(samples[row_class[i]] + sd[i] * rng.standard_normal(
+    per_row = np.array([_crps_finished(samples[entry[i]] + sd[i] * rng.standard_normal(
         samples.shape[1]), y[i]) for i in range(obs.n_obs)])
     classes = np.unique(row_class)
-    by_class = np.full(samples.shape[0], np.nan)
+    by_class = np.full(samples.shape[0] if row_entry is None else int(row_class.max()) + 1,
+                       np.nan)
     for c in classes:
         by_class[c] = per_row[row_class == c].mean()
     return by_class, float(np.nanmean(by_class))
+
+
+def class_samples(samples: np.ndarray, row_entry: np.ndarray, row_class: np.ndarray,
+                  n_classes: int) -> np.ndarray:
+    """(C, M') predictive runouts per size class from (E, M) per entry: each row
+    of a class contributes its entry's M samples (the class's mixture over its
+    rows' releases); M' = M times the largest class's row count, NaN-padded."""
+    per = [np.concatenate([samples[row_entry[i]] for i in np.flatnonzero(row_class == c)])
+           if np.any(row_class == c) else np.full(samples.shape[1], np.nan)
+           for c in range(n_classes)]
+    width = max(p.size for p in per)
+    return np.stack([np.pad(p, (0, width - p.size), constant_values=np.nan) for p in per])
 
 
 def _crps_finished(samples: np.ndarray, y: float) -> float:
@@ -333,12 +360,17 @@ def _crps_finished(samples: np.ndarray, y: float) -> float:
 def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array,
                   budget: Budget, fold: np.ndarray, progress=None,
                   warm: tuple[np.ndarray, np.ndarray] | None = None,
-                  velocities: VelocityRows | None = None) -> CandidateFit:
+                  velocities: VelocityRows | None = None,
+                  entries: ReleaseGroups | None = None) -> CandidateFit:
     """Fit one candidate by adaptive importance sampling; score it (see module doc).
 
     ``warm``: (mean, cov) in unit coordinates of the first parameters (the
     baseline's posterior), used for the warm stage. ``velocities``: passage-
-    velocity rows scored with the runout rows (``fold`` then covers both).
+    velocity rows scored with the runout rows (``fold`` then covers both; their
+    ``size_class`` indexes the entries). ``entries``: what the forward model
+    simulates, (size, release) groups with the entry of each runout row
+    (``index``); None: one entry per size class ``class_sizes_m``, released at
+    the profile's first vertex.
     """
     t0 = time.perf_counter()
     box = cand.box
@@ -346,16 +378,22 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     rng = np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel()[-1])
     vel = velocities if velocities is not None and velocities.n_obs else None
     st_kw = {} if vel is None else {"stations_x_m": tuple(map(float, vel.stations_m))}
+    if entries is None:
+        entry_sizes, row_entry, rel_kw = np.asarray(class_sizes_m, float), row_class, {}
+    else:
+        entry_sizes, row_entry = entries.sizes_m, entries.index
+        rel_kw = {"release_x_m": tuple(map(float, entries.release_x_m)),
+                  "release_speed_m_s": tuple(map(float, entries.release_speed_m_s))}
     try:
-        fw = cand.forward(class_sizes_m, cand.n_blocks or budget.n_blocks,
-                          jax.random.fold_in(key, 1), **st_kw)
+        fw = cand.forward(entry_sizes, cand.n_blocks or budget.n_blocks,
+                          jax.random.fold_in(key, 1), **rel_kw, **st_kw)
     except TypeError:
         if vel is None:
             raise
         raise ValueError(f"candidate {cand.effect!r}: its forward model cannot record "
                          f"passage speeds (CRSP candidates can)") from None
     y, sd, lo, hi, is_int = observed_rows(obs)
-    rc = jnp.asarray(row_class)
+    rc = jnp.asarray(row_entry)
 
     vel_arrays = None if vel is None else tuple(
         jnp.asarray(a) for a in (vel.size_class, vel.station, vel.v_m_s, vel.sd_m_s))
@@ -367,7 +405,7 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
         lv = _vel_loglik_design(jnp.asarray(speeds), *vel_arrays)
         return np.concatenate([ll, np.asarray(lv)], axis=1)
 
-    tallies = {"design": UnfinishedTally(tuple(map(float, class_sizes_m)))}
+    tallies = {"design": UnfinishedTally(tuple(map(float, entry_sizes)))}
 
     def simulate(z):
         theta = box.from_unit(z)
@@ -413,13 +451,18 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     q05 = np.array([_weighted_quantile(theta[:, j], w, 0.05) for j in range(dim)])
     q95 = np.array([_weighted_quantile(theta[:, j], w, 0.95) for j in range(dim)])
     elpd, khat_folds = cv_elpd(ll, log_q, fold)
-    samples = _predictive(cand, fw, theta, w, class_sizes_m, key, budget, rng, tallies)
-    gap_c, gap_m = gap(samples, obs, row_class, rng)
+    samples = _predictive(cand, fw, theta, w, entry_sizes, key, budget, rng, tallies, rel_kw)
+    if entries is None:
+        gap_c, gap_m = gap(samples, obs, row_class, rng)
+        per_class = samples
+    else:
+        gap_c, gap_m = gap(samples, obs, row_class, rng, row_entry)
+        per_class = class_samples(samples, row_entry, row_class, len(class_sizes_m))
     best = theta[np.argmax(w)]
     noise = float("nan")
     if budget.noise_reps > 1 and hasattr(fw, "replicate_sims"):
         reps = fw.replicate_sims(best, budget.noise_reps, jax.random.fold_in(key, 3))
-        tallies["noise"] = UnfinishedTally(tuple(map(float, class_sizes_m)))
+        tallies["noise"] = UnfinishedTally(tuple(map(float, entry_sizes)))
         tallies["noise"].add(reps[0], np.broadcast_to(best, (budget.noise_reps, dim)),
                              box.names)
         noise = loglik_noise_sd(loglik(*reps))
@@ -427,7 +470,7 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     warn_unfinished(record)
     return CandidateFit(cand.effect, box.names, theta, log_q, ll, w, ess(w),
                         elpd, est, q05, q95, best, samples, gap_c, gap_m, noise,
-                        time.perf_counter() - t0, record, khat, khat_folds)
+                        time.perf_counter() - t0, record, khat, khat_folds, per_class)
 
 
 def loglik_noise_sd(loglik_reps: np.ndarray) -> float:
@@ -465,18 +508,19 @@ def _mixture_log_q(z, counts, logpdfs):
     return logsumexp(np.stack(terms), axis=0) - np.log(sum(counts))
 
 
-def _predictive(cand, fw, theta, w, class_sizes_m, key, budget, rng, tallies):
-    """(C, M) posterior-predictive runouts: ``n_draws`` systematic-resampled
-    posterior draws, each simulated with fresh blocks (a key the fit never used;
-    their unfinished blocks are counted in ``tallies["predictive"]``). With
-    ``n_blocks_check`` = 0 the design's own simulations are resampled."""
+def _predictive(cand, fw, theta, w, entry_sizes, key, budget, rng, tallies, rel_kw):
+    """(E, M) posterior-predictive runouts per entry: ``n_draws`` systematic-
+    resampled posterior draws, each simulated with fresh blocks (a key the fit
+    never used; their unfinished blocks are counted in ``tallies["predictive"]``).
+    With ``n_blocks_check`` = 0 the design's own simulations are resampled."""
     m = budget.n_draws
     u = (rng.uniform() + np.arange(m)) / m
     idx = np.minimum(np.searchsorted(np.cumsum(w), u), len(w) - 1)
     if budget.n_blocks_check > 0:
-        fresh = cand.forward(class_sizes_m, budget.n_blocks_check, jax.random.fold_in(key, 2))
-        runs = fresh.runouts(theta[idx])  # (M, C, n)
-        tallies["predictive"] = UnfinishedTally(tuple(map(float, class_sizes_m)))
+        fresh = cand.forward(entry_sizes, budget.n_blocks_check, jax.random.fold_in(key, 2),
+                             **rel_kw)
+        runs = fresh.runouts(theta[idx])  # (M, E, n)
+        tallies["predictive"] = UnfinishedTally(tuple(map(float, entry_sizes)))
         tallies["predictive"].add(runs, theta[idx], cand.box.names)
     else:
         runs = fw.runouts(theta[idx])
@@ -497,18 +541,28 @@ class Discovery:
     gap_before: float
     gap_after: float
     timings_s: dict
+    entries: ReleaseGroups | None = None
 
 
 def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: Budget,
-             progress=None, velocities=None, release_x_m: float | None = None) -> Discovery:
+             progress=None, velocities=None, release_tolerance_m: float | None = None
+             ) -> Discovery:
     """Run the whole workflow on observations ``obs`` (see module docstring).
 
     ``candidates[0]`` must be the baseline (effect ``none``). ``velocities``
     (optional, ``calib.files.observations.Velocities``): passage speeds at stations,
     scored with the runouts by every candidate (forward models with
     ``simulate``, i.e. CRSP); the gap metric and the residuals stay on runouts.
-    ``release_x_m``: where the candidates release their blocks (None: the
-    profile's first vertex), for the stop positions of the residual tests.
+
+    Releases: where the rows give ``release_x_m`` (and ``release_tolerance_m``
+    is not None), every row is simulated from its own point, as ``calib.fit``
+    does: rows of one size class whose releases lie within
+    ``release_tolerance_m`` share one simulated (size class, release) group
+    (``calib.files.observations.release_groups``; rows without a release start
+    at the profile's first vertex), and stop positions for the residual tests
+    are each row's release plus its runout. Velocity rows are simulated from the
+    median of the rows' releases. Otherwise every block starts at the
+    profile's first vertex.
     """
     if candidates[0].effect != "none":
         raise ValueError("the first candidate must be the baseline (effect 'none')")
@@ -518,21 +572,31 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
         class_sizes, all_class = size_classes(np.concatenate([obs.block_size_m,
                                                               velocities.block_size_m]))
         row_class = all_class[:n_run]
-        vel = VelocityRows(velocities.stations_m, velocities.station_index, all_class[n_run:],
-                           velocities.velocity_m_s, velocities.velocity_sd_m_s)
+        vel_class = all_class[n_run:]
         # velocity rows are their own fold strata (after the runout rows' strata,
         # so the runout rows keep the folds they have without velocities)
         fold = folds(np.concatenate([all_class[:n_run], all_class[n_run:] + class_sizes.size]),
                      budget.k_folds, seed=0)
     else:
         class_sizes, row_class = size_classes(obs.block_size_m)
+        vel_class = None
         fold = folds(row_class, budget.k_folds, seed=0)
+    entries = _entries(obs, profile, class_sizes, row_class, vel_class, release_tolerance_m)
+    row_release = None
+    if entries is not None:
+        row_release = entries.release_x_m[entries.index[:n_run]]
+        if vel_class is not None:  # the velocity rows' entries follow the runout rows'
+            vel_class = entries.index[n_run:]
+        entries = entries._replace(index=entries.index[:n_run])
+    if vel_class is not None:
+        vel = VelocityRows(velocities.stations_m, velocities.station_index, vel_class,
+                           velocities.velocity_m_s, velocities.velocity_sd_m_s)
     fits, timings = {}, {}
     warm = None
     for i, cand in enumerate(candidates):
         fits[cand.effect] = fit_candidate(cand, obs, class_sizes, row_class,
                                           jax.random.fold_in(key, i), budget, fold, progress,
-                                          warm=warm, velocities=vel)
+                                          warm=warm, velocities=vel, entries=entries)
         timings[cand.effect] = fits[cand.effect].seconds
         if i == 0 and cand.design is None:  # the baseline's posterior seeds the effects
             b = fits["none"]
@@ -540,7 +604,9 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
             warm = _gaussian_fit(zb, b.weights)
     base = fits["none"]
     rng = np.random.default_rng(0)
-    where_before = locate(obs, row_class, class_sizes, base.samples, profile, rng, release_x_m)
+    row_entry = None if entries is None else entries.index
+    where_before = locate(obs, row_class, class_sizes, base.samples, profile, rng, row_release,
+                          row_entry)
     table = []
     for eff, f in fits.items():
         gains = f.elpd - base.elpd  # per row
@@ -565,6 +631,28 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
         r["clear_gain"] = r["effect"] == named and named != "none"
     where_after = None if named == "none" else locate(
         obs, row_class, class_sizes, fits[named].samples, profile, np.random.default_rng(0),
-        release_x_m)
+        row_release, row_entry)
     return Discovery(named, fits, table, where_before, where_after, class_sizes, row_class,
-                     base.gap, fits[named].gap, timings)
+                     base.gap, fits[named].gap, timings, entries)
+
+
+def _entries(obs, profile, class_sizes, row_class, vel_class, tol_m) -> ReleaseGroups | None:
+    """The simulated (size class, release) groups of ``discover``, None where every
+    block starts at the profile's first vertex (no ``release_x_m`` in the rows,
+    or ``tol_m`` None). Runout rows first in ``index``, then the velocity rows
+    (``vel_class``), whose groups are their size classes at the median of the
+    runout rows' releases, released at the solver's default speed."""
+    rel = np.asarray(obs.release_x_m, float)
+    if tol_m is None or not np.any(np.isfinite(rel)):
+        return None
+    binned = dataclasses.replace(obs, block_size_m=np.asarray(class_sizes)[row_class])
+    g = release_groups(binned, float(profile.x_m[0]), tol_m)
+    if vel_class is None:
+        return g
+    median = float(np.median(g.release_x_m[g.index]))
+    used = np.unique(vel_class)
+    n_g = g.sizes_m.size
+    return ReleaseGroups(np.concatenate([g.sizes_m, np.asarray(class_sizes)[used]]),
+                         np.concatenate([g.release_x_m, np.full(used.size, median)]),
+                         np.concatenate([g.index, n_g + np.searchsorted(used, vel_class)]),
+                         np.concatenate([g.release_speed_m_s, np.full(used.size, np.nan)]))

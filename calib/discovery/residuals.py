@@ -43,11 +43,12 @@ def point_view(obs):
     return y, np.maximum(sd, 1e-6)
 
 
-def quantile_residuals(obs, row_class: np.ndarray, samples: np.ndarray):
-    """(PIT, q) of each row given predictive runout samples per class (C, m)
-    (NaN: an unfinished block, left out; a class with none finished gives PIT 0.5)."""
+def quantile_residuals(obs, row_entry: np.ndarray, samples: np.ndarray):
+    """(PIT, q) of each row given predictive runout samples per entry (E, m), row
+    i's being ``samples[row_entry[i]]`` (NaN: an unfinished block, left out; an
+    entry with none finished gives PIT 0.5)."""
     y, sd = point_view(obs)
-    pit = np.array([_mean_or(stats.norm.cdf((y[i] - _finite(samples[row_class[i]])) / sd[i]),
+    pit = np.array([_mean_or(stats.norm.cdf((y[i] - _finite(samples[row_entry[i]])) / sd[i]),
                              0.5) for i in range(obs.n_obs)])
     q = stats.norm.ppf(np.clip(pit, 1e-6, 1 - 1e-6))
     return pit, q
@@ -77,27 +78,34 @@ def slope_parts(profile) -> list[tuple[float, float, str]]:
 
 
 def locate(obs, row_class: np.ndarray, class_sizes_m: np.ndarray, samples: np.ndarray,
-           profile, rng: np.random.Generator, release_x_m: float | None = None) -> dict:
+           profile, rng: np.random.Generator, release_x_m=None,
+           row_entry: np.ndarray | None = None) -> dict:
     """Residual tests against block size and stop position.
 
     Args:
         obs: ``Observations``.
         row_class: (n_obs,) size class of each row.
         class_sizes_m: (C,) representative size of each class, m.
-        samples: (C, m) posterior-predictive runouts per class (without noise), m;
-            NaN for an unfinished block (left out).
+        samples: (E, m) posterior-predictive runouts per simulated entry (without
+            noise), m; NaN for an unfinished block (left out). Row i's are
+            ``samples[row_entry[i]]``.
         profile: the slope.
         rng: NumPy generator (measurement noise of the predictive stop positions).
-        release_x_m: where the blocks were released, m (None: the profile's first
-            vertex); stop positions are release + runout.
+        release_x_m: where the blocks were released, m: one for all rows, or
+            (n_obs,) each row's own, or None (the profile's first vertex); stop
+            positions are release + runout.
+        row_entry: (n_obs,) entry of each row in ``samples``; None: the entries
+            are the size classes (``row_class``).
 
     Returns:
         dict with ``by_size``, ``size_trend``, ``by_slope_part``, ``flagged`` (list of
         plain-text findings, most significant first) and ``summary``.
     """
-    pit, q = quantile_residuals(obs, row_class, samples)
+    entry = row_class if row_entry is None else row_entry
+    pit, q = quantile_residuals(obs, entry, samples)
     y, sd = point_view(obs)
-    x0 = float(profile.x_m[0]) if release_x_m is None else float(release_x_m)
+    x0 = np.broadcast_to(np.asarray(profile.x_m[0] if release_x_m is None else release_x_m,
+                                    float), (obs.n_obs,))
     by_size = []
     for c, d in enumerate(class_sizes_m):
         rows = row_class == c
@@ -119,7 +127,7 @@ def locate(obs, row_class: np.ndarray, class_sizes_m: np.ndarray, samples: np.nd
     probs = np.zeros((obs.n_obs, len(parts)))
     for i in range(obs.n_obs):
         noise = sd[i] * rng.standard_normal(samples.shape[1])  # drawn for every block
-        s = x0 + samples[row_class[i]] + noise
+        s = x0[i] + samples[entry[i]] + noise
         s = s[np.isfinite(s)]
         idx = np.clip(np.searchsorted(edges, s, side="right") - 1, 0, len(parts) - 1)
         probs[i] = np.bincount(idx, minlength=len(parts)) / max(s.size, 1)

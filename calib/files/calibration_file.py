@@ -76,6 +76,10 @@ class Calibration(NamedTuple):
         dem_run: DEM only: the DEM numerics the fit used (key ``dem.run``:
             ``stiffness_scale``, ``max_time_s``, ``dt_size_m``; ``calib.model.dem_run``),
             or None (older files: the defaults).
+        own_releases: the fit released each row from its own ``release_x_m``
+            (rows without one at the profile's first vertex): always for CRSP,
+            for the DEM where ``release_groups.models`` lists it; False: every
+            block at ``release_x_m`` (DEM fits of older files).
     """
 
     path: str
@@ -89,6 +93,7 @@ class Calibration(NamedTuple):
     data_csv: str | None = None
     release_x_m: float | None = None
     dem_run: dict | None = None
+    own_releases: bool = True
 
 
 class Draws(NamedTuple):
@@ -279,7 +284,14 @@ def _model_from_doc(path: str, doc: dict, model: str | None) -> Calibration:
                        point=np.asarray(point, dtype=np.float64), posterior=posterior,
                        posterior_csv=post_path, alpha_form=form, data_csv=data_csv,
                        release_x_m=release, dem_run=_dem_run(path, sec) if model == "dem"
-                       else None)
+                       else None, own_releases=model == "crsp" or "dem" in _grouped(doc))
+
+
+def _grouped(doc: dict) -> list:
+    """The models that released each row from its own point (``release_groups.models``)."""
+    groups = doc.get("release_groups")
+    models = groups.get("models") if isinstance(groups, dict) else None
+    return models if isinstance(models, list) else []
 
 
 def _dem_run(path: str, sec: dict) -> dict | None:

@@ -31,10 +31,9 @@ def default_profile(data: str) -> str:
 def common_release_m(obs, profile) -> float:
     """One release abscissa for the whole data set: the median of the rows'
     ``release_x_m`` where the data give it, else the profile's first vertex.
-    The CRSP fit releases each row from its own point (``release_groups``); this
-    one release is where the DEM fit and ``calib.discover`` release every block,
-    where the runout-vs-size figure is simulated, and the default release of
-    ``calib.hazard`` (recorded as ``release_x_m`` in calibration.json)."""
+    The fits release each row from its own point (``release_groups``); this one
+    release is where the runout-vs-size figure is simulated, and the default
+    release of ``calib.hazard`` (recorded as ``release_x_m`` in calibration.json)."""
     rel = getattr(obs, "release_x_m", None)
     if rel is None or not np.any(np.isfinite(rel)):
         return float(profile.x_m[0])

@@ -53,6 +53,7 @@ from calib.inference.emulator import fit_emulator, holdout_error
 from calib.inference.gradient import GradientFit, fit_gradient
 from calib.inference.likelihood import log_likelihood, observed_rows
 from calib.inference.predictive_check import pool_draws
+from calib.model.forward import entry_releases
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
 from solvers.percentiles import few_blocks
 
@@ -218,9 +219,7 @@ def _entries(forward) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     first vertex, where both solvers release by default) and release speeds, m/s
     (NaN: the solver's default; a ``DemForward`` has none)."""
     sizes = np.asarray(forward.sizes_m, float)
-    rel = forward.release_x_m
-    rel = np.broadcast_to(np.asarray(forward.profile.x_m[0] if rel is None else rel, float),
-                          sizes.shape)
+    rel = entry_releases(forward.profile, sizes, forward.release_x_m)
     speed = getattr(forward, "release_speed_m_s", None)
     speed = np.full(sizes.shape, np.nan) if speed is None else np.asarray(speed, float)
     return sizes, rel, speed

@@ -194,7 +194,8 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
 
     Raises:
         ValueError: a release outside the profile, more draws than the
-            posterior has, or DEM rows with their own releases.
+            posterior has, or rows with their own releases for a DEM fit that
+            released every block at one point.
     """
     import jax
 
@@ -204,10 +205,10 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
 
     start = float(profile.x_m[0])
     common = start if cal.release_x_m is None else float(cal.release_x_m)
-    # the fit's rules: CRSP rows without release_x_m start at the profile's first
-    # vertex (calib.fit's release groups); the DEM fit ran every block at the
-    # calibration's one release
-    default = start if cal.model == "crsp" else common
+    # the fit's rules: rows without release_x_m start at the profile's first vertex
+    # (calib.fit's release groups); a DEM fit of an older file ran every block at
+    # the calibration's one release
+    default = start if cal.own_releases else common
     sizes, releases, index, speeds = release_groups(heldout, default)
     lo, hi = start, float(profile.x_m[-1])
     bad = np.flatnonzero((releases < lo) | (releases >= hi))
@@ -224,10 +225,11 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
     else:
         from calib.model.dem_run import DEM_RUN, DemRun
 
-        if np.any(releases != common):
+        if not cal.own_releases and np.any(releases != common):
             raise ValueError(f"the DEM fit released every block at x = {common:g} m; held-out "
-                             "rows with other release_x_m need --model crsp")
+                             "rows with other release_x_m need a calibration that releases "
+                             "each row from its own point (refit with calib.fit)")
         fw = DemForward(profile, sizes, n_blocks or 4, key, form=cal.alpha_form,
-                        release_x_m=common,
+                        release_x_m=tuple(releases),
                         run=DemRun(**cal.dem_run) if cal.dem_run else DEM_RUN)
     return pool_draws(fw.runouts(draws.values)), index, draws, fw.n_blocks

@@ -43,7 +43,8 @@ from calib.model.unfinished import mask_unfinished
 from solvers.parallel import default_workers, map_ordered
 from solvers.profile import Profile
 
-__all__ = ["CrspForward", "DemForward", "default_lanes", "dem_lanes", "stack_trees"]
+__all__ = ["CrspForward", "DemForward", "default_lanes", "dem_lanes", "entry_releases",
+           "stack_trees"]
 
 
 @functools.partial(jax.jit, static_argnames=("with_rolling",))
@@ -67,6 +68,23 @@ def dem_lanes(params, blocks, keys, options):
     from solvers.dem import simulate
 
     return jax.vmap(lambda b, k: simulate(params, b, k, options))(blocks, keys)
+
+
+def entry_releases(profile: Profile, sizes_m, release_x_m) -> np.ndarray:
+    """(S,) release abscissa of each entry of ``sizes_m``, m: ``release_x_m`` one
+    for all, one per entry, or None (the profile's first vertex).
+
+    Raises:
+        ValueError: a count of releases that is neither one nor one per entry.
+    """
+    n_s = len(np.atleast_1d(sizes_m))
+    if release_x_m is None:
+        return np.full(n_s, float(profile.x_m[0]))
+    rel = np.asarray(release_x_m, float)
+    if rel.ndim > 0 and rel.shape != (n_s,):
+        raise ValueError(f"release_x_m: {rel.size} entries for {n_s} entries of sizes_m "
+                         "(one per entry, or one for all)")
+    return np.broadcast_to(rel, (n_s,)).copy()
 
 
 def default_lanes() -> int:
@@ -139,11 +157,11 @@ class CrspForward:
 
     def __post_init__(self):
         n_s = len(np.atleast_1d(self.sizes_m))
-        for name in ("release_x_m", "release_speed_m_s"):
-            v = getattr(self, name)
-            if v is not None and np.ndim(v) > 0 and len(v) != n_s:
-                raise ValueError(f"{name}: {len(v)} entries for {n_s} entries of sizes_m "
-                                 "(one per entry, or one for all)")
+        entry_releases(self.profile, self.sizes_m, self.release_x_m)  # checks the count
+        v = self.release_speed_m_s
+        if v is not None and np.ndim(v) > 0 and len(v) != n_s:
+            raise ValueError(f"release_speed_m_s: {len(v)} entries for {n_s} entries of "
+                             "sizes_m (one per entry, or one for all)")
         if self.effect != "none":
             from calib.model.effects import effect_box, full_box
 
@@ -309,8 +327,10 @@ class DemForward:
             ``calib.model.dem_run``), the hazard run's too.
         lane_batch: blocks per compiled call (the last call is padded), so every
             call reuses one compiled program.
-        release_x_m: release abscissa of every block, m (None: the profile's
-            first vertex).
+        release_x_m: release abscissa, m: one for every entry, or (S,) one per
+            entry of ``sizes_m`` (an entry is then a (size, release) group, as in
+            ``CrspForward``), or None (the profile's first vertex). Blocks are
+            released at rest: the DEM has no release speed.
     """
 
     profile: Profile
@@ -320,9 +340,10 @@ class DemForward:
     form: str = "power"
     run: DemRun = DEM_RUN
     lane_batch: int = 32
-    release_x_m: float | None = None
+    release_x_m: float | tuple[float, ...] | None = None
 
     def __post_init__(self):
+        entry_releases(self.profile, self.sizes_m, self.release_x_m)  # checks the count
         if self.form not in DEM_BOXES:
             raise ValueError(f"unknown alpha law form {self.form!r}; expected one of "
                              f"{', '.join(DEM_BOXES)}")
@@ -354,9 +375,9 @@ class DemForward:
 
         alpha = np.asarray(alpha, float)
         n_t, n_s = alpha.shape
-        x0 = float(self.profile.x_m[0]) if self.release_x_m is None else float(self.release_x_m)
-        proto = [make_block(float(L), alpha=0.5, release_x_m=x0)
-                 for L in dem_side_m(self.sizes_m)]
+        x0 = entry_releases(self.profile, self.sizes_m, self.release_x_m)
+        proto = [make_block(float(L), alpha=0.5, release_x_m=float(x))
+                 for L, x in zip(dem_side_m(self.sizes_m), x0)]
         lanes, keys = [], []
         for t in range(n_t):
             for s in range(n_s):
