@@ -187,7 +187,9 @@ for p in ad["problems"]:
 # to: posterior mass piled on a prior bound means the data push a parameter
 # out of its published range, and too few rows inside their predictive bands
 # means the model's spread is wrong. Either one says: this model, with one
-# parameter set for the slope, does not describe this campaign.
+# parameter set for the slope, does not describe this campaign. A third
+# check names release groups whose simulated blocks stall at the release
+# while the observed ones did not.
 #
 # ## 6. Prediction of the held-out runs against climatology
 #
@@ -223,6 +225,13 @@ for name in ("runout_vs_size.png", "crsp_pairs.png", os.path.join("validation", 
 # * Cut the profile along the mean fall line of your runs, check that every
 #   stop lies on it and look at the lateral offsets `calib.field` reports: a
 #   2D profile cannot represent blocks that fan out across the slope.
+# * Look at the ground the releases land on: `adequacy.stalls` in
+#   `calibration.json` gives, per release group, the slope just below the
+#   release and how many simulated blocks stop within 1 m of it. Here the
+#   releases project onto a 21-26 deg shoulder above a 44 deg slope: slowly
+#   released blocks stall on the shoulder under a rolling resistance steeper
+#   than it, and the posterior splits into modes that do and do not let them
+#   start.
 # * Keep 30 % of the runs aside and run the predictive check. Use the
 #   calibration only if its skill against climatology is positive and its
 #   90 % intervals cover about 90 % of the held-out runs; the adequacy check

@@ -69,3 +69,32 @@ def test_interval_rows_are_covered_when_they_overlap_the_band(tmp_path):
     sim = np.linspace(80.0, 120.0, 401)[None]
     rows = predictive_coverage(obs, sim)["rows"]
     assert rows[0]["in_90"] and rows[0]["in_50"] and not rows[1]["in_90"]
+
+
+def test_blocks_that_stall_at_their_release_are_flagged_with_where(tmp_path):
+    """Three (size, release) entries: at the first, 80 % of the simulated blocks stop
+    within 1 m of the release while its observed rows travelled 80-100 m; at the
+    second as many stall but so did its rows (not a misfit); at the third none
+    stall. Only the first is flagged, and the message names its release and the
+    slope below it."""
+    from calib.inference.adequacy import stalled_releases
+
+    rng = np.random.default_rng(2)
+    moving = 90.0 + 10.0 * rng.standard_normal(500)
+    stall = np.where(rng.random(500) < 0.8, 0.2, moving)
+    sim = np.stack([stall, stall, moving])
+    obs = _obs(tmp_path, [0.3] * 9, [80, 90, 100, 0.3, 0.5, 0.2, 85, 95, 88])
+    index = np.repeat([0, 1, 2], 3)
+    rel, slope = np.array([38.7, 39.0, 41.0]), np.array([25.7, 25.7, 43.8])
+    st = stalled_releases(obs, sim, index, rel, slope)
+    assert [e["flagged"] for e in st["entries"]] == [True, False, False]
+    first = st["entries"][0]
+    assert abs(first["simulated_stalled"] - 0.8) < 0.05 and first["observed_stalled"] == 0.0
+    assert first["rows"] == [1, 2, 3]
+    rec = adequacy_record(None, CRSP_BOX, obs, sim, "test", index, rel, slope)
+    assert not rec["ok"] and rec["stalls"]["flagged"] == [first]
+    assert "released at x = 38.7 m (slope below it 26 deg)" in rec["message"]
+    # without the stalling entry nothing is said about stalls
+    ok = adequacy_record(None, CRSP_BOX, obs, np.stack([moving, stall, moving]), "test",
+                         index, rel, slope)
+    assert not ok["stalls"]["flagged"] and "stall" not in (ok["message"] or "")

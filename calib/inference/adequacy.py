@@ -30,6 +30,18 @@ reported per fit (``calib.inference.calibrate``; ``calibration.json`` under
    nothing is flagged unless the miss is gross). Coverage above nominal is
    reported, not flagged.
 
+3. **Blocks that stall at their release.** Per simulated entry (a size, or a
+   (size, release) group), the fraction of the predictive's finished blocks
+   that stop within ``STALL_M`` (1 m) of where they were released, against
+   the fraction of the entry's observed rows that did. An entry is flagged when
+   the simulated fraction exceeds the observed one by ``STALL_FLAG`` (0.5) or
+   more: most simulated blocks never get going where the observed ones did.
+   On a profile this happens where the blocks start slowly on ground flatter
+   than the rolling resistance angle (e.g. hand-released blocks projected
+   onto a shoulder of a mean fall line), and a posterior then splits into modes
+   that do and do not let them start. Threshold and flag level are our own
+   choice.
+
 Without a posterior (gradient-only fits) the predictive distribution is that
 of the point estimate (plug-in), and the record says so.
 """
@@ -43,13 +55,15 @@ from calib.files.observations import Observations
 from calib.inference.predictive_check import in_band, observed_ensemble
 from calib.model.priors import Box
 
-__all__ = ["BOUND_BAND", "BOUND_FLAG", "COVERAGE_ALPHA", "LEVELS", "adequacy_record",
-           "bound_mass", "predictive_coverage"]
+__all__ = ["BOUND_BAND", "BOUND_FLAG", "COVERAGE_ALPHA", "LEVELS", "STALL_FLAG", "STALL_M",
+           "adequacy_record", "bound_mass", "predictive_coverage", "stalled_releases"]
 
 BOUND_BAND = 0.02  # width of the band at each bound, as a fraction of the box width
 BOUND_FLAG = 0.10  # posterior mass in that band above which a parameter is flagged
 COVERAGE_ALPHA = 0.05  # level of the one-sided binomial test of coverage
 LEVELS = (0.5, 0.9)
+STALL_M = 1.0  # a block that stops within this distance of its release stalled, m
+STALL_FLAG = 0.5  # simulated minus observed stalled fraction above which an entry is flagged
 
 
 def bound_mass(samples: np.ndarray, box: Box) -> dict:
@@ -114,8 +128,65 @@ def predictive_coverage(obs: Observations, runouts: np.ndarray, key_seed: int = 
     return {"levels": levels, "rows": rows}
 
 
+def stalled_releases(obs: Observations, runouts: np.ndarray, index=None,
+                     release_x_m=None, release_slope_deg=None) -> dict:
+    """Entries whose simulated blocks stall at their release (module docstring, 3).
+
+    Args:
+        obs: the calibration rows.
+        runouts: (S, n) predictive runouts per entry, m; NaN for unfinished blocks.
+        index: (n_obs,) entry of each row (default ``obs.size_index``).
+        release_x_m, release_slope_deg: (S,) each entry's release abscissa, m,
+            and the profile's slope just below it, deg, for the report (optional).
+
+    Returns:
+        {"stall_m", "flag_fraction", "entries": [per entry with rows: size,
+        release, slope, simulated and observed stalled fractions, rows, flagged],
+        "flagged": [the flagged ones]}.
+    """
+    index = obs.size_index if index is None else np.asarray(index)
+    lo = np.where(obs.is_interval, obs.runout_min_m, obs.runout_m)
+    entries = []
+    for e in np.unique(index):
+        r = np.asarray(runouts[e], float)
+        r = r[np.isfinite(r)]
+        rows = np.flatnonzero(index == e)
+        sim = float(np.mean(r < STALL_M)) if r.size else None
+        seen = float(np.mean(lo[rows] < STALL_M))
+        entries.append({
+            "entry": int(e), "block_size_m": float(obs.block_size_m[rows[0]]),
+            "release_x_m": None if release_x_m is None else float(release_x_m[e]),
+            "release_slope_deg": (None if release_slope_deg is None
+                                  else float(release_slope_deg[e])),
+            "simulated_stalled": sim, "observed_stalled": seen,
+            "rows": [int(i) + 1 for i in rows],
+            "flagged": bool(sim is not None and sim - seen >= STALL_FLAG)})
+    return {"stall_m": STALL_M, "flag_fraction": STALL_FLAG, "entries": entries,
+            "flagged": [x for x in entries if x["flagged"]]}
+
+
+def _stall_problem(stalls: dict) -> str | None:
+    bad = stalls["flagged"]
+    if not bad:
+        return None
+    where = "; ".join(
+        f"{x['block_size_m']:g} m blocks"
+        + ("" if x["release_x_m"] is None else f" released at x = {x['release_x_m']:.1f} m")
+        + ("" if x["release_slope_deg"] is None else
+           f" (slope below it {x['release_slope_deg']:.0f} deg)")
+        + f": {x['simulated_stalled']:.0%} of the simulated blocks stop within "
+          f"{stalls['stall_m']:g} m, {x['observed_stalled']:.0%} of its "
+          f"{len(x['rows'])} rows did" for x in bad[:4])
+    more = f" and {len(bad) - 4} more entries" if len(bad) > 4 else ""
+    return (f"simulated blocks stall at their release where the observed ones did not "
+            f"({where}{more}); check the profile's slope at these releases against the "
+            f"rolling resistance angle, and how the blocks were released (release_x_m, "
+            f"release_speed_m_s)")
+
+
 def adequacy_record(samples: np.ndarray | None, box: Box, obs: Observations,
-                    runouts: np.ndarray, source: str, index=None) -> dict:
+                    runouts: np.ndarray, source: str, index=None, release_x_m=None,
+                    release_slope_deg=None) -> dict:
     """Both checks and one message (None when nothing is flagged).
 
     Args:
@@ -126,9 +197,12 @@ def adequacy_record(samples: np.ndarray | None, box: Box, obs: Observations,
         source: how ``runouts`` were made (e.g. "posterior predictive, 32 draws x
             64 blocks per size").
         index: (n_obs,) entry of each row in ``runouts`` (default ``obs.size_index``).
+        release_x_m, release_slope_deg: (S,) each entry's release and the slope
+            below it, for the stall report (``stalled_releases``; optional).
     """
     bounds = None if samples is None else bound_mass(samples, box)
     cov = predictive_coverage(obs, runouts, index=index)
+    stalls = stalled_releases(obs, runouts, index, release_x_m, release_slope_deg)
     problems = []
     for name, b in (bounds or {}).items():
         if b["flagged"]:
@@ -142,11 +216,15 @@ def adequacy_record(samples: np.ndarray | None, box: Box, obs: Observations,
             problems.append(f"only {c['n_covered']} of {c['n_rows']} calibration rows lie "
                             f"inside their {float(p):.0%} predictive band (one-sided binomial "
                             f"p = {c['p_value']:.2g})")
+    stall = _stall_problem(stalls)
+    if stall:
+        problems.append(stall)
     message = None
     if problems:
         message = ("the model may not be able to fit these data: " + "; ".join(problems)
                    + ". Widen the prior, add the missing physics or check the data before "
                    "using this calibration")
     return {"bound_band_fraction": BOUND_BAND, "bound_flag_fraction": BOUND_FLAG,
-            "bounds": bounds, "coverage": cov, "predictive": source, "ok": not problems,
+            "bounds": bounds, "coverage": cov, "stalls": stalls, "predictive": source,
+            "ok": not problems,
             "problems": problems, "message": message}

@@ -389,7 +389,8 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     timings["check_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     adequacy = _adequacy(forward, obs, posterior, at_rows, budget,
-                         jax.random.fold_in(k_check, 1), tally, index)
+                         jax.random.fold_in(k_check, 1), tally, index,
+                         _release_slopes_deg(forward.profile, groups.release_x_m))
     timings["adequacy_s"] = time.perf_counter() - t0
     record = unfinished_record(tallies, f"{type(forward).__name__} calibration")
     warn_unfinished(record)
@@ -397,16 +398,26 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
                     quality, sizes, check, timings, budget, record, adequacy)
 
 
+def _release_slopes_deg(profile, release_x_m) -> np.ndarray:
+    """The profile's slope just below each release abscissa (that of the segment
+    the release lies on, the lower one at a vertex), deg, > 0 downhill."""
+    x, z = np.asarray(profile.x_m, float), np.asarray(profile.z_m, float)
+    seg = np.clip(np.searchsorted(x, np.asarray(release_x_m, float), side="right") - 1,
+                  0, x.size - 2)
+    return np.degrees(np.arctan2(z[seg] - z[seg + 1], x[seg + 1] - x[seg]))
+
+
 def _adequacy(forward, obs: Observations, posterior: Posterior | None, check: np.ndarray,
-              budget: Budget, key: jax.Array, tally, index) -> dict:
+              budget: Budget, key: jax.Array, tally, index, slopes_deg) -> dict:
     """``calib.inference.adequacy`` of one fit: posterior predictive runouts at
     ``n_predictive_draws`` draws spread evenly over the chains' output, with
     ``n_blocks_predictive`` fresh blocks per draw and size; without a posterior,
     the check's runouts at the point estimate (plug-in)."""
+    release = _entries(forward)[1]
     if posterior is None:
         return adequacy_record(None, forward.box, obs, check,
                                f"plug-in at the point estimate, {check.shape[-1]} blocks "
-                               "per size (no posterior)", index)
+                               "per size (no posterior)", index, release, slopes_deg)
     n = posterior.samples.shape[0]
     pick = np.linspace(0, n - 1, min(budget.n_predictive_draws, n)).round().astype(int)
     draws = posterior.samples[pick]
@@ -415,4 +426,5 @@ def _adequacy(forward, obs: Observations, posterior: Posterior | None, check: np
     tally("predictive", runs, draws)
     return adequacy_record(posterior.samples, forward.box, obs, pool_draws(runs),
                            f"posterior predictive, {len(pick)} draws x "
-                           f"{budget.n_blocks_predictive} blocks per size", index)
+                           f"{budget.n_blocks_predictive} blocks per size", index, release,
+                           slopes_deg)
