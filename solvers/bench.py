@@ -79,6 +79,7 @@ def crsp_throughput(n_blocks: int, roughness_m: float = 2.0, radius_m: float = 0
         "stations": 0 if stations_x_m is None else len(stations_x_m),
         "workers": workers,
         "chunk_blocks": size,
+        "pool": min(crsp.default_pool() if pool is None else pool, size),
         "blocks_per_s": n_blocks / wall,
         "wall_s": wall,
         "compile_s": max(first - second, 0.0),
@@ -158,7 +159,8 @@ def _main(argv) -> int:
         print(json.dumps(out, indent=1, default=float))
         return 0
     print(f"device: {out['device']}, {out['cpu_count']} CPU cores")
-    print("CRSP, Postignano profile, Kn 0.41, Kt 0.87, S 2 m (steady state, compile excluded)")
+    print("CRSP, Postignano profile, Kn 0.41, Kt 0.87, S 2 m (steady state, compile excluded; "
+          f"{rows[0]['pool']} lanes per chunk of {rows[0]['chunk_blocks']} blocks)")
     print(f"{'N':>7} {'diam m':>6} {'stations':>8} {'workers':>7} {'blocks/s':>10} {'wall s':>7} "
           f"{'compile s':>9} {'mean ev':>7} {'max ev':>6} {'median m':>8} {'unfinished':>10} "
           f"{'RSS MB':>7}")

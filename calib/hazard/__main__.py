@@ -68,7 +68,9 @@ def build_parser() -> OneLineParser:
     p.add_argument("--chunk-blocks", type=int, default=16384,
                    help="most blocks per size in one compiled call (bounds memory; "
                         "default 16384)")
-    p.add_argument("--pool", type=int, default=1024, help="CRSP lanes per call (default 1024)")
+    p.add_argument("--pool", type=int, default=None,
+                   help="CRSP lanes per call (default: 256 on a CPU, 4096 on an accelerator; "
+                        "results do not depend on it)")
     p.add_argument("--max-events", type=int, default=5000,
                    help="CRSP event budget per block (default 5000)")
     p.add_argument("--dem-stiffness-scale", type=float, default=None,
@@ -103,7 +105,8 @@ def main(argv: list[str] | None = None) -> int:
             if v is not None:
                 _positive_int("--" + name.replace("_", "-"), v)
         _positive_int("--chunk-blocks", args.chunk_blocks)
-        _positive_int("--pool", args.pool)
+        if args.pool is not None:
+            _positive_int("--pool", args.pool)
         _positive_int("--max-events", args.max_events)
         if args.seed < 0:
             raise CliError(f"--seed: expected a non-negative integer, got {args.seed}")

@@ -54,8 +54,11 @@ def main(argv=None) -> int:
     p = OneLineParser(prog="python -m calib.hazard._bench", description=__doc__.split("\n\n")[0])
     p.add_argument("--n", type=int, default=16384, help="blocks per size and draw (default 16384)")
     p.add_argument("--draws", type=int, default=2, help="draws in the pipeline run (default 2)")
-    p.add_argument("--pool", type=int, default=1024, help="CRSP lanes (default 1024)")
+    p.add_argument("--pool", type=int, default=None,
+                   help="CRSP lanes (default: solvers.crsp.default_pool(), 256 on a CPU)")
     args = p.parse_args(argv)
+    if args.pool is None:
+        args.pool = crsp.default_pool()
     profile = load_profile(PROFILE)
     stations = np.arange(0.0, 301.0, 5.0)
     params = crsp.params_from_profile(profile, Kn=0.41, Kt=0.87, roughness_m=2.0)

@@ -98,7 +98,7 @@ def _chunks(n_blocks: int, max_chunk: int) -> tuple[int, list[int]]:
 
 
 def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, stations_x_m,
-               n_blocks: int, seed: int, *, chunk_blocks: int = 16384, pool: int = 1024,
+               n_blocks: int, seed: int, *, chunk_blocks: int = 16384, pool: int | None = None,
                settings: crsp.Settings = crsp.Settings(), dem_run: DemRun = DEM_RUN,
                progress: Callable[[int], None] | None = None, devices=None) -> HazardCounts:
     """Simulate ``n_blocks`` blocks per draw and size; reduce at the stations.
@@ -114,7 +114,7 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
         n_blocks: blocks per draw and size.
         seed: random seed (see ``_units`` for the key of each block).
         chunk_blocks: most blocks per size in one work unit (memory bound).
-        pool: CRSP lanes per unit.
+        pool: CRSP lanes per unit (None: ``solvers.crsp.default_pool()``).
         settings: CRSP settings.
         dem_run: DEM numerics (``calib.model.dem_run``; default: the fit's).
         progress: called with the number of blocks finished after each unit.
@@ -176,6 +176,7 @@ def _crsp_units(draws, profile, release_x, sizes_m, stations, n_blocks, seed, ch
                 pool, settings):
     n_sizes = len(sizes_m)
     blocks = stack_trees([crsp.make_block(float(r)) for r in crsp_radius_m(sizes_m)])
+    pool = crsp.default_pool() if pool is None else pool
     fn = functools.partial(crsp_chunk, n_chunk=chunk, pool=min(pool, n_sizes * chunk),
                            settings=settings)
     for d, values in enumerate(draws.values):

@@ -43,8 +43,7 @@ from calib.model.unfinished import mask_unfinished
 from solvers.parallel import default_workers, map_ordered
 from solvers.profile import Profile
 
-__all__ = ["CrspForward", "DemForward", "default_lanes", "dem_lanes", "entry_releases",
-           "stack_trees"]
+__all__ = ["CrspForward", "DemForward", "dem_lanes", "entry_releases", "stack_trees"]
 
 
 @functools.partial(jax.jit, static_argnames=("with_rolling",))
@@ -87,17 +86,6 @@ def entry_releases(profile: Profile, sizes_m, release_x_m) -> np.ndarray:
     return np.broadcast_to(rel, (n_s,)).copy()
 
 
-def default_lanes() -> int:
-    """Lanes of the CRSP pool when none is given: 128 on a CPU, 4096 on an accelerator.
-
-    On a CPU a small pool runs fastest: the same 192 tasks x 32 blocks ran at
-    989 blocks/s with 2048 lanes and 32 tasks per call, 2,700 with 1024 lanes
-    and 6,500-6,900 with 128 lanes and 96 tasks per call (2 cores, 2026-11-21).
-    Accelerators want wide pools to fill their cores.
-    """
-    return 128 if jax.default_backend() == "cpu" else 4096
-
-
 def stack_trees(trees):
     """Stack a list of pytrees (blocks) leaf by leaf into one batched pytree."""
     return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *trees)
@@ -112,7 +100,7 @@ class CrspForward:
         sizes_m: (S,) average block diameters d, m.
         n_blocks: blocks per (theta, size).
         key: PRNG key shared by all thetas (common random numbers).
-        pool: lanes of the scheduler (default ``default_lanes()``); results do
+        pool: lanes of the scheduler (default ``solvers.crsp.default_pool()``); results do
             not depend on it, only the speed does.
         task_chunk: (theta, size) tasks per compiled call on one worker
             (default 96), divided by the number of worker threads.
@@ -146,7 +134,7 @@ class CrspForward:
     sizes_m: np.ndarray
     n_blocks: int
     key: jax.Array
-    pool: int = dataclasses.field(default_factory=default_lanes)
+    pool: int = dataclasses.field(default_factory=crsp.default_pool)
     task_chunk: int = 96
     box: Box = CRSP_BOX
     effect: str = "none"

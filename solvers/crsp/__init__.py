@@ -10,6 +10,7 @@ import solvers  # noqa: F401  (enables float64)
 from solvers.crsp._batch import (
     block_keys,
     chunk_plan,
+    default_pool,
     run_blocks,
     simulate_batch,
     simulate_pooled,
@@ -54,6 +55,7 @@ __all__ = [
     "params_from_profile",
     "roughness_tilt",
     "chunk_plan",
+    "default_pool",
     "run_blocks",
     "simulate",
     "simulate_batch",
