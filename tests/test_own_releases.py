@@ -168,3 +168,21 @@ def test_a_dem_calibration_says_whether_it_released_each_row_from_its_point(tmp_
                         release_x_m=np.array([150.0]))
     with pytest.raises(ValueError, match="refit"):
         predictive_runouts(old, held, PROFILE, 1, 1, 0)
+
+
+def test_velocity_rows_get_their_own_entries_at_the_median_release():
+    """With passage speeds, the runout rows' (size class, release) groups come
+    first, then one entry per velocity size class released at the median of the
+    runout rows' releases (speeds have no release of their own)."""
+    from calib.discovery.discrepancy import _entries
+
+    obs = _rows()  # 12 rows of 1 m: 6 released at 0 m, 6 at 100 m
+    class_sizes = np.array([0.5, 1.0])
+    row_class = np.ones(12, int)
+    vel_class = np.array([0, 1, 0])
+    e = _entries(obs, PROFILE, class_sizes, row_class, vel_class, 1.0)
+    np.testing.assert_array_equal(e.sizes_m, [1.0, 1.0, 0.5, 1.0])
+    np.testing.assert_array_equal(e.release_x_m, [0.0, 100.0, 50.0, 50.0])
+    np.testing.assert_array_equal(e.index, list(np.repeat([0, 1], 6)) + [2, 3, 2])
+    assert np.all(np.isnan(e.release_speed_m_s))
+    assert _entries(obs, PROFILE, class_sizes, row_class, vel_class, None) is None
