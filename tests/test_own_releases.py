@@ -146,9 +146,10 @@ def test_a_dem_calibration_says_whether_it_released_each_row_from_its_point(tmp_
     fitted: listed, held-out rows are released from their own points; not listed
     (files of the one-release DEM fit), rows released elsewhere are refused with
     a line that says to refit, not simulated from the wrong point."""
+    from test_hazard_fixtures import write_calibration
+
     from calib.files.calibration_file import load_calibration
     from calib.inference.predictive_check import predictive_runouts
-    from tests.test_hazard_fixtures import write_calibration
 
     path = write_calibration(tmp_path, crsp=(0.41, 0.87, 2.0), dem=(0.40, 0.5))
     with open(path) as fh:
