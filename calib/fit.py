@@ -186,8 +186,7 @@ def _run(args) -> int:
                                                                     np.nan)))
             forward = DemForward(profile, dem_groups.sizes_m, budget.n_blocks_design,
                                  jax.random.fold_in(mkey, 1), form=args.alpha_law,
-                                 release_x_m=(release if groups is None
-                                              else tuple(dem_groups.release_x_m)))
+                                 release_x_m=tuple(dem_groups.release_x_m))
         bar = Progress(not args.no_progress, model.upper())
         # the check also simulates a grid of sizes for the runout-vs-size figure
         extra = (np.geomspace(0.2, 2.0, 6) if model == "crsp" else

@@ -56,6 +56,7 @@ from calib.inference.predictive_check import pool_draws
 from calib.model.forward import entry_releases
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
 from solvers.percentiles import few_blocks
+from solvers.profile import segment_index
 
 __all__ = ["Budget", "ModelFit", "calibrate", "fit_quality", "presets"]
 
@@ -389,8 +390,7 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     timings["check_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     adequacy = _adequacy(forward, obs, posterior, at_rows, budget,
-                         jax.random.fold_in(k_check, 1), tally, index,
-                         _release_slopes_deg(forward.profile, groups.release_x_m))
+                         jax.random.fold_in(k_check, 1), tally, index)
     timings["adequacy_s"] = time.perf_counter() - t0
     record = unfinished_record(tallies, f"{type(forward).__name__} calibration")
     warn_unfinished(record)
@@ -402,18 +402,18 @@ def _release_slopes_deg(profile, release_x_m) -> np.ndarray:
     """The profile's slope just below each release abscissa (that of the segment
     the release lies on, the lower one at a vertex), deg, > 0 downhill."""
     x, z = np.asarray(profile.x_m, float), np.asarray(profile.z_m, float)
-    seg = np.clip(np.searchsorted(x, np.asarray(release_x_m, float), side="right") - 1,
-                  0, x.size - 2)
+    seg = np.asarray(segment_index(profile, jnp.asarray(release_x_m, jnp.float64)))
     return np.degrees(np.arctan2(z[seg] - z[seg + 1], x[seg + 1] - x[seg]))
 
 
 def _adequacy(forward, obs: Observations, posterior: Posterior | None, check: np.ndarray,
-              budget: Budget, key: jax.Array, tally, index, slopes_deg) -> dict:
+              budget: Budget, key: jax.Array, tally, index) -> dict:
     """``calib.inference.adequacy`` of one fit: posterior predictive runouts at
     ``n_predictive_draws`` draws spread evenly over the chains' output, with
     ``n_blocks_predictive`` fresh blocks per draw and size; without a posterior,
     the check's runouts at the point estimate (plug-in)."""
     release = _entries(forward)[1]
+    slopes_deg = _release_slopes_deg(forward.profile, release)
     if posterior is None:
         return adequacy_record(None, forward.box, obs, check,
                                f"plug-in at the point estimate, {check.shape[-1]} blocks "
