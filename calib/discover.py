@@ -245,9 +245,11 @@ def _release_record(entries, n_runout_rows: int, tol_m: float) -> dict | None:
     return {"tolerance_m": tol_m,
             "groups": [{"block_size_m": float(d), "release_x_m": float(x),
                         "release_speed_m_s": None if not np.isfinite(v) else float(v),
+                        "release_height_m": None if not np.isfinite(h) else float(h),
                         "n_runout_rows": int(np.sum(entries.index[:n_runout_rows] == g))}
-                       for g, (d, x, v) in enumerate(zip(entries.sizes_m, entries.release_x_m,
-                                                         entries.release_speed_m_s))]}
+                       for g, (d, x, v, h) in enumerate(zip(
+                           entries.sizes_m, entries.release_x_m, entries.release_speed_m_s,
+                           entries.release_height_m))]}
 
 
 def _load_velocities(path, model: str, profile):

@@ -42,7 +42,9 @@ def build_parser() -> argparse.ArgumentParser:
             "block_id, release_x_m (release abscissa\non the profile), release_speed_m_s, "
             "shape (sphere|cylinder|disc from the dimensions), mass_kg,\nrelease_offset_m, "
             "stop_offset_m (signed distance from the line, + to the left looking "
-            "downslope),\nbeyond_max_offset. runout_m = x(stop) - x(release) along the "
+            "downslope),\nbeyond_max_offset, release_height_m (height of the block's lowest "
+            "point above the\nprofile's ground at release, from the release z; empty without "
+            "it). runout_m = x(stop) - x(release) along the "
             "profile.\n\n"
             "block_size_m is the volume-equivalent sphere diameter d = (6 m / (pi rho))^(1/3); "
             "only where\nthe mass is missing, d = (a b c)^(1/3) of the three dimensions. "
@@ -87,6 +89,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--velocity-cols", default=",".join(d.velocity),
                    help=f"release velocity columns, m/s (default {','.join(d.velocity)}; "
                         "absent columns: no release_speed_m_s)")
+    p.add_argument("--release-z-col", default=d.release_z,
+                   help=f"height of the release point (the block's centre), m, in the "
+                        f"profile's vertical datum (default {d.release_z}; an absent column "
+                        "or an empty name: no release_height_m)")
     p.add_argument("--size-cols", default=",".join(d.size),
                    help=f"three block dimensions, m (default {','.join(d.size)})")
     return p
@@ -100,6 +106,7 @@ def _names(text: str, n: int, option: str) -> tuple[str, ...]:
 
 
 def _run(args) -> int:
+    from solvers.profile import ProfileError, load_profile
     from solvers.raster import RasterError, read_profile_trace
 
     for opt, val in (("--density-kg-m3", args.density_kg_m3), ("--runout-sd-m", args.runout_sd_m),
@@ -113,16 +120,17 @@ def _run(args) -> int:
         release=_names(args.release_cols, 2, "--release-cols"),
         stop=_names(args.stop_cols, 2, "--stop-cols"),
         velocity=_names(args.velocity_cols, 3, "--velocity-cols"),
-        size=_names(args.size_cols, 3, "--size-cols"))
+        size=_names(args.size_cols, 3, "--size-cols"), release_z=args.release_z_col.strip())
     try:
         x, trace = read_profile_trace(args.profile)
+        profile_z = load_profile(args.profile).z_m
         runs = load_runs(args.runs, args.blocks, columns)
         rows = field_observations(
             runs, x, trace, density_kg_m3=args.density_kg_m3, runout_sd_m=args.runout_sd_m,
             max_offset_m=args.max_offset_m,
             source=args.source if args.source is not None else os.path.basename(args.runs),
-            columns=columns, profile_path=args.profile)
-    except (FieldError, RasterError) as e:
+            columns=columns, profile_path=args.profile, profile_z_m=np.asarray(profile_z))
+    except (FieldError, RasterError, ProfileError) as e:
         raise CliError(str(e)) from None
     try:
         write_all_atomic({args.out: text_writer(observations_csv_text(rows))})
@@ -138,6 +146,14 @@ def _run(args) -> int:
           f"{sizes.min():.3f} to {sizes.max():.3f} m ({len(rows) - n_box} from mass at "
           f"{args.density_kg_m3:g} kg/m^3, {n_box} from dimensions); largest lateral offset "
           f"{offsets[k]:.1f} m (run {rows[k]['run_id']})")
+    clear = np.array([r["release_clearance_m"] for r in rows])
+    known = np.isfinite(clear)
+    if known.any():
+        print(f"release_height_m (block's lowest point above the profile's ground at release) "
+              f"for {int(known.sum())} runs: {max(clear[known].min(), 0.0):.2f} to "
+              f"{clear[known].max():.2f} m; {int((clear[known] < 0).sum())} releases lie below "
+              f"the profile's ground (by up to {max(-clear[known].min(), 0.0):.2f} m) and are "
+              "released on it (0 m)")
     flagged = [r for r in rows if r["beyond_max_offset"]]
     if flagged:
         names = ", ".join(f"{r['run_id']} ({offsets[i]:.1f} m)"

@@ -140,9 +140,17 @@ def _run(args) -> int:
         if "crsp" in models and known.any():
             print(f"CRSP: each group released at its rows' mean tracked speed (largest "
                   f"release-speed shift {np.abs(gspeed - speed)[known].max():.2f} m/s)")
-        if "dem" in models and known.any():
-            print("DEM: blocks released at rest (the DEM has no release speed); the rows' "
-                  "release_speed_m_s are not used")
+        height = np.asarray(obs.release_height_m, float)
+        high = np.isfinite(height)
+        if "crsp" in models and high.any():
+            gh = groups.release_height_m[groups.index]
+            print(f"CRSP: each group released at its rows' mean height above the ground, "
+                  f"{np.nanmin(groups.release_height_m):.2f} to "
+                  f"{np.nanmax(groups.release_height_m):.2f} m (largest release-height "
+                  f"shift {np.abs(gh - height)[high].max():.2f} m)")
+        if "dem" in models and (known.any() or high.any()):
+            print("DEM: blocks released at rest on the ground (the DEM has no release speed "
+                  "or height); the rows' release_speed_m_s and release_height_m are not used")
 
     methods = ("gradient", "bayes") if args.method == "both" else (args.method,)
     key = jax.random.key(args.seed)
@@ -154,10 +162,11 @@ def _run(args) -> int:
                   "tolerance_m": args.release_tolerance_m, "models": models,
                   "groups": [{"block_size_m": float(d), "release_x_m": float(x),
                               "release_speed_m_s": None if not np.isfinite(v) else float(v),
+                              "release_height_m": None if not np.isfinite(h) else float(h),
                               "n_rows": int(np.sum(groups.index == g))}
-                             for g, (d, x, v) in enumerate(zip(groups.sizes_m,
-                                                               groups.release_x_m,
-                                                               groups.release_speed_m_s))]},
+                             for g, (d, x, v, h) in enumerate(zip(
+                                 groups.sizes_m, groups.release_x_m,
+                                 groups.release_speed_m_s, groups.release_height_m))]},
               "quick": bool(args.quick), "methods": list(methods), "versions": versions(),
               "inputs": provenance(PROG, args.seed, {"data": args.data,
                                                      "profile": profile_path})["inputs"],
@@ -178,12 +187,14 @@ def _run(args) -> int:
             forward = CrspForward(profile, crsp_groups.sizes_m, budget.n_blocks_design,
                                   jax.random.fold_in(mkey, 1), box=box,
                                   release_x_m=tuple(crsp_groups.release_x_m),
-                                  release_speed_m_s=tuple(crsp_groups.release_speed_m_s))
+                                  release_speed_m_s=tuple(crsp_groups.release_speed_m_s),
+                                  release_height_m=tuple(crsp_groups.release_height_m))
         else:
-            # the same groups released at rest, or one group per size at the common release
+            # the same groups released at rest on the ground, or one group per size at
+            # the common release
+            nan = np.full(0 if groups is None else len(groups.sizes_m), np.nan)
             dem_groups = (one_release_groups(obs, release) if groups is None else
-                          groups._replace(release_speed_m_s=np.full(len(groups.sizes_m),
-                                                                    np.nan)))
+                          groups._replace(release_speed_m_s=nan, release_height_m=nan))
             forward = DemForward(profile, dem_groups.sizes_m, budget.n_blocks_design,
                                  jax.random.fold_in(mkey, 1), form=args.alpha_law,
                                  release_x_m=tuple(dem_groups.release_x_m))

@@ -120,6 +120,31 @@ def test_cli_writes_observations_that_load_and_warns_about_offsets(tmp_path, cap
     np.testing.assert_allclose(obs.runout_sd_m, 2.0)
 
 
+def test_release_height_is_the_lowest_point_above_the_profile_ground(tmp_path, capsys):
+    """h = z_release - d / 2 - ground(x_release): r1 (the 0.4 m cube) released
+    with its centre 0.6 m above the ground at east 10 m (ground 97 m) is 0.4 m
+    high; r2, below the ground, is released on it (0 m, counted); a runs file
+    without the z column gives no heights."""
+    prof = _profile(tmp_path)
+    runs, blocks = _runs(tmp_path, "r1,1,,10,3,97.6,0.3,0.4,0,90,-4,0",
+                         "r2,2,50,20,-25,93,,,,130,2,0", "r3,2,50,20,0,,,,,130,2,0")
+    out = str(tmp_path / "obs.csv")
+    rc, stdout, err = _cli([runs, "--blocks", blocks, "--profile", prof, "--out", out], capsys)
+    assert rc == 0, err
+    obs = load_observations(out)
+    np.testing.assert_allclose(obs.release_height_m, [0.4, 0.0, np.nan], atol=1e-9)
+    assert "for 2 runs: 0.00 to 0.40 m; 1 releases lie below the profile's ground (by up " \
+           "to 1.17 m)" in stdout
+    # the column named off, or absent: no heights
+    rc, stdout, err = _cli([runs, "--blocks", blocks, "--profile", prof, "--out", out,
+                            "--release-z-col", ""], capsys)
+    assert rc == 0 and np.isnan(load_observations(out).release_height_m).all()
+    assert "release_height_m" not in stdout
+    x, trace = read_profile_trace(prof)
+    rows = field_observations(load_runs(runs, blocks), x, trace)  # no profile heights
+    assert all(math.isnan(r["release_height_m"]) for r in rows)
+
+
 @pytest.mark.parametrize("row, needle", [
     ("r1,2,50,90,0,0,,,,10,0,0", "line 2: column 'stop_x_m': the stop of run r1 lies upslope"),
     ("r1,9,,10,0,0,,,,90,0,0", "line 2: column 'block_id': block '9' is not in"),
@@ -169,6 +194,10 @@ def test_observation_loader_reads_the_optional_field_columns(tmp_path):
     p.write_text("block_size_m,runout_m,runout_sd_m,release_speed_m_s\n0.3,50,2,-1\n")
     with pytest.raises(ObservationError, match="column 'release_speed_m_s'"):
         load_observations(p)
+    p.write_text("block_size_m,runout_m,runout_sd_m,release_height_m\n0.3,50,2,\n0.3,50,2,-0.1\n")
+    with pytest.raises(ObservationError, match="line 3, column 'release_height_m': expected a "
+                       "height >= 0"):
+        load_observations(p)
 
 
 # ---------------------------------------------------------------- the shipped case
@@ -186,6 +215,7 @@ def test_shipped_tschamut_observations_load_and_are_all_62_runs():
     np.testing.assert_allclose(obs.sizes_m, sphere_diameter_m([40, 69, 79], 2650.0), atol=1e-4)
     assert set(obs.shape) == {"sphere", "disc"}
     assert np.isfinite(obs.release_x_m).all() and np.isfinite(obs.release_speed_m_s).all()
+    assert (obs.release_height_m >= 0).all() and obs.release_height_m.max() < 3.0
 
 
 def test_regenerating_the_shipped_observations_reproduces_them(tmp_path, capsys):

@@ -56,7 +56,8 @@ class _Falls:
 
     built: list = []
 
-    def __init__(self, sizes_m, n_blocks, key, release_x_m=None, release_speed_m_s=None):
+    def __init__(self, sizes_m, n_blocks, key, release_x_m=None, release_speed_m_s=None,
+                 release_height_m=None):
         self.sizes = np.asarray(sizes_m, float)
         self.release = np.broadcast_to(np.asarray(0.0 if release_x_m is None else release_x_m,
                                                   float), self.sizes.shape)
@@ -139,6 +140,7 @@ def test_discover_on_a_field_campaign_releases_each_run_from_its_point(tschamut_
     for g in groups:
         near = np.abs(obs.release_x_m - g["release_x_m"]) <= 1.0
         assert np.any(near & (obs.block_size_m == g["block_size_m"])), g
+        assert g["release_height_m"] >= 0.0, g  # the runs' tracked release heights
 
 
 def test_a_dem_calibration_says_whether_it_released_each_row_from_its_point(tmp_path):

@@ -108,9 +108,10 @@ def _grid(box, shape) -> np.ndarray:
 
 
 def _forward(profile, effect, sizes_m, n_blocks, key, release_x_m=None,
-             release_speed_m_s=None):
-    # the DEM releases its blocks at rest: release speeds are not used
-    del release_speed_m_s
+             release_speed_m_s=None, release_height_m=None):
+    # the DEM releases its blocks at rest on the ground: release speeds and
+    # heights are not used
+    del release_speed_m_s, release_height_m
     return DemEffectForward(profile, sizes_m, n_blocks, key, effect=effect,
                             release_x_m=release_x_m)
 

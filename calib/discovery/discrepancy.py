@@ -155,7 +155,8 @@ class Candidate:
     ``forward(sizes_m, n_blocks, key)`` returns an object whose ``runouts(theta)``
     maps (T, p) parameters to (T, S, n_blocks) runouts (``calib.model.forward``),
     its blocks released at the profile's first vertex; where the rows give their
-    own releases the call gets ``release_x_m=`` and ``release_speed_m_s=`` too
+    own releases the call gets ``release_x_m=``, ``release_speed_m_s=`` and
+    ``release_height_m=`` too
     (one per entry of ``sizes_m``: an entry is then a (size, release) group);
     with passage velocities it gets ``stations_x_m=`` and the object's
     ``simulate(theta)`` must also give the speeds there (``CrspForward``).
@@ -383,7 +384,8 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     else:
         entry_sizes, row_entry = entries.sizes_m, entries.index
         rel_kw = {"release_x_m": tuple(map(float, entries.release_x_m)),
-                  "release_speed_m_s": tuple(map(float, entries.release_speed_m_s))}
+                  "release_speed_m_s": tuple(map(float, entries.release_speed_m_s)),
+                  "release_height_m": tuple(map(float, entries.release_height_m))}
     try:
         fw = cand.forward(entry_sizes, cand.n_blocks or budget.n_blocks,
                           jax.random.fold_in(key, 1), **rel_kw, **st_kw)
@@ -641,7 +643,7 @@ def _entries(obs, profile, class_sizes, row_class, vel_class, tol_m) -> ReleaseG
     block starts at the profile's first vertex (no ``release_x_m`` in the rows,
     or ``tol_m`` None). Runout rows first in ``index``, then the velocity rows
     (``vel_class``), whose groups are their size classes at the median of the
-    runout rows' releases, released at the solver's default speed."""
+    runout rows' releases, released at the solver's default speed and height."""
     rel = np.asarray(obs.release_x_m, float)
     if tol_m is None or not np.any(np.isfinite(rel)):
         return None
@@ -655,4 +657,5 @@ def _entries(obs, profile, class_sizes, row_class, vel_class, tol_m) -> ReleaseG
     return ReleaseGroups(np.concatenate([g.sizes_m, np.asarray(class_sizes)[used]]),
                          np.concatenate([g.release_x_m, np.full(used.size, median)]),
                          np.concatenate([g.index, n_g + np.searchsorted(used, vel_class)]),
-                         np.concatenate([g.release_speed_m_s, np.full(used.size, np.nan)]))
+                         np.concatenate([g.release_speed_m_s, np.full(used.size, np.nan)]),
+                         np.concatenate([g.release_height_m, np.full(used.size, np.nan)]))

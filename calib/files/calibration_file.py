@@ -80,6 +80,10 @@ class Calibration(NamedTuple):
             (rows without one at the profile's first vertex): always for CRSP,
             for the DEM where ``release_groups.models`` lists it; False: every
             block at ``release_x_m`` (DEM fits of older files).
+        release_heights: the fit released its rows from their
+            ``release_height_m`` (CRSP fits that record a ``release_height_m``
+            for their release groups); False: on the ground (every DEM fit,
+            and CRSP fits of older files).
     """
 
     path: str
@@ -94,6 +98,7 @@ class Calibration(NamedTuple):
     release_x_m: float | None = None
     dem_run: dict | None = None
     own_releases: bool = True
+    release_heights: bool = False
 
 
 class Draws(NamedTuple):
@@ -284,7 +289,17 @@ def _model_from_doc(path: str, doc: dict, model: str | None) -> Calibration:
                        point=np.asarray(point, dtype=np.float64), posterior=posterior,
                        posterior_csv=post_path, alpha_form=form, data_csv=data_csv,
                        release_x_m=release, dem_run=_dem_run(path, sec) if model == "dem"
-                       else None, own_releases=model == "crsp" or "dem" in _grouped(doc))
+                       else None, own_releases=model == "crsp" or "dem" in _grouped(doc),
+                       release_heights=model == "crsp" and _with_heights(doc))
+
+
+def _with_heights(doc: dict) -> bool:
+    """The fit recorded a release height for its release groups (``calib.fit``
+    writes the key for every group, null where the rows give none)."""
+    groups = doc.get("release_groups")
+    rows = groups.get("groups") if isinstance(groups, dict) else None
+    return isinstance(rows, list) and any(isinstance(g, dict) and "release_height_m" in g
+                                          for g in rows)
 
 
 def _grouped(doc: dict) -> list:

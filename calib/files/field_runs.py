@@ -33,6 +33,16 @@ Definitions (the equations are standard; which one applies is our choice):
   class. The CRSP 4.0 manual's own rule, if it has one, was not found.
 * ``release_speed_m_s``: |v| = sqrt(vx^2 + vy^2 + vz^2) of the release velocity
   columns, where they are given.
+* ``release_height_m``: where the runs give the release point's height (a
+  ``release_z_m`` column, in the vertical datum of the profile) and the profile
+  its heights: h = z_release - d / 2 - ground(x_release), the height of the
+  block's lowest point above the profile's ground under the projected release.
+  OUR OWN CHOICES: the tracked point is the block's centre (a sensor inside the
+  block, as in the Tschamut campaign's LPS), d is ``block_size_m``, and a
+  release that lies below the profile's ground (h < 0: the 2D profile does not
+  represent the ground there, e.g. a release off the line) is released on the
+  ground (h = 0, counted in the command's summary). The CRSP fit starts such a
+  block in flight at that height (``calib.model.forward.CrspForward``).
 
 Defaults that are ASSUMPTIONS (state them with the data they make):
 
@@ -82,7 +92,8 @@ DEFAULT_RUNOUT_SD_M = 2.0
 DEFAULT_MAX_OFFSET_M = 20.0
 OUTPUT_COLUMNS = ("block_size_m", "runout_m", "runout_sd_m", "runout_min_m", "runout_max_m",
                   "source", "run_id", "block_id", "release_x_m", "release_speed_m_s", "shape",
-                  "mass_kg", "release_offset_m", "stop_offset_m", "beyond_max_offset")
+                  "mass_kg", "release_offset_m", "stop_offset_m", "beyond_max_offset",
+                  "release_height_m")
 
 
 class FieldError(ValueError):
@@ -103,6 +114,7 @@ class RunColumns:
     stop: tuple[str, str] = ("stop_x_m", "stop_y_m")
     velocity: tuple[str, str, str] = ("release_vx_m_s", "release_vy_m_s", "release_vz_m_s")
     size: tuple[str, str, str] = ("size_x_m", "size_y_m", "size_z_m")
+    release_z: str = "release_z_m"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,6 +128,7 @@ class FieldRuns:
         mass_kg: block mass, kg; NaN where unknown.
         size_m: (R, 3) block dimensions, m; NaN rows where unknown.
         release_speed_m_s: speed at release, m/s; NaN where not given.
+        release_z_m: height of the release point, m; NaN where not given.
         path: the runs file.
     """
 
@@ -129,7 +142,12 @@ class FieldRuns:
     mass_kg: np.ndarray
     size_m: np.ndarray
     release_speed_m_s: np.ndarray
+    release_z_m: np.ndarray | None = None
     path: str = "<memory>"
+
+    def __post_init__(self):
+        if self.release_z_m is None:
+            object.__setattr__(self, "release_z_m", np.full(len(self.run_id), np.nan))
 
     @property
     def n_runs(self) -> int:
@@ -234,7 +252,7 @@ def load_runs(path: str | os.PathLike, blocks_path: str | os.PathLike | None = N
             blocks[key] = (bline, brow)
     vel_cols = all(k in header for k in c.velocity)
     out: dict[str, list] = {k: [] for k in ("run_id", "block_id", "line", "re", "rn", "se", "sn",
-                                            "mass", "size", "speed")}
+                                            "mass", "size", "speed", "z")}
     for i, (line, row) in enumerate(rows):
         run_id = row.get(c.run_id) or f"row {i + 1}"
         block = row.get(c.block_id, "")
@@ -261,14 +279,16 @@ def load_runs(path: str | os.PathLike, blocks_path: str | os.PathLike | None = N
             v = [_value(path, line, row, k, required=False) for k in c.velocity]
             if not any(math.isnan(x) for x in v):
                 speed = math.sqrt(sum(x * x for x in v))
+        z = (_value(path, line, row, c.release_z, required=False)
+             if c.release_z and c.release_z in header else math.nan)
         for key, val in (("run_id", run_id), ("block_id", block), ("line", line), ("re", re_),
                          ("rn", rn), ("se", se), ("sn", sn), ("mass", mass), ("size", size),
-                         ("speed", speed)):
+                         ("speed", speed), ("z", z)):
             out[key].append(val)
     return FieldRuns(tuple(out["run_id"]), tuple(out["block_id"]), tuple(out["line"]),
                      np.array(out["re"]), np.array(out["rn"]), np.array(out["se"]),
                      np.array(out["sn"]), np.array(out["mass"]), np.array(out["size"]),
-                     np.array(out["speed"]), path)
+                     np.array(out["speed"]), np.array(out["z"]), path)
 
 
 def _size(path: str, line: int, row: dict, cols: Sequence[str]) -> np.ndarray:
@@ -287,7 +307,8 @@ def field_observations(runs: FieldRuns, profile_x_m: np.ndarray, trace, *,
                        runout_sd_m: float = DEFAULT_RUNOUT_SD_M,
                        max_offset_m: float = DEFAULT_MAX_OFFSET_M,
                        source: str = "", columns: RunColumns = RunColumns(),
-                       profile_path: str = "<profile>") -> list[dict]:
+                       profile_path: str = "<profile>",
+                       profile_z_m: np.ndarray | None = None) -> list[dict]:
     """One observation row per run (columns ``OUTPUT_COLUMNS``).
 
     Args:
@@ -301,6 +322,8 @@ def field_observations(runs: FieldRuns, profile_x_m: np.ndarray, trace, *,
         source: provenance text; each row's ``source`` is ``"<source>: run <id>"``.
         columns: column names (for messages).
         profile_path: name of the profile (for messages).
+        profile_z_m: (V,) profile heights, m, in the datum of the runs'
+            ``release_z_m``; None: no ``release_height_m``.
 
     Returns:
         A list of dicts, one per run, in file order.
@@ -331,6 +354,11 @@ def field_observations(runs: FieldRuns, profile_x_m: np.ndarray, trace, *,
     d = np.where(use_mass, sphere_diameter_m(np.where(use_mass, runs.mass_kg, 1.0),
                                              density_kg_m3),
                  box_diameter_m(np.nan_to_num(runs.size_m, nan=1.0)))
+    clearance = np.full(runs.n_runs, np.nan)
+    if profile_z_m is not None:
+        ground = np.interp(r_x, np.asarray(profile_x_m, float), np.asarray(profile_z_m, float))
+        clearance = runs.release_z_m - 0.5 * d - ground
+    height = np.maximum(clearance, 0.0)  # NaN stays NaN
     rows = []
     for i in range(runs.n_runs):
         size = runs.size_m[i]
@@ -344,16 +372,19 @@ def field_observations(runs: FieldRuns, profile_x_m: np.ndarray, trace, *,
             "run_id": runs.run_id[i], "block_id": runs.block_id[i],
             "release_x_m": float(r_x[i]),
             "release_speed_m_s": float(runs.release_speed_m_s[i]),
+            "release_height_m": float(height[i]),
             "shape": "" if np.isnan(size).any() else crsp_shape(size),
             "mass_kg": float(runs.mass_kg[i]),
             "release_offset_m": float(r_off[i]), "stop_offset_m": float(s_off[i]),
             "beyond_max_offset": flag,
+            "release_clearance_m": float(clearance[i]),  # not written: h before h >= 0
         })
     return rows
 
 
 _FORMATS = {"block_size_m": "{:.4f}", "runout_m": "{:.3f}", "runout_sd_m": "{:g}",
             "release_x_m": "{:.3f}", "release_speed_m_s": "{:.3f}", "mass_kg": "{:g}",
+            "release_height_m": "{:.3f}",
             "release_offset_m": "{:.3f}", "stop_offset_m": "{:.3f}"}
 
 

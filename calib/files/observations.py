@@ -16,6 +16,9 @@ NaN or empty text, and files without them behave exactly as before):
 * ``release_x_m``: abscissa of the release point on the profile, m (NOT the
   east coordinate that a runs file may call by the same name);
 * ``release_speed_m_s``: speed at release, m/s (>= 0), where tracked;
+* ``release_height_m``: height (m, >= 0) of the block's lowest point above
+  the profile's ground at release, where known (a block dropped or thrown
+  from a hand, a bucket or a cliff edge); empty: released on the ground;
 * ``run_id``: the run's identifier in its source;
 * ``shape``: CRSP shape class ``sphere``, ``cylinder`` or ``disc`` (empty:
   unknown), from the block's dimensions (rule in ``calib.files.field_runs``).
@@ -61,7 +64,7 @@ __all__ = ["ObservationError", "Observations", "ReleaseGroups", "Velocities", "c
 
 REQUIRED = ("block_size_m",)
 OPTIONAL = ("runout_m", "runout_sd_m", "runout_min_m", "runout_max_m", "source",
-            "release_x_m", "release_speed_m_s", "run_id", "shape")
+            "release_x_m", "release_speed_m_s", "run_id", "shape", "release_height_m")
 SHAPES = ("sphere", "cylinder", "disc")
 
 
@@ -74,12 +77,15 @@ class ReleaseGroups(NamedTuple):
         index: (n_obs,) group of each row.
         release_speed_m_s: (G,) mean tracked release speed of the group's rows
             that give one, m/s; NaN where none does (the solver's default).
+        release_height_m: (G,) mean release height of the group's rows that
+            give one, m; NaN where none does (released on the ground).
     """
 
     sizes_m: np.ndarray
     release_x_m: np.ndarray
     index: np.ndarray
     release_speed_m_s: np.ndarray
+    release_height_m: np.ndarray
 
 
 def release_groups(obs: Observations, default_release_x_m: float,
@@ -90,8 +96,8 @@ def release_groups(obs: Observations, default_release_x_m: float,
     release of their group share one group, released at the mean of their
     releases (greedy, in ascending order); ``tol_m = 0`` groups only equal
     releases. A row without ``release_x_m`` (NaN) is released at
-    ``default_release_x_m``. A group's release speed is the mean of its rows'
-    ``release_speed_m_s`` where given. Our choice: the tolerance trades simulation cost
+    ``default_release_x_m``. A group's release speed and height are the means of its rows'
+    ``release_speed_m_s`` and ``release_height_m`` where given. Our choice: the tolerance trades simulation cost
     (one simulated sample per group) against the release error of a row, at
     most ``tol_m``.
 
@@ -107,7 +113,10 @@ def release_groups(obs: Observations, default_release_x_m: float,
     size = np.asarray(obs.block_size_m, float)
     speed = getattr(obs, "release_speed_m_s", None)
     speed = np.full(obs.n_obs, np.nan) if speed is None else np.asarray(speed, float)
-    sizes, releases, speeds, index = [], [], [], np.empty(obs.n_obs, int)
+    height = getattr(obs, "release_height_m", None)
+    height = np.full(obs.n_obs, np.nan) if height is None else np.asarray(height, float)
+    sizes, releases, speeds, heights = [], [], [], []
+    index = np.empty(obs.n_obs, int)
     for d in np.unique(size):
         rows = np.flatnonzero(size == d)
         rows = rows[np.argsort(rel[rows], kind="stable")]
@@ -120,21 +129,23 @@ def release_groups(obs: Observations, default_release_x_m: float,
             index[members] = len(sizes)
             sizes.append(d)
             releases.append(float(np.mean(rel[members])))
-            known = speed[members][np.isfinite(speed[members])]
-            speeds.append(float(np.mean(known)) if known.size else np.nan)
+            for values, out in ((speed, speeds), (height, heights)):
+                known = values[members][np.isfinite(values[members])]
+                out.append(float(np.mean(known)) if known.size else np.nan)
             start = stop
     return ReleaseGroups(np.asarray(sizes, float), np.asarray(releases, float), index,
-                         np.asarray(speeds, float))
+                         np.asarray(speeds, float), np.asarray(heights, float))
 
 
 def one_release_groups(obs: Observations, release_x_m: float) -> ReleaseGroups:
     """The grouping of a fit that releases every block from one point (the DEM
     fit, a CRSP fit of rows without ``release_x_m``): one group per block size
     (``obs.sizes_m``, ``obs.size_index``), released at ``release_x_m`` (m) at the
-    solver's default speed (NaN), whatever the rows' own releases say."""
+    solver's default speed, on the ground (NaN), whatever the rows' own releases say."""
     sizes = obs.sizes_m
+    nan = np.full(sizes.shape, np.nan)
     return ReleaseGroups(sizes, np.full(sizes.shape, float(release_x_m)), obs.size_index,
-                         np.full(sizes.shape, np.nan))
+                         nan, nan)
 
 
 class ObservationError(ValueError):
@@ -166,6 +177,8 @@ class Observations:
         release_speed_m_s: speed at release, m/s (NaN where not given).
         run_id: run identifier per row ("" where not given), str array.
         shape: CRSP shape class per row ("" where not given), str array.
+        release_height_m: release height above the ground, m (NaN where not
+            given: on the ground).
     """
 
     block_size_m: np.ndarray
@@ -180,10 +193,11 @@ class Observations:
     release_speed_m_s: np.ndarray | None = None
     run_id: np.ndarray | None = None
     shape: np.ndarray | None = None
+    release_height_m: np.ndarray | None = None
 
     def __post_init__(self):
         n = int(np.shape(self.block_size_m)[0])
-        for name in ("release_x_m", "release_speed_m_s"):
+        for name in ("release_x_m", "release_speed_m_s", "release_height_m"):
             if getattr(self, name) is None:
                 object.__setattr__(self, name, np.full(n, np.nan))
         for name in ("run_id", "shape"):
@@ -340,9 +354,9 @@ def load_observations(path: str | os.PathLike) -> Observations:
                                    f"positive tolerance in metres for a point observation")
     is_int = np.isfinite(lo)
     src = tuple(df["source"].tolist()) if "source" in df.columns else ("",) * len(df)
-    x0, speed, run_id, shape = _field_columns(df, path)
+    x0, speed, run_id, shape, height = _field_columns(df, path)
     return Observations(d, np.where(is_int, np.nan, y), np.where(is_int, np.nan, sd),
-                        lo, hi, is_int, src, path, x0, speed, run_id, shape)
+                        lo, hi, is_int, src, path, x0, speed, run_id, shape, height)
 
 
 def _field_columns(df: pd.DataFrame, path: str):
@@ -358,6 +372,12 @@ def _field_columns(df: pd.DataFrame, path: str):
         raise ObservationError(f"{path}: line {bad[0] + 2}, column 'release_speed_m_s': "
                                f"expected a speed >= 0 m/s, got "
                                f"{df['release_speed_m_s'][bad[0]]!r}")
+    height = _number(df, "release_height_m", path)
+    bad = np.flatnonzero(~(np.isnan(height) | (np.isfinite(height) & (height >= 0))))
+    if bad.size:
+        raise ObservationError(f"{path}: line {bad[0] + 2}, column 'release_height_m': "
+                               f"expected a height >= 0 m above the ground, got "
+                               f"{df['release_height_m'][bad[0]]!r}")
     text = {}
     for col in ("run_id", "shape"):
         vals = df[col].tolist() if col in df.columns else [""] * len(df)
@@ -366,7 +386,7 @@ def _field_columns(df: pd.DataFrame, path: str):
     if bad:
         raise ObservationError(f"{path}: line {bad[0] + 2}, column 'shape': expected one of "
                                f"{', '.join(SHAPES)} or empty, got {text['shape'][bad[0]]!r}")
-    return x0, speed, text["run_id"], text["shape"]
+    return x0, speed, text["run_id"], text["shape"], height
 
 
 VELOCITY_COLUMNS = ("station_x_m", "block_size_m", "velocity_m_s", "velocity_sd_m_s")

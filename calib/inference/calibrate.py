@@ -215,63 +215,72 @@ def _pilot_draws(pointwise_loglik, box, n: int, key: jax.Array) -> np.ndarray:
     return np.clip(pick, box.lo, box.hi)
 
 
-def _entries(forward) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+_RELEASE_STATE = ("release_speed_m_s", "release_height_m")  # CRSP only; NaN: default
+
+
+def _entries(forward) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The forward model's entries: (S,) sizes, m, releases, m (None: the profile's
-    first vertex, where both solvers release by default) and release speeds, m/s
-    (NaN: the solver's default; a ``DemForward`` has none)."""
+    first vertex, where both solvers release by default), release speeds, m/s, and
+    release heights, m (NaN: the solver's default; a ``DemForward`` has neither)."""
     sizes = np.asarray(forward.sizes_m, float)
     rel = entry_releases(forward.profile, sizes, forward.release_x_m)
-    speed = getattr(forward, "release_speed_m_s", None)
-    speed = np.full(sizes.shape, np.nan) if speed is None else np.asarray(speed, float)
-    return sizes, rel, speed
+    state = [getattr(forward, name, None) for name in _RELEASE_STATE]
+    return (sizes, rel, *(np.full(sizes.shape, np.nan) if v is None else
+                          np.broadcast_to(np.asarray(v, float), sizes.shape) for v in state))
 
 
 def _built_on(forward, groups: ReleaseGroups) -> bool:
-    """The forward model's entries are the groups: same sizes, releases and release
-    speeds (not only as many: a forward on ``obs.sizes_m`` would ignore the
-    releases)."""
-    sizes, rel, speed = _entries(forward)
+    """The forward model's entries are the groups: same sizes, releases, release
+    speeds and heights (not only as many: a forward on ``obs.sizes_m`` would
+    ignore the releases)."""
+    sizes, rel, speed, height = _entries(forward)
     return (sizes.shape == groups.sizes_m.shape and np.array_equal(sizes, groups.sizes_m)
             and np.array_equal(rel, groups.release_x_m)
-            and np.array_equal(speed, groups.release_speed_m_s, equal_nan=True))
+            and np.array_equal(speed, groups.release_speed_m_s, equal_nan=True)
+            and np.array_equal(height, groups.release_height_m, equal_nan=True))
 
 
-def _on_entries(forward, sizes_m, release_x_m, release_speed_m_s, n_blocks: int,
-                key: jax.Array):
-    """``forward`` on other entries: (E,) sizes, m, releases, m, and release speeds,
-    m/s (NaN: the solver's default), with ``n_blocks`` blocks each and ``key``.
-    One release for all is passed as one number and no speed as None, the only
-    form a ``DemForward`` takes."""
+def _on_entries(forward, sizes_m, release_x_m, release_speed_m_s, release_height_m,
+                n_blocks: int, key: jax.Array):
+    """``forward`` on other entries: (E,) sizes, m, releases, m, release speeds,
+    m/s, and heights, m (NaN: the solver's default), with ``n_blocks`` blocks
+    each and ``key``. One release for all is passed as one number and no speed
+    or height as None, the only form a ``DemForward`` takes."""
     rel = np.asarray(release_x_m, float)
-    speed = np.asarray(release_speed_m_s, float)
     fields = {"sizes_m": np.asarray(sizes_m, float), "n_blocks": n_blocks, "key": key,
               "release_x_m": float(rel[0]) if np.all(rel == rel[0]) else tuple(rel)}
-    if np.any(np.isfinite(speed)) or getattr(forward, "release_speed_m_s", None) is not None:
-        fields["release_speed_m_s"] = tuple(speed) if np.any(np.isfinite(speed)) else None
+    for name, v in zip(_RELEASE_STATE, (release_speed_m_s, release_height_m), strict=True):
+        v = np.asarray(v, float)
+        if np.any(np.isfinite(v)) or getattr(forward, name, None) is not None:
+            fields[name] = tuple(v) if np.any(np.isfinite(v)) else None
     return dataclasses.replace(forward, **fields)
 
 
 def _check_entries(groups: ReleaseGroups, sizes_m: np.ndarray):
     """What the check simulates: first the figure's sizes ``sizes_m`` at the
-    median of the rows' releases and the solver's release speed, then every
-    group that is not one of these entries.
+    median of the rows' releases and the solver's release speed and height, then
+    every group that is not one of these entries.
 
     Returns:
-        (sizes, releases, speeds) of the entries (E,), and the entry of each group (G,).
+        (sizes, releases, speeds, heights) of the entries (E,), and the entry of
+        each group (G,).
     """
     median = float(np.median(groups.release_x_m[groups.index]))
     sizes, rel = list(sizes_m), [median] * len(sizes_m)
-    speed, entry = [np.nan] * len(sizes_m), np.empty(len(groups.sizes_m), int)
-    for g, (d, x, v) in enumerate(zip(groups.sizes_m, groups.release_x_m,
-                                      groups.release_speed_m_s)):
-        if x == median and np.isnan(v):
+    speed, height = [np.nan] * len(sizes_m), [np.nan] * len(sizes_m)
+    entry = np.empty(len(groups.sizes_m), int)
+    for g, (d, x, v, h) in enumerate(zip(groups.sizes_m, groups.release_x_m,
+                                         groups.release_speed_m_s, groups.release_height_m)):
+        if x == median and np.isnan(v) and np.isnan(h):
             entry[g] = int(np.searchsorted(sizes_m, d))
         else:
             entry[g] = len(sizes)
             sizes.append(d)
             rel.append(x)
             speed.append(v)
-    return np.asarray(sizes, float), np.asarray(rel, float), np.asarray(speed, float), entry
+            height.append(h)
+    return (np.asarray(sizes, float), np.asarray(rel, float), np.asarray(speed, float),
+            np.asarray(height, float), entry)
 
 
 def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ...],
@@ -306,8 +315,8 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
                              "(groups=...)")
         groups = one_release_groups(obs, _entries(forward)[1][0])
     if not _built_on(forward, groups):
-        raise ValueError("forward must be built on the groups' sizes, releases and release "
-                         "speeds")
+        raise ValueError("forward must be built on the groups' sizes, releases, release "
+                         "speeds and release heights")
     index = groups.index
     k_design, k_grad, k_nuts, k_pilot, k_check = jax.random.split(key, 5)
     tick = progress or (lambda *a: None)
@@ -381,8 +390,8 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     else:
         estimate, source = posterior.map, "posterior_mode"
     t0 = time.perf_counter()
-    e_sizes, e_rel, e_speed, entry = _check_entries(groups, sizes)
-    runs = _on_entries(forward, e_sizes, e_rel, e_speed, budget.n_check,
+    e_sizes, e_rel, e_speed, e_height, entry = _check_entries(groups, sizes)
+    runs = _on_entries(forward, e_sizes, e_rel, e_speed, e_height, budget.n_check,
                        k_check).runouts(estimate[None])[0]
     tally("check", runs[None], estimate[None], e_sizes)
     check, at_rows = runs[:len(sizes)], runs[entry]

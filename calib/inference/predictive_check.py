@@ -209,7 +209,7 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
     # (calib.fit's release groups); a DEM fit of an older file ran every block at
     # the calibration's one release
     default = start if cal.own_releases else common
-    sizes, releases, index, speeds = release_groups(heldout, default)
+    sizes, releases, index, speeds, heights = release_groups(heldout, default)
     lo, hi = start, float(profile.x_m[-1])
     bad = np.flatnonzero((releases < lo) | (releases >= hi))
     if bad.size:
@@ -220,8 +220,13 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
     if cal.model == "crsp":
         from calib.model.priors import crsp_box
 
+        if not cal.release_heights and np.any(np.isfinite(heights)):
+            raise ValueError("the held-out rows give release_height_m but the CRSP fit "
+                             f"{cal.path} released its rows on the ground (an older "
+                             "calibration file): refit with calib.fit to release both alike")
         fw = CrspForward(profile, sizes, n_blocks or 100, key, box=crsp_box(draws.names),
-                         release_x_m=tuple(releases), release_speed_m_s=tuple(speeds))
+                         release_x_m=tuple(releases), release_speed_m_s=tuple(speeds),
+                         release_height_m=tuple(heights))
     else:
         from calib.model.dem_run import DEM_RUN, DemRun
 

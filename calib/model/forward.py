@@ -128,6 +128,12 @@ class CrspForward:
             released on the ground it then rolls along the slope at speed
             times cos(slope)), the direction of a tracked release being
             seldom known.
+        release_height_m: (S,) release height of each entry above the
+            ground, m, or None; NaN keeps the solver's default (0: on the
+            ground). The block starts in flight at that height with the
+            release velocity above (``solvers.crsp.init``): a hand or bucket
+            release from above the ground, as tracked field runs record it
+            (``calib.files.field_runs``).
     """
 
     profile: Profile
@@ -142,14 +148,16 @@ class CrspForward:
     settings: crsp.Settings = crsp.Settings()
     release_x_m: float | tuple[float, ...] | None = None
     release_speed_m_s: tuple[float, ...] | None = None
+    release_height_m: tuple[float, ...] | None = None
 
     def __post_init__(self):
         n_s = len(np.atleast_1d(self.sizes_m))
         entry_releases(self.profile, self.sizes_m, self.release_x_m)  # checks the count
-        v = self.release_speed_m_s
-        if v is not None and np.ndim(v) > 0 and len(v) != n_s:
-            raise ValueError(f"release_speed_m_s: {len(v)} entries for {n_s} entries of "
-                             "sizes_m (one per entry, or one for all)")
+        for name in ("release_speed_m_s", "release_height_m"):
+            v = getattr(self, name)
+            if v is not None and np.ndim(v) > 0 and len(v) != n_s:
+                raise ValueError(f"{name}: {len(v)} entries for {n_s} entries of "
+                                 "sizes_m (one per entry, or one for all)")
         if self.effect != "none":
             from calib.model.effects import effect_box, full_box
 
@@ -206,8 +214,9 @@ class CrspForward:
         radius = np.tile(crsp_radius_m(self.sizes_m), n_t)
         release = (None if self.release_x_m is None else
                    np.tile(np.broadcast_to(np.asarray(self.release_x_m, float), (n_s,)), n_t))
-        speed = (None if self.release_speed_m_s is None else
-                 np.tile(np.asarray(self.release_speed_m_s, float).reshape(n_s), n_t))
+        speed, height = (None if v is None else
+                         np.tile(np.broadcast_to(np.asarray(v, float), (n_s,)), n_t)
+                         for v in (self.release_speed_m_s, self.release_height_m))
         n_tasks = rep.shape[0]
         chunk = max(1, -(-self.task_chunk // default_workers()))
         pad = (-n_tasks) % chunk
@@ -217,6 +226,8 @@ class CrspForward:
             release = np.concatenate([release, np.repeat(release[-1:], pad)])
         if speed is not None:
             speed = np.concatenate([speed, np.repeat(speed[-1:], pad)])
+        if height is not None:
+            height = np.concatenate([height, np.repeat(height[-1:], pad)])
         stations = jnp.asarray(np.asarray(self.stations_x_m, float).reshape(-1), jnp.float64)
 
         def one_chunk(c0: int):
@@ -229,6 +240,11 @@ class CrspForward:
                 params = params._replace(release_vx_m_s=jnp.asarray(
                     np.where(np.isfinite(s), s, np.broadcast_to(params.release_vx_m_s, s.shape)),
                     jnp.float64))
+            if height is not None:
+                h = height[c0:c0 + chunk]
+                params = params._replace(release_height_m=jnp.asarray(
+                    np.where(np.isfinite(h), h,
+                             np.broadcast_to(params.release_height_m, h.shape)), jnp.float64))
             blocks = stack_trees([crsp.make_block(float(r)) for r in radius[c0:c0 + chunk]])
             res = crsp.simulate_tasks(params, blocks, self.key, self.profile, stations,
                                       n_per_task=self.n_blocks,
