@@ -92,8 +92,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "left out)")
     p.add_argument("--release-tolerance-m", type=float, default=1.0,
                    help="where the rows give release_x_m, each row is simulated from its own "
-                        "point, as calib.fit does: rows of one size class whose releases lie "
-                        "within this distance share one simulated release (their mean); 0 "
+                        "point, as calib.fit does: rows of one size class whose releases "
+                        "(release_x_m, and release_height_m for CRSP) lie within this distance "
+                        "share one simulated release (their mean); 0 "
                         "simulates every distinct release (slower). Rows without "
                         "release_x_m start at the profile's first vertex (default 1.0 m)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")

@@ -26,6 +26,7 @@ tolerance (points) or known to lie in an interval.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import time
@@ -86,8 +87,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "(python -m calib.validate; written to OUT/validation/). Default 0: "
                         "fit every row")
     p.add_argument("--release-tolerance-m", type=float, default=1.0,
-                   help="rows of one block size whose release_x_m lie within this "
-                        "distance share one simulated release (their mean); 0 simulates "
+                   help="rows of one block size whose release_x_m (and, for CRSP, "
+                        "release_height_m) lie within this distance share one simulated "
+                        "release (their mean); 0 simulates "
                         "every distinct release (slower). Rows without release_x_m start at "
                         "the profile's first vertex (default 1.0 m)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -128,7 +130,9 @@ def _run(args) -> int:
     if rel is not None and np.any(np.isfinite(rel)):
         from calib.files.observations import release_groups
 
-        groups = release_groups(obs, float(profile.x_m[0]), args.release_tolerance_m)
+        groups = (release_groups(obs, float(profile.x_m[0]), args.release_tolerance_m)
+                  if "crsp" in models else
+                  _ground_groups(obs, profile, args.release_tolerance_m))
         err = np.abs(groups.release_x_m[groups.index] - np.where(
             np.isfinite(rel), rel, float(profile.x_m[0])))
         print(f"each row released from its own point, rows of one size within "
@@ -190,11 +194,11 @@ def _run(args) -> int:
                                   release_speed_m_s=tuple(crsp_groups.release_speed_m_s),
                                   release_height_m=tuple(crsp_groups.release_height_m))
         else:
-            # the same groups released at rest on the ground, or one group per size at
+            # rows grouped by their releases alone (the DEM has no release height or
+            # speed: its blocks start at rest on the ground), or one group per size at
             # the common release
-            nan = np.full(0 if groups is None else len(groups.sizes_m), np.nan)
             dem_groups = (one_release_groups(obs, release) if groups is None else
-                          groups._replace(release_speed_m_s=nan, release_height_m=nan))
+                          _ground_groups(obs, profile, args.release_tolerance_m))
             forward = DemForward(profile, dem_groups.sizes_m, budget.n_blocks_design,
                                  jax.random.fold_in(mkey, 1), form=args.alpha_law,
                                  release_x_m=tuple(dem_groups.release_x_m))
@@ -359,6 +363,17 @@ def _print_summary(result: dict, models, out: str) -> None:
         parts.append(model + ": " + ", ".join(f"{k[:-2]} {v:.0f} s" for k, v in tim[model].items()))
     print("\nstage times: " + "; ".join(parts) + f"; total {tim['total_s']:.0f} s")
     print(f"wrote {os.path.join(out, 'calibration.json')} and figures in {out}/")
+
+
+def _ground_groups(obs, profile, tol_m: float):
+    """The rows' release groups for a solver that releases at rest on the ground:
+    grouped by size and release abscissa only, no release speed or height."""
+    from calib.files.observations import release_groups
+
+    nan = np.full(obs.n_obs, np.nan)
+    g = release_groups(dataclasses.replace(obs, release_height_m=nan), float(profile.x_m[0]),
+                       tol_m)
+    return g._replace(release_speed_m_s=np.full(len(g.sizes_m), np.nan))
 
 
 def main(argv=None) -> int:

@@ -49,13 +49,19 @@ def test_each_entry_is_released_from_its_height():
     assert abs(np.median(steep[2]) - np.median(steep[1])) < 1.0
 
 
-def test_release_groups_average_their_rows_heights():
-    obs = types.SimpleNamespace(block_size_m=np.ones(4), n_obs=4,
-                                release_x_m=np.array([10.0, 10.5, 10.2, 40.0]),
-                                release_height_m=np.array([1.0, np.nan, 2.0, np.nan]))
+def test_release_groups_split_releases_of_different_heights():
+    """Rows share a group when both their abscissae and their heights lie within
+    the tolerance of the group's first row (rows without a height only with each
+    other), released at the means: two spots that project onto the same abscissa
+    (0 m and 2.4 m above the ground, as at Tschamut) are two releases."""
+    obs = types.SimpleNamespace(
+        block_size_m=np.ones(6), n_obs=6,
+        release_x_m=np.array([10.0, 10.5, 10.2, 40.0, 10.3, 10.1]),
+        release_height_m=np.array([1.2, np.nan, 2.0, np.nan, 2.4, 0.0]))
     g = release_groups(obs, 0.0, tol_m=1.0)
-    np.testing.assert_array_equal(g.index, [0, 0, 0, 1])
-    assert g.release_height_m[0] == 1.5 and np.isnan(g.release_height_m[1])
+    np.testing.assert_array_equal(g.index, [0, 3, 0, 4, 2, 1])
+    np.testing.assert_allclose(g.release_x_m, [10.1, 10.1, 10.3, 10.5, 40.0])
+    np.testing.assert_allclose(g.release_height_m, [1.6, 0.0, 2.4, np.nan, np.nan])
 
 
 def test_an_older_crsp_calibration_refuses_held_out_rows_with_heights(tmp_path):

@@ -90,12 +90,14 @@ class ReleaseGroups(NamedTuple):
 
 def release_groups(obs: Observations, default_release_x_m: float,
                    tol_m: float = 0.0) -> ReleaseGroups:
-    """Group the rows by (block size, release abscissa).
+    """Group the rows by (block size, release point).
 
-    Rows of one size whose releases lie within ``tol_m`` of the first (lowest)
-    release of their group share one group, released at the mean of their
-    releases (greedy, in ascending order); ``tol_m = 0`` groups only equal
-    releases. A row without ``release_x_m`` (NaN) is released at
+    Rows of one size whose release abscissae AND release heights lie within
+    ``tol_m`` of those of the first (lowest) release of their group share one
+    group, released at the mean of their releases (greedy: rows in ascending
+    order of release, each joining the first group it fits, else opening one);
+    ``tol_m = 0`` groups only equal releases. Rows without a height match only
+    each other. Without heights this is a greedy split of the sorted releases. A row without ``release_x_m`` (NaN) is released at
     ``default_release_x_m``. A group's release speed and height are the means of its rows'
     ``release_speed_m_s`` and ``release_height_m`` where given. Our choice: the tolerance trades simulation cost
     (one simulated sample per group) against the release error of a row, at
@@ -120,19 +122,25 @@ def release_groups(obs: Observations, default_release_x_m: float,
     for d in np.unique(size):
         rows = np.flatnonzero(size == d)
         rows = rows[np.argsort(rel[rows], kind="stable")]
-        start = 0
-        while start < rows.size:
-            stop = start + 1
-            while stop < rows.size and rel[rows[stop]] - rel[rows[start]] <= tol_m:
-                stop += 1
-            members = rows[start:stop]
-            index[members] = len(sizes)
+        leaders, members = [], []  # first row of each group of this size, its rows
+        for i in rows:
+            for g, lead in enumerate(leaders):
+                same_h = (np.isnan(height[i]) and np.isnan(height[lead])) or (
+                    abs(height[i] - height[lead]) <= tol_m)
+                if rel[i] - rel[lead] <= tol_m and same_h:
+                    members[g].append(i)
+                    break
+            else:
+                leaders.append(i)
+                members.append([i])
+        for m in members:
+            m = np.asarray(m)
+            index[m] = len(sizes)
             sizes.append(d)
-            releases.append(float(np.mean(rel[members])))
+            releases.append(float(np.mean(rel[m])))
             for values, out in ((speed, speeds), (height, heights)):
-                known = values[members][np.isfinite(values[members])]
+                known = values[m][np.isfinite(values[m])]
                 out.append(float(np.mean(known)) if known.size else np.nan)
-            start = stop
     return ReleaseGroups(np.asarray(sizes, float), np.asarray(releases, float), index,
                          np.asarray(speeds, float), np.asarray(heights, float))
 
