@@ -116,7 +116,11 @@ profile = load_profile(os.path.join(SITE, "profile.csv"))
 # distance between the two projections. A point far off the line (here more
 # than 20 m: blocks fanned out across the slope) is kept and flagged. The block
 # size is the diameter of the sphere of the block's mass at 2650 kg/m3 (an
-# assumption, `calib/files/field_runs.py`).
+# assumption, `calib/files/field_runs.py`). The first tracked point of a run
+# also says how high above the ground the block was let go: its centre, less
+# half the block size, above the profile's ground under it (`release_height_m`;
+# 0 where the point lies below the profile, as it does for the spot 34 m left
+# of the line, whose own ground the profile does not follow).
 
 # %%
 obs_csv = os.path.join(WORK, "observations.csv")
@@ -126,6 +130,8 @@ field.main([os.path.join(SITE, "runs.csv"), "--blocks", os.path.join(SITE, "bloc
             "doi:10.16904/envidat.34)", "--out", obs_csv])
 obs = pd.read_csv(obs_csv)
 print(obs.groupby("block_size_m").runout_m.describe()[["count", "min", "50%", "max"]])
+print(f"release heights above the profile's ground: {obs.release_height_m.min():.2f} to "
+      f"{obs.release_height_m.max():.2f} m (median {obs.release_height_m.median():.2f} m)")
 fig, ax = plt.subplots(figsize=(8, 3))
 ax.plot(profile.x_m, profile.z_m, "k-")
 for x0, r in zip(obs.release_x_m, obs.runout_m, strict=True):
@@ -145,8 +151,9 @@ plt.show()
 #
 # ## 4. Calibrate on 70 % of the runs, predict the other 30 %
 #
-# `calib.fit` releases each calibration row from its own point (rows of one
-# size whose releases lie within 1 m share one simulated release), fits Kn,
+# `calib.fit` releases each calibration row from its own point and height (rows
+# of one size whose releases lie within 1 m along the line and in height share
+# one simulated release), fits Kn,
 # Kt, the roughness S and the rolling resistance angle by gradient and by
 # Bayesian inference, checks whether the model can fit the rows at all, then
 # scores its predictions of the held-out rows.
@@ -228,10 +235,12 @@ for name in ("runout_vs_size.png", "crsp_pairs.png", os.path.join("validation", 
 # * Look at the ground the releases land on: `adequacy.stalls` in
 #   `calibration.json` gives, per release group, the slope just below the
 #   release and how many simulated blocks stop within 1 m of it. Here the
-#   releases project onto a 21-26 deg shoulder above a 44 deg slope: slowly
-#   released blocks stall on the shoulder under a rolling resistance steeper
-#   than it, and the posterior splits into modes that do and do not let them
-#   start.
+#   releases project onto a 21-26 deg shoulder above a 44 deg slope. Blocks
+#   let go from above the ground (`release_height_m`) fall onto it and run on;
+#   the runs from the spot 34 m left of the line start below the line's ground,
+#   are released on it, and stall under a rolling resistance steeper than the
+#   shoulder: the posterior splits into modes that do and do not let them
+#   start. Such runs need a profile along their own fall line.
 # * Keep 30 % of the runs aside and run the predictive check. Use the
 #   calibration only if its skill against climatology is positive and its
 #   90 % intervals cover about 90 % of the held-out runs; the adequacy check

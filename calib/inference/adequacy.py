@@ -181,7 +181,7 @@ def _stall_problem(stalls: dict) -> str | None:
     return (f"simulated blocks stall at their release where the observed ones did not "
             f"({where}{more}); check the profile's slope at these releases against the "
             f"rolling resistance angle, and how the blocks were released (release_x_m, "
-            f"release_speed_m_s)")
+            f"release_speed_m_s, release_height_m)")
 
 
 def adequacy_record(samples: np.ndarray | None, box: Box, obs: Observations,
