@@ -106,8 +106,9 @@ def _names(text: str, n: int, option: str) -> tuple[str, ...]:
 
 
 def _run(args) -> int:
+    from solvers.plan_line import read_profile_trace
     from solvers.profile import ProfileError, load_profile
-    from solvers.raster import RasterError, read_profile_trace
+    from solvers.raster import RasterError
 
     for opt, val in (("--density-kg-m3", args.density_kg_m3), ("--runout-sd-m", args.runout_sd_m),
                      ("--max-offset-m", args.max_offset_m)):

@@ -119,6 +119,7 @@ def _run_cut(args, argv: list[str]) -> int:
     import json
     import shlex
 
+    from solvers import plan_line
     from solvers import raster as rs
     from solvers.cli import CliError, text_writer, write_all_atomic
 
@@ -129,13 +130,13 @@ def _run_cut(args, argv: list[str]) -> int:
     try:
         grid = rs.read_raster(args.raster)
         if args.line:
-            line = rs.read_line(args.line)
+            line = plan_line.read_line(args.line)
             line_info = {"kind": "geojson" if not args.line.endswith(".csv") else "csv",
                          "source": args.line}
         else:
             release_cols = _columns(args.release_cols, "--release-cols")
             stop_cols = _columns(args.stop_cols, "--stop-cols")
-            line = rs.read_fall_line(args.fall_line, args.margin_m, release_cols, stop_cols)
+            line = plan_line.read_fall_line(args.fall_line, args.margin_m, release_cols, stop_cols)
             line_info = {"kind": "mean fall line of field runs (mean release point to mean "
                                  "stop point, extended by margin_m at both ends)",
                          "source": args.fall_line, "margin_m": args.margin_m,

@@ -8,17 +8,14 @@ import numpy as np
 import pytest
 
 from solvers import load_profile
+from solvers.plan_line import Polyline, mean_fall_line, read_line, read_profile_trace
 from solvers.profile import main
 from solvers.raster import (
-    Polyline,
     Raster,
     RasterError,
     cut_profile,
-    mean_fall_line,
     parse_zones,
     read_ascii_grid,
-    read_line,
-    read_profile_trace,
     read_raster,
 )
 

@@ -11,7 +11,7 @@ run in the schema of ``calib.files.observations``.
 Definitions (the equations are standard; which one applies is our choice):
 
 * Along-line position: the orthogonal projection onto the plan trace
-  (``solvers.raster.Polyline.project``); ``release_x_m`` is the release's
+  (``solvers.plan_line.Polyline.project``); ``release_x_m`` is the release's
   profile abscissa, and ``runout_m = x(stop) - x(release)``, a horizontal
   distance along the profile. The lateral offset of each point from the trace
   (m, positive to the left looking downslope) is reported per row; the 2D
@@ -314,7 +314,7 @@ def field_observations(runs: FieldRuns, profile_x_m: np.ndarray, trace, *,
     Args:
         runs: the validated runs.
         profile_x_m: (V,) profile abscissae, m.
-        trace: the profile's plan trace (``solvers.raster.Polyline``, V vertices).
+        trace: the profile's plan trace (``solvers.plan_line.Polyline``, V vertices).
         density_kg_m3: rho of d = (6 m / (pi rho))^(1/3).
         runout_sd_m: tolerance written to every row, m.
         max_offset_m: rows with a point farther than this from the trace are

@@ -97,11 +97,12 @@ def release_groups(obs: Observations, default_release_x_m: float,
     group, released at the mean of their releases (greedy: rows in ascending
     order of release, each joining the first group it fits, else opening one);
     ``tol_m = 0`` groups only equal releases. Rows without a height match only
-    each other. Without heights this is a greedy split of the sorted releases. A row without ``release_x_m`` (NaN) is released at
-    ``default_release_x_m``. A group's release speed and height are the means of its rows'
-    ``release_speed_m_s`` and ``release_height_m`` where given. Our choice: the tolerance trades simulation cost
-    (one simulated sample per group) against the release error of a row, at
-    most ``tol_m``.
+    each other. Without heights this is a greedy split of the sorted releases.
+    A row without ``release_x_m`` (NaN) is released at ``default_release_x_m``.
+    A group's release speed and height are the means of its rows'
+    ``release_speed_m_s`` and ``release_height_m`` where given. Our choice: the
+    tolerance trades simulation cost (one simulated sample per group) against
+    the release error of a row, at most ``tol_m``.
 
     Args:
         obs: the rows.
