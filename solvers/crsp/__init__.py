@@ -25,15 +25,11 @@ from solvers.crsp._model import (
     LEFT_PROFILE,
     MAX_EVENTS,
     STOPPED,
-    Block,
-    Params,
     Result,
-    Settings,
     State,
-    make_block,
-    params_from_profile,
     simulate,
 )
+from solvers.crsp._params import Block, Params, Settings, make_block, params_from_profile
 
 __all__ = [
     "BUDGET",

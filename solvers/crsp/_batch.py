@@ -20,10 +20,7 @@ import numpy as np
 
 from solvers._rng import key_words
 from solvers.crsp._model import (
-    Block,
-    Params,
     Result,
-    Settings,
     init,
     raw_result,
     running,
@@ -32,6 +29,7 @@ from solvers.crsp._model import (
     sorted_stations,
     step,
 )
+from solvers.crsp._params import Block, Params, Settings
 from solvers.crsp._stations import empty_values, record
 from solvers.parallel import default_workers, map_ordered
 from solvers.profile import Profile

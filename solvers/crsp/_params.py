@@ -1,0 +1,173 @@
+"""What a CRSP run of ONE block is given: the block, its parameters, the settings.
+
+``Block`` and ``make_block`` (the rock's shape classes, CRSP 4.0), ``Params``
+and ``params_from_profile`` (restitution, roughness and rolling resistance per
+zone, the release, the optional effects of ``_effects``) and the static
+``Settings``. The model that uses them is ``solvers.crsp._model``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from solvers.profile import Profile
+
+__all__ = ["Block", "Params", "Settings", "make_block", "params_from_profile"]
+
+_INERTIA_RATIO = {"sphere": 0.4, "cylinder": 0.5, "disc": 0.5}
+
+
+class Block(NamedTuple):
+    """A rock (pytree of scalars, vmappable).
+
+    Attributes:
+        radius_m: radius r, m.
+        mass_kg: mass m, kg.
+        inertia_ratio: k = I / (m r^2) about the rolling axis.
+    """
+
+    radius_m: jax.Array
+    mass_kg: jax.Array
+    inertia_ratio: jax.Array
+
+
+def make_block(
+    radius_m: float,
+    shape: str = "sphere",
+    density_kg_m3: float = 2350.0,
+    length_m: float | None = None,
+) -> Block:
+    """CRSP block of a given shape.
+
+    Shapes (CRSP 4.0): sphere (I = 2/5 m r^2); cylinder rolling on its curved
+    face, of axial length ``length_m`` (default 2 r), I = 1/2 m r^2; disc on its
+    rim, thickness ``length_m`` (default r / 2), I = 1/2 m r^2. The density
+    default is the paper's rho = 2350 kg/m^3 (Sect. 4.1).
+
+    Raises:
+        ValueError: unknown shape or non-positive sizes.
+    """
+    if shape not in _INERTIA_RATIO:
+        raise ValueError(f"unknown block shape {shape!r}; expected one of "
+                         f"{', '.join(_INERTIA_RATIO)}")
+    if not (radius_m > 0 and np.isfinite(radius_m)):
+        raise ValueError(f"block radius must be a positive number of metres, got {radius_m}")
+    if not (density_kg_m3 > 0 and np.isfinite(density_kg_m3)):
+        raise ValueError(f"density must be positive, got {density_kg_m3}")
+    if shape == "sphere":
+        volume = 4.0 / 3.0 * np.pi * radius_m**3
+    else:
+        default = 2.0 * radius_m if shape == "cylinder" else 0.5 * radius_m
+        length = default if length_m is None else length_m
+        if not (length > 0 and np.isfinite(length)):
+            raise ValueError(f"block length must be positive, got {length}")
+        volume = np.pi * radius_m**2 * length
+    return Block(jnp.asarray(float(radius_m)), jnp.asarray(float(volume * density_kg_m3)),
+                 jnp.asarray(_INERTIA_RATIO[shape]))
+
+
+class Params(NamedTuple):
+    """CRSP parameters (a pytree; all leaves may be traced).
+
+    Attributes:
+        Kn, Kt: (Z,) restitution coefficients per zone.
+        roughness_m: (Z,) slope roughness S per zone, m.
+        rolling_friction_deg: (Z,) rolling-resistance angle per zone, degrees.
+        rolling_threshold_m_s: rebound normal speed (w.r.t. the mean slope) below
+            which the rock stays in ground contact, m/s.
+        release_x_m: release abscissa, m.
+        release_x_spread_m: release abscissa drawn uniformly in
+            ``[release_x_m, release_x_m + spread]``, m.
+        release_height_m: height of the release point above the ground, m.
+        release_vx_m_s, release_vz_m_s: initial velocity, m/s.
+        restitution_size_exponent: gamma of the size-dependent restitution
+            ``K (2 r / 1 m)^gamma`` (0: off). See ``_effects``.
+        frag_energy_kJ: normal impact energy above which the block breaks, kJ
+            (inf: off).
+        frag_radius_ratio: fragment radius / block radius.
+        frag_speed_ratio: fragment speed / rebound speed at the break.
+        rolling_resistance: extra rolling-resistance coefficient added to
+            ``tan(phi_r)`` in every zone (0: off).
+        belt_start_m, belt_end_m: abscissae of the vegetation belt, m.
+        belt_loss: fraction of the rebound energy lost at an impact in the belt,
+            and extra rolling resistance there (0: off).
+    """
+
+    Kn: jax.Array
+    Kt: jax.Array
+    roughness_m: jax.Array
+    rolling_friction_deg: jax.Array
+    rolling_threshold_m_s: jax.Array
+    release_x_m: jax.Array
+    release_x_spread_m: jax.Array
+    release_height_m: jax.Array
+    release_vx_m_s: jax.Array
+    release_vz_m_s: jax.Array
+    restitution_size_exponent: jax.Array
+    frag_energy_kJ: jax.Array
+    frag_radius_ratio: jax.Array
+    frag_speed_ratio: jax.Array
+    rolling_resistance: jax.Array
+    belt_start_m: jax.Array
+    belt_end_m: jax.Array
+    belt_loss: jax.Array
+
+
+def params_from_profile(profile: Profile, **overrides) -> Params:
+    """Parameters from the profile's material table, with optional overrides.
+
+    Zone arrays (Kn, Kt, roughness_m, rolling_friction_deg) accept a scalar that
+    applies to every zone. Defaults: rolling threshold 0.5 m/s (a rebound of
+    about 1.3 cm), release at the profile's first vertex, on the ground, with
+    1 m/s horizontal velocity (the block is pushed over the crest). The optional
+    effects of ``_effects`` are off (fragment size and speed ratios 0.5 and 0.7,
+    assumptions, matter only once ``frag_energy_kJ`` is finite).
+    """
+    n_zones = len(profile.zone_names)
+    values = dict(
+        Kn=profile.Kn, Kt=profile.Kt, roughness_m=profile.roughness_m,
+        rolling_friction_deg=profile.rolling_friction_deg,
+        rolling_threshold_m_s=0.5, release_x_m=float(profile.x_m[0]),
+        release_x_spread_m=0.0, release_height_m=0.0, release_vx_m_s=1.0,
+        release_vz_m_s=0.0, restitution_size_exponent=0.0, frag_energy_kJ=float("inf"),
+        frag_radius_ratio=0.5, frag_speed_ratio=0.7, rolling_resistance=0.0,
+        belt_start_m=0.0, belt_end_m=0.0, belt_loss=0.0,
+    )
+    unknown = set(overrides) - set(values)
+    if unknown:
+        raise TypeError(f"unknown CRSP parameter(s): {', '.join(sorted(unknown))}")
+    values.update(overrides)
+    zone_fields = ("Kn", "Kt", "roughness_m", "rolling_friction_deg")
+    out = {}
+    for name, v in values.items():
+        arr = jnp.asarray(v, dtype=jnp.float64)
+        if name in zone_fields:
+            arr = jnp.broadcast_to(arr, (n_zones,))
+        out[name] = arr
+    return Params(**out)
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """Static solver settings (hashable; changing them recompiles).
+
+    Attributes:
+        g_m_s2: gravitational acceleration, m/s^2.
+        max_events: a fixed bound on flight + contact events per block, or None
+            (default) for the per-block budget of ``event_budget``.
+        window: segments tested per flight event (local search).
+        station_slots: station passages written per event (``_stations``); an
+            event that passes more stations is followed by loop iterations that
+            write the rest before the next event. Speed only: results do not
+            depend on it.
+    """
+
+    g_m_s2: float = 9.81
+    max_events: int | None = None
+    window: int = 4
+    station_slots: int = 4
