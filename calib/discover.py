@@ -247,10 +247,11 @@ def _release_record(entries, n_runout_rows: int, tol_m: float) -> dict | None:
             "groups": [{"block_size_m": float(d), "release_x_m": float(x),
                         "release_speed_m_s": None if not np.isfinite(v) else float(v),
                         "release_height_m": None if not np.isfinite(h) else float(h),
+                        "profile_csv": pf or None,
                         "n_runout_rows": int(np.sum(entries.index[:n_runout_rows] == g))}
-                       for g, (d, x, v, h) in enumerate(zip(
+                       for g, (d, x, v, h, pf) in enumerate(zip(
                            entries.sizes_m, entries.release_x_m, entries.release_speed_m_s,
-                           entries.release_height_m))]}
+                           entries.release_height_m, entries.profile_csv))]}
 
 
 def _load_velocities(path, model: str, profile):

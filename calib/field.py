@@ -23,7 +23,9 @@ from calib.files.field_runs import (
     RunColumns,
     field_observations,
     load_runs,
+    nearest_profiles,
     observations_csv_text,
+    take_runs,
 )
 from solvers.cli import CliError, OneLineParser, run_guarded, text_writer, write_all_atomic
 
@@ -44,7 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
             "stop_offset_m (signed distance from the line, + to the left looking "
             "downslope),\nbeyond_max_offset, release_height_m (height of the block's lowest "
             "point above the\nprofile's ground at release, from the release z; empty without "
-            "it). runout_m = x(stop) - x(release) along the "
+            "it), and with several\n--profile a last column profile (the run's profile, "
+            "relative to OUT's folder).\nrunout_m = x(stop) - x(release) along the run's "
             "profile.\n\n"
             "block_size_m is the volume-equivalent sphere diameter d = (6 m / (pi rho))^(1/3); "
             "only where\nthe mass is missing, d = (a b c)^(1/3) of the three dimensions. "
@@ -56,11 +59,15 @@ def build_parser() -> argparse.ArgumentParser:
             "  python -m calib.field data/tschamut2014/runs.csv "
             "--blocks data/tschamut2014/blocks.csv \\\n"
             "    --profile data/tschamut2014/profile.csv "
-            "--out data/tschamut2014/observations.csv"))
+            "--profile data/tschamut2014/east_spot_profile.csv \\\n"
+            "    --out data/tschamut2014/observations.csv"))
     p.add_argument("runs", help="field runs CSV, one run per row")
-    p.add_argument("--profile", required=True,
+    p.add_argument("--profile", required=True, action="append",
                    help="profile CSV with east_m,north_m columns (python -m solvers.profile "
-                        "cut) whose plan trace the points are projected onto")
+                        "cut) whose plan trace the points are projected onto. Give it once "
+                        "per fall line for runs let go from spots far apart: each run goes "
+                        "on the profile that passes nearest its release point, and a "
+                        "profile column (path relative to OUT's folder) says which")
     p.add_argument("--blocks", default=None,
                    help="blocks CSV joined on the block id column, giving mass and/or "
                         "dimensions where a run's own cells are empty (default: none)")
@@ -122,15 +129,28 @@ def _run(args) -> int:
         stop=_names(args.stop_cols, 2, "--stop-cols"),
         velocity=_names(args.velocity_cols, 3, "--velocity-cols"),
         size=_names(args.size_cols, 3, "--size-cols"), release_z=args.release_z_col.strip())
+    paths = list(dict.fromkeys(args.profile))
     try:
-        x, trace = read_profile_trace(args.profile)
-        profile_z = load_profile(args.profile).z_m
+        traces = [read_profile_trace(p) for p in paths]
         runs = load_runs(args.runs, args.blocks, columns)
-        rows = field_observations(
-            runs, x, trace, density_kg_m3=args.density_kg_m3, runout_sd_m=args.runout_sd_m,
-            max_offset_m=args.max_offset_m,
-            source=args.source if args.source is not None else os.path.basename(args.runs),
-            columns=columns, profile_path=args.profile, profile_z_m=np.asarray(profile_z))
+        which = nearest_profiles(runs, [t for _, t in traces])
+        rows: list = [None] * runs.n_runs
+        for k, (path, (x, trace)) in enumerate(zip(paths, traces)):
+            idx = np.flatnonzero(which == k)
+            if not idx.size:
+                raise CliError(f"--profile {path}: no run's release lies nearer this profile "
+                               "than the others; leave it out")
+            sub = field_observations(
+                take_runs(runs, idx), x, trace, density_kg_m3=args.density_kg_m3,
+                runout_sd_m=args.runout_sd_m, max_offset_m=args.max_offset_m,
+                source=args.source if args.source is not None else os.path.basename(args.runs),
+                columns=columns, profile_path=path,
+                profile_z_m=np.asarray(load_profile(path).z_m))
+            rel = os.path.relpath(path, os.path.dirname(os.path.abspath(args.out)))
+            for i, r in zip(idx, sub):
+                if len(paths) > 1:
+                    r["profile"] = rel
+                rows[i] = r
     except (FieldError, RasterError, ProfileError) as e:
         raise CliError(str(e)) from None
     try:
@@ -142,25 +162,30 @@ def _run(args) -> int:
     sizes = np.array([r["block_size_m"] for r in rows])
     k = int(np.argmax(offsets))
     n_box = int(np.isnan(runs.mass_kg).sum())
+    along = (paths[0] if len(paths) == 1 else
+             "their profiles (" + ", ".join(f"{int(np.sum(which == k))} on {p}"
+                                            for k, p in enumerate(paths)) + ")")
     print(f"{len(rows)} runs: runout {runout.min():.1f} to {runout.max():.1f} m (median "
-          f"{np.median(runout):.1f} m) along {args.profile}; block_size_m "
+          f"{np.median(runout):.1f} m) along {along}; block_size_m "
           f"{sizes.min():.3f} to {sizes.max():.3f} m ({len(rows) - n_box} from mass at "
           f"{args.density_kg_m3:g} kg/m^3, {n_box} from dimensions); largest lateral offset "
           f"{offsets[k]:.1f} m (run {rows[k]['run_id']})")
     clear = np.array([r["release_clearance_m"] for r in rows])
     known = np.isfinite(clear)
     if known.any():
+        n_below = int((clear[known] < 0).sum())
+        below = ("none lies below its profile's ground" if not n_below else
+                 f"{n_below} releases lie below the profile's ground (by up to "
+                 f"{-clear[known].min():.2f} m) and are released on it (0 m)")
         print(f"release_height_m (block's lowest point above the profile's ground at release) "
               f"for {int(known.sum())} runs: {max(clear[known].min(), 0.0):.2f} to "
-              f"{clear[known].max():.2f} m; {int((clear[known] < 0).sum())} releases lie below "
-              f"the profile's ground (by up to {max(-clear[known].min(), 0.0):.2f} m) and are "
-              "released on it (0 m)")
+              f"{clear[known].max():.2f} m; {below}")
     flagged = [r for r in rows if r["beyond_max_offset"]]
     if flagged:
         names = ", ".join(f"{r['run_id']} ({offsets[i]:.1f} m)"
                           for i, r in enumerate(rows) if r["beyond_max_offset"])
         print(f"warning: {len(flagged)} of {len(rows)} runs have a release or stop point more "
-              f"than {args.max_offset_m:g} m off the profile line (kept, flagged "
+              f"than {args.max_offset_m:g} m off their profile line (kept, flagged "
               f"beyond_max_offset): {names}", file=sys.stderr)
     print(f"wrote {args.out}")
     return 0

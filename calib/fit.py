@@ -99,7 +99,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _run(args) -> int:
     from calib.files.calibration_file import model_section, summary_stats
     from calib.files.inference_data import inference_data, netcdf_writer
-    from calib.files.inputs import InputError, common_release_m, load_inputs
+    from calib.files.inputs import InputError, common_release_m, entry_profiles, load_inputs
     from calib.files.observations import one_release_groups
     from calib.files.site import SiteError, load_site
     from calib.inference.calibrate import calibrate, presets
@@ -127,7 +127,7 @@ def _run(args) -> int:
         raise CliError(f"--release-tolerance-m must be >= 0, got {args.release_tolerance_m:g}")
     models = ["crsp", "dem"] if args.model == "both" else [args.model]
     rel = getattr(obs, "release_x_m", None)
-    if rel is not None and np.any(np.isfinite(rel)):
+    if rel is not None and (np.any(np.isfinite(rel)) or any(obs.profile)):
         from calib.files.observations import release_groups
 
         groups = (release_groups(obs, float(profile.x_m[0]), args.release_tolerance_m)
@@ -138,6 +138,11 @@ def _run(args) -> int:
         print(f"each row released from its own point, rows of one size within "
               f"{args.release_tolerance_m:g} m grouped: {len(groups.sizes_m)} simulated "
               f"releases for {obs.n_obs} rows (largest release shift {err.max():.2f} m)")
+        own = [p for p in dict.fromkeys(obs.profile) if p]
+        if own:
+            print("rows on their own profiles: " + "; ".join(
+                f"{int(np.sum(obs.profile == p))} on {p}" for p in own)
+                  + f"; {int(np.sum(obs.profile == ''))} on {profile_path}")
         speed = np.asarray(obs.release_speed_m_s, float)
         gspeed = groups.release_speed_m_s[groups.index]
         known = np.isfinite(speed) & np.isfinite(gspeed)
@@ -167,10 +172,12 @@ def _run(args) -> int:
                   "groups": [{"block_size_m": float(d), "release_x_m": float(x),
                               "release_speed_m_s": None if not np.isfinite(v) else float(v),
                               "release_height_m": None if not np.isfinite(h) else float(h),
+                              "profile_csv": pf or profile_path,
                               "n_rows": int(np.sum(groups.index == g))}
-                             for g, (d, x, v, h) in enumerate(zip(
+                             for g, (d, x, v, h, pf) in enumerate(zip(
                                  groups.sizes_m, groups.release_x_m,
-                                 groups.release_speed_m_s, groups.release_height_m))]},
+                                 groups.release_speed_m_s, groups.release_height_m,
+                                 groups.profile_csv))]},
               "quick": bool(args.quick), "methods": list(methods), "versions": versions(),
               "inputs": provenance(PROG, args.seed, {"data": args.data,
                                                      "profile": profile_path})["inputs"],
@@ -192,7 +199,8 @@ def _run(args) -> int:
                                   jax.random.fold_in(mkey, 1), box=box,
                                   release_x_m=tuple(crsp_groups.release_x_m),
                                   release_speed_m_s=tuple(crsp_groups.release_speed_m_s),
-                                  release_height_m=tuple(crsp_groups.release_height_m))
+                                  release_height_m=tuple(crsp_groups.release_height_m),
+                                  entry_profiles=entry_profiles(crsp_groups.profile_csv))
         else:
             # rows grouped by their releases alone (the DEM has no release height or
             # speed: its blocks start at rest on the ground), or one group per size at
@@ -201,7 +209,8 @@ def _run(args) -> int:
                           _ground_groups(obs, profile, args.release_tolerance_m))
             forward = DemForward(profile, dem_groups.sizes_m, budget.n_blocks_design,
                                  jax.random.fold_in(mkey, 1), form=args.alpha_law,
-                                 release_x_m=tuple(dem_groups.release_x_m))
+                                 release_x_m=tuple(dem_groups.release_x_m),
+                                 entry_profiles=entry_profiles(dem_groups.profile_csv))
         bar = Progress(not args.no_progress, model.upper())
         # the check also simulates a grid of sizes for the runout-vs-size figure
         extra = (np.geomspace(0.2, 2.0, 6) if model == "crsp" else
@@ -273,6 +282,8 @@ def _split(args, obs, files):
     except ValueError as e:
         raise CliError(str(e)) from None
     table = read_table(args.data, "block_size_m,...")
+    if "profile" in table.columns:  # the row files live in --out: paths relative to it
+        table["profile"] = [os.path.relpath(p, args.out) if p else "" for p in obs.profile]
     files["calibration_rows.csv"] = table.iloc[fit_rows].to_csv(index=False)
     files["heldout_rows.csv"] = table.iloc[held_rows].to_csv(index=False)
     print(f"holding out {len(held_rows)} of {obs.n_obs} rows (seed {args.seed}): "

@@ -55,6 +55,7 @@ def build_parser() -> OneLineParser:
 
 def _load(args):
     from calib.files.calibration_file import CalibrationError, load_calibration
+    from calib.files.inputs import InputError, entry_profiles, on_command_profile
     from calib.files.observations import ObservationError, load_observations
     from solvers.profile import ProfileError, load_profile
 
@@ -70,7 +71,11 @@ def _load(args):
         heldout = load_observations(args.heldout)
         calib_obs = load_observations(data)
         profile = load_profile(cal.profile_csv)
-    except (ObservationError, ProfileError) as e:
+        # rows on their own profiles (Observations.profile): read them now, so a
+        # bad file is one line here
+        heldout = on_command_profile(heldout, cal.profile_csv)
+        entry_profiles(heldout.profile)
+    except (ObservationError, ProfileError, InputError) as e:
         raise CliError(str(e)) from None
     if args.n_posterior < 1:
         raise CliError(f"--n-posterior: expected a positive count, got {args.n_posterior}")

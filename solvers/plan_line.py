@@ -228,12 +228,17 @@ def mean_fall_line(release_east_m, release_north_m, stop_east_m, stop_north_m,
 
 def read_fall_line(path: str | os.PathLike, margin_m: float,
                    release_columns: Sequence[str] = ("release_x_m", "release_y_m"),
-                   stop_columns: Sequence[str] = ("stop_x_m", "stop_y_m")) -> Polyline:
+                   stop_columns: Sequence[str] = ("stop_x_m", "stop_y_m"),
+                   near: tuple[float, float, float] | None = None) -> Polyline:
     """``mean_fall_line`` of the runs in a CSV (one run per row).
+
+    Args:
+        near: (east_m, north_m, radius_m): only the runs released within
+            radius_m of that point (one release spot of a campaign); None: all.
 
     Raises:
         RasterError: missing file or column, a value that is not a finite
-            number (naming the line and column), no rows.
+            number (naming the line and column), no rows, no run near the point.
     """
     path = os.fspath(path)
     cols = tuple(release_columns) + tuple(stop_columns)
@@ -245,6 +250,14 @@ def read_fall_line(path: str | os.PathLike, margin_m: float,
     if not rows:
         raise RasterError(f"{path}: no runs after the header")
     vals = np.array([[_cell_float(path, line, row, c) for c in cols] for line, row in rows])
+    if near is not None:
+        e, n, r = near
+        keep = np.hypot(vals[:, 0] - e, vals[:, 1] - n) <= r
+        if not keep.any():
+            raise RasterError(f"{path}: no run is released within {r:g} m of "
+                              f"({e:g}, {n:g}); nearest at "
+                              f"{np.hypot(vals[:, 0] - e, vals[:, 1] - n).min():.1f} m")
+        vals = vals[keep]
     return mean_fall_line(vals[:, 0], vals[:, 1], vals[:, 2], vals[:, 3], margin_m, path)
 
 

@@ -47,7 +47,11 @@ The line is one of:
                         reprojection is done);
   --fall-line RUNS.csv  the mean fall line of field runs: the straight line from
                         the mean release point to the mean stop point, extended
-                        by --margin-m on both ends.
+                        by --margin-m on both ends; with --fall-line-near E,N,R
+                        only the runs released within R m of (E, N): one
+                        release spot's own fall line, for a campaign whose
+                        spots lie far apart (calib.field takes one --profile
+                        per spot).
 
 Materials: --materials CSV (zone,Kn,Kt,roughness_m,rolling_friction_deg,phi_deg)
 with a row for every zone of --zones; without it every zone gets placeholder
@@ -77,6 +81,9 @@ def _cut_parser(sub) -> None:
     p.add_argument("--margin-m", type=float, default=20.0,
                    help="with --fall-line: extension beyond the mean release and the mean "
                         "stop point, m (default 20)")
+    p.add_argument("--fall-line-near", metavar="E,N,R", default=None,
+                   help="with --fall-line: only the runs released within R m of the point "
+                        "(E, N), raster coordinates (default: all runs)")
     p.add_argument("--release-cols", default="release_x_m,release_y_m",
                    help="with --fall-line: release east,north columns "
                         "(default release_x_m,release_y_m)")
@@ -115,6 +122,22 @@ def _columns(text: str, option: str) -> tuple[str, str]:
     return parts[0], parts[1]
 
 
+def _near(text: str | None) -> tuple[float, float, float] | None:
+    import math
+
+    from solvers.cli import CliError
+
+    if text is None:
+        return None
+    try:
+        e, n, r = (float(t) for t in text.split(","))
+    except ValueError:
+        raise CliError(f"--fall-line-near: expected E,N,R (three numbers), got {text!r}") from None
+    if not (math.isfinite(e) and math.isfinite(n) and math.isfinite(r) and r > 0):
+        raise CliError(f"--fall-line-near: expected finite E,N and a radius R > 0, got {text!r}")
+    return e, n, r
+
+
 def _run_cut(args, argv: list[str]) -> int:
     import json
     import shlex
@@ -129,6 +152,8 @@ def _run_cut(args, argv: list[str]) -> int:
     sidecar = args.out[:-4] + ".cut.json"
     try:
         grid = rs.read_raster(args.raster)
+        if args.line and args.fall_line_near:
+            raise CliError("--fall-line-near: only with --fall-line")
         if args.line:
             line = plan_line.read_line(args.line)
             line_info = {"kind": "geojson" if not args.line.endswith(".csv") else "csv",
@@ -136,11 +161,16 @@ def _run_cut(args, argv: list[str]) -> int:
         else:
             release_cols = _columns(args.release_cols, "--release-cols")
             stop_cols = _columns(args.stop_cols, "--stop-cols")
-            line = plan_line.read_fall_line(args.fall_line, args.margin_m, release_cols, stop_cols)
+            near = _near(args.fall_line_near)
+            line = plan_line.read_fall_line(args.fall_line, args.margin_m, release_cols, stop_cols,
+                                            near=near)
             line_info = {"kind": "mean fall line of field runs (mean release point to mean "
                                  "stop point, extended by margin_m at both ends)",
                          "source": args.fall_line, "margin_m": args.margin_m,
                          "release_columns": list(release_cols), "stop_columns": list(stop_cols)}
+            if near is not None:
+                line_info["runs_released_near"] = {"east_m": near[0], "north_m": near[1],
+                                                   "radius_m": near[2]}
         zones = rs.parse_zones(args.zones)
         cut = rs.cut_profile(grid, line, args.step_m, zones)
         used = list(dict.fromkeys(cut.zone))

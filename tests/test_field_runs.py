@@ -5,6 +5,7 @@ import math
 import os
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from calib.field import main
@@ -221,8 +222,27 @@ def test_shipped_tschamut_observations_load_and_are_all_62_runs():
 def test_regenerating_the_shipped_observations_reproduces_them(tmp_path, capsys):
     out = str(tmp_path / "observations.csv")
     rc, _, err = _cli([f"{DATA}/runs.csv", "--blocks", f"{DATA}/blocks.csv",
-                       "--profile", f"{DATA}/profile.csv", "--source",
+                       "--profile", f"{DATA}/profile.csv",
+                       "--profile", f"{DATA}/east_spot_profile.csv", "--source",
                        "Tschamut 2014 (Volkwein & Gerber 2018, EnviDat, doi:10.16904/envidat.34)",
                        "--out", out], capsys)
     assert rc == 0, err
-    assert _read(out) == _read(f"{DATA}/observations.csv")
+    # the same table; the profile column names the same files, relative to each table
+    mine, shipped = load_observations(out), load_observations(f"{DATA}/observations.csv")
+    absolute = lambda o: [os.path.abspath(p) for p in o.profile]  # noqa: E731
+    assert absolute(mine) == absolute(shipped)
+    strip = lambda text: [line.rsplit(",", 1)[0] for line in text.splitlines()]  # noqa: E731
+    assert strip(_read(out)) == strip(_read(f"{DATA}/observations.csv"))
+
+
+def test_runs_go_on_the_profile_nearest_their_release(capsys):
+    """The 12 runs let go from the spot 34 m east of the others' line go on that
+    spot's own profile, and lie on it: release offsets 0.06-2.03 m (34 m before), heights
+    above its ground (on the one line they lay up to 1.09 m below it)."""
+    obs = load_observations(f"{DATA}/observations.csv")
+    east = np.array([p.endswith("east_spot_profile.csv") for p in obs.profile])
+    assert east.sum() == 12 and all(p.endswith("profile.csv") for p in obs.profile)
+    df = pd.read_csv(f"{DATA}/observations.csv")
+    off = np.abs(df["release_offset_m"].to_numpy(float))
+    assert off[east].max() < 2.5 and off[~east].max() < 21.0
+    assert obs.release_height_m[east].min() > 0.0

@@ -84,8 +84,8 @@ def test_per_size_baseline_falls_back_to_all_rows():
 def test_groups_of_rows_with_and_without_release():
     obs = types.SimpleNamespace(block_size_m=np.array([1.0, 1.0, 0.5, 1.0]), n_obs=4,
                                 release_x_m=np.array([5.0, np.nan, 5.0, 5.0]))
-    sizes, rel, index, speed, height = release_groups(obs, 0.0)
-    assert np.isnan(speed).all() and np.isnan(height).all()
+    sizes, rel, index, speed, height, prof = release_groups(obs, 0.0)
+    assert np.isnan(speed).all() and np.isnan(height).all() and not any(prof)
     assert sizes.tolist() == [0.5, 1.0, 1.0] and rel.tolist() == [5.0, 0.0, 5.0]
     assert index.tolist() == [2, 1, 0, 2]
 

@@ -34,7 +34,14 @@ from calib.files.observations import dem_side_m
 from calib.model.alpha_law import alpha_of
 from calib.model.dem_run import DEM_RUN, DemRun
 from calib.model.effects import DEM_EFFECTS, EFFECTS, effect_box
-from calib.model.forward import DemForward, dem_lanes, entry_releases, stack_trees
+from calib.model.forward import (
+    DemForward,
+    dem_lanes,
+    entry_releases,
+    profile_parts,
+    stack_trees,
+    take_entries,
+)
 from calib.model.unfinished import mask_unfinished
 from solvers.profile import Profile
 
@@ -53,7 +60,9 @@ class DemEffectForward:
     size uses ``fold_in(key, j)``). ``run``: the DEM numerics (``calib.model.dem_run``),
     the fit's and the hazard run's. ``release_x_m``: one release for all entries,
     one per entry of ``sizes_m``, or None (the profile's first vertex); blocks
-    start at rest."""
+    start at rest. ``entry_profiles``: each entry's own profile (None: ``profile``),
+    as in ``calib.model.forward.CrspForward``; each profile's entries run as
+    their own forward."""
 
     profile: Profile
     sizes_m: np.ndarray
@@ -62,10 +71,16 @@ class DemEffectForward:
     effect: str = "none"
     run: DemRun = DEM_RUN
     release_x_m: float | tuple[float, ...] | None = None
+    entry_profiles: tuple[Profile | None, ...] | None = None
 
     def __post_init__(self):
         if self.effect not in DEM_EFFECTS:
             raise ValueError(f"effect {self.effect!r} is not available for the DEM")
+        parts = profile_parts(self.profile, self.entry_profiles, len(self.sizes_m))
+        self._parts = None if parts is None else [
+            (dataclasses.replace(self, profile=p, sizes_m=np.asarray(self.sizes_m)[idx],
+                                 release_x_m=take_entries(self.release_x_m, idx),
+                                 entry_profiles=None), idx) for p, idx in parts]
         self._x0 = entry_releases(self.profile, self.sizes_m, self.release_x_m)
         if self.effect != "fragmentation":
             form = "constant" if self.effect == "none" else "power"
@@ -79,6 +94,11 @@ class DemEffectForward:
 
     def runouts(self, theta) -> np.ndarray:
         theta = np.atleast_2d(np.asarray(theta, float))
+        if self._parts is not None:
+            out = np.full((theta.shape[0], len(self.sizes_m), self.n_blocks), np.nan)
+            for sub, idx in self._parts:
+                out[:, idx] = sub.runouts(theta)
+            return out
         if self.effect != "fragmentation":
             return self._single.runouts(theta)
         return np.stack([self._fragmented(a, s) for a, s in theta])
@@ -108,12 +128,12 @@ def _grid(box, shape) -> np.ndarray:
 
 
 def _forward(profile, effect, sizes_m, n_blocks, key, release_x_m=None,
-             release_speed_m_s=None, release_height_m=None):
+             release_speed_m_s=None, release_height_m=None, entry_profiles=None):
     # the DEM releases its blocks at rest on the ground: release speeds and
     # heights are not used
     del release_speed_m_s, release_height_m
     return DemEffectForward(profile, sizes_m, n_blocks, key, effect=effect,
-                            release_x_m=release_x_m)
+                            release_x_m=release_x_m, entry_profiles=entry_profiles)
 
 
 def dem_candidates(profile, effects=DEM_EFFECTS) -> list[Candidate]:

@@ -66,6 +66,7 @@ from calib.discovery.scores import (
     folds,
     naming_threshold,
 )
+from calib.files.inputs import entry_profiles
 from calib.files.observations import ReleaseGroups, release_groups
 from calib.inference.importance import KHAT_MAX, ess, psis_weights
 from calib.inference.likelihood import log_likelihood, observed_rows, velocity_log_likelihood
@@ -386,6 +387,8 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
         rel_kw = {"release_x_m": tuple(map(float, entries.release_x_m)),
                   "release_speed_m_s": tuple(map(float, entries.release_speed_m_s)),
                   "release_height_m": tuple(map(float, entries.release_height_m))}
+        if any(entries.profile_csv):  # rows on their own profiles (Observations.profile)
+            rel_kw["entry_profiles"] = entry_profiles(entries.profile_csv)
     try:
         fw = cand.forward(entry_sizes, cand.n_blocks or budget.n_blocks,
                           jax.random.fold_in(key, 1), **rel_kw, **st_kw)
@@ -564,7 +567,11 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
     at the profile's first vertex), and stop positions for the residual tests
     are each row's release plus its runout. Velocity rows are simulated from the
     median of the rows' releases. Otherwise every block starts at the
-    profile's first vertex.
+    profile's first vertex. Rows on their own profiles (``Observations.profile``)
+    are simulated on them; their stop positions enter the residual tests as
+    abscissae of the command's profile (our choice: it assumes lines cut alike,
+    e.g. the mean fall lines of nearby spots with one margin, as
+    ``calib.field`` users cut them).
     """
     if candidates[0].effect != "none":
         raise ValueError("the first candidate must be the baseline (effect 'none')")
@@ -645,7 +652,7 @@ def _entries(obs, profile, class_sizes, row_class, vel_class, tol_m) -> ReleaseG
     (``vel_class``), whose groups are their size classes at the median of the
     runout rows' releases, released at the solver's default speed and height."""
     rel = np.asarray(obs.release_x_m, float)
-    if tol_m is None or not np.any(np.isfinite(rel)):
+    if tol_m is None or not (np.any(np.isfinite(rel)) or any(obs.profile)):
         return None
     binned = dataclasses.replace(obs, block_size_m=np.asarray(class_sizes)[row_class])
     g = release_groups(binned, float(profile.x_m[0]), tol_m)
@@ -658,4 +665,5 @@ def _entries(obs, profile, class_sizes, row_class, vel_class, tol_m) -> ReleaseG
                          np.concatenate([g.release_x_m, np.full(used.size, median)]),
                          np.concatenate([g.index, n_g + np.searchsorted(used, vel_class)]),
                          np.concatenate([g.release_speed_m_s, np.full(used.size, np.nan)]),
-                         np.concatenate([g.release_height_m, np.full(used.size, np.nan)]))
+                         np.concatenate([g.release_height_m, np.full(used.size, np.nan)]),
+                         np.concatenate([g.profile_csv, np.full(used.size, "", dtype=object)]))

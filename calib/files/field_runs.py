@@ -83,7 +83,9 @@ __all__ = [
     "crsp_shape",
     "field_observations",
     "load_runs",
+    "nearest_profiles",
     "observations_csv_text",
+    "take_runs",
     "sphere_diameter_m",
 ]
 
@@ -388,14 +390,45 @@ _FORMATS = {"block_size_m": "{:.4f}", "runout_m": "{:.3f}", "runout_sd_m": "{:g}
             "release_offset_m": "{:.3f}", "stop_offset_m": "{:.3f}"}
 
 
+def nearest_profiles(runs: FieldRuns, traces) -> np.ndarray:
+    """(R,) index of the profile each run belongs to, among profiles with plan
+    traces ``traces`` (``solvers.plan_line.Polyline``): the one whose trace
+    passes nearest the run's RELEASE point (smallest lateral offset; the first
+    on a tie). Our choice: a run follows the fall line of the spot it was let
+    go from, and where it stops is what is observed, so the stop point must not
+    choose its own line. One profile per release spot is the 2D model's answer
+    to runs let go from spots far apart across the slope."""
+    off = np.stack([np.abs(t.project(runs.release_east_m, runs.release_north_m)[1])
+                    for t in traces])
+    return np.argmin(off, axis=0)
+
+
+def take_runs(runs: FieldRuns, idx) -> FieldRuns:
+    """The runs ``idx`` (indices into ``runs``), in that order."""
+    idx = [int(i) for i in idx]
+    out = {}
+    for f in dataclasses.fields(runs):
+        v = getattr(runs, f.name)
+        if isinstance(v, tuple):
+            out[f.name] = tuple(v[i] for i in idx)
+        elif isinstance(v, np.ndarray):
+            out[f.name] = v[idx]
+        else:
+            out[f.name] = v
+    return FieldRuns(**out)
+
+
 def observations_csv_text(rows: list[dict]) -> str:
-    """Rows of ``field_observations`` as CSV text (NaN and None as empty cells)."""
+    """Rows of ``field_observations`` as CSV text (NaN and None as empty cells);
+    with a ``profile`` column last where the rows give one (runs on several
+    profiles, ``calib.field``)."""
+    columns = OUTPUT_COLUMNS + (("profile",) if rows and "profile" in rows[0] else ())
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(OUTPUT_COLUMNS)
+    w.writerow(columns)
     for r in rows:
         cells = []
-        for k in OUTPUT_COLUMNS:
+        for k in columns:
             v = r[k]
             if v is None or (isinstance(v, float) and math.isnan(v)):
                 cells.append("")

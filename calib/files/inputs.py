@@ -8,11 +8,14 @@ the file, line and column (the commands turn it into one line and exit 2).
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import os
 
 import numpy as np
 
-__all__ = ["InputError", "common_release_m", "default_profile", "load_inputs"]
+__all__ = ["InputError", "common_release_m", "default_profile", "entry_profiles",
+           "load_inputs", "on_command_profile", "own_profile"]
 
 
 class InputError(ValueError):
@@ -40,23 +43,70 @@ def common_release_m(obs, profile) -> float:
     return float(np.nanmedian(rel))
 
 
+@functools.cache
+def own_profile(path: str):
+    """The profile a row names (``Observations.profile``), read once per process:
+    every caller gets the same object, which is how the forward models tell
+    entries on one profile from entries on another (``profile_parts``).
+
+    Raises:
+        InputError: the file does not parse (file, line and column named).
+    """
+    from solvers.profile import ProfileError, load_profile
+
+    try:
+        return load_profile(path)
+    except ProfileError as e:
+        raise InputError(str(e)) from None
+
+
+def entry_profiles(profile_csv) -> tuple | None:
+    """Per-entry profiles of release groups (``ReleaseGroups.profile_csv``) for
+    the forward models' ``entry_profiles``: None where every entry runs on the
+    command's profile, else one ``own_profile`` (None for the command's) per entry."""
+    if profile_csv is None or not any(profile_csv):
+        return None
+    return tuple(own_profile(p) if p else None for p in profile_csv)
+
+
 def _check_reach(obs, profile, profile_path: str) -> None:
-    """Every row's release lies on the profile and its observed runout between
-    that release and the profile's end."""
-    start, x1 = float(profile.x_m[0]), float(profile.x_m[-1])
+    """Every row's release lies on its profile (its own, or the command's) and
+    its observed runout between that release and the profile's end."""
     rel = np.asarray(getattr(obs, "release_x_m", np.full(obs.n_obs, np.nan)), float)
+    own = getattr(obs, "profile", None)
     for i in range(obs.n_obs):
-        x0 = rel[i] if np.isfinite(rel[i]) else start
-        if not start <= x0 < x1:
-            raise InputError(f"{obs.path}: line {i + 2}, column 'release_x_m': release {x0:g} m "
-                           f"lies outside the profile {profile_path} ({start:g} to {x1:g} m)")
-        col, val = (("runout_min_m", obs.runout_min_m[i]) if obs.is_interval[i]
-                    else ("runout_m", obs.runout_m[i]))
-        if val > x1 - x0:
-            raise InputError(f"{obs.path}: line {i + 2}, column {col!r}: runout {val:g} m lies "
-                           f"beyond the end of the profile {profile_path} (it covers "
-                           f"{x1 - x0:g} m from the release at x = {x0:g} m); the blocks can "
-                           f"never reach it")
+        if own is not None and own[i]:
+            row_profile, row_path = own_profile(own[i]), own[i]
+        else:
+            row_profile, row_path = profile, profile_path
+        _check_row(obs, i, rel[i], row_profile, row_path)
+
+
+def _check_row(obs, i: int, rel: float, profile, profile_path: str) -> None:
+    """Row i (release ``rel``, NaN: the first vertex) against its profile."""
+    start, x1 = float(profile.x_m[0]), float(profile.x_m[-1])
+    x0 = rel if np.isfinite(rel) else start
+    if not start <= x0 < x1:
+        raise InputError(f"{obs.path}: line {i + 2}, column 'release_x_m': release {x0:g} m "
+                         f"lies outside the profile {profile_path} ({start:g} to {x1:g} m)")
+    col, val = (("runout_min_m", obs.runout_min_m[i]) if obs.is_interval[i]
+                else ("runout_m", obs.runout_m[i]))
+    if val > x1 - x0:
+        raise InputError(f"{obs.path}: line {i + 2}, column {col!r}: runout {val:g} m lies "
+                         f"beyond the end of the profile {profile_path} (it covers "
+                         f"{x1 - x0:g} m from the release at x = {x0:g} m); the blocks can "
+                         f"never reach it")
+
+
+def on_command_profile(obs, profile_path: str):
+    """Rows that name the command's own profile file run on it ("" in
+    ``Observations.profile``), so that only the others are simulated apart."""
+    own = getattr(obs, "profile", None)
+    if own is None or not any(own):
+        return obs
+    prof = np.array([("" if p and os.path.samefile(p, profile_path) else p) for p in own],
+                    dtype=object)
+    return dataclasses.replace(obs, profile=prof)
 
 
 def load_inputs(data: str, profile_arg: str | None, out: str):
@@ -77,6 +127,7 @@ def load_inputs(data: str, profile_arg: str | None, out: str):
         profile = load_profile(profile_path)
     except ProfileError as e:
         raise InputError(str(e)) from None
+    obs = on_command_profile(obs, profile_path)
     _check_reach(obs, profile, profile_path)
     if os.path.exists(out) and not os.path.isdir(out):
         raise InputError(f"--out {out}: exists and is not a folder")

@@ -21,7 +21,12 @@ NaN or empty text, and files without them behave exactly as before):
   from a hand, a bucket or a cliff edge); empty: released on the ground;
 * ``run_id``: the run's identifier in its source;
 * ``shape``: CRSP shape class ``sphere``, ``cylinder`` or ``disc`` (empty:
-  unknown), from the block's dimensions (rule in ``calib.files.field_runs``).
+  unknown), from the block's dimensions (rule in ``calib.files.field_runs``);
+* ``profile``: the profile CSV this row's ``release_x_m`` and ``runout_m`` are
+  measured along, relative to the observation file's folder (empty: the
+  command's profile). Runs released from spots far apart follow different fall
+  lines; ``calib.field`` with several ``--profile`` puts each run on the
+  nearest one, and every solver run simulates a row on its own profile.
 
 Other columns are ignored.
 
@@ -60,11 +65,12 @@ import pandas as pd
 
 __all__ = ["ObservationError", "Observations", "ReleaseGroups", "Velocities", "crsp_radius_m",
            "dem_side_m", "load_observations", "load_velocities", "one_release_groups", "read_table",
-           "release_groups"]
+           "release_groups", "row_profiles"]
 
 REQUIRED = ("block_size_m",)
 OPTIONAL = ("runout_m", "runout_sd_m", "runout_min_m", "runout_max_m", "source",
-            "release_x_m", "release_speed_m_s", "run_id", "shape", "release_height_m")
+            "release_x_m", "release_speed_m_s", "run_id", "shape", "release_height_m",
+            "profile")
 SHAPES = ("sphere", "cylinder", "disc")
 
 
@@ -79,6 +85,8 @@ class ReleaseGroups(NamedTuple):
             that give one, m/s; NaN where none does (the solver's default).
         release_height_m: (G,) mean release height of the group's rows that
             give one, m; NaN where none does (released on the ground).
+        profile_csv: (G,) profile file of each group (``Observations.profile``;
+            "" for the command's profile), str array.
     """
 
     sizes_m: np.ndarray
@@ -86,13 +94,14 @@ class ReleaseGroups(NamedTuple):
     index: np.ndarray
     release_speed_m_s: np.ndarray
     release_height_m: np.ndarray
+    profile_csv: np.ndarray
 
 
 def release_groups(obs: Observations, default_release_x_m: float,
                    tol_m: float = 0.0) -> ReleaseGroups:
-    """Group the rows by (block size, release point).
+    """Group the rows by (profile, block size, release point).
 
-    Rows of one size whose release abscissae AND release heights lie within
+    Rows of one profile and one size whose release abscissae AND release heights lie within
     ``tol_m`` of those of the first (lowest) release of their group share one
     group, released at the mean of their releases (greedy: rows in ascending
     order of release, each joining the first group it fits, else opening one);
@@ -118,10 +127,11 @@ def release_groups(obs: Observations, default_release_x_m: float,
     speed = np.full(obs.n_obs, np.nan) if speed is None else np.asarray(speed, float)
     height = getattr(obs, "release_height_m", None)
     height = np.full(obs.n_obs, np.nan) if height is None else np.asarray(height, float)
-    sizes, releases, speeds, heights = [], [], [], []
+    prof = row_profiles(obs)
+    sizes, releases, speeds, heights, profiles = [], [], [], [], []
     index = np.empty(obs.n_obs, int)
-    for d in np.unique(size):
-        rows = np.flatnonzero(size == d)
+    for pf, d in sorted({(pf, d) for pf, d in zip(prof, size)}, key=lambda k: (k[1], k[0])):
+        rows = np.flatnonzero((size == d) & (prof == pf))
         rows = rows[np.argsort(rel[rows], kind="stable")]
         leaders, members = [], []  # first row of each group of this size, its rows
         for i in rows:
@@ -138,23 +148,32 @@ def release_groups(obs: Observations, default_release_x_m: float,
             m = np.asarray(m)
             index[m] = len(sizes)
             sizes.append(d)
+            profiles.append(pf)
             releases.append(float(np.mean(rel[m])))
             for values, out in ((speed, speeds), (height, heights)):
                 known = values[m][np.isfinite(values[m])]
                 out.append(float(np.mean(known)) if known.size else np.nan)
     return ReleaseGroups(np.asarray(sizes, float), np.asarray(releases, float), index,
-                         np.asarray(speeds, float), np.asarray(heights, float))
+                         np.asarray(speeds, float), np.asarray(heights, float),
+                         np.asarray(profiles, dtype=object))
+
+
+def row_profiles(obs: Observations) -> np.ndarray:
+    """(n_obs,) profile file of each row ("" for the command's profile), str array."""
+    prof = getattr(obs, "profile", None)
+    return np.full(obs.n_obs, "", dtype=object) if prof is None else np.asarray(prof, object)
 
 
 def one_release_groups(obs: Observations, release_x_m: float) -> ReleaseGroups:
     """The grouping of a fit that releases every block from one point (the DEM
     fit, a CRSP fit of rows without ``release_x_m``): one group per block size
     (``obs.sizes_m``, ``obs.size_index``), released at ``release_x_m`` (m) at the
-    solver's default speed, on the ground (NaN), whatever the rows' own releases say."""
+    solver's default speed, on the ground (NaN), on the command's profile,
+    whatever the rows' own releases say."""
     sizes = obs.sizes_m
     nan = np.full(sizes.shape, np.nan)
     return ReleaseGroups(sizes, np.full(sizes.shape, float(release_x_m)), obs.size_index,
-                         nan, nan)
+                         nan, nan, np.full(sizes.shape, "", dtype=object))
 
 
 class ObservationError(ValueError):
@@ -188,6 +207,8 @@ class Observations:
         shape: CRSP shape class per row ("" where not given), str array.
         release_height_m: release height above the ground, m (NaN where not
             given: on the ground).
+        profile: profile file of each row, resolved against the observation
+            file's folder ("" where not given: the command's profile), str array.
     """
 
     block_size_m: np.ndarray
@@ -203,13 +224,14 @@ class Observations:
     run_id: np.ndarray | None = None
     shape: np.ndarray | None = None
     release_height_m: np.ndarray | None = None
+    profile: np.ndarray | None = None
 
     def __post_init__(self):
         n = int(np.shape(self.block_size_m)[0])
         for name in ("release_x_m", "release_speed_m_s", "release_height_m"):
             if getattr(self, name) is None:
                 object.__setattr__(self, name, np.full(n, np.nan))
-        for name in ("run_id", "shape"):
+        for name in ("run_id", "shape", "profile"):
             if getattr(self, name) is None:
                 object.__setattr__(self, name, np.full(n, "", dtype=object))
 
@@ -363,9 +385,9 @@ def load_observations(path: str | os.PathLike) -> Observations:
                                    f"positive tolerance in metres for a point observation")
     is_int = np.isfinite(lo)
     src = tuple(df["source"].tolist()) if "source" in df.columns else ("",) * len(df)
-    x0, speed, run_id, shape, height = _field_columns(df, path)
+    x0, speed, run_id, shape, height, prof = _field_columns(df, path)
     return Observations(d, np.where(is_int, np.nan, y), np.where(is_int, np.nan, sd),
-                        lo, hi, is_int, src, path, x0, speed, run_id, shape, height)
+                        lo, hi, is_int, src, path, x0, speed, run_id, shape, height, prof)
 
 
 def _field_columns(df: pd.DataFrame, path: str):
@@ -388,14 +410,22 @@ def _field_columns(df: pd.DataFrame, path: str):
                                f"expected a height >= 0 m above the ground, got "
                                f"{df['release_height_m'][bad[0]]!r}")
     text = {}
-    for col in ("run_id", "shape"):
+    for col in ("run_id", "shape", "profile"):
         vals = df[col].tolist() if col in df.columns else [""] * len(df)
         text[col] = np.array([str(v).strip() for v in vals], dtype=object)
     bad = [i for i, v in enumerate(text["shape"]) if v not in SHAPES + ("",)]
     if bad:
         raise ObservationError(f"{path}: line {bad[0] + 2}, column 'shape': expected one of "
                                f"{', '.join(SHAPES)} or empty, got {text['shape'][bad[0]]!r}")
-    return x0, speed, text["run_id"], text["shape"], height
+    prof = text["profile"]
+    folder = os.path.dirname(path)
+    for i, v in enumerate(prof):
+        if v:
+            prof[i] = os.path.normpath(v if os.path.isabs(v) else os.path.join(folder, v))
+            if not os.path.isfile(prof[i]):
+                raise ObservationError(f"{path}: line {i + 2}, column 'profile': no such "
+                                       f"profile file {v!r} (looked for {prof[i]})")
+    return x0, speed, text["run_id"], text["shape"], height, prof
 
 
 VELOCITY_COLUMNS = ("station_x_m", "block_size_m", "velocity_m_s", "velocity_sd_m_s")

@@ -46,6 +46,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.special import ndtr
 
+from calib.files.inputs import entry_profiles
 from calib.files.observations import Observations, ReleaseGroups, one_release_groups
 from calib.inference.adequacy import adequacy_record
 from calib.inference.bayes import Posterior, run_nuts
@@ -218,37 +219,48 @@ def _pilot_draws(pointwise_loglik, box, n: int, key: jax.Array) -> np.ndarray:
 _RELEASE_STATE = ("release_speed_m_s", "release_height_m")  # CRSP only; NaN: default
 
 
-def _entries(forward) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _entries(forward) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple]:
     """The forward model's entries: (S,) sizes, m, releases, m (None: the profile's
-    first vertex, where both solvers release by default), release speeds, m/s, and
-    release heights, m (NaN: the solver's default; a ``DemForward`` has neither)."""
+    first vertex, where both solvers release by default), release speeds, m/s,
+    release heights, m (NaN: the solver's default; a ``DemForward`` has
+    neither), and profiles (the entry's own ``Profile``, or None for
+    ``forward.profile``)."""
     sizes = np.asarray(forward.sizes_m, float)
     rel = entry_releases(forward.profile, sizes, forward.release_x_m)
     state = [getattr(forward, name, None) for name in _RELEASE_STATE]
+    own = getattr(forward, "entry_profiles", None)
+    profiles = tuple(None if own is None or own[i] is forward.profile else own[i]
+                     for i in range(sizes.shape[0]))
     return (sizes, rel, *(np.full(sizes.shape, np.nan) if v is None else
-                          np.broadcast_to(np.asarray(v, float), sizes.shape) for v in state))
+                          np.broadcast_to(np.asarray(v, float), sizes.shape) for v in state),
+            profiles)
 
 
 def _built_on(forward, groups: ReleaseGroups) -> bool:
     """The forward model's entries are the groups: same sizes, releases, release
-    speeds and heights (not only as many: a forward on ``obs.sizes_m`` would
-    ignore the releases)."""
-    sizes, rel, speed, height = _entries(forward)
+    speeds, heights and profiles (not only as many: a forward on ``obs.sizes_m``
+    would ignore the releases)."""
+    sizes, rel, speed, height, profiles = _entries(forward)
+    want = entry_profiles(groups.profile_csv) or (None,) * len(groups.sizes_m)
     return (sizes.shape == groups.sizes_m.shape and np.array_equal(sizes, groups.sizes_m)
             and np.array_equal(rel, groups.release_x_m)
             and np.array_equal(speed, groups.release_speed_m_s, equal_nan=True)
-            and np.array_equal(height, groups.release_height_m, equal_nan=True))
+            and np.array_equal(height, groups.release_height_m, equal_nan=True)
+            and all(a is b for a, b in zip(profiles, want, strict=True)))
 
 
 def _on_entries(forward, sizes_m, release_x_m, release_speed_m_s, release_height_m,
-                n_blocks: int, key: jax.Array):
+                n_blocks: int, key: jax.Array, profiles=None):
     """``forward`` on other entries: (E,) sizes, m, releases, m, release speeds,
-    m/s, and heights, m (NaN: the solver's default), with ``n_blocks`` blocks
-    each and ``key``. One release for all is passed as one number and no speed
-    or height as None, the only form a ``DemForward`` takes."""
+    m/s, heights, m (NaN: the solver's default), and profiles (None, or one
+    ``Profile`` or None per entry: ``entry_profiles``), with ``n_blocks``
+    blocks each and ``key``. One release for all is passed as one number and no
+    speed or height as None, the only form a ``DemForward`` takes."""
     rel = np.asarray(release_x_m, float)
     fields = {"sizes_m": np.asarray(sizes_m, float), "n_blocks": n_blocks, "key": key,
-              "release_x_m": float(rel[0]) if np.all(rel == rel[0]) else tuple(rel)}
+              "release_x_m": float(rel[0]) if np.all(rel == rel[0]) else tuple(rel),
+              "entry_profiles": (tuple(profiles) if profiles is not None
+                                 and any(p is not None for p in profiles) else None)}
     for name, v in zip(_RELEASE_STATE, (release_speed_m_s, release_height_m), strict=True):
         v = np.asarray(v, float)
         if np.any(np.isfinite(v)) or getattr(forward, name, None) is not None:
@@ -258,20 +270,23 @@ def _on_entries(forward, sizes_m, release_x_m, release_speed_m_s, release_height
 
 def _check_entries(groups: ReleaseGroups, sizes_m: np.ndarray):
     """What the check simulates: first the figure's sizes ``sizes_m`` at the
-    median of the rows' releases and the solver's release speed and height, then
-    every group that is not one of these entries.
+    median of the rows' releases, on the command's profile, with the solver's
+    release speed and height, then every group that is not one of these entries.
 
     Returns:
-        (sizes, releases, speeds, heights) of the entries (E,), and the entry of
-        each group (G,).
+        (sizes, releases, speeds, heights, profiles) of the entries (E,)
+        (profiles: ``ReleaseGroups.profile_csv``, "" for the command's), and
+        the entry of each group (G,).
     """
     median = float(np.median(groups.release_x_m[groups.index]))
     sizes, rel = list(sizes_m), [median] * len(sizes_m)
     speed, height = [np.nan] * len(sizes_m), [np.nan] * len(sizes_m)
+    prof = [""] * len(sizes_m)
     entry = np.empty(len(groups.sizes_m), int)
-    for g, (d, x, v, h) in enumerate(zip(groups.sizes_m, groups.release_x_m,
-                                         groups.release_speed_m_s, groups.release_height_m)):
-        if x == median and np.isnan(v) and np.isnan(h):
+    for g, (d, x, v, h, pf) in enumerate(zip(groups.sizes_m, groups.release_x_m,
+                                             groups.release_speed_m_s,
+                                             groups.release_height_m, groups.profile_csv)):
+        if x == median and np.isnan(v) and np.isnan(h) and not pf:
             entry[g] = int(np.searchsorted(sizes_m, d))
         else:
             entry[g] = len(sizes)
@@ -279,8 +294,9 @@ def _check_entries(groups: ReleaseGroups, sizes_m: np.ndarray):
             rel.append(x)
             speed.append(v)
             height.append(h)
+            prof.append(pf)
     return (np.asarray(sizes, float), np.asarray(rel, float), np.asarray(speed, float),
-            np.asarray(height, float), entry)
+            np.asarray(height, float), np.asarray(prof, dtype=object), entry)
 
 
 def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ...],
@@ -390,9 +406,9 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     else:
         estimate, source = posterior.map, "posterior_mode"
     t0 = time.perf_counter()
-    e_sizes, e_rel, e_speed, e_height, entry = _check_entries(groups, sizes)
+    e_sizes, e_rel, e_speed, e_height, e_prof, entry = _check_entries(groups, sizes)
     runs = _on_entries(forward, e_sizes, e_rel, e_speed, e_height, budget.n_check,
-                       k_check).runouts(estimate[None])[0]
+                       k_check, entry_profiles(e_prof)).runouts(estimate[None])[0]
     tally("check", runs[None], estimate[None], e_sizes)
     check, at_rows = runs[:len(sizes)], runs[entry]
     quality = fit_quality(obs, at_rows, index)
@@ -407,12 +423,19 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
                     quality, sizes, check, timings, budget, record, adequacy)
 
 
-def _release_slopes_deg(profile, release_x_m) -> np.ndarray:
-    """The profile's slope just below each release abscissa (that of the segment
-    the release lies on, the lower one at a vertex), deg, > 0 downhill."""
-    x, z = np.asarray(profile.x_m, float), np.asarray(profile.z_m, float)
-    seg = np.asarray(segment_index(profile, jnp.asarray(release_x_m, jnp.float64)))
-    return np.degrees(np.arctan2(z[seg] - z[seg + 1], x[seg + 1] - x[seg]))
+def _release_slopes_deg(profile, release_x_m, profiles=None) -> np.ndarray:
+    """The slope just below each release abscissa on its profile (``profiles``:
+    the entry's own, None for ``profile``), that of the segment the release
+    lies on (the lower one at a vertex), deg, > 0 downhill."""
+    rel = np.atleast_1d(np.asarray(release_x_m, float))
+    own = profiles or (None,) * rel.shape[0]
+    out = np.empty(rel.shape[0])
+    for i, (x0, p) in enumerate(zip(rel, own, strict=True)):
+        p = profile if p is None else p
+        x, z = np.asarray(p.x_m, float), np.asarray(p.z_m, float)
+        seg = int(segment_index(p, jnp.asarray(x0, jnp.float64)))
+        out[i] = np.degrees(np.arctan2(z[seg] - z[seg + 1], x[seg + 1] - x[seg]))
+    return out
 
 
 def _adequacy(forward, obs: Observations, posterior: Posterior | None, check: np.ndarray,
@@ -421,8 +444,9 @@ def _adequacy(forward, obs: Observations, posterior: Posterior | None, check: np
     ``n_predictive_draws`` draws spread evenly over the chains' output, with
     ``n_blocks_predictive`` fresh blocks per draw and size; without a posterior,
     the check's runouts at the point estimate (plug-in)."""
-    release = _entries(forward)[1]
-    slopes_deg = _release_slopes_deg(forward.profile, release)
+    e = _entries(forward)
+    release = e[1]
+    slopes_deg = _release_slopes_deg(forward.profile, release, e[4])
     if posterior is None:
         return adequacy_record(None, forward.box, obs, check,
                                f"plug-in at the point estimate, {check.shape[-1]} blocks "

@@ -200,6 +200,7 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
     import jax
 
     from calib.files.calibration_file import draw_parameters
+    from calib.files.inputs import entry_profiles
     from calib.files.observations import release_groups
     from calib.model.forward import CrspForward, DemForward
 
@@ -209,12 +210,15 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
     # (calib.fit's release groups); a DEM fit of an older file ran every block at
     # the calibration's one release
     default = start if cal.own_releases else common
-    sizes, releases, index, speeds, heights = release_groups(heldout, default)
-    lo, hi = start, float(profile.x_m[-1])
-    bad = np.flatnonzero((releases < lo) | (releases >= hi))
-    if bad.size:
-        raise ValueError(f"release_x_m {releases[bad[0]]:g}: outside the profile "
-                         f"{cal.profile_csv} ({lo:g} to {hi:g} m)")
+    sizes, releases, index, speeds, heights, prof_csv = release_groups(heldout, default)
+    own = entry_profiles(prof_csv)  # rows on their own profiles (Observations.profile)
+    for g, x0 in enumerate(releases):
+        p, name = ((profile, cal.profile_csv) if own is None or own[g] is None
+                   else (own[g], prof_csv[g]))
+        lo, hi = float(p.x_m[0]), float(p.x_m[-1])
+        if not lo <= x0 < hi:
+            raise ValueError(f"release_x_m {x0:g}: outside the profile {name} "
+                             f"({lo:g} to {hi:g} m)")
     draws = draw_parameters(cal, n_posterior, seed)
     key = jax.random.fold_in(jax.random.key(seed), 7)
     if cal.model == "crsp":
@@ -226,7 +230,7 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
                              "calibration file): refit with calib.fit to release both alike")
         fw = CrspForward(profile, sizes, n_blocks or 100, key, box=crsp_box(draws.names),
                          release_x_m=tuple(releases), release_speed_m_s=tuple(speeds),
-                         release_height_m=tuple(heights))
+                         release_height_m=tuple(heights), entry_profiles=own)
     else:
         from calib.model.dem_run import DEM_RUN, DemRun
 
@@ -235,6 +239,6 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
                              "rows with other release_x_m need a calibration that releases "
                              "each row from its own point (refit with calib.fit)")
         fw = DemForward(profile, sizes, n_blocks or 4, key, form=cal.alpha_form,
-                        release_x_m=tuple(releases),
+                        release_x_m=tuple(releases), entry_profiles=own,
                         run=DemRun(**cal.dem_run) if cal.dem_run else DEM_RUN)
     return pool_draws(fw.runouts(draws.values)), index, draws, fw.n_blocks

@@ -43,7 +43,8 @@ from calib.model.unfinished import mask_unfinished
 from solvers.parallel import default_workers, map_ordered
 from solvers.profile import Profile
 
-__all__ = ["CrspForward", "DemForward", "dem_lanes", "entry_releases", "stack_trees"]
+__all__ = ["CrspForward", "DemForward", "dem_lanes", "entry_releases", "profile_parts",
+           "stack_trees", "take_entries"]
 
 
 @functools.partial(jax.jit, static_argnames=("with_rolling",))
@@ -84,6 +85,41 @@ def entry_releases(profile: Profile, sizes_m, release_x_m) -> np.ndarray:
         raise ValueError(f"release_x_m: {rel.size} entries for {n_s} entries of sizes_m "
                          "(one per entry, or one for all)")
     return np.broadcast_to(rel, (n_s,)).copy()
+
+
+def profile_parts(profile: Profile, entry_profiles, n_s: int):
+    """Entries split by the profile they run on: None where every entry runs on
+    ``profile`` (``entry_profiles`` None, or all None or ``profile`` itself),
+    else [(profile_k, entry indices), ...] in order of first appearance, an
+    entry's None standing for ``profile``.
+
+    Raises:
+        ValueError: a count of entry profiles that is not one per entry.
+    """
+    if entry_profiles is None:
+        return None
+    if len(entry_profiles) != n_s:
+        raise ValueError(f"entry_profiles: {len(entry_profiles)} entries for {n_s} entries "
+                         "of sizes_m (one per entry)")
+    own = [profile if p is None else p for p in entry_profiles]
+    if all(p is profile for p in own):
+        return None
+    parts: list[tuple[Profile, list[int]]] = []
+    for i, p in enumerate(own):
+        for q, idx in parts:
+            if q is p:
+                idx.append(i)
+                break
+        else:
+            parts.append((p, [i]))
+    return [(p, np.asarray(idx)) for p, idx in parts]
+
+
+def take_entries(v, idx):
+    """Per-entry attribute ``v`` (None, one for all, or one per entry) at ``idx``."""
+    if v is None or np.ndim(v) == 0:
+        return v
+    return tuple(np.asarray(v, float)[idx])
 
 
 def stack_trees(trees):
@@ -134,6 +170,12 @@ class CrspForward:
             release velocity above (``solvers.crsp.init``): a hand or bucket
             release from above the ground, as tracked field runs record it
             (``calib.files.field_runs``).
+        entry_profiles: (S,) profile of each entry (None: ``profile``), or
+            None (all on ``profile``): runs released from spots far apart, each
+            along its own fall line (``Observations.profile``). Each profile's
+            entries run as their own forward with the same theta, key and
+            settings, so an entry's runouts do not depend on the other entries.
+            Abscissae (release, stations) are each entry's own profile's.
     """
 
     profile: Profile
@@ -149,9 +191,11 @@ class CrspForward:
     release_x_m: float | tuple[float, ...] | None = None
     release_speed_m_s: tuple[float, ...] | None = None
     release_height_m: tuple[float, ...] | None = None
+    entry_profiles: tuple[Profile | None, ...] | None = None
 
     def __post_init__(self):
         n_s = len(np.atleast_1d(self.sizes_m))
+        self._parts = profile_parts(self.profile, self.entry_profiles, n_s)
         entry_releases(self.profile, self.sizes_m, self.release_x_m)  # checks the count
         for name in ("release_speed_m_s", "release_height_m"):
             v = getattr(self, name)
@@ -210,6 +254,8 @@ class CrspForward:
         """
         theta = np.atleast_2d(np.asarray(theta, float))
         n_t, n_s = theta.shape[0], len(self.sizes_m)
+        if self._parts is not None:
+            return self._simulate_parts(theta)
         rep = np.repeat(theta, n_s, axis=0)  # task = (t, s)
         radius = np.tile(crsp_radius_m(self.sizes_m), n_t)
         release = (None if self.release_x_m is None else
@@ -263,6 +309,21 @@ class CrspForward:
         r = np.concatenate(runs)[:n_tasks].reshape(n_t, n_s, self.n_blocks)
         v = np.concatenate(speeds)[:n_tasks].reshape(n_t, n_s, self.n_blocks, n_st)
         return r, np.moveaxis(v, 3, 2)
+
+    def _simulate_parts(self, theta) -> tuple[np.ndarray, np.ndarray]:
+        """``simulate`` of entries on several profiles: one forward per profile."""
+        n_t, n_s = theta.shape[0], len(self.sizes_m)
+        n_st = len(np.asarray(self.stations_x_m, float).reshape(-1))
+        r = np.full((n_t, n_s, self.n_blocks), np.nan)
+        v = np.full((n_t, n_s, n_st, self.n_blocks), np.nan)
+        for prof, idx in self._parts:
+            sub = dataclasses.replace(
+                self, profile=prof, sizes_m=np.asarray(self.sizes_m)[idx],
+                release_x_m=take_entries(self.release_x_m, idx),
+                release_speed_m_s=take_entries(self.release_speed_m_s, idx),
+                release_height_m=take_entries(self.release_height_m, idx), entry_profiles=None)
+            r[:, idx], v[:, idx] = sub.simulate(theta)
+        return r, v
 
     def replicates(self, theta, reps: int, key: jax.Array) -> np.ndarray:
         """Runouts (reps, S, n_blocks), m, of ONE theta (p,) with ``reps``
@@ -335,6 +396,8 @@ class DemForward:
             entry of ``sizes_m`` (an entry is then a (size, release) group, as in
             ``CrspForward``), or None (the profile's first vertex). Blocks are
             released at rest: the DEM has no release speed.
+        entry_profiles: (S,) profile of each entry (None: ``profile``), or None,
+            as in ``CrspForward``.
     """
 
     profile: Profile
@@ -345,9 +408,15 @@ class DemForward:
     run: DemRun = DEM_RUN
     lane_batch: int = 32
     release_x_m: float | tuple[float, ...] | None = None
+    entry_profiles: tuple[Profile | None, ...] | None = None
 
     def __post_init__(self):
         entry_releases(self.profile, self.sizes_m, self.release_x_m)  # checks the count
+        parts = profile_parts(self.profile, self.entry_profiles, len(self.sizes_m))
+        self._parts = None if parts is None else [
+            (dataclasses.replace(self, profile=p, sizes_m=np.asarray(self.sizes_m)[idx],
+                                 release_x_m=take_entries(self.release_x_m, idx),
+                                 entry_profiles=None), idx) for p, idx in parts]
         if self.form not in DEM_BOXES:
             raise ValueError(f"unknown alpha law form {self.form!r}; expected one of "
                              f"{', '.join(DEM_BOXES)}")
@@ -379,6 +448,11 @@ class DemForward:
 
         alpha = np.asarray(alpha, float)
         n_t, n_s = alpha.shape
+        if self._parts is not None:  # one forward per profile (entry_profiles)
+            out = np.full((n_t, n_s, self.n_blocks), np.nan)
+            for sub, idx in self._parts:
+                out[:, idx] = sub.runouts_at_alpha(alpha[:, idx])
+            return out
         x0 = entry_releases(self.profile, self.sizes_m, self.release_x_m)
         proto = [make_block(float(L), alpha=0.5, release_x_m=float(x))
                  for L, x in zip(dem_side_m(self.sizes_m), x0)]
