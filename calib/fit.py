@@ -26,7 +26,6 @@ tolerance (points) or known to lie in an interval.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import sys
 import time
@@ -100,7 +99,7 @@ def _run(args) -> int:
     from calib.files.calibration_file import model_section, summary_stats
     from calib.files.inference_data import inference_data, netcdf_writer
     from calib.files.inputs import InputError, common_release_m, entry_profiles, load_inputs
-    from calib.files.observations import one_release_groups
+    from calib.files.observations import ground_release_groups, one_release_groups
     from calib.files.site import SiteError, load_site
     from calib.inference.calibrate import calibrate, presets
     from calib.model.alpha_law import alpha_of, check_fit
@@ -132,7 +131,7 @@ def _run(args) -> int:
 
         groups = (release_groups(obs, float(profile.x_m[0]), args.release_tolerance_m)
                   if "crsp" in models else
-                  _ground_groups(obs, profile, args.release_tolerance_m))
+                  ground_release_groups(obs, float(profile.x_m[0]), args.release_tolerance_m))
         err = np.abs(groups.release_x_m[groups.index] - np.where(
             np.isfinite(rel), rel, float(profile.x_m[0])))
         print(f"each row released from its own point, rows of one size within "
@@ -206,7 +205,8 @@ def _run(args) -> int:
             # speed: its blocks start at rest on the ground), or one group per size at
             # the common release
             dem_groups = (one_release_groups(obs, release) if groups is None else
-                          _ground_groups(obs, profile, args.release_tolerance_m))
+                          ground_release_groups(obs, float(profile.x_m[0]),
+                                                args.release_tolerance_m))
             forward = DemForward(profile, dem_groups.sizes_m, budget.n_blocks_design,
                                  jax.random.fold_in(mkey, 1), form=args.alpha_law,
                                  release_x_m=tuple(dem_groups.release_x_m),
@@ -374,17 +374,6 @@ def _print_summary(result: dict, models, out: str) -> None:
         parts.append(model + ": " + ", ".join(f"{k[:-2]} {v:.0f} s" for k, v in tim[model].items()))
     print("\nstage times: " + "; ".join(parts) + f"; total {tim['total_s']:.0f} s")
     print(f"wrote {os.path.join(out, 'calibration.json')} and figures in {out}/")
-
-
-def _ground_groups(obs, profile, tol_m: float):
-    """The rows' release groups for a solver that releases at rest on the ground:
-    grouped by size and release abscissa only, no release speed or height."""
-    from calib.files.observations import release_groups
-
-    nan = np.full(obs.n_obs, np.nan)
-    g = release_groups(dataclasses.replace(obs, release_height_m=nan), float(profile.x_m[0]),
-                       tol_m)
-    return g._replace(release_speed_m_s=np.full(len(g.sizes_m), np.nan))
 
 
 def main(argv=None) -> int:

@@ -189,3 +189,22 @@ def test_velocity_rows_get_their_own_entries_at_the_median_release():
     np.testing.assert_array_equal(e.index, list(np.repeat([0, 1], 6)) + [2, 3, 2])
     assert np.all(np.isnan(e.release_speed_m_s))
     assert _entries(obs, PROFILE, class_sizes, row_class, vel_class, None) is None
+
+
+def test_dem_discovery_groups_releases_by_abscissa_alone():
+    """The DEM starts its blocks at rest on the ground, so discover's DEM
+    candidates group rows by release abscissa only: rows of one size at one
+    abscissa but different heights are one simulated group there, two for CRSP
+    (whose blocks start in flight from the height)."""
+    import dataclasses
+
+    from calib.discovery.discrepancy import _entries
+
+    obs = dataclasses.replace(_rows(), release_height_m=np.tile([0.0, 2.4], 6),
+                              release_speed_m_s=np.full(12, 0.5))
+    class_sizes, row_class = np.array([1.0]), np.zeros(12, int)
+    crsp = _entries(obs, PROFILE, class_sizes, row_class, None, 1.0)
+    dem = _entries(obs, PROFILE, class_sizes, row_class, None, 1.0, at_rest=True)
+    assert len(crsp.sizes_m) == 4 and len(dem.sizes_m) == 2
+    np.testing.assert_array_equal(dem.release_x_m, [0.0, 100.0])
+    assert np.isnan(dem.release_height_m).all() and np.isnan(dem.release_speed_m_s).all()
