@@ -110,6 +110,21 @@ print("same profile as the shipped one:", ours[["x_m", "z_m"]].equals(shipped[["
 profile = load_profile(os.path.join(SITE, "profile.csv"))
 
 # %% [markdown]
+# The blocks were let go from three spots across the slope. Two lie within
+# about 20 m of that line; the third lies 34 m to its left, where the line's
+# ground is up to 1 m above the tracked release points: the line is not the
+# ground those runs started on. That spot gets a profile of its own, along the
+# mean fall line of the runs released within 10 m of it (`--fall-line-near`).
+
+# %%
+spot_csv = os.path.join(WORK, "east_spot_profile.csv")
+profile_cli.main(["cut", os.path.join(SITE, "terrain_proxy.asc"),
+                  "--fall-line", os.path.join(SITE, "runs.csv"),
+                  "--fall-line-near", "59,257.5,10", "--margin-m", "40",
+                  "--zones", "steep:0:100,flat:100:", "--out", spot_csv])
+spot = load_profile(os.path.join(SITE, "east_spot_profile.csv"))
+
+# %% [markdown]
 # ## 3. Field runs as observations
 #
 # Each release and stop point is projected onto the line; the runout is the
@@ -118,29 +133,34 @@ profile = load_profile(os.path.join(SITE, "profile.csv"))
 # size is the diameter of the sphere of the block's mass at 2650 kg/m3 (an
 # assumption, `calib/files/field_runs.py`). The first tracked point of a run
 # also says how high above the ground the block was let go: its centre, less
-# half the block size, above the profile's ground under it (`release_height_m`;
-# 0 where the point lies below the profile, as it does for the spot 34 m left
-# of the line, whose own ground the profile does not follow).
+# half the block size, above the profile's ground under it (`release_height_m`).
+# With two profiles, each run goes on the one whose line passes nearest its
+# release point, and a `profile` column says which.
 
 # %%
 obs_csv = os.path.join(WORK, "observations.csv")
 field.main([os.path.join(SITE, "runs.csv"), "--blocks", os.path.join(SITE, "blocks.csv"),
             "--profile", os.path.join(SITE, "profile.csv"),
+            "--profile", os.path.join(SITE, "east_spot_profile.csv"),
             "--source", "Tschamut 2014 (Volkwein & Gerber 2018, EnviDat, "
             "doi:10.16904/envidat.34)", "--out", obs_csv])
 obs = pd.read_csv(obs_csv)
+on_spot = obs.profile.str.endswith("east_spot_profile.csv").to_numpy()
 print(obs.groupby("block_size_m").runout_m.describe()[["count", "min", "50%", "max"]])
 print(f"release heights above the profile's ground: {obs.release_height_m.min():.2f} to "
       f"{obs.release_height_m.max():.2f} m (median {obs.release_height_m.median():.2f} m)")
-fig, ax = plt.subplots(figsize=(8, 3))
-ax.plot(profile.x_m, profile.z_m, "k-")
-for x0, r in zip(obs.release_x_m, obs.runout_m, strict=True):
-    ax.plot([x0 + r], [np.interp(x0 + r, profile.x_m, profile.z_m)], "r|", ms=10)
-ax.plot(obs.release_x_m, np.interp(obs.release_x_m, profile.x_m, profile.z_m), "k^", ms=4)
-ax.set_xlabel("distance along the profile, m")
-ax.set_ylabel("z, m")
-ax.set_aspect("equal")
-ax.set_title("releases (triangles) and stops (red) on the profile")
+fig, axes = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
+for ax, prof, rows, name in ((axes[0], profile, ~on_spot, "the mean fall line"),
+                             (axes[1], spot, on_spot, "the left spot's own line")):
+    sub = obs[rows]
+    ax.plot(prof.x_m, prof.z_m, "k-")
+    for x0, r in zip(sub.release_x_m, sub.runout_m, strict=True):
+        ax.plot([x0 + r], [np.interp(x0 + r, prof.x_m, prof.z_m)], "r|", ms=10)
+    ax.plot(sub.release_x_m, np.interp(sub.release_x_m, prof.x_m, prof.z_m), "k^", ms=4)
+    ax.set_ylabel("z, m")
+    ax.set_aspect("equal")
+    ax.set_title(f"{len(sub)} runs on {name}: releases (triangles) and stops (red)")
+axes[1].set_xlabel("distance along the profile, m")
 plt.show()
 
 # %% [markdown]
@@ -236,11 +256,12 @@ for name in ("runout_vs_size.png", "crsp_pairs.png", os.path.join("validation", 
 #   `calibration.json` gives, per release group, the slope just below the
 #   release and how many simulated blocks stop within 1 m of it. Here the
 #   releases project onto a 21-26 deg shoulder above a 44 deg slope. Blocks
-#   let go from above the ground (`release_height_m`) fall onto it and run on;
-#   the runs from the spot 34 m left of the line start below the line's ground,
-#   are released on it, and stall under a rolling resistance steeper than the
-#   shoulder: the posterior splits into modes that do and do not let them
-#   start. Such runs need a profile along their own fall line.
+#   let go from above the ground (`release_height_m`) fall onto it and run on.
+#   On one line for all runs, the runs from the spot 34 m left of it started
+#   below the line's ground, were released on it, and stalled under a rolling
+#   resistance steeper than the shoulder; the posterior split into modes that
+#   did and did not let them start. Runs from spots far apart need a profile
+#   along each spot's own fall line, as above.
 # * Keep 30 % of the runs aside and run the predictive check. Use the
 #   calibration only if its skill against climatology is positive and its
 #   90 % intervals cover about 90 % of the held-out runs; the adequacy check
