@@ -7,6 +7,7 @@ import os
 import numpy as np
 import pandas as pd
 import pytest
+from cli_run import run_cli
 
 from calib.field import main
 from calib.files.field_runs import (
@@ -51,12 +52,7 @@ def _runs(tmp_path, *rows, header=RUNS_HEADER):
 
 
 def _cli(argv, capsys):
-    try:
-        rc = main(argv)
-    except SystemExit as e:
-        rc = e.code
-    out, err = capsys.readouterr()
-    return rc, out, err
+    return run_cli(main, argv, capsys)
 
 
 def test_equivalent_diameters():

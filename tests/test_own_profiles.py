@@ -12,6 +12,7 @@ import types
 import jax
 import numpy as np
 import pytest
+from cli_run import run_cli
 
 import calib  # noqa: F401  (x64)
 from calib.field import main as field_main
@@ -34,13 +35,6 @@ def _text(path) -> str:
         return f.read()
 
 
-def _cli(fn, argv, capsys):
-    try:
-        rc = fn(argv)
-    except SystemExit as e:
-        rc = e.code
-    out, err = capsys.readouterr()
-    return rc, out, err
 
 
 def test_an_entry_runs_on_its_own_profile_alone():
@@ -137,7 +131,7 @@ def test_the_check_simulates_groups_on_their_profiles():
 
 def test_field_puts_each_run_on_the_profile_nearest_its_release(tmp_path, capsys):
     out = tmp_path / "out" / "obs.csv"
-    rc, text, err = _cli(field_main, [f"{DATA}/runs.csv", "--blocks", f"{DATA}/blocks.csv",
+    rc, text, err = run_cli(field_main, [f"{DATA}/runs.csv", "--blocks", f"{DATA}/blocks.csv",
                                       "--profile", f"{DATA}/profile.csv",
                                       "--profile", f"{DATA}/east_spot_profile.csv",
                                       "--out", str(out)], capsys)
@@ -150,14 +144,14 @@ def test_field_puts_each_run_on_the_profile_nearest_its_release(tmp_path, capsys
     assert all(os.path.isfile(p) for p in obs.profile)
     # a profile no run is nearest to is refused, nothing written
     out2 = tmp_path / "obs2.csv"
-    rc, _, err = _cli(field_main, [f"{DATA}/runs.csv", "--blocks", f"{DATA}/blocks.csv",
+    rc, _, err = run_cli(field_main, [f"{DATA}/runs.csv", "--blocks", f"{DATA}/blocks.csv",
                                    "--profile", f"{DATA}/east_spot_profile.csv",
                                    "--profile", f"{DATA}/east_spot_profile.csv",
                                    "--profile", f"{DATA}/profile.csv", "--out", str(out2)],
                        capsys)
     assert rc == 0  # a repeated profile counts once
     one = tmp_path / "one.csv"
-    rc, _, _ = _cli(field_main, [f"{DATA}/runs.csv", "--blocks", f"{DATA}/blocks.csv",
+    rc, _, _ = run_cli(field_main, [f"{DATA}/runs.csv", "--blocks", f"{DATA}/blocks.csv",
                                  "--profile", f"{DATA}/profile.csv", "--out", str(one)], capsys)
     assert rc == 0 and "profile" not in _text(one).splitlines()[0]  # one profile: no column
 
@@ -175,7 +169,7 @@ def test_field_refuses_a_profile_no_run_belongs_to(tmp_path, capsys):
         moved.append(",".join(c))
     far.write_text("\n".join(moved) + "\n")
     out = tmp_path / "obs.csv"
-    rc, _, err = _cli(field_main, [f"{DATA}/runs.csv", "--blocks", f"{DATA}/blocks.csv",
+    rc, _, err = run_cli(field_main, [f"{DATA}/runs.csv", "--blocks", f"{DATA}/blocks.csv",
                                    "--profile", f"{DATA}/profile.csv", "--profile", str(far),
                                    "--out", str(out)], capsys)
     assert rc == 2 and f"--profile {far}: no run's release lies nearer" in err
@@ -186,7 +180,7 @@ def test_cut_along_one_spots_fall_line(tmp_path, capsys):
     """--fall-line-near E,N,R cuts the mean fall line of the runs released within
     R m of (E, N), and records it; no run there is one line, exit 2."""
     out = tmp_path / "spot.csv"
-    rc, _, err = _cli(profile_main, ["cut", f"{DATA}/terrain_proxy.asc", "--fall-line",
+    rc, _, err = run_cli(profile_main, ["cut", f"{DATA}/terrain_proxy.asc", "--fall-line",
                                      f"{DATA}/runs.csv", "--fall-line-near", "59,257.5,10",
                                      "--margin-m", "40", "--zones", "steep:0:100,flat:100:",
                                      "--out", str(out)], capsys)
@@ -195,7 +189,7 @@ def test_cut_along_one_spots_fall_line(tmp_path, capsys):
     info = json.loads(_text(tmp_path / "spot.cut.json"))
     assert info["line"]["runs_released_near"] == {"east_m": 59.0, "north_m": 257.5,
                                                   "radius_m": 10.0}
-    rc, _, err = _cli(profile_main, ["cut", f"{DATA}/terrain_proxy.asc", "--fall-line",
+    rc, _, err = run_cli(profile_main, ["cut", f"{DATA}/terrain_proxy.asc", "--fall-line",
                                      f"{DATA}/runs.csv", "--fall-line-near", "0,0,5",
                                      "--out", str(tmp_path / "none.csv")], capsys)
     assert rc == 2 and "no run is released within 5 m of (0, 0)" in err

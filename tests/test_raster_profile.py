@@ -6,6 +6,7 @@ import sys
 
 import numpy as np
 import pytest
+from cli_run import run_cli
 
 from solvers import load_profile
 from solvers.plan_line import Polyline, mean_fall_line, read_line, read_profile_trace
@@ -206,12 +207,7 @@ def test_uncovered_zone_is_refused():
 
 
 def _cli(argv, capsys):
-    try:
-        rc = main(argv)
-    except SystemExit as e:
-        rc = e.code
-    out, err = capsys.readouterr()
-    return rc, out, err
+    return run_cli(main, argv, capsys)
 
 
 def _setup(tmp_path, nodata_at=None):
