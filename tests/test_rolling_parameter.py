@@ -64,3 +64,14 @@ def test_hazard_releases_where_the_calibration_was_fitted(tmp_path):
                         np.array([100.0, 155.0]), 64, 0)
     assert counts.release_x_m == 150.0
     assert int(np.asarray(counts.reach)[0, 0, 0]) == 0
+
+
+def test_emulator_coordinates_invert():
+    """``from_input`` undoes ``to_input`` over the whole box, with and without
+    the rolling resistance (the design's points go back to theta for the
+    adequacy check of a better design point)."""
+    rng = np.random.default_rng(0)
+    for box in (CRSP_BOX, CRSP_ROLLING_BOX):
+        fw = CrspForward(PROFILE, np.array([0.4]), 4, jax.random.key(0), box=box)
+        theta = box.from_unit(rng.random((64, box.dim)))
+        np.testing.assert_allclose(fw.from_input(fw.to_input(theta)), theta, rtol=1e-12)

@@ -42,6 +42,19 @@ reported per fit (``calib.inference.calibrate``; ``calibration.json`` under
    that do and do not let them start. Threshold and flag level are our own
    choice.
 
+4. **A better point that the fit did not find.** The emulator's design
+   simulates the rows at many points of the prior box (CRSP). Where one of
+   those points fits the rows better than the calibration's estimate, by more
+   than ``BETTER_NATS_PER_ROW`` (1 nat) per row in simulated log-likelihood
+   (the design's blocks against the check's; against the posterior's mode
+   simulated with the design's own blocks), the fit missed a better region
+   and does not describe the best fit found. Seen on a likelihood that is
+   flat in most of the box and peaked in a thin slab of it (Tschamut: a
+   roughness near 0.05 m). Threshold our own choice: a likelihood ratio of e
+   per row is far above the Monte Carlo noise of either log-likelihood. The
+   gradient fit starts once from that best design point too
+   (``calib.inference.calibrate``).
+
 Without a posterior (gradient-only fits) the predictive distribution is that
 of the point estimate (plug-in), and the record says so.
 """
@@ -55,8 +68,9 @@ from calib.files.observations import Observations
 from calib.inference.predictive_check import in_band, observed_ensemble
 from calib.model.priors import Box
 
-__all__ = ["BOUND_BAND", "BOUND_FLAG", "COVERAGE_ALPHA", "LEVELS", "STALL_FLAG", "STALL_M",
-           "adequacy_record", "bound_mass", "predictive_coverage", "stalled_releases"]
+__all__ = ["BETTER_NATS_PER_ROW", "BOUND_BAND", "BOUND_FLAG", "COVERAGE_ALPHA", "LEVELS",
+           "STALL_FLAG", "STALL_M", "adequacy_record", "better_design_point", "bound_mass",
+           "predictive_coverage", "stalled_releases"]
 
 BOUND_BAND = 0.02  # width of the band at each bound, as a fraction of the box width
 BOUND_FLAG = 0.10  # posterior mass in that band above which a parameter is flagged
@@ -64,6 +78,7 @@ COVERAGE_ALPHA = 0.05  # level of the one-sided binomial test of coverage
 LEVELS = (0.5, 0.9)
 STALL_M = 1.0  # a block that stops within this distance of its release stalled, m
 STALL_FLAG = 0.5  # simulated minus observed stalled fraction above which an entry is flagged
+BETTER_NATS_PER_ROW = 1.0  # a design point this much better per row is flagged (check 4)
 
 
 def bound_mass(samples: np.ndarray, box: Box) -> dict:
@@ -184,9 +199,46 @@ def _stall_problem(stalls: dict) -> str | None:
             f"release_speed_m_s, release_height_m)")
 
 
+def better_design_point(names, design_theta: np.ndarray, design_loglik: np.ndarray,
+                        fitted_loglik: dict[str, float], n_rows: int) -> dict:
+    """Check 4 of the module docstring: the design point with the highest
+    simulated log-likelihood against the fit's own points.
+
+    Args:
+        names: parameter names.
+        design_theta: (D, p) design points; design_loglik: (D,) their summed
+            simulated log-likelihoods of the rows (-inf or NaN: none).
+        fitted_loglik: the summed simulated log-likelihood of each of the fit's
+            points by name (e.g. "estimate", "posterior mode").
+        n_rows: number of calibration rows.
+    """
+    ll = np.where(np.isfinite(design_loglik), design_loglik, -np.inf)
+    best = int(np.argmax(ll))
+    finite = lambda v: float(v) if np.isfinite(v) else None  # noqa: E731  (JSON)
+    points = {}
+    for name, v in fitted_loglik.items():
+        gain = (ll[best] - v) / max(n_rows, 1)
+        points[name] = {"loglik": finite(v), "gain_per_row_nats": finite(gain),
+                        "flagged": bool(np.isfinite(gain) and gain > BETTER_NATS_PER_ROW)}
+    return {"theta": {n: float(v) for n, v in zip(names, design_theta[best], strict=True)},
+            "loglik": finite(ll[best]), "threshold_nats_per_row": BETTER_NATS_PER_ROW,
+            "points": points, "flagged": any(p["flagged"] for p in points.values())}
+
+
+def _better_problem(better: dict | None) -> str | None:
+    if not better or not better["flagged"]:
+        return None
+    at = ", ".join(f"{n} {v:.3g}" for n, v in better["theta"].items())
+    than = " and ".join(f"the {name} ({p['loglik']:.0f}) by {p['gain_per_row_nats']:.1f} nats "
+                        "per row" for name, p in better["points"].items() if p["flagged"])
+    return (f"a point of the design ({at}, simulated log-likelihood {better['loglik']:.0f}) "
+            f"fits the rows better than {than}: the fit missed a better region and does "
+            "not describe the best fit found")
+
+
 def adequacy_record(samples: np.ndarray | None, box: Box, obs: Observations,
                     runouts: np.ndarray, source: str, index=None, release_x_m=None,
-                    release_slope_deg=None) -> dict:
+                    release_slope_deg=None, better: dict | None = None) -> dict:
     """Both checks and one message (None when nothing is flagged).
 
     Args:
@@ -199,6 +251,7 @@ def adequacy_record(samples: np.ndarray | None, box: Box, obs: Observations,
         index: (n_obs,) entry of each row in ``runouts`` (default ``obs.size_index``).
         release_x_m, release_slope_deg: (S,) each entry's release and the slope
             below it, for the stall report (``stalled_releases``; optional).
+        better: the ``better_design_point`` record, or None (no design).
     """
     bounds = None if samples is None else bound_mass(samples, box)
     cov = predictive_coverage(obs, runouts, index=index)
@@ -216,9 +269,9 @@ def adequacy_record(samples: np.ndarray | None, box: Box, obs: Observations,
             problems.append(f"only {c['n_covered']} of {c['n_rows']} calibration rows lie "
                             f"inside their {float(p):.0%} predictive band (one-sided binomial "
                             f"p = {c['p_value']:.2g})")
-    stall = _stall_problem(stalls)
-    if stall:
-        problems.append(stall)
+    for extra in (_stall_problem(stalls), _better_problem(better)):
+        if extra:
+            problems.append(extra)
     message = None
     if problems:
         message = ("the model may not be able to fit these data: " + "; ".join(problems)
@@ -226,5 +279,5 @@ def adequacy_record(samples: np.ndarray | None, box: Box, obs: Observations,
                    "using this calibration")
     return {"bound_band_fraction": BOUND_BAND, "bound_flag_fraction": BOUND_FLAG,
             "bounds": bounds, "coverage": cov, "stalls": stalls, "predictive": source,
-            "ok": not problems,
+            "better_design_point": better, "ok": not problems,
             "problems": problems, "message": message}

@@ -18,7 +18,9 @@ Stages (each timed; ``Budget`` sets the sizes, ``QUICK`` / ``DEFAULT`` the prese
 2. Gradient (``method`` includes "gradient"): Adam on the smoothed CRN
    objective of the SIMULATOR itself (``calib.inference.gradient``) from several starts:
    J(theta) = -sum_i log p(y_i | theta), the negative log-likelihood of
-   ``calib.inference.likelihood`` with ``n_blocks_grad`` blocks per size.
+   ``calib.inference.likelihood`` with ``n_blocks_grad`` blocks per size. The
+   starts: the box's centre, ``grad_starts - 1`` quasi-random points and (CRSP
+   after a design) the design point with the highest simulated likelihood.
 3. Check: the point estimate is re-simulated with fresh random numbers
    (``n_check`` blocks per entry: the figure's sizes at the rows' median release,
    and every row's (size, release) group that is not one of them) and every
@@ -27,7 +29,9 @@ Stages (each timed; ``Budget`` sets the sizes, ``QUICK`` / ``DEFAULT`` the prese
 4. Adequacy (``calib.inference.adequacy``): posterior mass near each prior bound and the
    posterior predictive coverage of the calibration rows (``n_predictive_draws``
    draws x ``n_blocks_predictive`` fresh blocks per size), flagged when the
-   model looks unable to fit the data.
+   model looks unable to fit the data; and (CRSP with a design) whether a
+   design point's simulated log-likelihood beats the estimate's (the check's),
+   flagged when the fit missed a better region.
 
 Unfinished blocks (NaN runouts from the forward model, ``calib.model.unfinished``)
 are left out of every stage and counted per stage (design, gradient, check):
@@ -48,7 +52,7 @@ from scipy.special import ndtr
 
 from calib.files.inputs import entry_profiles
 from calib.files.observations import Observations, ReleaseGroups, one_release_groups
-from calib.inference.adequacy import adequacy_record
+from calib.inference.adequacy import adequacy_record, better_design_point
 from calib.inference.bayes import Posterior, run_nuts
 from calib.inference.emulator import fit_emulator, holdout_error
 from calib.inference.gradient import GradientFit, fit_gradient
@@ -336,7 +340,7 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     index = groups.index
     k_design, k_grad, k_nuts, k_pilot, k_check = jax.random.split(key, 5)
     tick = progress or (lambda *a: None)
-    timings, posterior, gfit, emu_check = {}, None, None, None
+    timings, posterior, gfit, emu_check, x, design_ll = {}, None, None, None, None, None
     loglik_runs = _loglik_of_runouts(obs, index)
     box = forward.box
     sizes = np.unique(np.concatenate([obs.sizes_m, np.asarray(extra_sizes_m, float)]))
@@ -351,6 +355,7 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
         tick("design", 0, 1)
         x, r = forward.design(budget.n_design, seed=int(jax.random.randint(k_design, (), 0,
                                                                               2**31 - 1)))
+        design_ll = _design_loglik(loglik_runs, r)
         tick("design", 1, 1)
         tally("design", r)
         timings["design_s"] = time.perf_counter() - t0
@@ -362,6 +367,7 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
                               budget.n_design2, k_pilot)
             tick("design2", 0, 1)
             r2 = forward.runouts(x2)
+            design_ll = np.concatenate([design_ll, _design_loglik(loglik_runs, r2)])
             tick("design2", 1, 1)
             tally("design", r2, x2)
             x, r = np.concatenate([x, np.asarray(forward.to_input(x2))]), np.concatenate([r, r2])
@@ -396,6 +402,13 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
         if budget.grad_starts > 1:
             z = qmc.Halton(box.dim, scramble=True, seed=1).random(budget.grad_starts - 1)
             starts += list(box.from_unit(0.15 + 0.7 * z))
+        if design_ll is not None and hasattr(forward, "from_input") and \
+                np.isfinite(design_ll).any():
+            # one more start at the design's best simulated point: where the
+            # likelihood is peaked in a thin part of the box, the box's centre and
+            # a few quasi-random starts may all lie on its flat part
+            starts.append(np.clip(forward.from_input(x[int(np.argmax(design_ll))]),
+                                  box.lo, box.hi))
         gfit = fit_gradient(objective, box, np.array(starts), k_grad, n_steps=budget.grad_steps,
                             k=budget.grad_k,
                             progress=lambda i: tick("gradient", i + 1, budget.grad_steps))
@@ -412,10 +425,18 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     tally("check", runs[None], estimate[None], e_sizes)
     check, at_rows = runs[:len(sizes)], runs[entry]
     quality = fit_quality(obs, at_rows, index)
+    better = None
+    if design_ll is not None and hasattr(forward, "from_input"):  # CRSP: theta-space design
+        fitted = {"estimate": float(_design_loglik(loglik_runs, at_rows[None])[0])}
+        if posterior is not None:  # its mode with the design's own blocks
+            fitted["posterior mode"] = float(_design_loglik(
+                loglik_runs, forward.runouts(posterior.map[None]))[0])
+        better = better_design_point(box.names, forward.from_input(x), design_ll, fitted,
+                                     obs.n_obs)
     timings["check_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     adequacy = _adequacy(forward, obs, posterior, at_rows, budget,
-                         jax.random.fold_in(k_check, 1), tally, index)
+                         jax.random.fold_in(k_check, 1), tally, index, better)
     timings["adequacy_s"] = time.perf_counter() - t0
     record = unfinished_record(tallies, f"{type(forward).__name__} calibration")
     warn_unfinished(record)
@@ -438,8 +459,16 @@ def _release_slopes_deg(profile, release_x_m, profiles=None) -> np.ndarray:
     return out
 
 
+def _design_loglik(loglik_runs, runouts) -> np.ndarray:
+    """(D,) summed simulated log-likelihood of the rows at each of D points
+    (runouts (D, S, n)); -inf where a row gets no finished block."""
+    ll = np.asarray(loglik_runs(jnp.asarray(runouts))).sum(1)
+    return np.where(np.isnan(ll), -np.inf, ll)
+
+
 def _adequacy(forward, obs: Observations, posterior: Posterior | None, check: np.ndarray,
-              budget: Budget, key: jax.Array, tally, index) -> dict:
+              budget: Budget, key: jax.Array, tally, index, better: dict | None = None
+              ) -> dict:
     """``calib.inference.adequacy`` of one fit: posterior predictive runouts at
     ``n_predictive_draws`` draws spread evenly over the chains' output, with
     ``n_blocks_predictive`` fresh blocks per draw and size; without a posterior,
@@ -450,7 +479,7 @@ def _adequacy(forward, obs: Observations, posterior: Posterior | None, check: np
     if posterior is None:
         return adequacy_record(None, forward.box, obs, check,
                                f"plug-in at the point estimate, {check.shape[-1]} blocks "
-                               "per size (no posterior)", index, release, slopes_deg)
+                               "per size (no posterior)", index, release, slopes_deg, better)
     n = posterior.samples.shape[0]
     pick = np.linspace(0, n - 1, min(budget.n_predictive_draws, n)).round().astype(int)
     draws = posterior.samples[pick]
@@ -460,4 +489,4 @@ def _adequacy(forward, obs: Observations, posterior: Posterior | None, check: np
     return adequacy_record(posterior.samples, forward.box, obs, pool_draws(runs),
                            f"posterior predictive, {len(pick)} draws x "
                            f"{budget.n_blocks_predictive} blocks per size", index, release,
-                           slopes_deg)
+                           slopes_deg, better)

@@ -367,6 +367,15 @@ class CrspForward:
             cols.append(jnp.tan(jnp.deg2rad(t[..., 3])))
         return jnp.stack(cols, axis=-1)
 
+    def from_input(self, x) -> np.ndarray:
+        """theta (..., d) from emulator coordinates (..., d): the inverse of
+        ``to_input`` (Kn, 1 - exp(u), exp(v)[, atan(w) in degrees])."""
+        x = np.asarray(x, float)
+        cols = [x[..., 0], -np.expm1(x[..., 1]), np.exp(x[..., 2])]
+        if self.fits_rolling:
+            cols.append(np.degrees(np.arctan(x[..., 3])))
+        return np.stack(cols, axis=-1)
+
     def emulator_inputs(self, theta):
         """Emulator input of each size for theta (d,) -> (S, d)."""
         return jnp.broadcast_to(self.to_input(theta), (len(self.sizes_m), self.box.dim))
