@@ -102,9 +102,11 @@ def test_blocks_that_stall_at_their_release_are_flagged_with_where(tmp_path):
 
 def test_a_better_design_point_than_the_estimate_is_flagged(tmp_path):
     """Check 4: a design point whose simulated log-likelihood beats one of the
-    fit's points by more than 1 nat per row is named in the message with the
-    point it beats; within that margin it is reported, not flagged; a design
-    with no finished block anywhere (-inf) flags nothing."""
+    fit's points by more than 1 nat per row and more than the likelihood-ratio
+    bar (chi-square 99.9 % / 2: 8.1 nats for 3 parameters) is named in the
+    message with the point it beats; within either bar it is reported, not
+    flagged (Postignano: 2 rows, 2.1 nats); a design with no finished block
+    anywhere (-inf) flags nothing."""
     from calib.inference.adequacy import better_design_point
 
     rng = np.random.default_rng(3)
@@ -115,16 +117,18 @@ def test_a_better_design_point_than_the_estimate_is_flagged(tmp_path):
     b = better_design_point(CRSP_BOX.names, theta, ll, {"estimate": -21.0,
                                                         "posterior mode": -40.0}, 4)
     assert b["flagged"] and b["theta"] == {"Kn": 0.3, "Kt": 0.9, "roughness_m": 0.05}
+    assert abs(b["threshold_nats"] - 8.13) < 0.01
     assert b["points"]["posterior mode"]["gain_per_row_nats"] == 5.0
     assert not b["points"]["estimate"]["flagged"]
     rec = adequacy_record(None, CRSP_BOX, obs, sim, "test", better=b)
-    assert not rec["ok"] and "fits the rows better than the posterior mode (-40) by 5.0 " \
-        "nats per row" in rec["message"] and "roughness_m 0.05" in rec["message"]
+    assert not rec["ok"] and "fits the rows better than the posterior mode (-40) by 20 nats, " \
+        "5.0 per row" in rec["message"] and "roughness_m 0.05" in rec["message"]
     assert "the estimate" not in rec["message"]
-    close = better_design_point(CRSP_BOX.names, theta, ll, {"estimate": -23.0}, 4)
-    assert not close["flagged"] and close["points"]["estimate"]["gain_per_row_nats"] == 0.75
-    assert "better" not in (adequacy_record(None, CRSP_BOX, obs, sim, "test",
-                                            better=close)["message"] or "")
+    for fitted, n_rows in (({"estimate": -27.0}, 4), ({"estimate": -22.1}, 2)):
+        close = better_design_point(CRSP_BOX.names, theta, ll, fitted, n_rows)
+        assert not close["flagged"], close
+        assert "better" not in (adequacy_record(None, CRSP_BOX, obs, sim, "test",
+                                                better=close)["message"] or "")
     none = better_design_point(CRSP_BOX.names, theta, np.full(3, -np.inf), {"estimate": -40.0},
                                4)
     assert not none["flagged"] and none["loglik"] is None
