@@ -292,7 +292,11 @@ def _split(args, obs, files):
 
 
 def _validate(args, models) -> None:
-    """The predictive check of the first calibrated model on the held-out rows."""
+    """The predictive check of the first calibrated model on the held-out rows:
+    of its posterior predictive (``validation/``) and, after a Bayesian fit,
+    also of its point estimate alone (``validation/point_estimate/``): where
+    the posterior failed its checks, the two can differ widely, and the
+    user should see both."""
     from calib.validate import print_summary, run_validation
 
     vargs = argparse.Namespace(
@@ -302,6 +306,12 @@ def _validate(args, models) -> None:
         n_blocks=None, seed=args.seed, out=os.path.join(args.out, "validation"))
     print()
     print_summary(run_validation(vargs), vargs.out)
+    if vargs.n_posterior > 1:
+        point = argparse.Namespace(**{**vars(vargs), "n_posterior": 1,
+                                      "n_blocks": 2000 if models[0] == "crsp" else None,
+                                      "out": os.path.join(vargs.out, "point_estimate")})
+        print()
+        print_summary(run_validation(point), point.out)
 
 
 def _fmt(v, nd=3):
