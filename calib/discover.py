@@ -152,6 +152,7 @@ def _run(args) -> int:
     from calib.discovery.discovery_warnings import (
         concentration_warnings,
         ess_warnings,
+        gap_warnings,
         noise_warnings,
         psis_warnings,
     )
@@ -216,6 +217,7 @@ def _run(args) -> int:
                                         for e, f in d.fits.items()})
                           + psis_warnings(d.table)
                           + noise_warnings(d.table, budget.n_blocks)
+                          + gap_warnings(d.named_effect, d.gap_before, d.gap_after)
                           + concentration_warnings(d.table, obs.block_size_m,
                                                    None if velocities is None
                                                    else velocities.block_size_m)

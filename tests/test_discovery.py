@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from calib.discovery.discovery_warnings import noise_warnings, psis_warnings
+from calib.discovery.discovery_warnings import gap_warnings, noise_warnings, psis_warnings
 from calib.discovery.discrepancy import _proposal, size_classes
 from calib.discovery.residuals import locate
 from calib.discovery.scores import (
@@ -441,3 +441,14 @@ def test_a_fold_with_a_large_khat_reaches_the_discovery_record():
     record = _clean({"candidates": d.table})
     (w,) = psis_warnings(record["candidates"])
     assert all(r["effect"] in w for r in flagged) and "k-hat" in w
+
+
+def test_gap_warning_when_the_named_effect_widens_the_gap():
+    """Tschamut (stop 23): size_dissipation was named with the gap growing from
+    16.65 to 30.78 m; that is warned about. A shrinking gap, or no effect
+    named, says nothing."""
+    (w,) = gap_warnings("size_dissipation", 16.65, 30.78)
+    assert "widens the gap" in w and "16.65 m before, 30.78 m after (x1.85)" in w
+    assert gap_warnings("size_dissipation", 30.0, 12.0) == []
+    assert gap_warnings("none", 16.65, 30.78) == []
+    assert gap_warnings("fragmentation", float("nan"), 3.0) == []

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["MIN_ESS", "concentration_warnings", "ess_warnings", "noise_warnings",
-           "psis_warnings"]
+__all__ = ["MIN_ESS", "concentration_warnings", "ess_warnings", "gap_warnings",
+           "noise_warnings", "psis_warnings"]
 
 # below this importance-sampling ESS a fit's posterior rests on a handful of
 # design points (measured: ESS 1-14 with 180 rows at the default budget)
@@ -59,6 +59,22 @@ def psis_warnings(candidates: list[dict]) -> list[str]:
 
 def _khat_text(k) -> str:
     return f"k-hat {float('nan') if k is None else k:.2f}"
+
+
+def gap_warnings(named: str, gap_before_m: float, gap_after_m: float) -> list[str]:
+    """A warning when the named effect WIDENS the gap (mean CRPS per size
+    class) that it is named to close: its better held-out score then comes
+    from the likelihood's tails (rows the baseline gives almost no density),
+    not from predicting the runouts better; our rule, any growth at all."""
+    if named == "none" or not (np.isfinite(gap_before_m) and np.isfinite(gap_after_m)):
+        return []
+    if gap_after_m <= gap_before_m:
+        return []
+    ratio = gap_after_m / gap_before_m
+    return [f"the named effect {named} widens the gap it is named to close: mean CRPS "
+            f"{gap_before_m:.2f} m before, {gap_after_m:.2f} m after (x{ratio:.2f}); its "
+            "better score comes from rows the baseline gives almost no density, not from "
+            "better predicted runouts: do not take it as found"]
 
 
 def noise_warnings(candidates: list[dict], n_blocks: int) -> list[str]:
