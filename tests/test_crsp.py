@@ -211,6 +211,7 @@ def _same_results(a, b, exact=True):
                                    rtol=tol, atol=tol, equal_nan=True)
 
 
+@pytest.mark.slow  # an equivalence of batching, 10-23 s: run with -m slow
 def test_station_records_do_not_depend_on_slots_order_or_batching():
     """Stations are written a few per event (``Settings.station_slots``), an
     event that passes more leaves a backlog written before the next event: the
@@ -245,6 +246,7 @@ def test_station_records_do_not_depend_on_slots_order_or_batching():
     _same_results(ref, jax.tree_util.tree_map(np.asarray, one), exact=False)
 
 
+@pytest.mark.slow  # an equivalence of batching, 10-23 s: run with -m slow
 def test_workers_and_chunks_do_not_change_results():
     """Chunks run side by side on threads (``solvers.parallel``): the result is
     the same, bit for bit, for 1 or 2 workers and any chunk size."""
@@ -283,6 +285,7 @@ def test_paper_fig3_setting_reports_medians():
     assert medians[0] <= medians[1] <= medians[2], medians
 
 
+@pytest.mark.slow  # an equivalence of batching, 10-23 s: run with -m slow
 def test_pooled_scheduler_matches_plain_vmap():
     prof = load_profile(POSTIGNANO)
     params = crsp.params_from_profile(prof)
@@ -301,6 +304,7 @@ def test_pooled_scheduler_matches_plain_vmap():
             np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.slow  # an equivalence of batching, 10-23 s: run with -m slow
 def test_tasks_match_separate_pooled_runs_with_common_random_numbers():
     """simulate_tasks = one simulate_pooled per (params, block) task, same keys."""
     prof = load_profile(POSTIGNANO)
@@ -319,6 +323,7 @@ def test_tasks_match_separate_pooled_runs_with_common_random_numbers():
         np.testing.assert_array_equal(both.status[t], one.status)
 
 
+@pytest.mark.slow  # an equivalence of batching, 10-23 s: run with -m slow
 def test_tasks_offset_gives_the_same_blocks_as_a_longer_run():
     prof = load_profile(POSTIGNANO)
     params = jax.tree_util.tree_map(lambda a: a[None], crsp.params_from_profile(prof))

@@ -373,6 +373,7 @@ def test_no_fragment_inside_ground():
     assert np.all(clearance > 0.225 * math.cos(math.radians(40)) - 0.225 * 0.1 - tol)
 
 
+@pytest.mark.slow  # an equivalence of pair lists, 16 s: run with -m slow
 def test_pair_list_two_corners_equal_four_and_knn():
     """The pair-list contact tests only the two corners of the edge facing the
     other square; for overlaps shallower than 0.4 h this equals testing all four
@@ -416,6 +417,7 @@ def test_pair_list_two_corners_equal_four_and_knn():
     assert n_checked > 150
 
 
+@pytest.mark.slow  # an equivalence of pair prefixes, 10 s: run with -m slow
 def test_adaptive_pair_prefix_same_result():
     """The chunk-level switch (short pair prefix, joints skipped once broken)
     gives the forces of the full pair list: same final state."""

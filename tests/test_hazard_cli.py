@@ -93,6 +93,7 @@ def test_same_seed_same_bytes_other_seed_differs(cal_path, run_a, tmp_path, caps
     assert _read(out_a, "hazard_table.csv") != _read(tmp_path / "c", "hazard_table.csv")
 
 
+@pytest.mark.slow  # an equivalence of device counts, 15 s: run with -m slow
 def test_two_host_devices_give_the_same_bytes(cal_path, run_a, tmp_path):
     out_a, _ = run_a
     r = _subprocess([cal_path, *SMALL, "--release-rate-per-year", "0.2", "--out",

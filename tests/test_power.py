@@ -51,6 +51,7 @@ def test_detection_table_counts_rates_and_exact_intervals():
     assert (n["named_right"], n["rate"], n["median_gain_nats"]) == (1, 1.0, None)
 
 
+@pytest.mark.slow  # a whole quick power study, 23 s: run with -m slow
 def test_power_quick_run_writes_table_and_resumes(tmp_path):
     out = tmp_path / "pw"
     args = ["--effects", "none", "--n-obs", "12", "--seeds", "5", "--quick", "--no-progress",
