@@ -38,9 +38,9 @@ from calib.model.forward import (
     DemForward,
     dem_lanes,
     entry_releases,
-    profile_parts,
+    gather_entries,
+    split_by_profile,
     stack_trees,
-    take_entries,
 )
 from calib.model.unfinished import mask_unfinished
 from solvers.profile import Profile
@@ -76,12 +76,8 @@ class DemEffectForward:
     def __post_init__(self):
         if self.effect not in DEM_EFFECTS:
             raise ValueError(f"effect {self.effect!r} is not available for the DEM")
-        parts = profile_parts(self.profile, self.entry_profiles, len(self.sizes_m))
-        self._parts = None if parts is None else [
-            (dataclasses.replace(self, profile=p, sizes_m=np.asarray(self.sizes_m)[idx],
-                                 release_x_m=take_entries(self.release_x_m, idx),
-                                 entry_profiles=None), idx) for p, idx in parts]
         self._x0 = entry_releases(self.profile, self.sizes_m, self.release_x_m)
+        self._parts = split_by_profile(self)  # entries on other profiles: own forwards
         if self.effect != "fragmentation":
             form = "constant" if self.effect == "none" else "power"
             self._single = DemForward(self.profile, np.asarray(self.sizes_m, float),
@@ -95,10 +91,7 @@ class DemEffectForward:
     def runouts(self, theta) -> np.ndarray:
         theta = np.atleast_2d(np.asarray(theta, float))
         if self._parts is not None:
-            out = np.full((theta.shape[0], len(self.sizes_m), self.n_blocks), np.nan)
-            for sub, idx in self._parts:
-                out[:, idx] = sub.runouts(theta)
-            return out
+            return gather_entries(self._parts, len(self.sizes_m), lambda sub, _: sub.runouts(theta))
         if self.effect != "fragmentation":
             return self._single.runouts(theta)
         return np.stack([self._fragmented(a, s) for a, s in theta])

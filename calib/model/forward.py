@@ -43,8 +43,8 @@ from calib.model.unfinished import mask_unfinished
 from solvers.parallel import default_workers, map_ordered
 from solvers.profile import Profile
 
-__all__ = ["CrspForward", "DemForward", "dem_lanes", "entry_releases", "profile_parts",
-           "stack_trees", "take_entries"]
+__all__ = ["CrspForward", "DemForward", "dem_lanes", "entry_releases", "gather_entries",
+           "profile_parts", "split_by_profile", "stack_trees", "take_entries"]
 
 
 @functools.partial(jax.jit, static_argnames=("with_rolling",))
@@ -122,6 +122,39 @@ def take_entries(v, idx):
     return tuple(np.asarray(v, float)[idx])
 
 
+_ENTRY_FIELDS = ("release_x_m", "release_speed_m_s", "release_height_m")
+
+
+def split_by_profile(fw) -> list | None:
+    """One forward per profile of ``fw.entry_profiles`` (``profile_parts``):
+    [(sub-forward, entry indices), ...], each sub-forward ``fw`` on its
+    profile's entries (sizes and the per-entry release fields it has), or None
+    where every entry runs on ``fw.profile``. Shared by every forward model."""
+    parts = profile_parts(fw.profile, fw.entry_profiles, len(fw.sizes_m))
+    if parts is None:
+        return None
+    return [(dataclasses.replace(
+        fw, profile=p, sizes_m=np.asarray(fw.sizes_m)[idx], entry_profiles=None,
+        **{n: take_entries(getattr(fw, n), idx) for n in _ENTRY_FIELDS if hasattr(fw, n)}),
+        idx) for p, idx in parts]
+
+
+def gather_entries(parts, n_s: int, run):
+    """Results of the sub-forwards of ``split_by_profile`` in entry order:
+    ``run(sub, idx)`` gives an array, or a tuple of arrays, whose SECOND axis
+    is the sub-forward's entries; the output has ``n_s`` entries there."""
+    out, single = None, False
+    for sub, idx in parts:
+        res = run(sub, idx)
+        single = not isinstance(res, tuple)
+        res = (res,) if single else res
+        if out is None:
+            out = [np.full(r.shape[:1] + (n_s,) + r.shape[2:], np.nan) for r in res]
+        for o, r in zip(out, res, strict=True):
+            o[:, idx] = r
+    return out[0] if single else tuple(out)
+
+
 def stack_trees(trees):
     """Stack a list of pytrees (blocks) leaf by leaf into one batched pytree."""
     return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *trees)
@@ -195,7 +228,6 @@ class CrspForward:
 
     def __post_init__(self):
         n_s = len(np.atleast_1d(self.sizes_m))
-        self._parts = profile_parts(self.profile, self.entry_profiles, n_s)
         entry_releases(self.profile, self.sizes_m, self.release_x_m)  # checks the count
         for name in ("release_speed_m_s", "release_height_m"):
             v = getattr(self, name)
@@ -213,6 +245,7 @@ class CrspForward:
             else:  # box already ends with them: kept, its baseline checked as full_box does
                 full_box(self.effect, self.profile, base=Box(
                     *(v[:n_base] for v in (self.box.names, self.box.lower, self.box.upper))))
+        self._parts = split_by_profile(self)  # entries on other profiles: own forwards
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -312,18 +345,7 @@ class CrspForward:
 
     def _simulate_parts(self, theta) -> tuple[np.ndarray, np.ndarray]:
         """``simulate`` of entries on several profiles: one forward per profile."""
-        n_t, n_s = theta.shape[0], len(self.sizes_m)
-        n_st = len(np.asarray(self.stations_x_m, float).reshape(-1))
-        r = np.full((n_t, n_s, self.n_blocks), np.nan)
-        v = np.full((n_t, n_s, n_st, self.n_blocks), np.nan)
-        for prof, idx in self._parts:
-            sub = dataclasses.replace(
-                self, profile=prof, sizes_m=np.asarray(self.sizes_m)[idx],
-                release_x_m=take_entries(self.release_x_m, idx),
-                release_speed_m_s=take_entries(self.release_speed_m_s, idx),
-                release_height_m=take_entries(self.release_height_m, idx), entry_profiles=None)
-            r[:, idx], v[:, idx] = sub.simulate(theta)
-        return r, v
+        return gather_entries(self._parts, len(self.sizes_m), lambda sub, _: sub.simulate(theta))
 
     def replicates(self, theta, reps: int, key: jax.Array) -> np.ndarray:
         """Runouts (reps, S, n_blocks), m, of ONE theta (p,) with ``reps``
@@ -421,11 +443,7 @@ class DemForward:
 
     def __post_init__(self):
         entry_releases(self.profile, self.sizes_m, self.release_x_m)  # checks the count
-        parts = profile_parts(self.profile, self.entry_profiles, len(self.sizes_m))
-        self._parts = None if parts is None else [
-            (dataclasses.replace(self, profile=p, sizes_m=np.asarray(self.sizes_m)[idx],
-                                 release_x_m=take_entries(self.release_x_m, idx),
-                                 entry_profiles=None), idx) for p, idx in parts]
+        self._parts = split_by_profile(self)
         if self.form not in DEM_BOXES:
             raise ValueError(f"unknown alpha law form {self.form!r}; expected one of "
                              f"{', '.join(DEM_BOXES)}")
@@ -458,10 +476,8 @@ class DemForward:
         alpha = np.asarray(alpha, float)
         n_t, n_s = alpha.shape
         if self._parts is not None:  # one forward per profile (entry_profiles)
-            out = np.full((n_t, n_s, self.n_blocks), np.nan)
-            for sub, idx in self._parts:
-                out[:, idx] = sub.runouts_at_alpha(alpha[:, idx])
-            return out
+            return gather_entries(self._parts, n_s,
+                                  lambda sub, idx: sub.runouts_at_alpha(alpha[:, idx]))
         x0 = entry_releases(self.profile, self.sizes_m, self.release_x_m)
         proto = [make_block(float(L), alpha=0.5, release_x_m=float(x))
                  for L, x in zip(dem_side_m(self.sizes_m), x0)]
