@@ -1,20 +1,18 @@
 """CRSP command line: output file, summary, and one-line errors with exit 2."""
 
 import os
-import subprocess
-import sys
 
 import pandas as pd
 import pytest
+from cli_run import run_module
 
 from solvers.cli import station_column_names
 
-CMD = [sys.executable, "-m", "solvers.crsp", "--no-progress"]
 PROFILE = "data/postignano_profile.csv"
 
 
 def _run(*args):
-    return subprocess.run(CMD + list(args), capture_output=True, text=True)
+    return run_module("solvers.crsp", "--no-progress", *args)
 
 
 def test_cli_writes_one_row_per_block(tmp_path):

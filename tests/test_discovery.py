@@ -6,12 +6,11 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import subprocess
-import sys
 
 import jax
 import numpy as np
 import pytest
+from cli_run import run_module
 from scipy import stats
 
 from calib.discovery.discovery_warnings import gap_warnings, noise_warnings, psis_warnings
@@ -33,9 +32,7 @@ from solvers.profile import load_profile
 PROFILE = load_profile("data/postignano_profile.csv")
 
 
-def _cli(module, *args):
-    return subprocess.run([sys.executable, "-m", module, *args], capture_output=True, text=True,
-                          timeout=900)
+_cli = run_module
 
 
 def test_crps_of_an_ensemble_matches_the_gaussian_closed_form():

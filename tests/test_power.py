@@ -5,11 +5,10 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 
 import pandas as pd
 import pytest
+from cli_run import run_module
 
 from calib.discovery.power_study import detection_table
 from calib.power import parse_seeds
@@ -17,8 +16,7 @@ from solvers.cli import CliError
 
 
 def _cli(*args):
-    return subprocess.run([sys.executable, "-m", "calib.power", *args], capture_output=True,
-                          text=True, timeout=900)
+    return run_module("calib.power", *args)
 
 
 def test_parse_seeds_lists_and_ranges():

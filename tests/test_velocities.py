@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 
 import jax
 import numpy as np
 import pytest
+from cli_run import run_module
 
 from calib.files.observations import ObservationError, load_velocities
 from calib.inference.likelihood import V_MAX_M_S, VELOCITY_EPS, velocity_log_likelihood
@@ -21,9 +20,7 @@ PROFILE = load_profile("data/postignano_profile.csv")
 HEADER = "station_x_m,block_size_m,velocity_m_s,velocity_sd_m_s,source\n"
 
 
-def _cli(module, *args):
-    return subprocess.run([sys.executable, "-m", module, *args], capture_output=True, text=True,
-                          timeout=900)
+_cli = run_module
 
 
 def test_load_velocities_reads_rows_and_stations(tmp_path):
