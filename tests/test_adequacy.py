@@ -32,6 +32,23 @@ def test_uniform_posterior_is_not_flagged_and_piled_posterior_is():
     assert not b["Kn"]["flagged"]
 
 
+def test_a_narrow_posterior_inside_the_band_but_away_from_the_bound_is_not_flagged():
+    """Roughness S spans 0.01-4 m, so its 2 % band reaches 0.09 m. A posterior of
+    S between 0.077 and 0.086 m (Tschamut, seed 1) lies in the band but eight
+    times above the bound: it does not want a value outside the box. One that
+    reaches the bound still is flagged."""
+    from calib.model.priors import CRSP_ROLLING_BOX
+
+    rng = np.random.default_rng(1)
+    post = np.tile([0.35, 0.93, 0.08, 37.0], (2000, 1))
+    post[:, 2] = rng.uniform(0.077, 0.086, 2000)
+    b = bound_mass(post, CRSP_ROLLING_BOX)
+    assert b["roughness_m"]["lower"] == 1.0 and not b["roughness_m"]["flagged"]
+    post[:, 2] = rng.uniform(0.01, 0.05, 2000)
+    b = bound_mass(post, CRSP_ROLLING_BOX)
+    assert b["roughness_m"]["flagged"] and b["roughness_m"]["lower_flagged"]
+
+
 def test_rows_drawn_from_the_predictive_are_covered_at_about_the_nominal_rate(tmp_path):
     """Rows that are draws of R + e from the simulated distribution itself: about
     50 % and 90 % are covered, nothing is flagged."""
