@@ -374,6 +374,16 @@ def _print_summary(result: dict, models, out: str) -> None:
             print(f"\n!!! {model.upper()} CALIBRATION: {a['message']}.", file=sys.stderr)
     for model in models:
         b = result[model].get("bayes")
+        screen = (b or {}).get("chain_screen") or {}
+        if screen.get("n_dropped"):
+            lls = ", ".join(f"{v:.0f}" if v is not None else "none"
+                            for v in screen["chain_loglik"])
+            print(f"\n!!! {model.upper()} NUTS: {screen['n_dropped']} of "
+                  f"{len(screen['kept'])} chains dropped: the simulator fits their draws "
+                  f"worse than the best chain's by more than {screen['threshold_nats']:.0f} "
+                  f"nats (median simulated log-likelihood per chain: {lls}); the emulator "
+                  "was wrong where they sat, and the posterior is that of the other chains.",
+                  file=sys.stderr)
         if b is not None and not b["ok"]:
             print(f"\n!!! {model.upper()} POSTERIOR DIAGNOSTICS FAILED: "
                   f"{'; '.join(b['problems'])}. Treat its intervals as unreliable.",

@@ -42,7 +42,9 @@
 #    value (common random numbers) so that differences are due to parameters.
 # 3. *Bayesian fit*: a statistical emulator (Gaussian process) learns how the
 #    runout distribution depends on the parameters from a few hundred
-#    simulations; NUTS then samples the posterior. Diagnostics (R-hat, effective
+#    simulations; for CRSP a second emulator then learns the likelihood itself
+#    inside the region those simulations do not rule out, and NUTS samples the
+#    posterior there. Diagnostics (R-hat, effective
 #    sample size, divergences) are checked and failures are reported loudly.
 
 # %%

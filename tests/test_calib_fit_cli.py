@@ -4,18 +4,16 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 
 import pytest
+from cli_run import run_module
 
 DATA = "data/postignano.csv"
 PROFILE = "data/postignano_profile.csv"
 
 
 def run(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "calib.fit", *args], capture_output=True,
-                          text=True, cwd=cwd, timeout=900)
+    return run_module("calib.fit", *args, cwd=cwd)
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +48,7 @@ def test_quick_run_writes_every_output(quick_run):
     assert cal["seed"] == 0 and cal["versions"]["jax"]
     assert "ok" in cal["crsp"]["bayes"] and "rhat" in cal["crsp"]["bayes"]["summary"]["Kn"]
     assert {"ess_bulk", "ess_tail"} <= set(cal["crsp"]["bayes"]["summary"]["Kn"])
-    # the same draws as InferenceData, with the chains, the emulated log-likelihood per row
+    # the same draws as InferenceData, with the chains and the emulated log-likelihood
     from calib.files.inference_data import read_inference_data
 
     for m in ("crsp", "dem"):
@@ -59,7 +57,11 @@ def test_quick_run_writes_every_output(quick_run):
         post = idata["posterior"]
         assert list(post.data_vars) == cal[m]["parameters"]
         assert post.sizes["chain"] * post.sizes["draw"] == cal[m]["bayes"]["n_draws"]
-        assert idata["log_likelihood"]["runout_m"].sizes["row"] == 2
+        if m == "crsp":  # emulated as the rows' sum inside the focus region
+            assert cal[m]["bayes"]["focus"] is not None
+            assert idata["log_likelihood"]["total"].sizes["draw"] == post.sizes["draw"]
+        else:
+            assert idata["log_likelihood"]["runout_m"].sizes["row"] == 2
         assert int(idata["sample_stats"]["diverging"].sum()) == cal[m]["bayes"]["divergences"]
     # the summary table and stage times are printed
     assert "90% interval" in proc.stdout and "stage times" in proc.stdout

@@ -59,3 +59,26 @@ def test_inference_data_round_trips_through_netcdf(tmp_path):
     np.testing.assert_array_equal(back["observed_data"]["runout_min_m"].values,
                                   obs.runout_min_m)
     assert back.attrs["model"] == "crsp"
+
+
+def test_a_summed_log_likelihood_is_stored_as_its_total_only(tmp_path):
+    """A fit that emulated the rows' summed log-likelihood (CRSP in its focus
+    region) has no per-row values: the group holds ``total`` (chain, draw)
+    and says so."""
+    import dataclasses
+
+    from calib.files.inference_data import SUMMED_NOTE
+
+    rng = np.random.default_rng(1)
+    post = _posterior(rng)
+    post = dataclasses.replace(post, pointwise_loglik=post.pointwise_loglik.sum(1)[:, None],
+                               loglik_kind="summed")
+    tree = inference_data(post, _observations(), "crsp")
+    path = str(tmp_path / "crsp_posterior.nc")
+    write_all_atomic({path: netcdf_writer(tree)})
+    back = read_inference_data(path)
+    assert list(back["log_likelihood"].data_vars) == ["total"]
+    assert back["log_likelihood"]["total"].dims == ("chain", "draw")
+    np.testing.assert_array_equal(back["log_likelihood"]["total"].values,
+                                  post.pointwise_loglik.reshape(2, 7))
+    assert back["log_likelihood"].attrs["likelihood"] == SUMMED_NOTE

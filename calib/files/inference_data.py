@@ -9,10 +9,14 @@ schema/schema.html; here an ``xarray.DataTree`` of ``arviz_base``) with groups:
 * ``sample_stats``: NumPyro's per-draw statistics under ArviZ's names
   (``diverging``, ``acceptance_rate``, ``n_steps``, ``energy``, ``lp``,
   ``step_size``), dims (chain, draw);
-* ``log_likelihood``: ``runout_m`` (chain, draw, row), nats: log p(y_i | theta)
-  of each observation row at each draw, the EMULATED likelihood that NUTS
-  sampled (``calib.inference.likelihood`` on the emulator's quantiles, its variance
-  added; the group's ``likelihood`` attribute says so), not a re-simulation;
+* ``log_likelihood``: the EMULATED log-likelihood that NUTS sampled at each
+  draw (the group's ``likelihood`` attribute says which), not a
+  re-simulation, in nats: ``runout_m`` (chain, draw, row), log p(y_i | theta)
+  of each observation row (``calib.inference.likelihood`` on the quantile
+  emulator's runouts, its variance added), or, where the fit emulated the
+  rows' SUMMED log-likelihood (CRSP inside its focus region,
+  ``calib.inference.loglik_emulator``), ``total`` (chain, draw) only: no
+  per-row values, so no PSIS-LOO over rows;
 * ``observed_data``: the rows (dim row, file order): ``block_size_m``,
   ``runout_m``, ``runout_sd_m`` (NaN for intervals), ``runout_min_m``,
   ``runout_max_m`` (NaN for points), ``is_interval``.
@@ -25,11 +29,15 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["LIKELIHOOD_NOTE", "inference_data", "netcdf_writer", "read_inference_data"]
+__all__ = ["LIKELIHOOD_NOTE", "SUMMED_NOTE", "inference_data", "netcdf_writer",
+           "read_inference_data"]
 
 LIKELIHOOD_NOTE = ("emulated: calib.inference.likelihood on the Gaussian-process emulator's runout "
                    "quantiles with its predictive variance added (calib.inference.calibrate), the "
                    "density NUTS sampled; not a re-simulation")
+SUMMED_NOTE = ("emulated: the mean of a Gaussian process of the rows' summed simulated "
+               "log-likelihood, capped (calib.inference.loglik_emulator), the density NUTS "
+               "sampled; not a re-simulation, and no per-row values")
 
 
 def inference_data(post, obs, model: str):
@@ -50,7 +58,11 @@ def inference_data(post, obs, model: str):
     by_chain = np.asarray(post.samples).reshape(c, -1, len(post.names))
     n_draws = by_chain.shape[1]
     loglik = np.asarray(post.pointwise_loglik).reshape(c, n_draws, -1)
-    if loglik.shape[-1] != obs.n_obs:
+    summed = getattr(post, "loglik_kind", "pointwise") == "summed"
+    if summed:
+        if loglik.shape[-1] != 1:
+            raise ValueError(f"a summed log-likelihood has one column, not {loglik.shape[-1]}")
+    elif loglik.shape[-1] != obs.n_obs:
         raise ValueError(f"the posterior's log-likelihood has {loglik.shape[-1]} rows, the "
                          f"observations {obs.n_obs}")
     rows = {"block_size_m": obs.block_size_m, "runout_m": obs.runout_m,
@@ -59,12 +71,12 @@ def inference_data(post, obs, model: str):
     tree = from_dict(
         {"posterior": {n: by_chain[..., i] for i, n in enumerate(post.names)},
          "sample_stats": {k: np.asarray(v) for k, v in post.sample_stats.items()},
-         "log_likelihood": {"runout_m": loglik},
+         "log_likelihood": ({"total": loglik[..., 0]} if summed else {"runout_m": loglik}),
          "observed_data": {k: np.asarray(v) for k, v in rows.items()}},
         dims={k: ["row"] for k in rows}, coords={"row": np.arange(obs.n_obs)})
     tree.attrs.update(model=model, observations=obs.path)
-    tree["log_likelihood"].attrs["likelihood"] = LIKELIHOOD_NOTE
-    tree["log_likelihood"]["runout_m"].attrs["units"] = "nats"
+    tree["log_likelihood"].attrs["likelihood"] = SUMMED_NOTE if summed else LIKELIHOOD_NOTE
+    tree["log_likelihood"]["total" if summed else "runout_m"].attrs["units"] = "nats"
     return tree
 
 

@@ -48,7 +48,8 @@ from numpyro.infer import MCMC, NUTS
 
 from calib.model.priors import Box
 
-__all__ = ["ESS_MIN", "Posterior", "RHAT_MAX", "chain_diagnostics", "run_nuts"]
+__all__ = ["ESS_MIN", "Posterior", "RHAT_MAX", "chain_diagnostics", "keep_chains",
+           "run_nuts"]
 
 RHAT_MAX = 1.01
 ESS_MIN = 400.0
@@ -81,6 +82,9 @@ class Posterior:
             unconstrained coordinates, so it includes the log-Jacobian of the
             box's transform and differs from ``log_density`` by a function of
             theta, step_size).
+        loglik_kind: "pointwise" (``pointwise_loglik`` has one column per
+            observation row) or "summed" (one column: the emulated summed
+            log-likelihood, ``calib.inference.loglik_emulator``).
     """
 
     names: tuple[str, ...]
@@ -96,6 +100,7 @@ class Posterior:
     problems: list[str]
     n_chains: int = 1
     sample_stats: dict = dataclasses.field(default_factory=dict)
+    loglik_kind: str = "pointwise"
 
     @property
     def map(self) -> np.ndarray:
@@ -121,11 +126,14 @@ def chain_diagnostics(draws: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nda
     Returns:
         (rhat, ess_bulk, ess_tail), each (d,); the equations are in the module
         docstring (Vehtari et al. 2021), computed by
-        ``arviz_stats``.
+        ``arviz_stats``. One chain is passed as its two halves.
     """
     from arviz_stats.base import array_stats
 
     x = np.asarray(draws, dtype=np.float64)
+    if x.shape[0] == 1:  # one chain: its two halves as two chains (ArviZ needs two)
+        half = x.shape[1] // 2
+        x = x[0, :2 * half].reshape(2, half, x.shape[2])
     kw = {"chain_axis": 0, "draw_axis": 1}
     rhat = np.asarray(array_stats.rhat(x, method="rank", **kw))
     bulk = np.asarray(array_stats.ess(x, method="bulk", **kw))
@@ -134,8 +142,8 @@ def chain_diagnostics(draws: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def run_nuts(pointwise_loglik: Callable[[jax.Array], jax.Array], box: Box, key: jax.Array,
-             num_warmup: int = 500, num_samples: int = 1000, num_chains: int = 4
-             ) -> Posterior:
+             num_warmup: int = 500, num_samples: int = 1000, num_chains: int = 4,
+             loglik_kind: str = "pointwise") -> Posterior:
     """Sample theta ~ p(theta | D) with NUTS.
 
     Args:
@@ -144,6 +152,8 @@ def run_nuts(pointwise_loglik: Callable[[jax.Array], jax.Array], box: Box, key: 
         box: uniform prior.
         key: PRNG key.
         num_warmup, num_samples, num_chains: NUTS settings (chains vectorised).
+        loglik_kind: what ``pointwise_loglik`` returns: "pointwise" (n_obs,)
+            or "summed" (1,) (``Posterior.loglik_kind``).
     """
     lo, hi = jnp.asarray(box.lo), jnp.asarray(box.hi)
 
@@ -160,13 +170,19 @@ def run_nuts(pointwise_loglik: Callable[[jax.Array], jax.Array], box: Box, key: 
              for k, v in mcmc.get_extra_fields(group_by_chain=True).items()}
     extra["lp"] = -extra["lp"]  # NumPyro's potential energy is minus the log density
     samples = by_chain.reshape(-1, box.dim)
-    rhat, ess_bulk, ess_tail = chain_diagnostics(by_chain)
-    div = int(np.sum(extra["diverging"]))
-    acc = float(np.mean(extra["acceptance_rate"]))
     pw = np.asarray(jax.jit(jax.vmap(pointwise_loglik))(jnp.asarray(samples)))
     logd = pw.sum(axis=1)  # + log prior, constant inside the box
+    return _diagnosed(tuple(box.names), by_chain, logd, pw, extra, loglik_kind)
+
+
+def _diagnosed(names: tuple[str, ...], by_chain: np.ndarray, log_density: np.ndarray,
+               pointwise: np.ndarray, sample_stats: dict, loglik_kind: str) -> Posterior:
+    """A ``Posterior`` of chains (C, N, d), with its diagnostics and problems."""
+    rhat, ess_bulk, ess_tail = chain_diagnostics(by_chain)
+    div = int(np.sum(sample_stats["diverging"]))
+    acc = float(np.mean(sample_stats["acceptance_rate"]))
     problems = []
-    for i, n in enumerate(box.names):
+    for i, n in enumerate(names):
         if not np.isfinite(rhat[i]) or rhat[i] >= RHAT_MAX:
             problems.append(f"R-hat of {n} is {rhat[i]:.3f} (>= {RHAT_MAX})")
         for kind, ess in (("bulk", ess_bulk), ("tail", ess_tail)):
@@ -174,5 +190,19 @@ def run_nuts(pointwise_loglik: Callable[[jax.Array], jax.Array], box: Box, key: 
                 problems.append(f"{kind} ESS of {n} is {ess[i]:.0f} (< {ESS_MIN:.0f})")
     if div:
         problems.append(f"{div} divergent transitions")
-    return Posterior(tuple(box.names), samples, logd, pw, rhat, ess_bulk, ess_tail, div, acc,
-                     not problems, problems, by_chain.shape[0], extra)
+    return Posterior(names, by_chain.reshape(-1, len(names)), log_density, pointwise, rhat,
+                     ess_bulk, ess_tail, div, acc, not problems, problems, by_chain.shape[0],
+                     sample_stats, loglik_kind)
+
+
+def keep_chains(post: Posterior, keep) -> Posterior:
+    """The posterior of the chains ``keep`` ((C,) bool) alone, diagnostics
+    recomputed on them (with one chain, R-hat compares its two halves)."""
+    keep = np.asarray(keep, bool)
+    n = post.samples.shape[0] // post.n_chains
+    rows = np.repeat(keep, n)
+    return _diagnosed(post.names,
+                      post.samples.reshape(post.n_chains, n, -1)[keep],
+                      post.log_density[rows], post.pointwise_loglik[rows],
+                      {k: np.asarray(v)[keep] for k, v in post.sample_stats.items()},
+                      post.loglik_kind)

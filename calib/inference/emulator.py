@@ -35,8 +35,8 @@ import optax
 
 from calib.model.unfinished import nan_quantile
 
-__all__ = ["QuantileEmulator", "fit_emulator", "holdout_error", "quantile_levels",
-           "variance_inflation"]
+__all__ = ["QuantileEmulator", "fit_emulator", "fit_gps", "holdout_error", "quantile_levels",
+           "se_kernel", "variance_inflation"]
 
 
 def quantile_levels(k: int) -> np.ndarray:
@@ -44,14 +44,15 @@ def quantile_levels(k: int) -> np.ndarray:
     return (np.arange(k) + 0.5) / k
 
 
-def _kernel(x1, x2, log_ls, log_sf):
+def se_kernel(x1, x2, log_ls, log_sf):
+    """Squared-exponential kernel sf^2 exp(-1/2 sum_d ((x_d - x'_d)/l_d)^2), (n1, n2)."""
     d = (x1[:, None, :] - x2[None, :, :]) / jnp.exp(log_ls)
     return jnp.exp(2 * log_sf - 0.5 * jnp.sum(d * d, -1))
 
 
 def _nlml(h, x, y, nv):
     log_ls, log_sf, log_sn = h
-    k = _kernel(x, x, log_ls, log_sf) + jnp.diag(jnp.exp(2 * log_sn) + nv + 1e-8)
+    k = se_kernel(x, x, log_ls, log_sf) + jnp.diag(jnp.exp(2 * log_sn) + nv + 1e-8)
     chol = jnp.linalg.cholesky(k)
     a = jax.scipy.linalg.cho_solve((chol, True), y)
     return 0.5 * y @ a + jnp.sum(jnp.log(jnp.diag(chol))) + 0.5 * y.shape[0] * jnp.log(2 * jnp.pi)
@@ -112,7 +113,7 @@ class QuantileEmulator:
         xu = (jnp.asarray(x) - self.lo) / (self.hi - self.lo)
 
         def one(xs, alpha, chol, log_ls, log_sf, mu, sd):
-            ks = _kernel(xs[None, :], self.x_unit, log_ls, log_sf)[0]
+            ks = se_kernel(xs[None, :], self.x_unit, log_ls, log_sf)[0]
             mean = ks @ alpha
             v = jax.scipy.linalg.solve_triangular(chol, ks, lower=True)
             var = jnp.maximum(jnp.exp(2 * log_sf) - v @ v, 1e-12)
@@ -180,19 +181,23 @@ def fit_emulator(x: np.ndarray, runouts: np.ndarray, lo, hi, n_levels: int = 10
     sd = np.maximum(q.std(axis=0), 1e-3)
     y_sk = jnp.moveaxis(jnp.asarray((q - mu) / sd), 0, -1)  # (S, K, n) standardised
     nv_sk = jnp.moveaxis(jnp.asarray(_bootstrap_var(runouts, levels) / sd**2), 0, -1)
-    hyp, chol, alpha = _fit_all(xu, y_sk, nv_sk)
+    hyp, chol, alpha = fit_gps(xu, y_sk, nv_sk)
     return QuantileEmulator(xu, lo, hi, alpha, chol, hyp, jnp.asarray(mu), jnp.asarray(sd),
                             levels)
 
 
 @jax.jit
-def _fit_all(xu, y_sk, nv_sk):
-    """Hyperparameters, Cholesky factors and K^-1 y of every (size, level) GP."""
+def fit_gps(xu, y_sk, nv_sk):
+    """Hyperparameters, Cholesky factors and K^-1 y of a set of GPs on the same
+    inputs: xu (n, d) scaled to [0, 1], standardised outputs y_sk (S, K, n) and
+    their known noise variances nv_sk (S, K, n) (here: every (size, level)).
+    Returns (log_ls (S,K,d), log_sf (S,K), log_sn (S,K)), chol (S,K,n,n) and
+    alpha (S,K,n)."""
     hyp = jax.vmap(jax.vmap(_fit_one, in_axes=(None, 0, 0)), in_axes=(None, 0, 0))(
         xu, y_sk, nv_sk)
 
     def factor(log_ls, log_sf, log_sn, y, nv):
-        k = _kernel(xu, xu, log_ls, log_sf) + jnp.diag(jnp.exp(2 * log_sn) + nv + 1e-8)
+        k = se_kernel(xu, xu, log_ls, log_sf) + jnp.diag(jnp.exp(2 * log_sn) + nv + 1e-8)
         chol = jnp.linalg.cholesky(k)
         return chol, jax.scipy.linalg.cho_solve((chol, True), y)
 

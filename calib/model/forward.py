@@ -365,17 +365,29 @@ class CrspForward:
         return r, v
 
     def design(self, n_design: int, seed: int):
-        """Scrambled-Sobol design over the prior box.
+        """Scrambled-Sobol design over the prior box, space-filling in the
+        EMULATOR's coordinates (``to_input``: Kn, log(1 - Kt), log S[, tan(phi_r)]).
+
+        Our choice, and why: the GP (one length scale per input) assumes a
+        response about as smooth everywhere in these coordinates, so that is
+        where its design should fill space (space-filling designs for computer
+        experiments: Santner, Williams & Notz 2003, ch. 5). The prior stays uniform in theta
+        (``calib.model.priors``); the design is where the emulator learns, not a
+        prior sample. Measured on the Tschamut rows (96 points, 256 blocks,
+        seed 3): a design uniform in theta put ~1 % of its points at S < 0.1 m,
+        where the likelihood peaks, and its best point scored a summed
+        log-likelihood of -3,724; uniform in these coordinates, 10 points
+        scored above -1,000 and the best -553.
 
         Returns:
-            (X, runouts): X (n_design, 3) emulator inputs (``to_input`` of the
+            (X, runouts): X (n_design, d) emulator inputs (``to_input`` of the
             thetas); runouts (n_design, S, n_blocks).
         """
         from scipy.stats import qmc
 
         z = qmc.Sobol(self.box.dim, scramble=True, seed=seed).random_base2(
             int(np.ceil(np.log2(n_design))))[:n_design]
-        x = self.box.from_unit(z)
+        x = np.clip(self.from_input(self.input_box.from_unit(z)), self.box.lo, self.box.hi)
         return self.to_input(x), self.runouts(x)
 
     def to_input(self, theta):
