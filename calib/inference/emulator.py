@@ -91,7 +91,8 @@ class QuantileEmulator:
         chol: (S, K, n, n) Cholesky factors.
         hyp: (log_ls (S,K,d), log_sf (S,K), log_sn (S,K)).
         y_mean, y_std: (S, K) output standardisation, m.
-        levels: (K,) probability levels.
+        levels: (K,) probability levels (NaN where the GPs emulate something
+            else: ``calib.inference.loglik_emulator``).
     """
 
     x_unit: jax.Array

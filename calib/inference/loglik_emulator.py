@@ -46,7 +46,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from calib.inference.emulator import fit_gps, se_kernel
+from calib.inference.emulator import QuantileEmulator, fit_gps
 
 __all__ = ["CAP_NATS_PER_ROW", "LoglikEmulator", "fit_loglik_emulator", "loglik_holdout",
            "loglik_noise_var"]
@@ -56,26 +56,17 @@ CAP_NATS_PER_ROW = 10.0
 
 @dataclasses.dataclass(frozen=True)
 class LoglikEmulator:
-    """A fitted GP of the capped summed log-likelihood (module docstring)."""
+    """A fitted GP of the capped summed log-likelihood (module docstring): one
+    GP of ``calib.inference.emulator`` (one "size", one "level") and its cap."""
 
-    x_unit: jax.Array
-    lo: jax.Array
-    hi: jax.Array
-    alpha: jax.Array
-    chol: jax.Array
-    hyp: tuple
-    y_mean: float
-    y_std: float
+    gp: QuantileEmulator
     cap: float
 
     def predict(self, x):
         """Mean and latent variance of the capped log-likelihood at x (d,)
         (emulator coordinates, unscaled), nats and nats^2."""
-        xu = (jnp.asarray(x) - self.lo) / (self.hi - self.lo)
-        ks = se_kernel(xu[None], self.x_unit, self.hyp[0], self.hyp[1])[0]
-        v = jax.scipy.linalg.solve_triangular(self.chol, ks, lower=True)
-        var = jnp.maximum(jnp.exp(2 * self.hyp[1]) - v @ v, 1e-12)
-        return self.y_mean + self.y_std * ks @ self.alpha, self.y_std**2 * var
+        mean, var = self.gp.predict(jnp.asarray(x)[None])
+        return mean[0, 0], var[0, 0]
 
 
 def loglik_noise_var(loglik_runs, runouts: np.ndarray, n_boot: int = 16, seed: int = 0
@@ -117,8 +108,9 @@ def fit_loglik_emulator(x: np.ndarray, ll: np.ndarray, noise_var: np.ndarray, lo
     nv = np.where(below, 0.0, np.asarray(noise_var, float)) / sd**2
     hyp, chol, alpha = fit_gps(xu, jnp.asarray((y - mu) / sd)[None, None],
                                jnp.asarray(nv)[None, None])
-    return LoglikEmulator(xu, lo, hi, alpha[0, 0], chol[0, 0],
-                          tuple(h[0, 0] for h in hyp), mu, sd, cap)
+    gp = QuantileEmulator(xu, lo, hi, alpha, chol, hyp, jnp.full((1, 1), mu),
+                          jnp.full((1, 1), sd), np.full(1, np.nan))
+    return LoglikEmulator(gp, cap)
 
 
 def loglik_holdout(x: np.ndarray, ll: np.ndarray, noise_var: np.ndarray, lo, hi, n_rows: int,
