@@ -10,8 +10,8 @@ Stages (each timed; ``Budget`` sets the sizes, ``QUICK`` / ``DEFAULT`` the prese
    b. emulator: GPs of the runout quantiles (``calib.inference.emulator``); CRSP adds a
       second design of ``n_design2`` points, three quarters drawn from a pilot
       posterior and one quarter around the design points with the highest
-      simulated likelihood (``_second_design``), so the emulator is accurate
-      where the posterior lives (sequential design, as in history matching:
+      simulated likelihood (``calib.inference.design_waves``), so the emulator
+      is accurate where the posterior lives (sequential design, as in history matching:
       Vernon et al. 2010);
    b'. CRSP: refocusing (``calib.inference.focus``): a third design of
       ``n_design3`` points fills the part of the box whose simulated
@@ -65,6 +65,7 @@ from calib.files.inputs import entry_profiles
 from calib.files.observations import Observations, ReleaseGroups, one_release_groups
 from calib.inference.adequacy import adequacy_record, better_design_point, loglik_gap_nats
 from calib.inference.bayes import Posterior, keep_chains, run_nuts
+from calib.inference.design_waves import focus_design, second_design, sir_draws
 from calib.inference.emulator import fit_emulator, holdout_error
 from calib.inference.focus import MAX_WIDEN, cut_faces, face_problems, focus_boxes, widen
 from calib.inference.gradient import GradientFit, fit_gradient
@@ -221,78 +222,6 @@ def fit_quality(obs: Observations, runouts: np.ndarray, index=None) -> list[dict
                        in_90_band=bool(some and 0.05 <= pit <= 0.95))
         out.append(row)
     return out
-
-
-def _sir_draws(forward, pointwise_loglik, input_box, box, n: int, key: jax.Array
-               ) -> np.ndarray:
-    """theta (n, d): n draws from the emulated posterior restricted to ``input_box``
-    (emulator coordinates; ``box`` its image in theta) by sampling-importance-
-    resampling (Rubin 1988) of 4096 scrambled-Sobol points of ``input_box``,
-    weighted by the emulated likelihood times the prior's density in those
-    coordinates, 1 / |det d to_input / d theta| (the prior is uniform in theta),
-    and jittered by 2 % of ``input_box`` so that repeats differ."""
-    from scipy.stats import qmc
-
-    seed = int(jax.random.randint(key, (), 0, 2**31 - 1))
-    rng = np.random.default_rng(seed)
-    span = input_box.hi - input_box.lo
-    u = input_box.from_unit(qmc.Sobol(box.dim, scramble=True, seed=seed).random_base2(12))
-    pts = jnp.asarray(_in_box(forward, u, input_box, box))
-    logdet = jax.vmap(lambda t: jnp.linalg.slogdet(jax.jacfwd(forward.to_input)(t))[1])
-    logw = np.asarray(jax.jit(jax.vmap(pointwise_loglik))(pts)).sum(1) - np.asarray(
-        jax.jit(logdet)(pts))
-    logw = np.where(np.isfinite(logw), logw, -np.inf)
-    w = np.exp(logw - logw.max())
-    pick = u[rng.choice(len(u), n, p=w / w.sum())]
-    return _in_box(forward, pick + 0.02 * span * rng.standard_normal(pick.shape), input_box,
-                   box)
-
-
-def _in_box(forward, u: np.ndarray, input_box, box) -> np.ndarray:
-    """theta of emulator coordinates u, clipped to ``input_box`` and to its image
-    ``box``."""
-    return np.clip(forward.from_input(np.clip(u, input_box.lo, input_box.hi)), box.lo, box.hi)
-
-
-def _second_design(forward, pointwise_loglik, design_theta: np.ndarray,
-                   design_ll: np.ndarray, n: int, key: jax.Array) -> np.ndarray:
-    """theta (n, d) of the second design, in two parts.
-
-    * ``n - n // 4`` draws from a pilot posterior on the whole box
-      (``_sir_draws``);
-    * ``n // 4`` points around the design points with the highest SIMULATED
-      likelihood (the best ``max(1, n // 16)``, equally many each), jittered by
-      5 % of the input box.
-
-    Our choice, and why the second part: where the likelihood is peaked in a
-    thin part of the box, an emulator fitted on a few points there can put its
-    pilot posterior elsewhere; the simulator's own best points are where the
-    emulator must be right (as history matching refines its non-implausible
-    region in waves: Vernon et al. 2010).
-    """
-    k_sir, k_near = jax.random.split(key)
-    ibox, box = forward.input_box, forward.box
-    n_near = n // 4 if np.isfinite(design_ll).any() else 0
-    parts = [_sir_draws(forward, pointwise_loglik, ibox, box, n - n_near, k_sir)]
-    if n_near:
-        rng = np.random.default_rng(int(jax.random.randint(k_near, (), 0, 2**31 - 1)))
-        best = np.argsort(-np.where(np.isfinite(design_ll), design_ll, -np.inf))
-        best = best[:max(1, n // 16)]
-        centre = np.asarray(forward.to_input(design_theta[best]))[
-            np.arange(n_near) % len(best)]
-        parts.append(_in_box(forward, centre + 0.05 * (ibox.hi - ibox.lo)
-                             * rng.standard_normal(centre.shape), ibox, box))
-    return np.concatenate(parts)
-
-
-def _focus_design(forward, input_box, box, n: int, key: jax.Array) -> np.ndarray:
-    """theta (n, d): scrambled Sobol in the focus box's emulator coordinates
-    (``calib.inference.focus``), as the first design fills the prior box's."""
-    from scipy.stats import qmc
-
-    seed = int(jax.random.randint(key, (), 0, 2**31 - 1))
-    z = qmc.Sobol(box.dim, scramble=True, seed=seed).random_base2(int(np.ceil(np.log2(n))))[:n]
-    return _in_box(forward, input_box.from_unit(z), input_box, box)
 
 
 _RELEASE_STATE = ("release_speed_m_s", "release_height_m")  # CRSP only; NaN: default
@@ -526,7 +455,7 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
         t0 = time.perf_counter()
         emu = fit_emulator(x, r, ibox.lo, ibox.hi, budget.n_levels)
         tick("design2", 0, 1)
-        simulate_more(_second_design(forward, _emulated_loglik(obs, emu, forward, 1.0, index),
+        simulate_more(second_design(forward, _emulated_loglik(obs, emu, forward, 1.0, index),
                                      forward.from_input(x), design_ll, budget.n_design2,
                                      k_pilot))
         tick("design2", 1, 1)
@@ -540,12 +469,12 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
         k_fill, k_sir, k_widen = jax.random.split(jax.random.fold_in(k_pilot, 1), 3)
         n_sir = budget.n_design3 // 2
         tick("design3", 0, 2)
-        simulate_more(_focus_design(forward, ibox, nuts_box, budget.n_design3 - n_sir, k_fill))
+        simulate_more(focus_design(forward, ibox, nuts_box, budget.n_design3 - n_sir, k_fill))
         tick("design3", 1, 2)
         if n_sir:
             keep = inside()
             emu = fit_emulator(x[keep], r[keep], ibox.lo, ibox.hi, budget.n_levels)
-            simulate_more(_sir_draws(forward, _emulated_loglik(obs, emu, forward, 1.0, index),
+            simulate_more(sir_draws(forward, _emulated_loglik(obs, emu, forward, 1.0, index),
                                      ibox, nuts_box, n_sir, k_sir))
         tick("design3", 2, 2)
         timings["design3_s"] = time.perf_counter() - t0
@@ -599,7 +528,7 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
                                         for i, side, mass in faces])
         per = max(2, (budget.n_design3 // 2) // len(slabs))
         for j, slab in enumerate(slabs):
-            simulate_more(_focus_design(forward, slab, nuts_box, per,
+            simulate_more(focus_design(forward, slab, nuts_box, per,
                                         jax.random.fold_in(k_widen, 16 * wave + j)))
         timings["design3_s"] += time.perf_counter() - t0
     if focus is not None:
