@@ -576,9 +576,11 @@ def _screen_chains(posterior: Posterior, runouts, loglik_runs, n_rows: int
     Our rule; the idea is that of stacking non-mixing chains by how well they
     predict the data (Yao, Vehtari & Gelman 2022, JMLR 23(79)): here the data's
     likelihood under the simulator decides, and a chain far behind gets no
-    weight. Measured on the Tschamut rows (seed 1): two of four chains sat at
-    corners of the focus region where the emulated likelihood was good and the
-    simulated one was 300-1,100 nats below the other two chains' (-220).
+    weight. Measured on the Tschamut rows (seed 1), while NUTS still sampled the
+    quantile emulator inside the focus region: two of four chains sat at its
+    corners, where the emulated likelihood was good and the simulated one
+    300-1,100 nats below the other two chains' (-220). With the log-likelihood
+    GP no chain was dropped there; the screening stays as the check.
     """
     c, d = posterior.n_chains, posterior.samples.shape[1]
     n = posterior.samples.shape[0] // c
