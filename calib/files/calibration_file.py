@@ -492,8 +492,8 @@ def model_section(name: str, fit, forward, law_form: str | None = None) -> dict:
             "diagnostics": {"rhat": "rank-normalised split R-hat (Vehtari et al. 2021)",
                             "rhat_max": RHAT_MAX, "ess": "bulk and tail ESS (same paper)",
                             "ess_min": ESS_MIN},
-            "emulator": fit.emulator_check, "focus": getattr(fit, "focus", None),
-            "chain_screen": getattr(fit, "chain_screen", None)}
+            "emulator": fit.emulator_check, "focus": fit.focus,
+            "chain_screen": fit.chain_screen}
         sec["posterior_csv"] = f"{name}_posterior.csv"
         sec["posterior_netcdf"] = f"{name}_posterior.nc"
     else:

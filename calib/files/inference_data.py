@@ -58,7 +58,7 @@ def inference_data(post, obs, model: str):
     by_chain = np.asarray(post.samples).reshape(c, -1, len(post.names))
     n_draws = by_chain.shape[1]
     loglik = np.asarray(post.pointwise_loglik).reshape(c, n_draws, -1)
-    summed = getattr(post, "loglik_kind", "pointwise") == "summed"
+    summed = post.loglik_kind == "summed"
     if summed:
         if loglik.shape[-1] != 1:
             raise ValueError(f"a summed log-likelihood has one column, not {loglik.shape[-1]}")

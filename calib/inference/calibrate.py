@@ -67,7 +67,14 @@ from calib.inference.adequacy import adequacy_record, better_design_point, logli
 from calib.inference.bayes import Posterior, keep_chains, run_nuts
 from calib.inference.design_waves import focus_design, second_design, sir_draws
 from calib.inference.emulator import fit_emulator, holdout_error
-from calib.inference.focus import MAX_WIDEN, cut_faces, face_problems, focus_boxes, widen
+from calib.inference.focus import (
+    MAX_WIDEN,
+    cut_faces,
+    face_problems,
+    focus_boxes,
+    region_record,
+    widen,
+)
 from calib.inference.gradient import GradientFit, fit_gradient
 from calib.inference.likelihood import log_likelihood, observed_rows
 from calib.inference.loglik_emulator import fit_loglik_emulator, loglik_holdout, loglik_noise_var
@@ -533,10 +540,7 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
         timings["design3_s"] += time.perf_counter() - t0
     if focus is not None:
         focus_record["n_emulator_points"] = int(inside().sum())
-        focus_record["lower"] = dict(zip(box.names, map(float, nuts_box.lo), strict=True))
-        focus_record["upper"] = dict(zip(box.names, map(float, nuts_box.hi), strict=True))
-        focus_record["prior_volume_fraction"] = float(np.prod(
-            (nuts_box.hi - nuts_box.lo) / (box.hi - box.lo)))
+        focus_record.update(region_record(nuts_box, box))  # after any widening
         cut = face_problems(posterior.samples, nuts_box, box)
         posterior.problems += cut
         posterior.ok = posterior.ok and not cut

@@ -49,7 +49,7 @@ from calib.inference.adequacy import BOUND_BAND, bound_mass
 from calib.model.priors import Box
 
 __all__ = ["MARGIN", "MAX_WIDEN", "NATS_PER_ROW", "cut_faces", "face_problems", "focus_boxes",
-           "widen"]
+           "region_record", "widen"]
 
 NATS_PER_ROW = 3.0  # points this close to the best simulated log-likelihood are kept
 MARGIN = 0.10  # widening of the kept points' bounding box, fraction of the input box
@@ -91,11 +91,17 @@ def focus_boxes(forward, design_theta: np.ndarray, design_ll: np.ndarray, n_rows
                  "(history matching's refocusing, Vernon et al. 2010)"),
         "best_loglik": float(ll[order[0]]), "threshold_nats": float(threshold),
         "n_kept": int(len(keep)), "n_design": int(len(ll)),
-        "lower": {n: float(v) for n, v in zip(box.names, fbox.lo, strict=True)},
-        "upper": {n: float(v) for n, v in zip(box.names, fbox.hi, strict=True)},
-        "prior_volume_fraction": float(np.prod((fbox.hi - fbox.lo) / (box.hi - box.lo))),
+        **region_record(fbox, box),
     }
     return Box(ibox.names, tuple(map(float, lo)), tuple(map(float, hi))), fbox, record
+
+
+def region_record(focus: Box, prior: Box) -> dict:
+    """The focus box's bounds in theta and its share of the prior box's volume."""
+    return {"lower": dict(zip(prior.names, map(float, focus.lo), strict=True)),
+            "upper": dict(zip(prior.names, map(float, focus.hi), strict=True)),
+            "prior_volume_fraction": float(np.prod((focus.hi - focus.lo)
+                                                   / (prior.hi - prior.lo)))}
 
 
 def _to_bounds(ibox: Box, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
