@@ -48,6 +48,30 @@ def test_the_emulator_finds_the_peak_and_caps_the_wall():
     assert abs(far - emu.cap) < 30.0, (far, emu.cap)
 
 
+def test_points_added_at_the_posterior_do_not_raise_the_level_far_from_them():
+    """A refinement wave adds the best points of a design (where the chains
+    sat). Counted in the GP's mean they raise the level it reverts to away
+    from its data, and an unexplored corner looks almost as good as the peak
+    (the Postignano main job's chains went to such corners). With
+    ``level_of`` the level is the space-filling design's, as before the
+    wave."""
+    rng = np.random.default_rng(1)
+    fill = qmc.Sobol(2, scramble=True, seed=1).random_base2(5)[:24] * 0.6  # the far corner empty
+    near = np.array([0.3, 0.6]) + 0.03 * rng.standard_normal((64, 2))
+    x = np.concatenate([fill, near])
+    ll = _peak(x) + 1.0 * rng.standard_normal(len(x))
+    noise = np.full(len(x), 1.0)
+    level_of = np.arange(len(x)) < len(fill)
+    corner = jnp.array([1.0, 1.0])
+    raised = float(fit_loglik_emulator(x, ll, noise, LO, HI, 10).predict(corner)[0])
+    kept = float(fit_loglik_emulator(x, ll, noise, LO, HI, 10, level_of).predict(corner)[0])
+    capped = np.maximum(ll, ll.max() - CAP_NATS_PER_ROW * 10)
+    assert abs(kept - capped[level_of].mean()) < 10.0, (kept, capped[level_of].mean())
+    assert raised > kept + 20.0, (raised, kept)
+    check = loglik_holdout(x, ll, noise, LO, HI, 10, level_of=level_of)
+    assert check["n_test"] + check["n_train"] == len(x)
+
+
 def test_noise_variance_falls_with_the_number_of_blocks():
     """Bootstrap over a design point's blocks: four times the blocks, about a
     quarter of the variance of the summed log-likelihood."""
@@ -87,12 +111,16 @@ def test_chains_the_simulator_fits_far_worse_are_dropped():
     def loglik_runs(runs):
         return runs[:, 0]  # (T, 1): the summed log-likelihood itself
 
-    kept, rec = _screen_chains(post, runouts, loglik_runs, 10)
+    kept, rec, (theta, runs) = _screen_chains(post, runouts, loglik_runs, 10)
     assert rec["kept"] == [True, True, True, False] and rec["n_dropped"] == 1
+    # the screened draws (8 per chain, the dropped chain's too) come back for the
+    # next refinement wave, with their simulations
+    assert theta.shape == (4 * 8, 2) and runs.shape == (4 * 8, 1, 1)
+    assert np.array_equal(runs, runouts(theta))
     assert kept.n_chains == 3 and kept.samples.shape == (3 * n, 2)
     assert kept.rhat.max() < 1.05 and kept.ok is not None and kept.loglik_kind == "summed"
-    same, rec = _screen_chains(keep_chains(post, [True, True, True, False]), runouts,
-                               loglik_runs, 10)
+    same, rec, _ = _screen_chains(keep_chains(post, [True, True, True, False]), runouts,
+                                  loglik_runs, 10)
     assert rec["n_dropped"] == 0 and same.n_chains == 3
 
 

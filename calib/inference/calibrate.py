@@ -25,7 +25,12 @@ Stages (each timed; ``Budget`` sets the sizes, ``QUICK`` / ``DEFAULT`` the prese
       plus c times the emulator's; ``calib.inference.emulator.variance_inflation``);
    d. NUTS (``calib.inference.bayes``); CRSP: each chain's draws are
       re-simulated and a chain the simulator fits far worse than the best one
-      is dropped (``_screen_chains``).
+      is dropped (``_screen_chains``). While the diagnostics still fail, the
+      re-simulated draws join the log-likelihood GP's design and NUTS runs
+      again (at most ``MAX_REFINE`` times): the GP learns the simulator where
+      the chains sat, which is where it was wrong (sequential design at the
+      emulated posterior, as in Gaussian-process ABC: Wilkinson 2014;
+      Jarvenpaa et al. 2019, Bayesian Analysis 14(2), 595-622).
 2. Gradient (``method`` includes "gradient"): Adam on the smoothed CRN
    objective of the SIMULATOR itself (``calib.inference.gradient``) from several starts:
    J(theta) = -sum_i log p(y_i | theta), the negative log-likelihood of
@@ -429,7 +434,9 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
               tally, timings: dict):
     """Stage 1 of the module docstring: designs, emulator, NUTS, chain screening and
     (CRSP) the focus region, widened while the posterior piles against one of
-    its faces (at most ``focus.MAX_WIDEN`` times).
+    its faces (at most ``focus.MAX_WIDEN`` times), then refined while the
+    diagnostics fail (at most ``MAX_REFINE`` times: the screened draws join the
+    GP's design, ``bayes.focus.refined``).
 
     Returns:
         (posterior, emulator check, focus record or None, chain-screen record or
@@ -447,13 +454,19 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
     timings["design_s"] = time.perf_counter() - t0
     ibox = forward.input_box
 
-    def simulate_more(theta):
-        nonlocal x, r, design_ll
-        runs = forward.runouts(theta)
+    refined = np.zeros(len(x), bool)  # points of the refinement waves
+
+    def add_simulated(theta, runs, refinement=False):
+        nonlocal x, r, design_ll, refined
         design_ll = np.concatenate([design_ll, _design_loglik(loglik_runs, runs)])
-        tally("design", runs, theta)
         x = np.concatenate([x, np.asarray(forward.to_input(theta))])
         r = np.concatenate([r, runs])
+        refined = np.concatenate([refined, np.full(len(runs), refinement)])
+
+    def simulate_more(theta):
+        runs = forward.runouts(theta)
+        tally("design", runs, theta)
+        add_simulated(theta, runs)
 
     def inside():
         return np.all((x >= ibox.lo - 1e-9) & (x <= ibox.hi + 1e-9), axis=1)
@@ -485,16 +498,21 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
                                      ibox, nuts_box, n_sir, k_sir))
         tick("design3", 2, 2)
         timings["design3_s"] = time.perf_counter() - t0
-        focus_record["widened"] = []
+        focus_record["widened"], focus_record["refined"] = [], []
     timings["emulator_s"] = timings["nuts_s"] = 0.0
-    for wave in range(MAX_WIDEN + 1):
+    n_widened = 0
+    screened = None
+    while True:
         t0 = time.perf_counter()
         keep = inside() if focus is not None else np.ones(len(x), bool)
         x_emu, r_emu, ll_emu = x[keep], r[keep], design_ll[keep]
         if focus is not None:  # a GP of the summed log-likelihood (calib.inference.loglik_emulator)
             noise = loglik_noise_var(loglik_runs, r_emu)
-            emu_check = loglik_holdout(x_emu, ll_emu, noise, ibox.lo, ibox.hi, obs.n_obs)
-            lemu = fit_loglik_emulator(x_emu, ll_emu, noise, ibox.lo, ibox.hi, obs.n_obs)
+            level_of = ~refined[keep]
+            emu_check = loglik_holdout(x_emu, ll_emu, noise, ibox.lo, ibox.hi, obs.n_obs,
+                                       level_of=level_of)
+            lemu = fit_loglik_emulator(x_emu, ll_emu, noise, ibox.lo, ibox.hi, obs.n_obs,
+                                       level_of)
 
             def target(theta, lemu=lemu):
                 return lemu.predict(forward.to_input(theta))[0][None]
@@ -517,17 +535,28 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
                 tally("screen", runs, theta)
                 return runs
 
-            posterior, chain_screen = _screen_chains(posterior, screen_runs, loglik_runs,
-                                                     obs.n_obs)
+            posterior, chain_screen, screened = _screen_chains(posterior, screen_runs,
+                                                               loglik_runs, obs.n_obs)
         tick("nuts", 1, 1)
         timings["nuts_s"] += time.perf_counter() - t0
         if focus is None:
             break
         faces = cut_faces(posterior.samples, nuts_box, box)
-        if not faces or wave == MAX_WIDEN:
-            break
+        if not faces or n_widened == MAX_WIDEN:
+            if (posterior.ok or screened is None
+                    or len(focus_record["refined"]) == MAX_REFINE):
+                break
+            # the chains do not agree (or mix too slowly): the GP is taught the
+            # simulated log-likelihood where they sit, and NUTS runs again
+            focus_record["refined"].append({
+                "n_points": int(screened[0].shape[0]),
+                "problems_before": list(posterior.problems),
+                "chain_loglik": chain_screen["chain_loglik"]})
+            add_simulated(*screened, refinement=True)
+            continue
         # the posterior piles against a face the focus region drew, not the prior:
         # move that face out, fill the new slab, emulate and sample again
+        n_widened += 1
         t0 = time.perf_counter()
         ibox, nuts_box, slabs = widen(forward, ibox, faces)
         focus_record["widened"].append([{"parameter": box.names[i], "side": side,
@@ -536,7 +565,7 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
         per = max(2, (budget.n_design3 // 2) // len(slabs))
         for j, slab in enumerate(slabs):
             simulate_more(focus_design(forward, slab, nuts_box, per,
-                                        jax.random.fold_in(k_widen, 16 * wave + j)))
+                                        jax.random.fold_in(k_widen, 16 * n_widened + j)))
         timings["design3_s"] += time.perf_counter() - t0
     if focus is not None:
         focus_record["n_emulator_points"] = int(inside().sum())
@@ -563,10 +592,11 @@ def _release_slopes_deg(profile, release_x_m, profiles=None) -> np.ndarray:
 
 
 N_SCREEN = 8  # draws per chain simulated by the chain screening
+MAX_REFINE = 2  # refinement waves: screened draws added to the log-likelihood GP
 
 
 def _screen_chains(posterior: Posterior, runouts, loglik_runs, n_rows: int
-                   ) -> tuple[Posterior, dict]:
+                   ) -> tuple[Posterior, dict, tuple[np.ndarray, np.ndarray]]:
     """Keep the chains whose draws the SIMULATOR fits about as well as the best
     chain's; drop the others (the emulator was wrong where they sit).
 
@@ -585,12 +615,18 @@ def _screen_chains(posterior: Posterior, runouts, loglik_runs, n_rows: int
     corners, where the emulated likelihood was good and the simulated one
     300-1,100 nats below the other two chains' (-220). With the log-likelihood
     GP no chain was dropped there; the screening stays as the check.
+
+    Returns:
+        (posterior, the ``bayes.chain_screen`` record, (the screened draws
+        (T, d), their runouts (T, S, n))): the draws go into the next
+        refinement wave's design.
     """
     c, d = posterior.n_chains, posterior.samples.shape[1]
     n = posterior.samples.shape[0] // c
     pick = np.linspace(0, n - 1, min(N_SCREEN, n)).round().astype(int)
     draws = posterior.samples.reshape(c, n, d)[:, pick].reshape(-1, d)
-    ll = _design_loglik(loglik_runs, runouts(draws)).reshape(c, len(pick))
+    runs = runouts(draws)
+    ll = _design_loglik(loglik_runs, runs).reshape(c, len(pick))
     score = np.median(ll, axis=1)
     bar = loglik_gap_nats(n_rows, d)
     keep = score >= np.max(score) - bar if np.isfinite(score).any() else np.ones(c, bool)
@@ -601,7 +637,7 @@ def _screen_chains(posterior: Posterior, runouts, loglik_runs, n_rows: int
               "kept": [bool(k) for k in keep], "n_dropped": int((~keep).sum())}
     if not keep.all():
         posterior = keep_chains(posterior, keep)
-    return posterior, record
+    return posterior, record, (draws, runs)
 
 
 def _design_loglik(loglik_runs, runouts) -> np.ndarray:

@@ -89,7 +89,7 @@ def _capped(ll: np.ndarray, n_rows: int) -> tuple[np.ndarray, float]:
 
 
 def fit_loglik_emulator(x: np.ndarray, ll: np.ndarray, noise_var: np.ndarray, lo, hi,
-                        n_rows: int) -> LoglikEmulator:
+                        n_rows: int, level_of: np.ndarray | None = None) -> LoglikEmulator:
     """Fit the GP of the module docstring.
 
     Args:
@@ -99,11 +99,18 @@ def fit_loglik_emulator(x: np.ndarray, ll: np.ndarray, noise_var: np.ndarray, lo
         noise_var: (D,) their Monte Carlo variances (``loglik_noise_var``).
         lo, hi: (d,) the box the inputs are scaled to (the focus box).
         n_rows: observation rows (the cap is ``CAP_NATS_PER_ROW`` per row).
+        level_of: (D,) bool, the points whose mean is the GP's mean m (the level
+            it reverts to away from its data); None: all. Points placed where
+            an emulated posterior sat (``calib.inference.calibrate``'s
+            refinement waves) are left out of it: they are the best points of
+            the design, and a level raised by them would make every corner
+            the design has not reached look as good as the posterior.
     """
     y, cap = _capped(np.asarray(ll, float), n_rows)
     lo, hi = jnp.asarray(lo, jnp.float64), jnp.asarray(hi, jnp.float64)
     xu = (jnp.asarray(x) - lo) / (hi - lo)
-    mu, sd = float(y.mean()), float(max(y.std(), 1e-3))
+    level = y if level_of is None else y[np.asarray(level_of, bool)]
+    mu, sd = float(level.mean()), float(max(y.std(), 1e-3))
     below = y <= cap  # a capped value carries no Monte Carlo noise of its own
     nv = np.where(below, 0.0, np.asarray(noise_var, float)) / sd**2
     hyp, chol, alpha = fit_gps(xu, jnp.asarray((y - mu) / sd)[None, None],
@@ -114,8 +121,9 @@ def fit_loglik_emulator(x: np.ndarray, ll: np.ndarray, noise_var: np.ndarray, lo
 
 
 def loglik_holdout(x: np.ndarray, ll: np.ndarray, noise_var: np.ndarray, lo, hi, n_rows: int,
-                   frac: float = 0.2) -> dict:
-    """Fit on (1 - frac) of the design (every k-th point held out), predict the rest.
+                   frac: float = 0.2, level_of: np.ndarray | None = None) -> dict:
+    """Fit on (1 - frac) of the design (every k-th point held out), predict the
+    rest (``level_of`` as in ``fit_loglik_emulator``).
 
     Returns:
         dict with ``target`` ("summed log-likelihood, capped"), ``rmse_nats`` and
@@ -128,7 +136,8 @@ def loglik_holdout(x: np.ndarray, ll: np.ndarray, noise_var: np.ndarray, lo, hi,
     n_test = max(2, int(round(frac * n)))
     test = np.arange(n)[::max(1, n // n_test)][:n_test]
     train = np.setdiff1d(np.arange(n), test)
-    emu = fit_loglik_emulator(x[train], ll[train], noise_var[train], lo, hi, n_rows)
+    emu = fit_loglik_emulator(x[train], ll[train], noise_var[train], lo, hi, n_rows,
+                              None if level_of is None else np.asarray(level_of)[train])
     mean, var = jax.vmap(emu.predict)(jnp.asarray(x[test]))
     y = np.maximum(np.where(np.isfinite(ll[test]), ll[test], -np.inf), emu.cap)
     err = np.asarray(mean) - y
