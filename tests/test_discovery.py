@@ -449,3 +449,34 @@ def test_gap_warning_when_the_named_effect_widens_the_gap():
     assert gap_warnings("size_dissipation", 30.0, 12.0) == []
     assert gap_warnings("none", 16.65, 30.78) == []
     assert gap_warnings("fragmentation", float("nan"), 3.0) == []
+
+
+def test_proposals_in_warped_coordinates_weight_back_to_the_uniform_prior():
+    """Stage 0 draws half its points uniform in theta and half uniform in the
+    warped cube (log S, log(1 - Kt), tan(phi_r)); with a flat likelihood the
+    self-normalised weights 1 / q must give back the uniform prior in theta:
+    its mean and quartiles per parameter. Without the change of variables the
+    weighted median of S would be about 0.2 m instead of 2 m."""
+    from scipy.stats import qmc
+
+    from calib.discovery.discrepancy import _mixture_log_q, _unit_coordinates
+    from calib.model.priors import CRSP_ROLLING_BOX as box
+
+    to_z, to_theta, log_jac = _unit_coordinates(box)
+    sob = qmc.Sobol(box.dim, scramble=True, seed=3).random(2**14)
+    n = sob.shape[0] // 2
+    z = np.concatenate([to_z(box.from_unit(sob[:n])), sob[n:]])
+    np.testing.assert_allclose(to_theta(to_z(box.from_unit(sob[:8]))), box.from_unit(sob[:8]),
+                               rtol=1e-12)
+    log_q = _mixture_log_q(z, [n, n], [lambda z: -log_jac(z), lambda z: np.zeros(len(z))])
+    log_q = log_q + log_jac(z)  # relative to the prior in theta
+    w = np.exp(-log_q - np.max(-log_q))
+    w /= w.sum()
+    theta = to_theta(z)
+    u = box.to_unit(theta)  # uniform on [0, 1] per parameter under the prior
+    for j in range(box.dim):
+        order = np.argsort(u[:, j])
+        cdf = np.cumsum(w[order])
+        for q in (0.25, 0.5, 0.75):
+            assert abs(u[order, j][np.searchsorted(cdf, q)] - q) < 0.02, (box.names[j], q)
+    assert abs(np.mean(u[:, 2]) - 0.5) > 0.1  # the draws themselves are not uniform in S

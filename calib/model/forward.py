@@ -40,6 +40,7 @@ from calib.model.alpha_law import ALPHA_MAX, alpha_of
 from calib.model.dem_run import DEM_RUN, DemRun
 from calib.model.priors import CRSP_BOX, DEM_BOXES, Box
 from calib.model.unfinished import mask_unfinished
+from calib.model.warp import unwarp, warp, warped_box
 from solvers.parallel import default_workers, map_ordered
 from solvers.profile import Profile
 
@@ -391,24 +392,14 @@ class CrspForward:
         return self.to_input(x), self.runouts(x)
 
     def to_input(self, theta):
-        """Emulator coordinates (Kn, log(1 - Kt), log S[, tan(phi_r)]): runouts change
-        fastest as Kt -> 1 and S -> 0; in these coordinates the response is closer to
-        stationary, which a GP with one length scale per input assumes (input
-        warping). The rolling resistance enters the motion as tan(phi_r)."""
-        t = jnp.asarray(theta)
-        cols = [t[..., 0], jnp.log1p(-t[..., 1]), jnp.log(t[..., 2])]
-        if self.fits_rolling:
-            cols.append(jnp.tan(jnp.deg2rad(t[..., 3])))
-        return jnp.stack(cols, axis=-1)
+        """Emulator coordinates (Kn, log(1 - Kt), log S[, tan(phi_r)];
+        ``calib.model.warp``): in these the response is closer to stationary,
+        which a GP with one length scale per input assumes (input warping)."""
+        return warp(self.box.names, theta)
 
     def from_input(self, x) -> np.ndarray:
-        """theta (..., d) from emulator coordinates (..., d): the inverse of
-        ``to_input`` (Kn, 1 - exp(u), exp(v)[, atan(w) in degrees])."""
-        x = np.asarray(x, float)
-        cols = [x[..., 0], -np.expm1(x[..., 1]), np.exp(x[..., 2])]
-        if self.fits_rolling:
-            cols.append(np.degrees(np.arctan(x[..., 3])))
-        return np.stack(cols, axis=-1)
+        """theta (..., d) from emulator coordinates (..., d): the inverse of ``to_input``."""
+        return unwarp(self.box.names, x)
 
     def emulator_inputs(self, theta):
         """Emulator input of each size for theta (d,) -> (S, d)."""
@@ -416,9 +407,7 @@ class CrspForward:
 
     @property
     def input_box(self) -> Box:
-        a, b = np.asarray(self.to_input(self.box.lo)), np.asarray(self.to_input(self.box.hi))
-        names = ("Kn", "log(1-Kt)", "log(S)", "tan(phi_r)")[:len(a)]
-        return Box(names, tuple(np.minimum(a, b)), tuple(np.maximum(a, b)))
+        return warped_box(self.box)
 
 
 @dataclasses.dataclass

@@ -1,0 +1,81 @@
+"""Warped parameter coordinates: where the runouts' response to CRSP's
+parameters is closer to stationary.
+
+Per parameter, by name (our choice, input warping for a GP with one length
+scale per input; the prior stays uniform in the parameters themselves,
+``calib.model.priors``):
+
+====================  ===================  =========================================
+parameter             warped coordinate    why
+====================  ===================  =========================================
+Kt                    u = log(1 - Kt)      runouts change fastest as Kt -> 1
+roughness_m (S)       u = log(S)           and as S -> 0 (the Tschamut slab,
+                                           S 0.05-0.1 m in a 0.01-4 m box)
+rolling_friction_deg  u = tan(phi_r)       the rolling phase's Coulomb resistance
+                                           is mu = tan(phi_r)
+any other             u = theta            (Kn, the effects' parameters)
+====================  ===================  =========================================
+
+Used by the CRSP emulator's inputs (``calib.model.forward.CrspForward.to_input``)
+and by the discovery workflow's importance-sampling proposals
+(``calib.discovery.discrepancy``), which need the density change
+log |du/dtheta| = sum_j log |u_j'(theta_j)| to weight draws made in u against
+the prior in theta.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from calib.model.priors import Box
+
+__all__ = ["log_jacobian", "unwarp", "warp", "warped_box", "warped_names"]
+
+_DEG = np.pi / 180.0
+
+# name: (u(theta), theta(u), log |du/dtheta|, name of u), jnp for the forward, np for the rest
+_WARPS = {
+    "Kt": (lambda t: jnp.log1p(-t), lambda u: -np.expm1(u), lambda t: -np.log1p(-t),
+           "log(1-Kt)"),
+    "roughness_m": (jnp.log, np.exp, lambda t: -np.log(t), "log(S)"),
+    "rolling_friction_deg": (lambda t: jnp.tan(jnp.deg2rad(t)),
+                             lambda u: np.degrees(np.arctan(u)),
+                             lambda t: np.log(_DEG) - 2.0 * np.log(np.cos(np.deg2rad(t))),
+                             "tan(phi_r)"),
+}
+
+
+def warp(names, theta):
+    """u (..., d) from theta (..., d); jnp, so it traces inside NUTS's target."""
+    t = jnp.asarray(theta)
+    return jnp.stack([_WARPS[n][0](t[..., j]) if n in _WARPS else t[..., j]
+                      for j, n in enumerate(names)], axis=-1)
+
+
+def unwarp(names, u) -> np.ndarray:
+    """theta (..., d) from u (..., d): the inverse of ``warp``."""
+    u = np.asarray(u, float)
+    return np.stack([_WARPS[n][1](u[..., j]) if n in _WARPS else u[..., j]
+                     for j, n in enumerate(names)], axis=-1)
+
+
+def log_jacobian(names, theta) -> np.ndarray:
+    """(...,) log |du/dtheta| = sum_j log |u_j'(theta_j)| (0 for unwarped parameters)."""
+    t = np.asarray(theta, float)
+    out = np.zeros(t.shape[:-1])
+    for j, n in enumerate(names):
+        if n in _WARPS:
+            out = out + _WARPS[n][2](t[..., j])
+    return out
+
+
+def warped_names(names) -> tuple[str, ...]:
+    return tuple(_WARPS[n][3] if n in _WARPS else n for n in names)
+
+
+def warped_box(box: Box) -> Box:
+    """The prior box in warped coordinates (every warp is monotone)."""
+    a = np.asarray(warp(box.names, box.lo))
+    b = np.asarray(warp(box.names, box.hi))
+    return Box(warped_names(box.names), tuple(np.minimum(a, b)), tuple(np.maximum(a, b)))
