@@ -157,8 +157,10 @@ def _run(args) -> int:
                   f"{np.nanmax(groups.release_height_m):.2f} m (largest release-height "
                   f"shift {np.abs(gh - height)[high].max():.2f} m)")
         if "dem" in models and (known.any() or high.any()):
-            print("DEM: blocks released at rest on the ground (the DEM has no release speed "
-                  "or height); the rows' release_speed_m_s and release_height_m are not used")
+            print("DEM: blocks released by the DEM's own rule at each group's point (1 cm "
+                  "above the ground, up to 0.5 m downslope, horizontal speed uniform in "
+                  "0-1 m/s; solvers.dem.Params); the rows' release_speed_m_s and "
+                  "release_height_m are not used")
 
     methods = ("gradient", "bayes") if args.method == "both" else (args.method,)
     key = jax.random.key(args.seed)

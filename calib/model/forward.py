@@ -427,7 +427,9 @@ class DemForward:
         release_x_m: release abscissa, m: one for every entry, or (S,) one per
             entry of ``sizes_m`` (an entry is then a (size, release) group, as in
             ``CrspForward``), or None (the profile's first vertex). Blocks are
-            released at rest: the DEM has no release speed.
+            released by the DEM's own rule (``solvers.dem.Params``: 1 cm above the
+            ground, up to 0.5 m downslope, horizontal speed uniform in 0-1 m/s),
+            not at a row's release speed or height.
         entry_profiles: (S,) profile of each entry (None: ``profile``), or None,
             as in ``CrspForward``.
     """
