@@ -180,7 +180,7 @@ def _run(args) -> int:
     with warnings.catch_warnings():  # reported in the summary and discovery.json
         warnings.simplefilter("ignore", UnfinishedBlocksWarning)
         d = discover(cands, obs, profile, jax.random.key(args.seed), budget, bar, velocities,
-                     args.release_tolerance_m, at_rest=args.model == "dem")
+                     args.release_tolerance_m)
     bar.close()
     named_fit = d.fits[d.named_effect]
     result = {

@@ -99,7 +99,7 @@ def _run(args) -> int:
     from calib.files.calibration_file import model_section, summary_stats
     from calib.files.inference_data import inference_data, netcdf_writer
     from calib.files.inputs import InputError, common_release_m, entry_profiles, load_inputs
-    from calib.files.observations import ground_release_groups, one_release_groups
+    from calib.files.observations import one_release_groups
     from calib.files.site import SiteError, load_site
     from calib.inference.calibrate import calibrate, presets
     from calib.model.alpha_law import alpha_of, check_fit
@@ -129,9 +129,7 @@ def _run(args) -> int:
     if rel is not None and (np.any(np.isfinite(rel)) or any(obs.profile)):
         from calib.files.observations import release_groups
 
-        groups = (release_groups(obs, float(profile.x_m[0]), args.release_tolerance_m)
-                  if "crsp" in models else
-                  ground_release_groups(obs, float(profile.x_m[0]), args.release_tolerance_m))
+        groups = release_groups(obs, float(profile.x_m[0]), args.release_tolerance_m)
         err = np.abs(groups.release_x_m[groups.index] - np.where(
             np.isfinite(rel), rel, float(profile.x_m[0])))
         print(f"each row released from its own point, rows of one size within "
@@ -145,23 +143,17 @@ def _run(args) -> int:
         speed = np.asarray(obs.release_speed_m_s, float)
         gspeed = groups.release_speed_m_s[groups.index]
         known = np.isfinite(speed) & np.isfinite(gspeed)
-        if "crsp" in models and known.any():
-            print(f"CRSP: each group released at its rows' mean tracked speed (largest "
+        if known.any():
+            print(f"each group released at its rows' mean tracked speed (largest "
                   f"release-speed shift {np.abs(gspeed - speed)[known].max():.2f} m/s)")
         height = np.asarray(obs.release_height_m, float)
         high = np.isfinite(height)
-        if "crsp" in models and high.any():
+        if high.any():
             gh = groups.release_height_m[groups.index]
-            print(f"CRSP: each group released at its rows' mean height above the ground, "
+            print(f"each group released at its rows' mean height above the ground, "
                   f"{np.nanmin(groups.release_height_m):.2f} to "
                   f"{np.nanmax(groups.release_height_m):.2f} m (largest release-height "
                   f"shift {np.abs(gh - height)[high].max():.2f} m)")
-        if "dem" in models and (known.any() or high.any()):
-            print("DEM: blocks released by the DEM's own rule at each group's point (1 cm "
-                  "above the ground, up to 0.5 m downslope, horizontal speed uniform in "
-                  "0-1 m/s; solvers.dem.Params); the rows' release_speed_m_s and "
-                  "release_height_m are not used")
-
     methods = ("gradient", "bayes") if args.method == "both" else (args.method,)
     key = jax.random.key(args.seed)
     result = {"schema": SCHEMA,
@@ -170,6 +162,7 @@ def _run(args) -> int:
               "release_x_m": release,
               "release_groups": None if groups is None else {
                   "tolerance_m": args.release_tolerance_m, "models": models,
+                  "speed_and_height_models": models,
                   "groups": [{"block_size_m": float(d), "release_x_m": float(x),
                               "release_speed_m_s": None if not np.isfinite(v) else float(v),
                               "release_height_m": None if not np.isfinite(h) else float(h),
@@ -203,15 +196,12 @@ def _run(args) -> int:
                                   release_height_m=tuple(crsp_groups.release_height_m),
                                   entry_profiles=entry_profiles(crsp_groups.profile_csv))
         else:
-            # rows grouped by their releases alone (the DEM has no release height or
-            # speed: its blocks start at rest on the ground), or one group per size at
-            # the common release
-            dem_groups = (one_release_groups(obs, release) if groups is None else
-                          ground_release_groups(obs, float(profile.x_m[0]),
-                                                args.release_tolerance_m))
+            dem_groups = groups if groups is not None else one_release_groups(obs, release)
             forward = DemForward(profile, dem_groups.sizes_m, budget.n_blocks_design,
                                  jax.random.fold_in(mkey, 1), form=args.alpha_law,
                                  release_x_m=tuple(dem_groups.release_x_m),
+                                 release_speed_m_s=tuple(dem_groups.release_speed_m_s),
+                                 release_height_m=tuple(dem_groups.release_height_m),
                                  entry_profiles=entry_profiles(dem_groups.profile_csv))
         bar = Progress(not args.no_progress, model.upper())
         # the check also simulates a grid of sizes for the runout-vs-size figure

@@ -619,3 +619,30 @@ def test_block_at_rest_keeps_its_joints_under_stiffness_shortcut(n_fragments):
     breaks in 3 s."""
     broken = _block_at_rest_broken(n_fragments, 0.5)
     assert broken == 0.0, broken
+
+
+def test_release_at_a_given_height_and_speed():
+    """A block with its own release height and speed (a tracked field run) starts
+    with its lowest possible point (a corner, half a diagonal below the centre)
+    that height above the ground at the release point and that horizontal
+    speed; with both NaN (``make_block``'s default) the release rule's 1 cm
+    and speed in [0, 1) m/s, as before, from the same key."""
+    from solvers.dem._integrate import _release
+
+    prof = load_profile("data/postignano_profile.csv")
+    params = make_params(prof)
+    key = jax.random.key(3)
+    own = make_block(0.8, alpha=0.5, n_fragments=4, release_x_m=20.0,
+                     release_speed_m_s=2.5, release_height_m=1.2)
+    rule = make_block(0.8, alpha=0.5, n_fragments=4, release_x_m=20.0)
+    ground = float(ground_z(prof, jnp.asarray(20.0)))
+    half_diag = 0.8 / math.sqrt(2.0)
+    p_own, p_rule = _release(params, own, key), _release(params, rule, key)
+    centre = np.asarray(p_own.pos).mean(axis=0)
+    assert centre[1] - half_diag - ground == pytest.approx(1.2, abs=1e-9)
+    np.testing.assert_allclose(np.asarray(p_own.vel), [[2.5, 0.0]] * 4)
+    centre = np.asarray(p_rule.pos).mean(axis=0)
+    assert centre[1] - half_diag - ground == pytest.approx(params.release_gap_m, abs=1e-9)
+    v = np.asarray(p_rule.vel)[:, 0]
+    assert np.all(v == v[0]) and 0.0 <= v[0] < params.release_speed_m_s
+    np.testing.assert_array_equal(p_own.theta, p_rule.theta)  # same key, same turn

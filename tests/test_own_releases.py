@@ -49,6 +49,25 @@ def test_dem_forward_runs_each_entry_from_its_release():
     assert own[1, 0] < own[0, 0] - 20.0
 
 
+def test_dem_forward_releases_each_entry_at_its_speed_and_height():
+    """A 1 m block released at 150 m on the gentle lower slope: from 3 m up at
+    4 m/s it travels further than by the DEM's own rule (1 cm up, 0-1 m/s);
+    an entry whose speed and height are NaN is the rule's, to the bit."""
+    key = jax.random.key(0)
+    alpha = np.array([[0.5, 0.5]])
+    fw = DemForward(PROFILE, np.array([1.0, 1.0]), 1, key, form="constant",
+                    release_x_m=(150.0, 150.0), release_speed_m_s=(float("nan"), 4.0),
+                    release_height_m=(float("nan"), 3.0))
+    r = fw.runouts_at_alpha(alpha)[0]
+    rule = DemForward(PROFILE, np.array([1.0]), 1, key, form="constant",
+                      release_x_m=150.0).runouts_at_alpha(alpha[:, :1])[0]
+    print("by the rule:", r[0, 0], "from 3 m at 4 m/s:", r[1, 0])
+    np.testing.assert_array_equal(r[0], rule[0])
+    assert np.all(np.isfinite(r)) and r[1, 0] > r[0, 0] + 5.0
+    with pytest.raises(ValueError, match="1 entries for 2"):
+        DemForward(PROFILE, np.array([1.0, 1.0]), 1, key, release_height_m=(1.0,))
+
+
 class _Falls:
     """A cheap forward model: a block released at x stops at 150 m, so its runout
     is scale * (150 - x) plus 3 m of noise (common random numbers per entry).
@@ -191,11 +210,10 @@ def test_velocity_rows_get_their_own_entries_at_the_median_release():
     assert _entries(obs, PROFILE, class_sizes, row_class, vel_class, None) is None
 
 
-def test_dem_discovery_groups_releases_by_abscissa_alone():
-    """The DEM starts its blocks at rest on the ground, so discover's DEM
-    candidates group rows by release abscissa only: rows of one size at one
-    abscissa but different heights are one simulated group there, two for CRSP
-    (whose blocks start in flight from the height)."""
+def test_discover_groups_rows_by_release_height_and_speed_for_both_solvers():
+    """Both solvers release a group from its rows' height and at their speed
+    (the DEM since ``solvers.dem.Block.release_height_m``), so discover groups
+    rows of one size at one abscissa but different heights apart, for either."""
     import dataclasses
 
     from calib.discovery.discrepancy import _entries
@@ -203,8 +221,7 @@ def test_dem_discovery_groups_releases_by_abscissa_alone():
     obs = dataclasses.replace(_rows(), release_height_m=np.tile([0.0, 2.4], 6),
                               release_speed_m_s=np.full(12, 0.5))
     class_sizes, row_class = np.array([1.0]), np.zeros(12, int)
-    crsp = _entries(obs, PROFILE, class_sizes, row_class, None, 1.0)
-    dem = _entries(obs, PROFILE, class_sizes, row_class, None, 1.0, at_rest=True)
-    assert len(crsp.sizes_m) == 4 and len(dem.sizes_m) == 2
-    np.testing.assert_array_equal(dem.release_x_m, [0.0, 100.0])
-    assert np.isnan(dem.release_height_m).all() and np.isnan(dem.release_speed_m_s).all()
+    g = _entries(obs, PROFILE, class_sizes, row_class, None, 1.0)
+    assert len(g.sizes_m) == 4
+    np.testing.assert_array_equal(np.unique(g.release_height_m), [0.0, 2.4])
+    np.testing.assert_array_equal(g.release_speed_m_s, 0.5)

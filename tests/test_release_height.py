@@ -97,3 +97,38 @@ def test_an_older_crsp_calibration_refuses_held_out_rows_with_heights(tmp_path):
         predictive_runouts(cal_old, held, postignano, 1, 4, 0)
     runs, index, _, _ = predictive_runouts(cal_new, held, postignano, 1, 4, 0)
     assert runs.shape == (1, 4) and np.all(np.isfinite(runs))
+
+
+def test_a_dem_calibration_says_whether_it_released_rows_from_their_heights(tmp_path):
+    """A DEM fit listed in ``release_groups.speed_and_height_models`` released its
+    groups from their rows' heights and speeds, and validate does the same for
+    held-out rows; a DEM fit of an older file (not listed) released them by the
+    DEM's own rule, and held-out rows with heights are refused with a line that
+    says to refit."""
+    from test_hazard_fixtures import write_calibration
+
+    from calib.files.calibration_file import load_calibration
+    from calib.inference.predictive_check import predictive_runouts
+
+    postignano = load_profile("data/postignano_profile.csv")
+    path = write_calibration(tmp_path, crsp=(0.41, 0.87, 2.0), dem=(0.40, 0.5))
+    with open(path) as fh:
+        doc = json.load(fh)
+    groups = {"tolerance_m": 1.0, "models": ["dem"]}
+    old = dict(doc, release_groups=groups)
+    new = dict(doc, release_groups=dict(groups, speed_and_height_models=["dem"]))
+    for name, d in (("old.json", old), ("new.json", new)):
+        with open(tmp_path / name, "w") as fh:
+            json.dump(d, fh)
+    cal_old = load_calibration(str(tmp_path / "old.json"), "dem")
+    cal_new = load_calibration(str(tmp_path / "new.json"), "dem")
+    assert not cal_old.release_heights and cal_new.release_heights
+    held = Observations.points(np.array([1.0]), np.array([20.0]), 2.0)
+    held = Observations(held.block_size_m, held.runout_m, held.runout_sd_m, held.runout_min_m,
+                        held.runout_max_m, held.is_interval, held.source,
+                        release_x_m=np.array([150.0]), release_height_m=np.array([3.0]),
+                        release_speed_m_s=np.array([4.0]))
+    with pytest.raises(ValueError, match="refit"):
+        predictive_runouts(cal_old, held, postignano, 1, 1, 0)
+    runs, _, _, _ = predictive_runouts(cal_new, held, postignano, 1, 1, 0)
+    assert runs.shape == (1, 1) and np.all(np.isfinite(runs))

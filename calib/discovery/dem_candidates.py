@@ -38,6 +38,7 @@ from calib.model.forward import (
     DemForward,
     dem_lanes,
     entry_releases,
+    entry_values,
     gather_entries,
     split_by_profile,
     stack_trees,
@@ -59,10 +60,11 @@ class DemEffectForward:
     block that did not finish; common random numbers (block j of every theta and
     size uses ``fold_in(key, j)``). ``run``: the DEM numerics (``calib.model.dem_run``),
     the fit's and the hazard run's. ``release_x_m``: one release for all entries,
-    one per entry of ``sizes_m``, or None (the profile's first vertex); blocks
-    start at rest. ``entry_profiles``: each entry's own profile (None: ``profile``),
-    as in ``calib.model.forward.CrspForward``; each profile's entries run as
-    their own forward."""
+    one per entry of ``sizes_m``, or None (the profile's first vertex);
+    ``release_speed_m_s``, ``release_height_m``: per entry or None, as in
+    ``calib.model.forward.DemForward``. ``entry_profiles``: each entry's own
+    profile (None: ``profile``), as in ``calib.model.forward.CrspForward``;
+    each profile's entries run as their own forward."""
 
     profile: Profile
     sizes_m: np.ndarray
@@ -71,6 +73,8 @@ class DemEffectForward:
     effect: str = "none"
     run: DemRun = DEM_RUN
     release_x_m: float | tuple[float, ...] | None = None
+    release_speed_m_s: tuple[float, ...] | None = None
+    release_height_m: tuple[float, ...] | None = None
     entry_profiles: tuple[Profile | None, ...] | None = None
 
     def __post_init__(self):
@@ -82,7 +86,9 @@ class DemEffectForward:
             form = "constant" if self.effect == "none" else "power"
             self._single = DemForward(self.profile, np.asarray(self.sizes_m, float),
                                       self.n_blocks, self.key, form=form, run=self.run,
-                                      release_x_m=self.release_x_m)
+                                      release_x_m=self.release_x_m,
+                                      release_speed_m_s=self.release_speed_m_s,
+                                      release_height_m=self.release_height_m)
 
     @property
     def box(self):
@@ -104,8 +110,12 @@ class DemEffectForward:
         sides = dem_side_m(self.sizes_m)
         # the one clipping rule of calib.model.alpha_law (the box stops at ALPHA_MAX already)
         a = float(alpha_of("constant", [alpha], sides[:1])[0])
-        blocks = [make_block(float(L), alpha=a, n_fragments=N_FRAGMENTS,
-                             release_x_m=float(x0)) for L, x0 in zip(sides, self._x0)]
+        n_s = len(sides)
+        blocks = [make_block(float(L), alpha=a, n_fragments=N_FRAGMENTS, release_x_m=float(x0),
+                             release_speed_m_s=float(v), release_height_m=float(h))
+                  for L, x0, v, h in zip(sides, self._x0,
+                                         entry_values(self.release_speed_m_s, n_s),
+                                         entry_values(self.release_height_m, n_s), strict=True)]
         options = self.run.options(params, sides, n_fragments=N_FRAGMENTS, adaptive=False)
         lanes = [b for b in blocks for _ in range(self.n_blocks)]
         keys = jax.vmap(lambda j: jax.random.fold_in(self.key, j))(
@@ -122,11 +132,9 @@ def _grid(box, shape) -> np.ndarray:
 
 def _forward(profile, effect, sizes_m, n_blocks, key, release_x_m=None,
              release_speed_m_s=None, release_height_m=None, entry_profiles=None):
-    # the DEM releases its blocks at rest on the ground: release speeds and
-    # heights are not used
-    del release_speed_m_s, release_height_m
     return DemEffectForward(profile, sizes_m, n_blocks, key, effect=effect,
-                            release_x_m=release_x_m, entry_profiles=entry_profiles)
+                            release_x_m=release_x_m, release_speed_m_s=release_speed_m_s,
+                            release_height_m=release_height_m, entry_profiles=entry_profiles)
 
 
 def dem_candidates(profile, effects=DEM_EFFECTS) -> list[Candidate]:

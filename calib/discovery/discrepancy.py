@@ -72,7 +72,7 @@ from calib.discovery.scores import (
     naming_threshold,
 )
 from calib.files.inputs import entry_profiles
-from calib.files.observations import ReleaseGroups, ground_release_groups, release_groups
+from calib.files.observations import ReleaseGroups, release_groups
 from calib.inference.importance import KHAT_MAX, ess, psis_weights
 from calib.inference.likelihood import log_likelihood, observed_rows, velocity_log_likelihood
 from calib.inference.predictive_check import pool_draws
@@ -609,8 +609,8 @@ class Discovery:
 
 
 def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: Budget,
-             progress=None, velocities=None, release_tolerance_m: float | None = None,
-             at_rest: bool = False) -> Discovery:
+             progress=None, velocities=None, release_tolerance_m: float | None = None
+             ) -> Discovery:
     """Run the whole workflow on observations ``obs`` (see module docstring).
 
     ``candidates[0]`` must be the baseline (effect ``none``). ``velocities``
@@ -626,9 +626,8 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
     at the profile's first vertex), and stop positions for the residual tests
     are each row's release plus its runout. Velocity rows are simulated from the
     median of the rows' releases. Otherwise every block starts at the
-    profile's first vertex. ``at_rest``: the candidates start their blocks at
-    rest on the ground (the DEM), so rows are grouped by release abscissa alone
-    (``ground_release_groups``), not also by release height. Rows on their own
+    profile's first vertex. Both solvers release each group at its rows' mean
+    speed and height where the rows give them. Rows on their own
     profiles (``Observations.profile``) are simulated on them; their stop
     positions enter the residual tests as abscissae of the command's profile
     (our choice: it assumes lines cut alike, e.g. the mean fall lines of
@@ -651,8 +650,7 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
         class_sizes, row_class = size_classes(obs.block_size_m)
         vel_class = None
         fold = folds(row_class, budget.k_folds, seed=0)
-    entries = _entries(obs, profile, class_sizes, row_class, vel_class, release_tolerance_m,
-                       at_rest)
+    entries = _entries(obs, profile, class_sizes, row_class, vel_class, release_tolerance_m)
     row_release = None
     if entries is not None:
         row_release = entries.release_x_m[entries.index[:n_run]]
@@ -707,8 +705,8 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
                      base.gap, fits[named].gap, timings, entries)
 
 
-def _entries(obs, profile, class_sizes, row_class, vel_class, tol_m,
-             at_rest: bool = False) -> ReleaseGroups | None:
+def _entries(obs, profile, class_sizes, row_class, vel_class, tol_m
+             ) -> ReleaseGroups | None:
     """The simulated (size class, release) groups of ``discover``, None where every
     block starts at the profile's first vertex (no ``release_x_m`` in the rows,
     or ``tol_m`` None). Runout rows first in ``index``, then the velocity rows
@@ -718,8 +716,7 @@ def _entries(obs, profile, class_sizes, row_class, vel_class, tol_m,
     if tol_m is None or not (np.any(np.isfinite(rel)) or any(obs.profile)):
         return None
     binned = dataclasses.replace(obs, block_size_m=np.asarray(class_sizes)[row_class])
-    g = (ground_release_groups if at_rest else release_groups)(binned, float(profile.x_m[0]),
-                                                               tol_m)
+    g = release_groups(binned, float(profile.x_m[0]), tol_m)
     if vel_class is None:
         return g
     median = float(np.median(g.release_x_m[g.index]))

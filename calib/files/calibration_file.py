@@ -81,9 +81,10 @@ class Calibration(NamedTuple):
             for the DEM where ``release_groups.models`` lists it; False: every
             block at ``release_x_m`` (DEM fits of older files).
         release_heights: the fit released its rows from their
-            ``release_height_m`` (CRSP fits that record a ``release_height_m``
-            for their release groups); False: on the ground (every DEM fit,
-            and CRSP fits of older files).
+            ``release_height_m`` and at their ``release_speed_m_s`` (CRSP fits
+            that record a ``release_height_m`` for their release groups; DEM
+            fits listed in ``release_groups.speed_and_height_models``); False:
+            on the ground (DEM fits and CRSP fits of older files).
     """
 
     path: str
@@ -290,7 +291,8 @@ def _model_from_doc(path: str, doc: dict, model: str | None) -> Calibration:
                        posterior_csv=post_path, alpha_form=form, data_csv=data_csv,
                        release_x_m=release, dem_run=_dem_run(path, sec) if model == "dem"
                        else None, own_releases=model == "crsp" or "dem" in _grouped(doc),
-                       release_heights=model == "crsp" and _with_heights(doc))
+                       release_heights=(model == "crsp" and _with_heights(doc))
+                       or model in _grouped(doc, "speed_and_height_models"))
 
 
 def _with_heights(doc: dict) -> bool:
@@ -302,10 +304,11 @@ def _with_heights(doc: dict) -> bool:
                                           for g in rows)
 
 
-def _grouped(doc: dict) -> list:
-    """The models that released each row from its own point (``release_groups.models``)."""
+def _grouped(doc: dict, key: str = "models") -> list:
+    """The models that released each row from its own point (``release_groups.models``),
+    or (``key`` "speed_and_height_models") also at its own speed and height."""
     groups = doc.get("release_groups")
-    models = groups.get("models") if isinstance(groups, dict) else None
+    models = groups.get(key) if isinstance(groups, dict) else None
     return models if isinstance(models, list) else []
 
 

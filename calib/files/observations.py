@@ -64,7 +64,7 @@ import numpy as np
 import pandas as pd
 
 __all__ = ["ObservationError", "Observations", "ReleaseGroups", "Velocities", "crsp_radius_m",
-           "dem_side_m", "ground_release_groups", "load_observations", "load_velocities",
+           "dem_side_m", "load_observations", "load_velocities",
            "one_release_groups", "read_table", "release_groups", "row_profiles"]
 
 REQUIRED = ("block_size_m",)
@@ -156,16 +156,6 @@ def release_groups(obs: Observations, default_release_x_m: float,
     return ReleaseGroups(np.asarray(sizes, float), np.asarray(releases, float), index,
                          np.asarray(speeds, float), np.asarray(heights, float),
                          np.asarray(profiles, dtype=object))
-
-
-def ground_release_groups(obs: Observations, default_release_x_m: float,
-                          tol_m: float = 0.0) -> ReleaseGroups:
-    """``release_groups`` for a solver that starts its blocks at rest on the
-    ground (the DEM): rows grouped by profile, size and release abscissa only;
-    no release speed or height (NaN)."""
-    at_rest = dataclasses.replace(obs, release_height_m=np.full(obs.n_obs, np.nan))
-    g = release_groups(at_rest, default_release_x_m, tol_m)
-    return g._replace(release_speed_m_s=np.full(len(g.sizes_m), np.nan))
 
 
 def row_profiles(obs: Observations) -> np.ndarray:

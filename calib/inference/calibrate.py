@@ -236,14 +236,14 @@ def fit_quality(obs: Observations, runouts: np.ndarray, index=None) -> list[dict
     return out
 
 
-_RELEASE_STATE = ("release_speed_m_s", "release_height_m")  # CRSP only; NaN: default
+_RELEASE_STATE = ("release_speed_m_s", "release_height_m")  # NaN: the solver's default
 
 
 def _entries(forward) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple]:
     """The forward model's entries: (S,) sizes, m, releases, m (None: the profile's
     first vertex, where both solvers release by default), release speeds, m/s,
-    release heights, m (NaN: the solver's default; a ``DemForward`` has
-    neither), and profiles (the entry's own ``Profile``, or None for
+    release heights, m (NaN: the solver's default), and profiles (the
+    entry's own ``Profile``, or None for
     ``forward.profile``)."""
     sizes = np.asarray(forward.sizes_m, float)
     rel = entry_releases(forward.profile, sizes, forward.release_x_m)
@@ -275,7 +275,7 @@ def _on_entries(forward, sizes_m, release_x_m, release_speed_m_s, release_height
     m/s, heights, m (NaN: the solver's default), and profiles (None, or one
     ``Profile`` or None per entry: ``entry_profiles``), with ``n_blocks``
     blocks each and ``key``. One release for all is passed as one number and no
-    speed or height as None, the only form a ``DemForward`` takes."""
+    speed or height as None."""
     rel = np.asarray(release_x_m, float)
     fields = {"sizes_m": np.asarray(sizes_m, float), "n_blocks": n_blocks, "key": key,
               "release_x_m": float(rel[0]) if np.all(rel == rel[0]) else tuple(rel),

@@ -221,13 +221,13 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
                              f"({lo:g} to {hi:g} m)")
     draws = draw_parameters(cal, n_posterior, seed)
     key = jax.random.fold_in(jax.random.key(seed), 7)
+    if not cal.release_heights and np.any(np.isfinite(heights)):
+        raise ValueError(f"the held-out rows give release_height_m but the {cal.model.upper()} "
+                         f"fit {cal.path} released its rows on the ground (an older "
+                         "calibration file): refit with calib.fit to release both alike")
     if cal.model == "crsp":
         from calib.model.priors import crsp_box
 
-        if not cal.release_heights and np.any(np.isfinite(heights)):
-            raise ValueError("the held-out rows give release_height_m but the CRSP fit "
-                             f"{cal.path} released its rows on the ground (an older "
-                             "calibration file): refit with calib.fit to release both alike")
         fw = CrspForward(profile, sizes, n_blocks or 100, key, box=crsp_box(draws.names),
                          release_x_m=tuple(releases), release_speed_m_s=tuple(speeds),
                          release_height_m=tuple(heights), entry_profiles=own)
@@ -238,7 +238,9 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
             raise ValueError(f"the DEM fit released every block at x = {common:g} m; held-out "
                              "rows with other release_x_m need a calibration that releases "
                              "each row from its own point (refit with calib.fit)")
+        state = ({"release_speed_m_s": tuple(speeds), "release_height_m": tuple(heights)}
+                 if cal.release_heights else {})
         fw = DemForward(profile, sizes, n_blocks or 4, key, form=cal.alpha_form,
-                        release_x_m=tuple(releases), entry_profiles=own,
+                        release_x_m=tuple(releases), entry_profiles=own, **state,
                         run=DemRun(**cal.dem_run) if cal.dem_run else DEM_RUN)
     return pool_draws(fw.runouts(draws.values)), index, draws, fw.n_blocks

@@ -126,6 +126,23 @@ def take_entries(v, idx):
 _ENTRY_FIELDS = ("release_x_m", "release_speed_m_s", "release_height_m")
 
 
+def _check_entry_fields(fw):
+    """Refuse per-entry release fields whose count is not that of ``fw.sizes_m``."""
+    n_s = len(np.atleast_1d(fw.sizes_m))
+    entry_releases(fw.profile, fw.sizes_m, fw.release_x_m)  # checks the count
+    for name in _ENTRY_FIELDS[1:]:
+        v = getattr(fw, name)
+        if v is not None and np.ndim(v) > 0 and len(v) != n_s:
+            raise ValueError(f"{name}: {len(v)} entries for {n_s} entries of "
+                             "sizes_m (one per entry, or one for all)")
+
+
+def entry_values(v, n_s: int) -> np.ndarray:
+    """(S,) values of a per-entry release field (None, one for all, or one per
+    entry; None and NaN: the solver's default)."""
+    return np.broadcast_to(np.nan if v is None else np.asarray(v, float), (n_s,))
+
+
 def split_by_profile(fw) -> list | None:
     """One forward per profile of ``fw.entry_profiles`` (``profile_parts``):
     [(sub-forward, entry indices), ...], each sub-forward ``fw`` on its
@@ -228,13 +245,7 @@ class CrspForward:
     entry_profiles: tuple[Profile | None, ...] | None = None
 
     def __post_init__(self):
-        n_s = len(np.atleast_1d(self.sizes_m))
-        entry_releases(self.profile, self.sizes_m, self.release_x_m)  # checks the count
-        for name in ("release_speed_m_s", "release_height_m"):
-            v = getattr(self, name)
-            if v is not None and np.ndim(v) > 0 and len(v) != n_s:
-                raise ValueError(f"{name}: {len(v)} entries for {n_s} entries of "
-                                 "sizes_m (one per entry, or one for all)")
+        _check_entry_fields(self)
         if self.effect != "none":
             from calib.model.effects import effect_box, full_box
 
@@ -426,10 +437,13 @@ class DemForward:
             call reuses one compiled program.
         release_x_m: release abscissa, m: one for every entry, or (S,) one per
             entry of ``sizes_m`` (an entry is then a (size, release) group, as in
-            ``CrspForward``), or None (the profile's first vertex). Blocks are
-            released by the DEM's own rule (``solvers.dem.Params``: 1 cm above the
-            ground, up to 0.5 m downslope, horizontal speed uniform in 0-1 m/s),
-            not at a row's release speed or height.
+            ``CrspForward``), or None (the profile's first vertex).
+        release_speed_m_s, release_height_m: (S,) release speed (horizontal,
+            m/s) and height (of the block's lowest possible point above the
+            ground, m) of each entry, or None; NaN keeps the DEM's release rule
+            (``solvers.dem.Params``: 1 cm above the ground, speed uniform in
+            0-1 m/s). As in ``CrspForward``; the DEM still offsets each block
+            up to 0.5 m downslope and turns it at random.
         entry_profiles: (S,) profile of each entry (None: ``profile``), or None,
             as in ``CrspForward``.
     """
@@ -442,10 +456,12 @@ class DemForward:
     run: DemRun = DEM_RUN
     lane_batch: int = 32
     release_x_m: float | tuple[float, ...] | None = None
+    release_speed_m_s: tuple[float, ...] | None = None
+    release_height_m: tuple[float, ...] | None = None
     entry_profiles: tuple[Profile | None, ...] | None = None
 
     def __post_init__(self):
-        entry_releases(self.profile, self.sizes_m, self.release_x_m)  # checks the count
+        _check_entry_fields(self)
         self._parts = split_by_profile(self)
         if self.form not in DEM_BOXES:
             raise ValueError(f"unknown alpha law form {self.form!r}; expected one of "
@@ -482,8 +498,11 @@ class DemForward:
             return gather_entries(self._parts, n_s,
                                   lambda sub, idx: sub.runouts_at_alpha(alpha[:, idx]))
         x0 = entry_releases(self.profile, self.sizes_m, self.release_x_m)
-        proto = [make_block(float(L), alpha=0.5, release_x_m=float(x))
-                 for L, x in zip(dem_side_m(self.sizes_m), x0)]
+        proto = [make_block(float(L), alpha=0.5, release_x_m=float(x),
+                            release_speed_m_s=float(v), release_height_m=float(h))
+                 for L, x, v, h in zip(dem_side_m(self.sizes_m), x0,
+                                       entry_values(self.release_speed_m_s, n_s),
+                                       entry_values(self.release_height_m, n_s), strict=True)]
         lanes, keys = [], []
         for t in range(n_t):
             for s in range(n_s):

@@ -185,15 +185,22 @@ def consts(params: Params, block: Block) -> Consts:
 
 def _release(params: Params, block: Block, key: jax.Array) -> Pose:
     """Random release at the cliff edge: orientation U(0, pi/2), downslope offset
-    U(0, jitter), horizontal speed U(0, speed); fragments laid out rigidly."""
+    U(0, jitter), horizontal speed U(0, speed) or the block's own
+    (``Block.release_speed_m_s``), its lowest possible point ``release_gap_m``
+    or the block's own height (``Block.release_height_m``) above the ground at
+    the release point; fragments laid out rigidly."""
     n = block.n_side
     k_theta, k_x, k_v = jax.random.split(key, 3)
     theta0 = jax.random.uniform(k_theta, (), minval=0.0, maxval=0.5 * math.pi)
     jitter = params.release_jitter_m * jax.random.uniform(k_x, ())
-    v0 = params.release_speed_m_s * jax.random.uniform(k_v, ())
+    v0 = jnp.where(jnp.isnan(block.release_speed_m_s),
+                   params.release_speed_m_s * jax.random.uniform(k_v, ()),
+                   block.release_speed_m_s)
+    gap = jnp.where(jnp.isnan(block.release_height_m), params.release_gap_m,
+                    block.release_height_m)
     big_r = block.size_m / math.sqrt(2.0)
     x0 = block.release_x_m + big_r + jitter
-    z0 = ground_z(params.profile, block.release_x_m) + big_r + params.release_gap_m
+    z0 = ground_z(params.profile, block.release_x_m) + big_r + gap
     off = jnp.asarray(fragment_layout(n)) * (block.size_m / n)
     pos = jnp.stack([x0, z0]) + rotate(off, jnp.cos(theta0), jnp.sin(theta0))
     zeros = jnp.zeros((n * n,))

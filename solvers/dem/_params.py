@@ -168,12 +168,20 @@ class Block(NamedTuple):
         alpha: (N,) local damping coefficient of each fragment, N = n*n.
         release_x_m: abscissa of the release point (cliff edge), m.
         stations_x_m: (S,) station abscissae, m (may be empty).
+        release_speed_m_s: horizontal release speed, m/s; NaN: the release
+            rule's (uniform in [0, ``Params.release_speed_m_s``]).
+        release_height_m: clearance of the block's lowest possible point (a
+            corner, half a diagonal below its centre) above the ground at the
+            release point, m; NaN: ``Params.release_gap_m``. A tracked field
+            run's release (``calib.files.field_runs``), as CRSP takes it.
     """
 
     size_m: jax.Array
     alpha: jax.Array
     release_x_m: jax.Array
     stations_x_m: jax.Array
+    release_speed_m_s: jax.Array
+    release_height_m: jax.Array
 
     @property
     def n_fragments(self) -> int:
@@ -316,7 +324,9 @@ def contact_damping_ratio(e):
 
 
 def make_block(size_m: float, *, alpha: float | None = None, n_fragments: int = 1,
-               alpha_law=None, release_x_m: float = 0.0, stations=()) -> Block:
+               alpha_law=None, release_x_m: float = 0.0, stations=(),
+               release_speed_m_s: float = math.nan, release_height_m: float = math.nan
+               ) -> Block:
     """Describe a block of side ``size_m`` split into ``n_fragments`` = n*n squares.
 
     The damping of each fragment is ``alpha`` if given, else ``alpha_law``
@@ -345,7 +355,9 @@ def make_block(size_m: float, *, alpha: float | None = None, n_fragments: int = 
     return Block(size_m=jnp.asarray(float(size_m)),
                  alpha=jnp.full((n * n,), value),
                  release_x_m=jnp.asarray(float(release_x_m)),
-                 stations_x_m=jnp.asarray(np.asarray(stations, dtype=np.float64).reshape(-1)))
+                 stations_x_m=jnp.asarray(np.asarray(stations, dtype=np.float64).reshape(-1)),
+                 release_speed_m_s=jnp.asarray(float(release_speed_m_s)),
+                 release_height_m=jnp.asarray(float(release_height_m)))
 
 
 def stable_dt(params: Params, block: Block) -> jax.Array:
