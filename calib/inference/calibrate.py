@@ -556,7 +556,6 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
             continue
         # the posterior piles against a face the focus region drew, not the prior:
         # move that face out, fill the new slab, emulate and sample again
-        n_widened += 1
         t0 = time.perf_counter()
         ibox, nuts_box, slabs = widen(forward, ibox, faces)
         focus_record["widened"].append([{"parameter": box.names[i], "side": side,
@@ -566,6 +565,7 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
         for j, slab in enumerate(slabs):
             simulate_more(focus_design(forward, slab, nuts_box, per,
                                         jax.random.fold_in(k_widen, 16 * n_widened + j)))
+        n_widened += 1
         timings["design3_s"] += time.perf_counter() - t0
     if focus is not None:
         focus_record["n_emulator_points"] = int(inside().sum())
