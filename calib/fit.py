@@ -369,9 +369,10 @@ def _print_summary(result: dict, models, out: str) -> None:
         screen = (b or {}).get("chain_screen") or {}
         waves = ((b or {}).get("focus") or {}).get("refined") or []
         if waves:
-            print(f"\n{model.upper()} NUTS ran {len(waves) + 1} times: after each of the first "
-                  f"{len(waves)} its diagnostics failed, and the {waves[0]['n_points']} draws "
-                  "re-simulated for the chain screening joined the log-likelihood GP's design "
+            runs = "the first run" if len(waves) == 1 else f"each of the first {len(waves)} runs"
+            print(f"\n{model.upper()} NUTS ran {len(waves) + 1} times: after {runs} its "
+                  f"diagnostics failed, and the {waves[0]['n_points']} draws re-simulated for "
+                  "the chain screening joined the log-likelihood GP's design "
                   "(bayes.focus.refined)")
         if screen.get("n_dropped"):
             lls = ", ".join(f"{v:.0f}" if v is not None else "none"
