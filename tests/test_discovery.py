@@ -459,10 +459,11 @@ def test_proposals_in_warped_coordinates_weight_back_to_the_uniform_prior():
     weighted median of S would be about 0.2 m instead of 2 m."""
     from scipy.stats import qmc
 
-    from calib.discovery.discrepancy import _mixture_log_q, _unit_coordinates
+    from calib.discovery.discrepancy import _mixture_log_q
     from calib.model.priors import CRSP_ROLLING_BOX as box
+    from calib.model.warp import unit_coordinates
 
-    to_z, to_theta, log_jac = _unit_coordinates(box)
+    to_z, to_theta, log_jac = unit_coordinates(box)
     sob = qmc.Sobol(box.dim, scramble=True, seed=3).random(2**14)
     n = sob.shape[0] // 2
     z = np.concatenate([to_z(box.from_unit(sob[:n])), sob[n:]])

@@ -5,8 +5,8 @@ candidate effect, name the one that clearly predicts better, show the gap shrink
    is fitted the same way: a Bayesian fit by adaptive importance sampling over
    a simulated design. Every stage draws in the prior box's warped coordinates
    (``calib.model.warp``: log S, log(1 - Kt), tan(phi_r), scaled to the unit
-   cube; ``_unit_coordinates``), and each draw's density carries the change of
-   variables back to the uniform prior in theta. Stage 0 is a scrambled Sobol
+   cube; ``calib.model.warp.unit_coordinates``), and each draw's density
+   carries the change of variables back to the uniform prior in theta. Stage 0 is a scrambled Sobol
    design, one half uniform in theta, the other uniform in the warped cube
    (a defensive pair: the first covers a posterior the warp would thin out).
    For an effect, a warm stage follows: the baseline's parameters drawn from a
@@ -78,7 +78,7 @@ from calib.inference.likelihood import log_likelihood, observed_rows, velocity_l
 from calib.inference.predictive_check import pool_draws
 from calib.model.priors import Box
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
-from calib.model.warp import log_jacobian, unwarp, warp, warped_box
+from calib.model.warp import unit_coordinates
 
 __all__ = [
     "GAP_METRIC",
@@ -424,8 +424,8 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
         tallies["design"].add(runs, theta, box.names)
         return loglik(runs, speeds)
 
-    if cand.design is None:  # proposals in the warped coordinates (``_unit_coordinates``)
-        to_z, to_theta, log_jac = _unit_coordinates(box)
+    if cand.design is None:  # proposals in the warped unit cube (calib.model.warp)
+        to_z, to_theta, log_jac = unit_coordinates(box)
     else:  # a fixed design (grids): uniform over the box itself
         def to_theta(z):
             return box.from_unit(z)
@@ -524,44 +524,6 @@ def loglik_noise_sd(loglik_reps: np.ndarray) -> float:
     """
     total = np.asarray(loglik_reps, float).sum(axis=1)
     return float(np.std(total, ddof=1))
-
-
-def _unit_coordinates(box: Box):
-    """The unit cube the adaptive proposals live in: the prior box in the
-    warped coordinates of ``calib.model.warp`` (log S, log(1 - Kt), tan(phi_r);
-    the other parameters as they are), scaled to [0, 1]^d.
-
-    Returns (to_z, to_theta, log_jac): theta (N, d) -> z; z -> theta (inside
-    the box); and log of the density of the uniform on the cube relative to the
-    uniform prior on the box at z, log |dz/dtheta| + log vol(box): a draw made
-    with density q(z) on the cube has density q(z) exp(log_jac(z)) relative to
-    the prior.
-
-    Why (our choice): a Sobol stage uniform in theta puts about 1 % of its
-    points at S < 0.1 m, where the Tschamut likelihood peaks, and every
-    candidate's weights then rest on one design point (Tschamut, 62 runs,
-    ``--rolling-resistance fit``: ESS 1.0-1.3 of 384-512, the baseline's
-    score -698 against -286 with these coordinates). The same reason made the
-    calibration's design fill them (``calib.model.forward.CrspForward.design``).
-    Stage 0 keeps half its points uniform in theta (``fit_candidate``): on the
-    synthetic size-dissipation case of the tests (S box 0.25-4 m), proposals
-    drawn in the warped cube alone fitted the baseline worse (score -149.2
-    against -144.4, ESS 1.4 against 5.3) and lost the size trend the residuals
-    had located; with the pair: -144.6, ESS 5.2, trend located.
-    """
-    wbox = warped_box(box)
-    const = float(np.sum(np.log(box.hi - box.lo)) - np.sum(np.log(wbox.hi - wbox.lo)))
-
-    def to_z(theta):
-        return wbox.to_unit(np.asarray(warp(box.names, np.asarray(theta, float))))
-
-    def to_theta(z):
-        return np.clip(unwarp(box.names, wbox.from_unit(np.asarray(z, float))), box.lo, box.hi)
-
-    def log_jac(z):
-        return log_jacobian(box.names, to_theta(z)) + const
-
-    return to_z, to_theta, log_jac
 
 
 def _mixture_log_q(z, counts, logpdfs):
@@ -669,7 +631,7 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
         timings[cand.effect] = fits[cand.effect].seconds
         if i == 0 and cand.design is None:  # the baseline's posterior seeds the effects
             b = fits["none"]
-            zb = _unit_coordinates(cand.box)[0](b.theta)
+            zb = unit_coordinates(cand.box)[0](b.theta)
             warm = _gaussian_fit(zb, b.weights)
     base = fits["none"]
     rng = np.random.default_rng(0)
