@@ -369,11 +369,15 @@ def _print_summary(result: dict, models, out: str) -> None:
         screen = (b or {}).get("chain_screen") or {}
         waves = ((b or {}).get("focus") or {}).get("refined") or []
         if waves:
-            runs = "the first run" if len(waves) == 1 else f"each of the first {len(waves)} runs"
-            print(f"\n{model.upper()} NUTS ran {len(waves) + 1} times: after {runs} its "
-                  f"diagnostics failed, and the {waves[0]['n_points']} draws re-simulated for "
-                  "the chain screening joined the log-likelihood GP's design "
-                  "(bayes.focus.refined)")
+            why = []
+            for w in waves:
+                there = w.get("emulator_at_posterior") or {}
+                why.append("its diagnostics failed" if w["problems_before"] else
+                           f"the GP was off where it sat (RMS z {there.get('z_rms', 0):.1f})")
+            print(f"\n{model.upper()} NUTS ran {len(waves) + 1} times: after "
+                  + "; ".join(f"run {i + 1} {r}" for i, r in enumerate(why))
+                  + f", the {waves[0]['n_points']} draws re-simulated for the chain "
+                  "screening joined the log-likelihood GP's design (bayes.focus.refined)")
         if screen.get("n_dropped"):
             lls = ", ".join(f"{v:.0f}" if v is not None else "none"
                             for v in screen["chain_loglik"])

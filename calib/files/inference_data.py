@@ -35,9 +35,10 @@ __all__ = ["LIKELIHOOD_NOTE", "SUMMED_NOTE", "inference_data", "netcdf_writer",
 LIKELIHOOD_NOTE = ("emulated: calib.inference.likelihood on the Gaussian-process emulator's runout "
                    "quantiles with its predictive variance added (calib.inference.calibrate), the "
                    "density NUTS sampled; not a re-simulation")
-SUMMED_NOTE = ("emulated: the mean of a Gaussian process of the rows' summed simulated "
-               "log-likelihood, capped (calib.inference.loglik_emulator), the density NUTS "
-               "sampled; not a re-simulation, and no per-row values")
+SUMMED_NOTE = ("emulated: the expected rows' summed simulated log-likelihood, capped, under a "
+               "Gaussian process of its log deficit below a ceiling "
+               "(calib.inference.loglik_emulator), the density NUTS sampled; not a "
+               "re-simulation, and no per-row values")
 
 
 def inference_data(post, obs, model: str):

@@ -143,7 +143,7 @@ def chain_diagnostics(draws: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nda
 
 def run_nuts(pointwise_loglik: Callable[[jax.Array], jax.Array], box: Box, key: jax.Array,
              num_warmup: int = 500, num_samples: int = 1000, num_chains: int = 4,
-             loglik_kind: str = "pointwise") -> Posterior:
+             loglik_kind: str = "pointwise", init: np.ndarray | None = None) -> Posterior:
     """Sample theta ~ p(theta | D) with NUTS.
 
     Args:
@@ -154,6 +154,8 @@ def run_nuts(pointwise_loglik: Callable[[jax.Array], jax.Array], box: Box, key: 
         num_warmup, num_samples, num_chains: NUTS settings (chains vectorised).
         loglik_kind: what ``pointwise_loglik`` returns: "pointwise" (n_obs,)
             or "summed" (1,) (``Posterior.loglik_kind``).
+        init: (num_chains, d) starting points inside the box; None: NumPyro's
+            default (uniform in (-2, 2) in the unconstrained coordinates).
     """
     lo, hi = jnp.asarray(box.lo), jnp.asarray(box.hi)
 
@@ -164,7 +166,11 @@ def run_nuts(pointwise_loglik: Callable[[jax.Array], jax.Array], box: Box, key: 
     mcmc = MCMC(NUTS(model, target_accept_prob=0.9), num_warmup=num_warmup,
                 num_samples=num_samples, num_chains=num_chains, chain_method="vectorized",
                 progress_bar=False)
-    mcmc.run(key, extra_fields=tuple(_SAMPLE_STATS))
+    if init is not None:
+        width = hi - lo
+        init = {"theta": jnp.clip(jnp.asarray(init, jnp.float64), lo + 1e-6 * width,
+                                  hi - 1e-6 * width)}
+    mcmc.run(key, extra_fields=tuple(_SAMPLE_STATS), init_params=init)
     by_chain = np.asarray(mcmc.get_samples(group_by_chain=True)["theta"])  # (C, N, d)
     extra = {_SAMPLE_STATS[k]: np.asarray(v)
              for k, v in mcmc.get_extra_fields(group_by_chain=True).items()}

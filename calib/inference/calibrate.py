@@ -23,10 +23,12 @@ Stages (each timed; ``Budget`` sets the sizes, ``QUICK`` / ``DEFAULT`` the prese
       factor c >= 1 with which it accounts for the held-out errors, weighted by
       the variance the likelihood uses (the median kernel variance of the rows
       plus c times the emulator's; ``calib.inference.emulator.variance_inflation``);
-   d. NUTS (``calib.inference.bayes``); CRSP: each chain's draws are
+   d. NUTS (``calib.inference.bayes``; CRSP: its chains start at the best
+      design points, spread apart, ``_chain_starts``); CRSP: each chain's draws are
       re-simulated and a chain the simulator fits far worse than the best one
-      is dropped (``_screen_chains``). While the diagnostics still fail, the
-      re-simulated draws join the log-likelihood GP's design and NUTS runs
+      is dropped (``_screen_chains``). While the diagnostics still fail, or
+      the GP's predictions at those draws disagree with the simulator
+      (``loglik_emulator.at_posterior``), the re-simulated draws join the log-likelihood GP's design and NUTS runs
       again (at most ``MAX_REFINE`` times): the GP learns the simulator where
       the chains sat, which is where it was wrong (sequential design at the
       emulated posterior, as in Gaussian-process ABC: Wilkinson 2014;
@@ -82,7 +84,8 @@ from calib.inference.focus import (
 )
 from calib.inference.gradient import GradientFit, fit_gradient
 from calib.inference.likelihood import log_likelihood, observed_rows
-from calib.inference.loglik_emulator import fit_loglik_emulator, loglik_holdout, loglik_noise_var
+from calib.inference.loglik_emulator import (at_posterior, fit_loglik_emulator, loglik_holdout,
+                                             loglik_noise_var)
 from calib.inference.predictive_check import pool_draws
 from calib.model.forward import entry_releases
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
@@ -435,8 +438,10 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
     """Stage 1 of the module docstring: designs, emulator, NUTS, chain screening and
     (CRSP) the focus region, widened while the posterior piles against one of
     its faces (at most ``focus.MAX_WIDEN`` times), then refined while the
-    diagnostics fail (at most ``MAX_REFINE`` times: the screened draws join the
-    GP's design, ``bayes.focus.refined``).
+    diagnostics fail or the GP is wrong at the screened draws
+    (``loglik_emulator.at_posterior``; at most ``MAX_REFINE`` times: the
+    screened draws join the GP's design, ``bayes.focus.refined``); a GP still
+    wrong there is a problem of the posterior.
 
     Returns:
         (posterior, emulator check, focus record or None, chain-screen record or
@@ -528,7 +533,10 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
         tick("nuts", 0, 1)
         posterior = run_nuts(target, nuts_box, k_nuts, budget.nuts_warmup, budget.nuts_samples,
                              budget.nuts_chains,
-                             loglik_kind="summed" if focus is not None else "pointwise")
+                             loglik_kind="summed" if focus is not None else "pointwise",
+                             init=(None if focus is None else
+                                   _chain_starts(forward.from_input(x_emu), ll_emu, nuts_box,
+                                                 budget.nuts_chains)))
         if hasattr(forward, "from_input") and posterior.n_chains > 1:
             def screen_runs(theta):
                 runs = forward.runouts(theta)
@@ -541,16 +549,25 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
         timings["nuts_s"] += time.perf_counter() - t0
         if focus is None:
             break
+        emu_there = None
+        if screened is not None:  # the GP against the simulator at the screened draws
+            emu_there = at_posterior(lemu, np.asarray(forward.to_input(screened[0])),
+                                     _design_loglik(loglik_runs, screened[1]),
+                                     loglik_noise_var(loglik_runs, screened[1]))
+            focus_record["at_posterior"] = emu_there
         faces = cut_faces(posterior.samples, nuts_box, box)
         if not faces or n_widened == MAX_WIDEN:
-            if (posterior.ok or screened is None
+            wrong_there = emu_there is not None and not emu_there["ok"]
+            if ((posterior.ok and not wrong_there) or screened is None
                     or len(focus_record["refined"]) == MAX_REFINE):
                 break
-            # the chains do not agree (or mix too slowly): the GP is taught the
-            # simulated log-likelihood where they sit, and NUTS runs again
+            # the chains do not agree (or mix too slowly), or the GP is wrong
+            # where they sit: it is taught the simulated log-likelihood there,
+            # and NUTS runs again
             focus_record["refined"].append({
                 "n_points": int(screened[0].shape[0]),
                 "problems_before": list(posterior.problems),
+                "emulator_at_posterior": emu_there,
                 "chain_loglik": chain_screen["chain_loglik"]})
             add_simulated(*screened, refinement=True)
             continue
@@ -571,6 +588,13 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
         focus_record["n_emulator_points"] = int(inside().sum())
         focus_record.update(region_record(nuts_box, box))  # after any widening
         cut = face_problems(posterior.samples, nuts_box, box)
+        there = focus_record.get("at_posterior")
+        if there is not None and not there["ok"]:
+            cut.append(f"the log-likelihood GP is wrong where the posterior sits: at "
+                       f"{len(screened[0])} of its draws it promised a median of "
+                       f"{there['emulated_median_nats']:.1f} nats, the simulator gave "
+                       f"{there['simulated_median_nats']:.1f} (RMS z {there['z_rms']:.1f} > "
+                       f"{there['z_max']:.0f})")
         posterior.problems += cut
         posterior.ok = posterior.ok and not cut
     return posterior, emu_check, focus_record, chain_screen, x, design_ll
@@ -593,6 +617,33 @@ def _release_slopes_deg(profile, release_x_m, profiles=None) -> np.ndarray:
 
 N_SCREEN = 8  # draws per chain simulated by the chain screening
 MAX_REFINE = 2  # refinement waves: screened draws added to the log-likelihood GP
+
+
+def _chain_starts(theta: np.ndarray, ll: np.ndarray, box, n_chains: int) -> np.ndarray:
+    """(n_chains, d) NUTS starting points: among the 4 x n_chains design points
+    inside ``box`` with the highest simulated log-likelihood, the best one,
+    then each time the one farthest (in the box's unit coordinates) from those
+    already taken (farthest-point selection; our rule).
+
+    Why (measured on ``tests/test_calib_recovery``'s quick CRSP fit): from
+    NumPyro's default starts, spread over the box, both chains ended on a
+    plateau at the corner Kn 0.150, S 4.0 m, where the GP knows nothing and
+    its gradient vanishes; the simulator gave -1,561 nats there against -215
+    at the design's best point. Starts spread over the best design points
+    keep R-hat meaningful (the chains still start apart) without asking them
+    to cross a plateau."""
+    lo, hi = np.asarray(box.lo, float), np.asarray(box.hi, float)
+    theta = np.asarray(theta, float)
+    inside = np.all((theta >= lo) & (theta <= hi), axis=1) & np.isfinite(ll)
+    if not inside.any():
+        return None
+    cand = np.flatnonzero(inside)[np.argsort(-np.asarray(ll)[inside])][:4 * n_chains]
+    u = (theta[cand] - lo) / (hi - lo)
+    take = [0]
+    while len(take) < n_chains:
+        d = np.min(np.linalg.norm(u[:, None] - u[take][None], axis=-1), axis=1)
+        take.append(int(np.argmax(d)))  # a repeated point when fewer candidates than chains
+    return theta[cand[take]]
 
 
 def _screen_chains(posterior: Posterior, runouts, loglik_runs, n_rows: int
