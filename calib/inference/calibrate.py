@@ -28,10 +28,11 @@ Stages (each timed; ``Budget`` sets the sizes, ``QUICK`` / ``DEFAULT`` the prese
       re-simulated and a chain the simulator fits far worse than the best one
       is dropped (``_screen_chains``). While the diagnostics still fail, or
       the GP's predictions at those draws disagree with the simulator
-      (``loglik_emulator.at_posterior``), the re-simulated draws join the log-likelihood GP's design and NUTS runs
-      again (at most ``MAX_REFINE`` times): the GP learns the simulator where
-      the chains sat, which is where it was wrong (sequential design at the
-      emulated posterior, as in Gaussian-process ABC: Wilkinson 2014;
+      (``loglik_emulator.at_posterior``), the re-simulated draws join the
+      log-likelihood GP's design and NUTS runs again (at most
+      ``MAX_REFINE`` times): the GP learns the simulator where the chains
+      sat, which is where it was wrong (sequential design at the emulated
+      posterior, as in Gaussian-process ABC: Wilkinson 2014;
       Jarvenpaa et al. 2019, Bayesian Analysis 14(2), 595-622).
 2. Gradient (``method`` includes "gradient"): Adam on the smoothed CRN
    objective of the SIMULATOR itself (``calib.inference.gradient``) from several starts:
@@ -84,8 +85,12 @@ from calib.inference.focus import (
 )
 from calib.inference.gradient import GradientFit, fit_gradient
 from calib.inference.likelihood import log_likelihood, observed_rows
-from calib.inference.loglik_emulator import (at_posterior, fit_loglik_emulator, loglik_holdout,
-                                             loglik_noise_var)
+from calib.inference.loglik_emulator import (
+    at_posterior,
+    fit_loglik_emulator,
+    loglik_holdout,
+    loglik_noise_var,
+)
 from calib.inference.predictive_check import pool_draws
 from calib.model.forward import entry_releases
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
@@ -619,7 +624,8 @@ N_SCREEN = 8  # draws per chain simulated by the chain screening
 MAX_REFINE = 2  # refinement waves: screened draws added to the log-likelihood GP
 
 
-def _chain_starts(theta: np.ndarray, ll: np.ndarray, box, n_chains: int) -> np.ndarray:
+def _chain_starts(theta: np.ndarray, ll: np.ndarray, box, n_chains: int
+                  ) -> np.ndarray | None:
     """(n_chains, d) NUTS starting points: among the 4 x n_chains design points
     inside ``box`` with the highest simulated log-likelihood, the best one,
     then each time the one farthest (in the box's unit coordinates) from those
@@ -631,7 +637,7 @@ def _chain_starts(theta: np.ndarray, ll: np.ndarray, box, n_chains: int) -> np.n
     its gradient vanishes; the simulator gave -1,561 nats there against -215
     at the design's best point. Starts spread over the best design points
     keep R-hat meaningful (the chains still start apart) without asking them
-    to cross a plateau."""
+    to cross a plateau. None when no design point lies inside ``box``."""
     lo, hi = np.asarray(box.lo, float), np.asarray(box.hi, float)
     theta = np.asarray(theta, float)
     inside = np.all((theta >= lo) & (theta <= hi), axis=1) & np.isfinite(ll)
