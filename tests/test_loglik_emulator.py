@@ -122,7 +122,7 @@ def test_chains_the_simulator_fits_far_worse_are_dropped():
     below the others': it is dropped, the diagnostics are recomputed on the
     other three, and nothing is dropped when all agree."""
     from calib.inference.bayes import Posterior
-    from calib.inference.calibrate import _screen_chains
+    from calib.inference.chains import screen_chains
 
     rng = np.random.default_rng(2)
     c, n = 4, 200
@@ -139,7 +139,7 @@ def test_chains_the_simulator_fits_far_worse_are_dropped():
     def loglik_runs(runs):
         return runs[:, 0]  # (T, 1): the summed log-likelihood itself
 
-    kept, rec, (theta, runs) = _screen_chains(post, runouts, loglik_runs, 10)
+    kept, rec, (theta, runs) = screen_chains(post, runouts, loglik_runs, 10)
     assert rec["kept"] == [True, True, True, False] and rec["n_dropped"] == 1
     # the screened draws (8 per chain, the dropped chain's too) come back for the
     # next refinement wave, with their simulations
@@ -147,7 +147,7 @@ def test_chains_the_simulator_fits_far_worse_are_dropped():
     assert np.array_equal(runs, runouts(theta))
     assert kept.n_chains == 3 and kept.samples.shape == (3 * n, 2)
     assert kept.rhat.max() < 1.05 and kept.ok is not None and kept.loglik_kind == "summed"
-    same, rec, _ = _screen_chains(keep_chains(post, [True, True, True, False]), runouts,
+    same, rec, _ = screen_chains(keep_chains(post, [True, True, True, False]), runouts,
                                   loglik_runs, 10)
     assert rec["n_dropped"] == 0 and same.n_chains == 3
 
@@ -189,10 +189,10 @@ def test_the_gp_is_checked_against_the_simulator_where_the_posterior_sits():
 
 
 def test_chains_start_at_the_best_design_points_spread_apart():
-    """``_chain_starts``: the best point first, then those farthest from the
+    """``chains.chain_starts``: the best point first, then those farthest from the
     ones taken among the 4 x chains best; all inside the box; None when no
     design point is inside it."""
-    from calib.inference.calibrate import _chain_starts
+    from calib.inference.chains import chain_starts
     from calib.model.priors import Box
 
     box = Box(("a", "b"), (0.0, 0.0), (1.0, 1.0))
@@ -201,7 +201,7 @@ def test_chains_start_at_the_best_design_points_spread_apart():
     theta = np.concatenate([[[0.5, 0.5]], cluster[1:], [[0.9, 0.1], [0.1, 0.9], [0.95, 0.95],
                                                         [1.5, 0.5]]])
     ll = np.concatenate([[-10.0], -10.1 - 0.1 * np.arange(9), [-12.0, -13.0, -90.0, 0.0]])
-    starts = _chain_starts(theta, ll, box, 3)  # the 12 best inside: not the -90 point
+    starts = chain_starts(theta, ll, box, 3)  # the 12 best inside: not the -90 point
     assert np.allclose(starts[0], [0.5, 0.5])
     assert {tuple(p) for p in starts[1:]} == {(0.9, 0.1), (0.1, 0.9)}
-    assert _chain_starts(theta[-1:], ll[-1:], box, 2) is None  # outside the box
+    assert chain_starts(theta[-1:], ll[-1:], box, 2) is None  # outside the box

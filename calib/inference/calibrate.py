@@ -24,9 +24,9 @@ Stages (each timed; ``Budget`` sets the sizes, ``QUICK`` / ``DEFAULT`` the prese
       the variance the likelihood uses (the median kernel variance of the rows
       plus c times the emulator's; ``calib.inference.emulator.variance_inflation``);
    d. NUTS (``calib.inference.bayes``; CRSP: its chains start at the best
-      design points, spread apart, ``_chain_starts``); CRSP: each chain's draws are
+      design points, spread apart, ``chains.chain_starts``); CRSP: each chain's draws are
       re-simulated and a chain the simulator fits far worse than the best one
-      is dropped (``_screen_chains``). While the diagnostics still fail, or
+      is dropped (``chains.screen_chains``). While the diagnostics still fail, or
       the GP's predictions at those draws disagree with the simulator
       (``loglik_emulator.at_posterior``), the re-simulated draws join the
       log-likelihood GP's design and NUTS runs again (at most
@@ -71,8 +71,9 @@ from scipy.special import ndtr
 
 from calib.files.inputs import entry_profiles
 from calib.files.observations import Observations, ReleaseGroups, one_release_groups
-from calib.inference.adequacy import adequacy_record, better_design_point, loglik_gap_nats
-from calib.inference.bayes import Posterior, keep_chains, run_nuts
+from calib.inference.adequacy import adequacy_record, better_design_point
+from calib.inference.bayes import Posterior, run_nuts
+from calib.inference.chains import chain_starts, screen_chains
 from calib.inference.design_waves import focus_design, second_design, sir_draws
 from calib.inference.emulator import fit_emulator, holdout_error
 from calib.inference.focus import (
@@ -90,6 +91,7 @@ from calib.inference.loglik_emulator import (
     fit_loglik_emulator,
     loglik_holdout,
     loglik_noise_var,
+    summed_loglik,
 )
 from calib.inference.predictive_check import pool_draws
 from calib.model.forward import entry_releases
@@ -420,9 +422,9 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     quality = fit_quality(obs, at_rows, index)
     better = None
     if design_ll is not None and hasattr(forward, "from_input"):  # CRSP: theta-space design
-        fitted = {"estimate": float(_design_loglik(loglik_runs, at_rows[None])[0])}
+        fitted = {"estimate": float(summed_loglik(loglik_runs, at_rows[None])[0])}
         if posterior is not None:  # its mode with the design's own blocks
-            fitted["posterior mode"] = float(_design_loglik(
+            fitted["posterior mode"] = float(summed_loglik(
                 loglik_runs, forward.runouts(posterior.map[None]))[0])
         better = better_design_point(box.names, forward.from_input(x), design_ll, fitted,
                                      obs.n_obs)
@@ -458,7 +460,7 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
     tick("design", 0, 1)
     x, r = forward.design(budget.n_design, seed=int(jax.random.randint(k_design, (), 0,
                                                                           2**31 - 1)))
-    design_ll = _design_loglik(loglik_runs, r)
+    design_ll = summed_loglik(loglik_runs, r)
     tick("design", 1, 1)
     tally("design", r)
     timings["design_s"] = time.perf_counter() - t0
@@ -468,7 +470,7 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
 
     def add_simulated(theta, runs, refinement=False):
         nonlocal x, r, design_ll, refined
-        design_ll = np.concatenate([design_ll, _design_loglik(loglik_runs, runs)])
+        design_ll = np.concatenate([design_ll, summed_loglik(loglik_runs, runs)])
         x = np.concatenate([x, np.asarray(forward.to_input(theta))])
         r = np.concatenate([r, runs])
         refined = np.concatenate([refined, np.full(len(runs), refinement)])
@@ -540,7 +542,7 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
                              budget.nuts_chains,
                              loglik_kind="summed" if focus is not None else "pointwise",
                              init=(None if focus is None else
-                                   _chain_starts(forward.from_input(x_emu), ll_emu, nuts_box,
+                                   chain_starts(forward.from_input(x_emu), ll_emu, nuts_box,
                                                  budget.nuts_chains)))
         if hasattr(forward, "from_input") and posterior.n_chains > 1:
             def screen_runs(theta):
@@ -548,7 +550,7 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
                 tally("screen", runs, theta)
                 return runs
 
-            posterior, chain_screen, screened = _screen_chains(posterior, screen_runs,
+            posterior, chain_screen, screened = screen_chains(posterior, screen_runs,
                                                                loglik_runs, obs.n_obs)
         tick("nuts", 1, 1)
         timings["nuts_s"] += time.perf_counter() - t0
@@ -557,7 +559,7 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
         emu_there = None
         if screened is not None:  # the GP against the simulator at the screened draws
             emu_there = at_posterior(lemu, np.asarray(forward.to_input(screened[0])),
-                                     _design_loglik(loglik_runs, screened[1]),
+                                     summed_loglik(loglik_runs, screened[1]),
                                      loglik_noise_var(loglik_runs, screened[1]))
             focus_record["at_posterior"] = emu_there
         faces = cut_faces(posterior.samples, nuts_box, box)
@@ -620,88 +622,7 @@ def _release_slopes_deg(profile, release_x_m, profiles=None) -> np.ndarray:
     return out
 
 
-N_SCREEN = 8  # draws per chain simulated by the chain screening
 MAX_REFINE = 2  # refinement waves: screened draws added to the log-likelihood GP
-
-
-def _chain_starts(theta: np.ndarray, ll: np.ndarray, box, n_chains: int
-                  ) -> np.ndarray | None:
-    """(n_chains, d) NUTS starting points: among the 4 x n_chains design points
-    inside ``box`` with the highest simulated log-likelihood, the best one,
-    then each time the one farthest (in the box's unit coordinates) from those
-    already taken (farthest-point selection; our rule).
-
-    Why (measured on ``tests/test_calib_recovery``'s quick CRSP fit): from
-    NumPyro's default starts, spread over the box, both chains ended on a
-    plateau at the corner Kn 0.150, S 4.0 m, where the GP knows nothing and
-    its gradient vanishes; the simulator gave -1,561 nats there against -215
-    at the design's best point. Starts spread over the best design points
-    keep R-hat meaningful (the chains still start apart) without asking them
-    to cross a plateau. None when no design point lies inside ``box``."""
-    lo, hi = np.asarray(box.lo, float), np.asarray(box.hi, float)
-    theta = np.asarray(theta, float)
-    inside = np.all((theta >= lo) & (theta <= hi), axis=1) & np.isfinite(ll)
-    if not inside.any():
-        return None
-    cand = np.flatnonzero(inside)[np.argsort(-np.asarray(ll)[inside])][:4 * n_chains]
-    u = (theta[cand] - lo) / (hi - lo)
-    take = [0]
-    while len(take) < n_chains:
-        d = np.min(np.linalg.norm(u[:, None] - u[take][None], axis=-1), axis=1)
-        take.append(int(np.argmax(d)))  # a repeated point when fewer candidates than chains
-    return theta[cand[take]]
-
-
-def _screen_chains(posterior: Posterior, runouts, loglik_runs, n_rows: int
-                   ) -> tuple[Posterior, dict, tuple[np.ndarray, np.ndarray]]:
-    """Keep the chains whose draws the SIMULATOR fits about as well as the best
-    chain's; drop the others (the emulator was wrong where they sit).
-
-    Each chain's score is the median, over ``N_SCREEN`` of its draws spread
-    evenly over its output, of the rows' summed simulated log-likelihood with
-    the design's blocks (``runouts``: theta (T, d) -> (T, S, n)). A chain whose
-    score trails the best chain's by more than ``adequacy.loglik_gap_nats`` is
-    dropped and the diagnostics are recomputed on the others
-    (``bayes.keep_chains``).
-
-    Our rule; the idea is that of stacking non-mixing chains by how well they
-    predict the data (Yao, Vehtari & Gelman 2022, JMLR 23(79)): here the data's
-    likelihood under the simulator decides, and a chain far behind gets no
-    weight. Measured on the Tschamut rows (seed 1), while NUTS still sampled the
-    quantile emulator inside the focus region: two of four chains sat at its
-    corners, where the emulated likelihood was good and the simulated one
-    300-1,100 nats below the other two chains' (-220). With the log-likelihood
-    GP no chain was dropped there; the screening stays as the check.
-
-    Returns:
-        (posterior, the ``bayes.chain_screen`` record, (the screened draws
-        (T, d), their runouts (T, S, n))): the draws go into the next
-        refinement wave's design.
-    """
-    c, d = posterior.n_chains, posterior.samples.shape[1]
-    n = posterior.samples.shape[0] // c
-    pick = np.linspace(0, n - 1, min(N_SCREEN, n)).round().astype(int)
-    draws = posterior.samples.reshape(c, n, d)[:, pick].reshape(-1, d)
-    runs = runouts(draws)
-    ll = _design_loglik(loglik_runs, runs).reshape(c, len(pick))
-    score = np.median(ll, axis=1)
-    bar = loglik_gap_nats(n_rows, d)
-    keep = score >= np.max(score) - bar if np.isfinite(score).any() else np.ones(c, bool)
-    record = {"rule": (f"chains whose median simulated log-likelihood over {len(pick)} draws "
-                       f"trails the best chain's by more than {bar:.1f} nats are dropped"),
-              "threshold_nats": float(bar),
-              "chain_loglik": [float(v) if np.isfinite(v) else None for v in score],
-              "kept": [bool(k) for k in keep], "n_dropped": int((~keep).sum())}
-    if not keep.all():
-        posterior = keep_chains(posterior, keep)
-    return posterior, record, (draws, runs)
-
-
-def _design_loglik(loglik_runs, runouts) -> np.ndarray:
-    """(D,) summed simulated log-likelihood of the rows at each of D points
-    (runouts (D, S, n)); -inf where a row gets no finished block."""
-    ll = np.asarray(loglik_runs(jnp.asarray(runouts))).sum(1)
-    return np.where(np.isnan(ll), -np.inf, ll)
 
 
 def _adequacy(forward, obs: Observations, posterior: Posterior | None, check: np.ndarray,

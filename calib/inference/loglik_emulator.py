@@ -75,7 +75,7 @@ import numpy as np
 from calib.inference.emulator import QuantileEmulator, fit_gps
 
 __all__ = ["CAP_NATS_PER_ROW", "Z_AT_POSTERIOR_MAX", "LoglikEmulator", "at_posterior",
-           "fit_loglik_emulator", "loglik_holdout", "loglik_noise_var"]
+           "fit_loglik_emulator", "loglik_holdout", "loglik_noise_var", "summed_loglik"]
 
 CAP_NATS_PER_ROW = 10.0
 Z_AT_POSTERIOR_MAX = 3.0  # RMS standardised error at the posterior's draws (``at_posterior``)
@@ -100,6 +100,13 @@ class LoglikEmulator:
         m, s2 = m[0, 0], s2[0, 0]
         return (self.ceiling - jnp.exp(m + 0.5 * s2),
                 jnp.expm1(s2) * jnp.exp(2 * m + s2))
+
+
+def summed_loglik(loglik_runs, runouts) -> np.ndarray:
+    """(D,) summed simulated log-likelihood of the rows at each of D points
+    (runouts (D, S, n)); -inf where a row gets no finished block."""
+    ll = np.asarray(loglik_runs(jnp.asarray(runouts))).sum(1)
+    return np.where(np.isnan(ll), -np.inf, ll)
 
 
 def loglik_noise_var(loglik_runs, runouts: np.ndarray, n_boot: int = 16, seed: int = 0
