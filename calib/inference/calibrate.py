@@ -34,6 +34,10 @@ Stages (each timed; ``Budget`` sets the sizes, ``QUICK`` / ``DEFAULT`` the prese
       sat, which is where it was wrong (sequential design at the emulated
       posterior, as in Gaussian-process ABC: Wilkinson 2014;
       Jarvenpaa et al. 2019, Bayesian Analysis 14(2), 595-622).
+   e. CRSP: the posterior medians of ``n_realisations`` realisations of the
+      log-likelihood GP (``calib.inference.realisations``); when they spread
+      beyond a parameter's 90 % interval, the interval is narrower than the
+      GP's own uncertainty allows, a problem of the posterior.
 2. Gradient (``method`` includes "gradient"): Adam on the smoothed CRN
    objective of the SIMULATOR itself (``calib.inference.gradient``) from several starts:
    J(theta) = -sum_i log p(y_i | theta), the negative log-likelihood of
@@ -94,6 +98,7 @@ from calib.inference.loglik_emulator import (
     summed_loglik,
 )
 from calib.inference.predictive_check import pool_draws
+from calib.inference.realisations import realisation_medians, spread_problems
 from calib.model.forward import entry_releases
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
 from solvers.percentiles import few_blocks
@@ -114,6 +119,7 @@ class Budget:
     nuts_warmup: int = 500
     nuts_samples: int = 1000
     nuts_chains: int = 4
+    n_realisations: int = 32
     grad_starts: int = 3
     grad_steps: int = 40
     grad_k: int = 3
@@ -591,6 +597,16 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
                                         jax.random.fold_in(k_widen, 16 * n_widened + j)))
         n_widened += 1
         timings["design3_s"] += time.perf_counter() - t0
+    if focus is not None and budget.n_realisations > 0:
+        # how far the GP's own uncertainty could move the posterior (calib.inference.realisations)
+        t0 = time.perf_counter()
+        focus_record["realisations"], spread = spread_problems(
+            realisation_medians(lemu, forward.to_input, nuts_box, posterior.samples,
+                                jax.random.fold_in(k_nuts, 7), budget.n_realisations),
+            posterior.samples, tuple(box.names))
+        posterior.problems += spread
+        posterior.ok = posterior.ok and not spread
+        timings["realisations_s"] = time.perf_counter() - t0
     if focus is not None:
         focus_record["n_emulator_points"] = int(inside().sum())
         focus_record.update(region_record(nuts_box, box))  # after any widening

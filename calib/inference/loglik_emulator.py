@@ -59,9 +59,10 @@ and samples again while it is wrong there.
 What it costs: no per-row likelihood (the posterior's ``log_likelihood``
 group holds the total only; PSIS-LOO over rows is not available from it).
 The GP's uncertainty enters the density only through E[y]: the posterior is
-not averaged over GP realisations (Jarvenpaa et al. 2021), so where the GP is
-confident and wrong, the intervals are too narrow; ``at_posterior`` is the
-check of that.
+not averaged over GP realisations, so where the GP is unsure it is too
+narrow; ``calib.inference.realisations`` measures by how much (with
+``realisation_draw``) and flags it. Where the GP is confident and wrong,
+``at_posterior`` is the check.
 """
 
 from __future__ import annotations
@@ -72,12 +73,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from calib.inference.emulator import QuantileEmulator, fit_gps
+from calib.inference.emulator import QuantileEmulator, fit_gps, se_kernel
 
 __all__ = ["CAP_NATS_PER_ROW", "Z_AT_POSTERIOR_MAX", "LoglikEmulator", "at_posterior",
            "fit_loglik_emulator", "loglik_holdout", "loglik_noise_var", "summed_loglik"]
 
 CAP_NATS_PER_ROW = 10.0
+N_FEATURES = 1024  # random Fourier features of a realisation (``realisation_draw``)
 Z_AT_POSTERIOR_MAX = 3.0  # RMS standardised error at the posterior's draws (``at_posterior``)
 
 
@@ -100,6 +102,57 @@ class LoglikEmulator:
         m, s2 = m[0, 0], s2[0, 0]
         return (self.ceiling - jnp.exp(m + 0.5 * s2),
                 jnp.expm1(s2) * jnp.exp(2 * m + s2))
+
+    def realisation_draw(self, key: jax.Array, n_features: int = N_FEATURES) -> tuple:
+        """The arrays that fix one realisation of the GP's posterior (vmap over
+        keys for several): (w (L,), omega (L, d), b (L,), coef (n,)).
+
+        Pathwise conditioning (Wilson, Borovitskiy, Terenin, Mostowsky &
+        Deisenroth 2020, "Efficiently sampling functions from Gaussian process
+        posteriors", ICML, eq. 13 (Matheron's rule)):
+
+            f(x) = f0(x) + k(x, X) (K + Sigma)^-1 (y - f0(X) - e),
+            e ~ N(0, Sigma),
+
+        with f0 a draw from the prior by random Fourier features (Rahimi &
+        Recht 2007) of the squared-exponential kernel,
+        f0(x) = sf sqrt(2/L) sum_l w_l cos(omega_l . (x / l) + b_l),
+        w_l ~ N(0, 1), omega_l ~ N(0, I), b_l ~ U(0, 2 pi), L = ``n_features``;
+        coef = (K + Sigma)^-1 (y - f0(X) - e). Sigma (the design's noise:
+        nugget, Monte Carlo variance, jitter) is read off the stored Cholesky
+        factor: diag(L L^T) - sf^2.
+        """
+        gp = self.gp
+        log_sf = gp.hyp[1][0, 0]
+        chol, alpha = gp.chol[0, 0], gp.alpha[0, 0]
+        n, d = gp.x_unit.shape
+        k_w, k_o, k_b, k_e = jax.random.split(key, 4)
+        w = jax.random.normal(k_w, (n_features,))
+        omega = jax.random.normal(k_o, (n_features, d))
+        b = jax.random.uniform(k_b, (n_features,), maxval=2 * jnp.pi)
+        sf = jnp.exp(log_sf)
+        noise = jnp.maximum(jnp.sum(chol * chol, axis=1) - sf * sf, 0.0)
+        e = jnp.sqrt(noise) * jax.random.normal(k_e, (n,))
+        # (K + Sigma)^-1 (y - f0(X) - e) = alpha - (K + Sigma)^-1 (f0(X) + e)
+        f0 = self._prior_features(w, omega, b, gp.x_unit)
+        coef = alpha - jax.scipy.linalg.cho_solve((chol, True), f0 + e)
+        return w, omega, b, coef
+
+    def _prior_features(self, w, omega, b, xu):
+        """f0 at xu (m, d) (unit coordinates): (m,)."""
+        log_ls, log_sf = self.gp.hyp[0][0, 0], self.gp.hyp[1][0, 0]
+        z = (xu / jnp.exp(log_ls)) @ omega.T + b
+        return jnp.exp(log_sf) * jnp.sqrt(2.0 / w.shape[0]) * (jnp.cos(z) @ w)
+
+    def realisation_value(self, draw: tuple, x) -> jax.Array:
+        """y_f(x) = T - exp(mu + sd f(x)) of the realisation ``draw``
+        (``realisation_draw``) at x (d,) (emulator coordinates, unscaled)."""
+        gp = self.gp
+        w, omega, b, coef = draw
+        xu = ((jnp.asarray(x) - gp.lo) / (gp.hi - gp.lo))[None]
+        f = (self._prior_features(w, omega, b, xu)[0]
+             + se_kernel(xu, gp.x_unit, gp.hyp[0][0, 0], gp.hyp[1][0, 0])[0] @ coef)
+        return self.ceiling - jnp.exp(gp.y_mean[0, 0] + gp.y_std[0, 0] * f)
 
 
 def summed_loglik(loglik_runs, runouts) -> np.ndarray:
