@@ -109,7 +109,7 @@ class LoglikEmulator:
 
         Pathwise conditioning (Wilson, Borovitskiy, Terenin, Mostowsky &
         Deisenroth 2020, "Efficiently sampling functions from Gaussian process
-        posteriors", ICML, eq. 13 (Matheron's rule)):
+        posteriors", ICML: Matheron's rule):
 
             f(x) = f0(x) + k(x, X) (K + Sigma)^-1 (y - f0(X) - e),
             e ~ N(0, Sigma),
