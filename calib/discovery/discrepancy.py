@@ -73,7 +73,7 @@ from calib.discovery.scores import (
 )
 from calib.files.inputs import entry_profiles
 from calib.files.observations import ReleaseGroups, release_groups
-from calib.inference.importance import KHAT_MAX, ess, psis_weights
+from calib.inference.importance import KHAT_MAX, ess, psis_weights, weighted_quantile
 from calib.inference.likelihood import log_likelihood, observed_rows, velocity_log_likelihood
 from calib.inference.predictive_check import pool_draws
 from calib.model.priors import Box
@@ -286,12 +286,6 @@ def _vel_loglik_design(speeds, size_class, station, v, sd):
     return jax.vmap(lambda u: velocity_log_likelihood(u[size_class, station], v, sd))(speeds)
 
 
-def _weighted_quantile(x, w, q):
-    order = np.argsort(x)
-    cw = np.cumsum(w[order])
-    return np.interp(q, cw / cw[-1], x[order])
-
-
 def _gaussian_fit(z, w, inflate=2.0, floor=0.05):
     """Mean and inflated covariance of unit-cube points with normalised weights w."""
     mean = w @ z
@@ -473,8 +467,8 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     w, khat = psis_weights(ll.sum(axis=1) - log_q)
     theta = to_theta(z)
     est = w @ theta
-    q05 = np.array([_weighted_quantile(theta[:, j], w, 0.05) for j in range(dim)])
-    q95 = np.array([_weighted_quantile(theta[:, j], w, 0.95) for j in range(dim)])
+    q05 = np.array([weighted_quantile(theta[:, j], w, 0.05) for j in range(dim)])
+    q95 = np.array([weighted_quantile(theta[:, j], w, 0.95) for j in range(dim)])
     elpd, khat_folds = cv_elpd(ll, log_q, fold)
     samples = _predictive(cand, fw, theta, w, entry_sizes, key, budget, rng, tallies, rel_kw)
     if entries is None:

@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import logsumexp
 
-__all__ = ["KHAT_MAX", "MIN_POINTS", "ess", "psis_weights"]
+__all__ = ["KHAT_MAX", "MIN_POINTS", "ess", "psis_weights", "weighted_quantile"]
 
 KHAT_MAX = 0.7
 MIN_POINTS = 25
@@ -78,3 +78,11 @@ def ess(weights: np.ndarray) -> float:
     """Effective sample size of normalised weights, ``1 / sum w^2`` (Kish)."""
     w = np.asarray(weights, dtype=np.float64)
     return float(1.0 / np.sum(w * w))
+
+
+def weighted_quantile(x: np.ndarray, w: np.ndarray, q: float) -> float:
+    """The q-quantile of points x (n,) under weights w (n,): the weighted
+    empirical CDF, interpolated linearly between the sorted points."""
+    order = np.argsort(x)
+    cw = np.cumsum(np.asarray(w)[order])
+    return float(np.interp(q, cw / cw[-1], np.asarray(x)[order]))

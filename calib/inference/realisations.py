@@ -47,6 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.special import logsumexp
 
+from calib.inference.importance import weighted_quantile
 from calib.model.priors import Box
 
 __all__ = ["N_CANDIDATES", "N_REALISATIONS", "realisation_medians", "spread_problems"]
@@ -79,16 +80,6 @@ def _candidates(draws: np.ndarray, box: Box, rng: np.random.Generator
     return theta, log_q
 
 
-def _weighted_median(x: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Per column of x (n, d), the median under weights w (n,) summing to 1."""
-    out = []
-    for col in x.T:
-        order = np.argsort(col)
-        cdf = np.cumsum(w[order])
-        out.append(col[order][min(np.searchsorted(cdf, 0.5), len(col) - 1)])
-    return np.array(out)
-
-
 def realisation_medians(emu, to_input, box: Box, draws: np.ndarray, key: jax.Array,
                         n_realisations: int = N_REALISATIONS) -> np.ndarray:
     """(M, d) the posterior median of each of M realisations of ``emu`` (a
@@ -111,7 +102,7 @@ def realisation_medians(emu, to_input, box: Box, draws: np.ndarray, key: jax.Arr
     log_w = np.where(np.isfinite(log_w) & inside[None], log_w, -np.inf)
     log_w = log_w[np.isfinite(log_w).any(axis=1)]  # a realisation with no finite weight: none
     w = np.exp(log_w - logsumexp(log_w, axis=1, keepdims=True))
-    return np.stack([_weighted_median(theta, wj) for wj in w])
+    return np.array([[weighted_quantile(col, wj, 0.5) for col in theta.T] for wj in w])
 
 
 def spread_problems(medians: np.ndarray, samples: np.ndarray, names: tuple[str, ...]
