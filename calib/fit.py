@@ -378,6 +378,16 @@ def _print_summary(result: dict, models, out: str) -> None:
                   + "; ".join(f"run {i + 1} {r}" for i, r in enumerate(why))
                   + f", the {waves[0]['n_points']} draws re-simulated for the chain "
                   "screening joined the log-likelihood GP's design (bayes.focus.refined)")
+        rwaves = ((b or {}).get("focus") or {}).get("realisation_waves") or []
+        if rwaves:
+            first = rwaves[0]["median_range"]
+            print(f"\n{model.upper()} realisation waves: the posterior medians of "
+                  f"{rwaves[0]['n_realisations']} realisations of the log-likelihood GP spread "
+                  "beyond the 90 % intervals ("
+                  + ", ".join(f"{n} {lo:.3g}-{hi:.3g}" for n, (lo, hi) in first.items())
+                  + f"); {len(rwaves)} time(s) one point from each realisation's posterior was "
+                  "simulated and joined the GP's design, and NUTS ran again "
+                  "(bayes.focus.realisation_waves)")
         if screen.get("n_dropped"):
             lls = ", ".join(f"{v:.0f}" if v is not None else "none"
                             for v in screen["chain_loglik"])

@@ -212,8 +212,10 @@ for p in ad["problems"]:
 # sampler explored the posterior (R-hat near 1 in every chain) and whether the
 # intervals are as wide as the emulator's own uncertainty requires (the
 # posterior medians of 32 realisations of the log-likelihood GP, which should
-# lie inside each 90 % interval; when they do not, another seed or more
-# simulations may move the posterior that far); the adequacy
+# lie inside each 90 % interval; while they do not, the fit simulates one
+# point from each realisation's posterior and samples again, three times at
+# most, and when they still do not, another seed or more simulations may move
+# the posterior that far); the adequacy
 # check says whether the calibrated model reproduces the rows it was fitted
 # to: posterior mass piled on a prior bound means the data push a parameter
 # out of its published range, and too few rows inside their predictive bands

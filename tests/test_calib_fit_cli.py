@@ -59,6 +59,8 @@ def test_quick_run_writes_every_output(quick_run):
         assert post.sizes["chain"] * post.sizes["draw"] == cal[m]["bayes"]["n_draws"]
         if m == "crsp":  # emulated as the rows' sum inside the focus region
             assert cal[m]["bayes"]["focus"] is not None
+            assert len(cal[m]["bayes"]["focus"]["realisation_waves"]) <= 1  # --quick
+            assert "median_range" in cal[m]["bayes"]["focus"]["realisations"]
             assert idata["log_likelihood"]["total"].sizes["draw"] == post.sizes["draw"]
         else:
             assert idata["log_likelihood"]["runout_m"].sizes["row"] == 2

@@ -126,3 +126,7 @@ def test_the_tschamut_posterior_lives_where_the_simulator_fits(tmp_path, capsys)
     for wave in crsp["bayes"]["focus"]["refined"]:  # after failed diagnostics or a GP
         assert wave["problems_before"] or not wave["emulator_at_posterior"]["ok"]  # off there
         assert wave["n_points"] == 8 * len(crsp["bayes"]["chain_screen"]["kept"])
+    waves = crsp["bayes"]["focus"]["realisation_waves"]
+    assert len(waves) <= 1  # --quick: one wave at most
+    for wave in waves:  # only after the check flagged the intervals
+        assert wave["outside"] and wave["problems_before"] and wave["n_points"] <= 32

@@ -35,9 +35,14 @@ Stages (each timed; ``Budget`` sets the sizes, ``QUICK`` / ``DEFAULT`` the prese
       posterior, as in Gaussian-process ABC: Wilkinson 2014;
       Jarvenpaa et al. 2019, Bayesian Analysis 14(2), 595-622).
    e. CRSP: the posterior medians of ``n_realisations`` realisations of the
-      log-likelihood GP (``calib.inference.realisations``); when they spread
-      beyond a parameter's 90 % interval, the interval is narrower than the
-      GP's own uncertainty allows, a problem of the posterior.
+      log-likelihood GP (``calib.inference.realisations``); while they spread
+      beyond a parameter's 90 % interval (the interval is narrower than the
+      GP's own uncertainty allows), one point drawn from each realisation's
+      posterior is simulated, joins the GP's design, and d runs again (at
+      most ``realisation_waves`` times, ``bayes.focus.realisation_waves``):
+      the simulations settle what the realisations disagree on (Thompson
+      sampling of the GP's posterior over functions; our choice of design
+      rule). A spread that outlasts the waves is a problem of the posterior.
 2. Gradient (``method`` includes "gradient"): Adam on the smoothed CRN
    objective of the SIMULATOR itself (``calib.inference.gradient``) from several starts:
    J(theta) = -sum_i log p(y_i | theta), the negative log-likelihood of
@@ -98,7 +103,12 @@ from calib.inference.loglik_emulator import (
     summed_loglik,
 )
 from calib.inference.predictive_check import pool_draws
-from calib.inference.realisations import realisation_medians, spread_problems
+from calib.inference.realisations import (
+    realisation_draws,
+    realisation_weights,
+    spread_problems,
+    weighted_medians,
+)
 from calib.model.forward import entry_releases
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
 from solvers.percentiles import few_blocks
@@ -120,6 +130,7 @@ class Budget:
     nuts_samples: int = 1000
     nuts_chains: int = 4
     n_realisations: int = 32
+    realisation_waves: int = 3
     grad_starts: int = 3
     grad_steps: int = 40
     grad_k: int = 3
@@ -136,7 +147,8 @@ def presets(model: str, quick: bool) -> Budget:
             return Budget(n_design=48, n_design2=32, n_design3=32, n_blocks_design=128,
                           nuts_warmup=200, nuts_samples=400, nuts_chains=2, grad_starts=2,
                           grad_steps=8, grad_k=2, n_blocks_grad=64, n_check=128,
-                          n_predictive_draws=16, n_blocks_predictive=32)
+                          n_predictive_draws=16, n_blocks_predictive=32,
+                          realisation_waves=1)
         # twice the draws of the DEM's: with the log-likelihood GP NUTS costs ~15-20 s
         # (was ~160 s on Postignano, ~760 s on Tschamut), and the CRSP posteriors of
         # both sites mix slowly (Postignano seed 0: R-hat 1.016-1.023 at 1,000 draws
@@ -517,7 +529,10 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
         tick("design3", 2, 2)
         timings["design3_s"] = time.perf_counter() - t0
         focus_record["widened"], focus_record["refined"] = [], []
+        focus_record["realisation_waves"] = []
     timings["emulator_s"] = timings["nuts_s"] = 0.0
+    if focus is not None:
+        timings["realisations_s"] = 0.0
     n_widened = 0
     screened = None
     while True:
@@ -573,7 +588,37 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
             wrong_there = emu_there is not None and not emu_there["ok"]
             if ((posterior.ok and not wrong_there) or screened is None
                     or len(focus_record["refined"]) == MAX_REFINE):
-                break
+                if budget.n_realisations == 0:
+                    break
+                # how far the GP's own uncertainty could move the posterior
+                # (calib.inference.realisations); while it could move it
+                # beyond the intervals, simulate where the realisations put
+                # their posteriors, and emulate and sample again
+                t0 = time.perf_counter()
+                waves = focus_record["realisation_waves"]
+                k_check = jax.random.fold_in(jax.random.fold_in(k_nuts, 7), len(waves))
+                theta_c, weights = realisation_weights(
+                    lemu, forward.to_input, nuts_box, posterior.samples, k_check,
+                    budget.n_realisations)
+                record, spread = spread_problems(weighted_medians(theta_c, weights),
+                                                 posterior.samples, tuple(box.names))
+                timings["realisations_s"] += time.perf_counter() - t0
+                if not spread or len(waves) == budget.realisation_waves:
+                    focus_record["realisations"] = record
+                    posterior.problems += spread
+                    posterior.ok = posterior.ok and not spread
+                    break
+                t0 = time.perf_counter()
+                tick("realisation waves", len(waves), budget.realisation_waves)
+                pts = realisation_draws(theta_c, weights, jax.random.fold_in(k_check, 1))
+                runs = forward.runouts(pts)
+                tally("design", runs, pts)
+                waves.append({**record, "n_points": int(len(pts)),
+                              "problems_before": list(posterior.problems) + spread})
+                add_simulated(pts, runs, refinement=True)
+                tick("realisation waves", len(waves), budget.realisation_waves)
+                timings["realisations_s"] += time.perf_counter() - t0
+                continue
             # the chains do not agree (or mix too slowly), or the GP is wrong
             # where they sit: it is taught the simulated log-likelihood there,
             # and NUTS runs again
@@ -597,16 +642,6 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
                                         jax.random.fold_in(k_widen, 16 * n_widened + j)))
         n_widened += 1
         timings["design3_s"] += time.perf_counter() - t0
-    if focus is not None and budget.n_realisations > 0:
-        # how far the GP's own uncertainty could move the posterior (calib.inference.realisations)
-        t0 = time.perf_counter()
-        focus_record["realisations"], spread = spread_problems(
-            realisation_medians(lemu, forward.to_input, nuts_box, posterior.samples,
-                                jax.random.fold_in(k_nuts, 7), budget.n_realisations),
-            posterior.samples, tuple(box.names))
-        posterior.problems += spread
-        posterior.ok = posterior.ok and not spread
-        timings["realisations_s"] = time.perf_counter() - t0
     if focus is not None:
         focus_record["n_emulator_points"] = int(inside().sum())
         focus_record.update(region_record(nuts_box, box))  # after any widening

@@ -5,8 +5,11 @@ samples ONE density: the posterior as if the GP's mean were the simulator's
 log-likelihood. Where the GP is unsure, that posterior is narrower than what
 the simulations support: on Tschamut (all 62 runs) two fits that differed only
 in their seed gave 90 % intervals of Kt 0.960-0.964 and 0.973-0.978, which do
-not overlap (measured at stop 26). This module measures that, it does not
-repair it.
+not overlap (measured at stop 26). This module measures that
+(``realisation_weights``, ``spread_problems``) and says where to simulate to
+reduce it (``realisation_draws``: one point from each realisation's
+posterior; ``calib.inference.calibrate`` stage 1e adds them to the GP's
+design and samples again, a few waves at most).
 
 What the posterior would be under other functions the GP finds as plausible
 as its mean: M realisations y_f of the GP (``LoglikEmulator.realisation_draw``,
@@ -50,7 +53,8 @@ from scipy.special import logsumexp
 from calib.inference.importance import weighted_quantile
 from calib.model.priors import Box
 
-__all__ = ["N_CANDIDATES", "N_REALISATIONS", "realisation_medians", "spread_problems"]
+__all__ = ["N_CANDIDATES", "N_REALISATIONS", "realisation_draws", "realisation_medians",
+           "realisation_weights", "spread_problems", "weighted_medians"]
 
 N_REALISATIONS = 32
 N_CANDIDATES = 4096
@@ -80,14 +84,15 @@ def _candidates(draws: np.ndarray, box: Box, rng: np.random.Generator
     return theta, log_q
 
 
-def realisation_medians(emu, to_input, box: Box, draws: np.ndarray, key: jax.Array,
-                        n_realisations: int = N_REALISATIONS) -> np.ndarray:
-    """(M, d) the posterior median of each of M realisations of ``emu`` (a
+def realisation_weights(emu, to_input, box: Box, draws: np.ndarray, key: jax.Array,
+                        n_realisations: int = N_REALISATIONS) -> tuple[np.ndarray, np.ndarray]:
+    """The candidate points (K, d) and each realisation's self-normalised
+    importance weights on them (M, K), for M realisations of ``emu`` (a
     ``LoglikEmulator``; theta -> emulator coordinates by ``to_input``) in the
-    prior ``box``, by importance sampling on one candidate set built around
-    ``draws`` (n, d), the mean-GP posterior's (module docstring). Candidates
-    outside the box have weight 0; a realisation no candidate reaches (all
-    weights 0) is left out, so M may be smaller than ``n_realisations``."""
+    prior ``box``, with the candidate set built around ``draws`` (n, d), the
+    mean-GP posterior's (module docstring). Candidates outside the box have
+    weight 0; a realisation no candidate reaches (all weights 0) is left out,
+    so M may be smaller than ``n_realisations``."""
     k_f, k_c = jax.random.split(key)
     rng = np.random.default_rng(np.asarray(jax.random.randint(k_c, (), 0, 2**31 - 1)).item())
     theta, log_q = _candidates(np.asarray(draws), box, rng)
@@ -101,8 +106,29 @@ def realisation_medians(emu, to_input, box: Box, draws: np.ndarray, key: jax.Arr
     log_w = np.asarray(y) - log_q[None]
     log_w = np.where(np.isfinite(log_w) & inside[None], log_w, -np.inf)
     log_w = log_w[np.isfinite(log_w).any(axis=1)]  # a realisation with no finite weight: none
-    w = np.exp(log_w - logsumexp(log_w, axis=1, keepdims=True))
-    return np.array([[weighted_quantile(col, wj, 0.5) for col in theta.T] for wj in w])
+    return theta, np.exp(log_w - logsumexp(log_w, axis=1, keepdims=True))
+
+
+def weighted_medians(theta: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(M, d) each realisation's posterior median from ``realisation_weights``."""
+    return np.array([[weighted_quantile(col, wj, 0.5) for col in theta.T] for wj in weights])
+
+
+def realisation_medians(emu, to_input, box: Box, draws: np.ndarray, key: jax.Array,
+                        n_realisations: int = N_REALISATIONS) -> np.ndarray:
+    """(M, d) the posterior median of each of M realisations (arguments as in
+    ``realisation_weights``)."""
+    return weighted_medians(*realisation_weights(emu, to_input, box, draws, key, n_realisations))
+
+
+def realisation_draws(theta: np.ndarray, weights: np.ndarray, key: jax.Array) -> np.ndarray:
+    """(M, d) one point from each realisation's posterior (a candidate drawn
+    with that realisation's weights): where simulations would settle what the
+    realisations disagree on (Thompson sampling of the GP's posterior over
+    functions, one draw per realisation)."""
+    idx = jax.vmap(lambda k, w: jax.random.choice(k, w.shape[0], p=w))(
+        jax.random.split(key, weights.shape[0]), jnp.asarray(weights))
+    return theta[np.asarray(idx)]
 
 
 def spread_problems(medians: np.ndarray, samples: np.ndarray, names: tuple[str, ...]
