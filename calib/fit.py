@@ -385,8 +385,9 @@ def _print_summary(result: dict, models, out: str) -> None:
                   f"{rwaves[0]['n_realisations']} realisations of the log-likelihood GP spread "
                   "beyond the 90 % intervals ("
                   + ", ".join(f"{n} {lo:.3g}-{hi:.3g}" for n, (lo, hi) in first.items())
-                  + f"); {len(rwaves)} time(s) one point from each realisation's posterior was "
-                  "simulated and joined the GP's design, and NUTS ran again "
+                  + f"); {'once' if len(rwaves) == 1 else f'{len(rwaves)} times'}, one point "
+                  "from each realisation's posterior was simulated and joined the GP's "
+                  "design, and NUTS ran again "
                   "(bayes.focus.realisation_waves)")
         if screen.get("n_dropped"):
             lls = ", ".join(f"{v:.0f}" if v is not None else "none"
