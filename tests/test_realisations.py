@@ -13,13 +13,7 @@ from scipy.stats import qmc
 from calib.inference.bayes import run_nuts
 from calib.inference.chains import chain_starts
 from calib.inference.loglik_emulator import fit_loglik_emulator
-from calib.inference.realisations import (
-    realisation_draws,
-    realisation_medians,
-    realisation_weights,
-    spread_problems,
-    weighted_medians,
-)
+from calib.inference.realisations import realisation_check, realisation_medians, spread_problems
 from calib.model.priors import Box
 
 BOX = Box(("a", "b"), (0.0, 0.0), (1.0, 1.0))
@@ -141,14 +135,11 @@ def test_simulating_at_the_realisations_draws_repairs_the_spread():
                 pts = post.samples[rng.choice(len(post.samples), 8, replace=False)]
                 n_refined += 1
             else:
-                theta, w = realisation_weights(
-                    emu, lambda t: t, BOX, post.samples,
-                    jax.random.fold_in(jax.random.key(9 + s), n_waves))
-                record, problems = spread_problems(weighted_medians(theta, w),
-                                                   post.samples, BOX.names)
-                if not problems or n_waves == 3:
+                record, problems, pts = realisation_check(
+                    emu, lambda t: t, BOX, post.samples, BOX.names,
+                    jax.random.fold_in(jax.random.key(9 + s), n_waves), draw=n_waves < 3)
+                if pts is None:
                     break
-                pts = realisation_draws(theta, w, jax.random.key(50 + s + 100 * n_waves))
                 assert pts.shape == (32, 2) and np.all((pts >= 0.0) & (pts <= 1.0))
                 n_waves += 1
             x = np.vstack([x, pts])

@@ -103,12 +103,7 @@ from calib.inference.loglik_emulator import (
     summed_loglik,
 )
 from calib.inference.predictive_check import pool_draws
-from calib.inference.realisations import (
-    realisation_draws,
-    realisation_weights,
-    spread_problems,
-    weighted_medians,
-)
+from calib.inference.realisations import realisation_check
 from calib.model.forward import entry_releases
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
 from solvers.percentiles import few_blocks
@@ -596,21 +591,17 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
                 # their posteriors, and emulate and sample again
                 t0 = time.perf_counter()
                 waves = focus_record["realisation_waves"]
-                k_check = jax.random.fold_in(jax.random.fold_in(k_nuts, 7), len(waves))
-                theta_c, weights = realisation_weights(
-                    lemu, forward.to_input, nuts_box, posterior.samples, k_check,
-                    budget.n_realisations)
-                record, spread = spread_problems(weighted_medians(theta_c, weights),
-                                                 posterior.samples, tuple(box.names))
-                timings["realisations_s"] += time.perf_counter() - t0
-                if not spread or len(waves) == budget.realisation_waves:
+                record, spread, pts = realisation_check(
+                    lemu, forward.to_input, nuts_box, posterior.samples, tuple(box.names),
+                    jax.random.fold_in(jax.random.fold_in(k_nuts, 7), len(waves)),
+                    budget.n_realisations, draw=len(waves) < budget.realisation_waves)
+                if pts is None:
                     focus_record["realisations"] = record
                     posterior.problems += spread
                     posterior.ok = posterior.ok and not spread
+                    timings["realisations_s"] += time.perf_counter() - t0
                     break
-                t0 = time.perf_counter()
                 tick("realisation waves", len(waves), budget.realisation_waves)
-                pts = realisation_draws(theta_c, weights, jax.random.fold_in(k_check, 1))
                 runs = forward.runouts(pts)
                 tally("design", runs, pts)
                 waves.append({**record, "n_points": int(len(pts)),

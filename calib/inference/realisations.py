@@ -53,8 +53,8 @@ from scipy.special import logsumexp
 from calib.inference.importance import weighted_quantile
 from calib.model.priors import Box
 
-__all__ = ["N_CANDIDATES", "N_REALISATIONS", "realisation_draws", "realisation_medians",
-           "realisation_weights", "spread_problems", "weighted_medians"]
+__all__ = ["N_CANDIDATES", "N_REALISATIONS", "realisation_check", "realisation_draws",
+           "realisation_medians", "realisation_weights", "spread_problems", "weighted_medians"]
 
 N_REALISATIONS = 32
 N_CANDIDATES = 4096
@@ -129,6 +129,20 @@ def realisation_draws(theta: np.ndarray, weights: np.ndarray, key: jax.Array) ->
     idx = jax.vmap(lambda k, w: jax.random.choice(k, w.shape[0], p=w))(
         jax.random.split(key, weights.shape[0]), jnp.asarray(weights))
     return theta[np.asarray(idx)]
+
+
+def realisation_check(emu, to_input, box: Box, samples: np.ndarray, names: tuple[str, ...],
+                      key: jax.Array, n_realisations: int = N_REALISATIONS, draw: bool = False
+                      ) -> tuple[dict, list[str], np.ndarray | None]:
+    """The module's check on a posterior's ``samples`` (n, d): its record and
+    problems (``spread_problems``), and, when ``draw`` and it flags, one point
+    from each realisation's posterior (``realisation_draws``), where a fit
+    simulates next; else None."""
+    theta, weights = realisation_weights(emu, to_input, box, samples, key, n_realisations)
+    record, problems = spread_problems(weighted_medians(theta, weights), samples, names)
+    points = (realisation_draws(theta, weights, jax.random.fold_in(key, 1))
+              if draw and problems else None)
+    return record, problems, points
 
 
 def spread_problems(medians: np.ndarray, samples: np.ndarray, names: tuple[str, ...]
