@@ -149,3 +149,23 @@ def test_simulating_at_the_realisations_draws_repairs_the_spread():
     for i in (0, 1):
         assert np.all((qs[i][0] <= PEAK) & (PEAK <= qs[i][2])), qs[i]
         assert np.all((qs[i][0] <= qs[1 - i][1]) & (qs[1 - i][1] <= qs[i][2])), qs
+
+
+def test_a_check_that_no_realisation_reaches_asks_for_no_wave():
+    """When no realisation puts weight on any candidate inside the box, the
+    check says so and returns no points to simulate (a wave of 0 points
+    would simulate nothing and loop)."""
+    box = Box(("a", "b"), (0.0, 0.0), (1.0, 1.0))
+
+    class Nowhere:  # every realisation is -inf everywhere
+        def realisation_draw(self, key):
+            return (jnp.zeros(1),)
+
+        def realisation_value(self, draw, x):
+            return -jnp.inf + 0.0 * jnp.sum(x)
+
+    draws = np.random.default_rng(0).uniform(0.4, 0.6, (500, 2))
+    record, problems, pts = realisation_check(Nowhere(), lambda t: t, box, draws, box.names,
+                                              jax.random.key(0), draw=True)
+    assert pts is None and record["n_realisations"] == 0
+    assert "could not be checked" in problems[0]

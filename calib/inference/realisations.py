@@ -137,11 +137,11 @@ def realisation_check(emu, to_input, box: Box, samples: np.ndarray, names: tuple
     """The module's check on a posterior's ``samples`` (n, d): its record and
     problems (``spread_problems``), and, when ``draw`` and it flags, one point
     from each realisation's posterior (``realisation_draws``), where a fit
-    simulates next; else None."""
+    simulates next; else (or when no realisation reached a candidate) None."""
     theta, weights = realisation_weights(emu, to_input, box, samples, key, n_realisations)
     record, problems = spread_problems(weighted_medians(theta, weights), samples, names)
     points = (realisation_draws(theta, weights, jax.random.fold_in(key, 1))
-              if draw and problems else None)
+              if draw and problems and len(weights) else None)  # no realisation: no wave
     return record, problems, points
 
 
