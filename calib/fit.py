@@ -69,10 +69,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", choices=["gradient", "bayes", "both"], default="both",
                    help="gradient (optax, point estimate), bayes (NumPyro NUTS on an "
                         "emulator, posterior) or both (default)")
-    p.add_argument("--rolling-resistance", choices=["fit", "profile"], default="fit",
+    p.add_argument("--rolling-resistance", choices=["fit", "zones", "profile"], default="fit",
                    help="CRSP rolling resistance angle: fit it as a 4th parameter, one value "
-                        "for the slope, prior 5-40 deg, with S from 0.01 m (default), or keep "
-                        "the profile's per-zone rolling_friction_deg and S from 0.25 m")
+                        "for the slope, prior 5-40 deg, with S from 0.01 m (default); 'zones': "
+                        "fit one angle per material zone of the profile(s), "
+                        "rolling_friction_deg[<zone>], same prior; 'profile': keep the "
+                        "profile's per-zone rolling_friction_deg and S from 0.25 m")
     p.add_argument("--alpha-law", choices=["power", "constant"], default="power",
                    help="DEM damping law: power alpha = a L^-b (default) or constant alpha")
     p.add_argument("--out", default="results", help="output folder (default: results/)")
@@ -104,7 +106,7 @@ def _run(args) -> int:
     from calib.inference.calibrate import calibrate, presets
     from calib.model.alpha_law import alpha_of, check_fit
     from calib.model.forward import CrspForward, DemForward
-    from calib.model.priors import CRSP_BOX, CRSP_ROLLING_BOX
+    from calib.model.priors import CRSP_BOX, CRSP_ROLLING_BOX, zoned_rolling_box
     from calib.model.unfinished import UnfinishedBlocksWarning
 
     t_start = time.perf_counter()
@@ -186,15 +188,18 @@ def _run(args) -> int:
         budget = presets(model, args.quick)
         mkey = jax.random.fold_in(key, m_i)
         if model == "crsp":
-            box = CRSP_ROLLING_BOX if args.rolling_resistance == "fit" else CRSP_BOX
             # rows without their own release: one group per size at the common one
             crsp_groups = groups if groups is not None else one_release_groups(obs, release)
+            own = entry_profiles(crsp_groups.profile_csv) or ()
+            box = {"fit": CRSP_ROLLING_BOX, "profile": CRSP_BOX}.get(args.rolling_resistance) \
+                or zoned_rolling_box(dict.fromkeys(
+                    z for pr in (profile, *own) if pr is not None for z in pr.zone_names))
             forward = CrspForward(profile, crsp_groups.sizes_m, budget.n_blocks_design,
                                   jax.random.fold_in(mkey, 1), box=box,
                                   release_x_m=tuple(crsp_groups.release_x_m),
                                   release_speed_m_s=tuple(crsp_groups.release_speed_m_s),
                                   release_height_m=tuple(crsp_groups.release_height_m),
-                                  entry_profiles=entry_profiles(crsp_groups.profile_csv))
+                                  entry_profiles=own or None)
         else:
             dem_groups = groups if groups is not None else one_release_groups(obs, release)
             forward = DemForward(profile, dem_groups.sizes_m, budget.n_blocks_design,

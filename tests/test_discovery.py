@@ -376,7 +376,7 @@ def test_candidates_on_the_rolling_baseline():
     for c in cands:
         assert c.box.names[:4] == CRSP_ROLLING_BOX.names
         fw = c.forward(np.array([1.0]), 8, jax.random.key(0))
-        assert fw.box.names == c.box.names and fw.fits_rolling
+        assert fw.box.names == c.box.names and fw.n_rolling == 1
         assert dataclasses.replace(fw, n_blocks=4).box.names == c.box.names
     with pytest.raises(ValueError, match="one parameter"):
         full_box("rolling_resistance", PROFILE, base=CRSP_ROLLING_BOX)

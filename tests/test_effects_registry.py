@@ -82,7 +82,7 @@ def test_a_forward_with_an_effect_keeps_the_base_box_it_was_given():
                   CRSP_ROLLING_BOX.upper[:3] + (20.0,))
     fw = CrspForward(PROFILE, np.array([1.0]), 4, jax.random.key(0), box=rolling,
                      effect="vegetation_belt")
-    assert fw.fits_rolling and (fw.box.lower[3], fw.box.upper[3]) == (10.0, 20.0)
+    assert fw.n_rolling == 1 and (fw.box.lower[3], fw.box.upper[3]) == (10.0, 20.0)
     assert fw.box.names == rolling.names + ("belt_start_m", "belt_loss")
 
     mine = Box(narrow.names + ("gamma",), narrow.lower + (-0.2,), narrow.upper + (0.2,))

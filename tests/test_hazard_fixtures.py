@@ -16,12 +16,15 @@ def _summary(v):
 
 
 def write_calibration(folder, *, crsp=(0.41, 0.87, 2.0), dem=(0.40, 0.5), profile=PROFILE,
-                      crsp_posterior=None, dem_posterior=None, name="calibration.json"):
+                      crsp_posterior=None, dem_posterior=None, name="calibration.json",
+                      crsp_names=None):
     """Write ``calibration.json`` (and posterior CSVs) into ``folder``.
 
     Args:
         crsp: (Kn, Kt, roughness_m[, rolling_friction_deg]) map values, or None for
             no CRSP section.
+        crsp_names: names of ``crsp``'s values (default: the above), e.g. with one
+            ``rolling_friction_deg[<zone>]`` per zone.
         dem: (a, b) of alpha = a L^-b, or None for no DEM section.
         crsp_posterior: (R, 3) rows for crsp_posterior.csv, or None (null).
         dem_posterior: (R, 2) rows for dem_posterior.csv, or None.
@@ -36,7 +39,7 @@ def write_calibration(folder, *, crsp=(0.41, 0.87, 2.0), dem=(0.40, 0.5), profil
                                   "dem_side_m": "block_size_m"},
            "fit_quality": []}
     if crsp is not None:
-        names = ("Kn", "Kt", "roughness_m", "rolling_friction_deg")[:len(crsp)]
+        names = crsp_names or ("Kn", "Kt", "roughness_m", "rolling_friction_deg")[:len(crsp)]
         doc["crsp"] = {k: _summary(v) for k, v in zip(names, crsp, strict=True)}
         doc["crsp"]["posterior_csv"] = None
         if crsp_posterior is not None:

@@ -21,7 +21,7 @@ def test_fourth_parameter_at_the_profile_value_changes_nothing_and_orders_runout
     sizes = np.array([0.5, 2.0])
     three = CrspForward(PROFILE, sizes, 64, key, box=CRSP_BOX)
     four = CrspForward(PROFILE, sizes, 64, key, box=CRSP_ROLLING_BOX)
-    assert four.fits_rolling and not three.fits_rolling
+    assert four.n_rolling == 1 and three.n_rolling == 0
     np.testing.assert_array_equal(four.runouts([[0.41, 0.87, 1.0, 30.0]]),
                                   three.runouts([[0.41, 0.87, 1.0]]))
     r = four.runouts([[0.41, 0.87, 1.0, 10.0], [0.41, 0.87, 1.0, 40.0]])

@@ -8,7 +8,8 @@ the notebooks), never by re-parsing the JSON with its own names. Schema
 
 * ``crsp``: ``Kn``, ``Kt``, ``roughness_m`` (and ``rolling_friction_deg`` when
   it was fitted: one angle for every zone) with ``map``/``mean``/``q05``/``q95``
-  and ``posterior_csv`` (columns ``Kn,Kt,roughness_m[,rolling_friction_deg]``;
+  and ``posterior_csv`` (columns ``Kn,Kt,roughness_m[,rolling_friction_deg]``, or one
+  ``rolling_friction_deg[<zone>]`` per zone;
   null after a gradient-only fit);
 * ``dem``: ``alpha_law`` (``form`` "power" with ``a``, ``b``: alpha = a L^-b, L
   the square side in m; or ``form`` "constant" with ``alpha``; every model runs
@@ -37,6 +38,7 @@ from typing import NamedTuple
 import numpy as np
 
 from calib.model.alpha_law import FORMS, PARAMETER_RANGES
+from calib.model.priors import base_name, rolling_zone
 from solvers.dem import check_run_numerics
 
 __all__ = ["SCHEMA", "Calibration", "CalibrationError", "CalibrationFile", "Draws",
@@ -257,9 +259,9 @@ def _model_from_doc(path: str, doc: dict, model: str | None) -> Calibration:
     profile_csv = _resolve(path, doc.get("profile_csv"), json_dir, "profile_csv", True)
     sec = _section(path, doc, model)
     if model == "crsp":
-        names = ("Kn", "Kt", "roughness_m") + (
-            ("rolling_friction_deg",) if "rolling_friction_deg" in sec else ())
-        ranges = _CRSP_RANGES
+        names = ("Kn", "Kt", "roughness_m") + tuple(
+            k for k in sec if rolling_zone(k) is not None)  # one, or one per zone
+        ranges = {n: _CRSP_RANGES[base_name(n)] for n in names}
         point = [_summary_value(path, sec, "crsp", n, ranges[n]) for n in names]
         form = ""
     else:

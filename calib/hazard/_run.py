@@ -22,7 +22,7 @@ from calib.hazard._stats import BINS, hist_quantile
 from calib.hazard._units import crsp_chunk, dem_chunk, draw_key
 from calib.model.alpha_law import alpha_of, check_law
 from calib.model.dem_run import DEM_RUN, DemRun
-from calib.model.forward import stack_trees
+from calib.model.forward import named_overrides, stack_trees
 from solvers import crsp, dem
 from solvers.profile import Profile
 
@@ -181,8 +181,7 @@ def _crsp_units(draws, profile, release_x, sizes_m, stations, n_blocks, seed, ch
                            settings=settings)
     for d, values in enumerate(draws.values):
         p = crsp.params_from_profile(profile, release_x_m=release_x,
-                                     **{n: float(v) for n, v in
-                                        zip(draws.names, values, strict=True)})
+                                     **named_overrides(draws.names, values, profile))
         params = stack_trees([p] * n_sizes)
         key = draw_key(seed, d)
         for off in offsets:

@@ -10,7 +10,8 @@ Yao 1992, "Some guidelines and guarantees for common random numbers").
 sets at one theta, to measure the Monte Carlo error itself.
 
 * ``CrspForward``: theta = (Kn, Kt, roughness_m), one set for the whole slope
-  (with ``box=CRSP_ROLLING_BOX`` also the rolling resistance angle);
+  (with ``box=CRSP_ROLLING_BOX`` also the rolling resistance angle, with
+  ``zoned_rolling_box`` one angle per material zone);
   sphere radius d / 2 (``calib.files.observations``). One lane pool runs all
   (theta, size) tasks (``solvers.crsp.simulate_tasks``).
 * ``DemForward``: theta = the damping law's parameters; a block of size d is a
@@ -38,29 +39,67 @@ import solvers.crsp as crsp
 from calib.files.observations import crsp_radius_m, dem_side_m
 from calib.model.alpha_law import ALPHA_MAX, alpha_of
 from calib.model.dem_run import DEM_RUN, DemRun
-from calib.model.priors import CRSP_BOX, DEM_BOXES, Box
+from calib.model.priors import CRSP_BOX, DEM_BOXES, Box, rolling_zone, zoned_name
 from calib.model.unfinished import mask_unfinished
 from calib.model.warp import unwarp, warp, warped_box
 from solvers.parallel import default_workers, map_ordered
 from solvers.profile import Profile
 
 __all__ = ["CrspForward", "DemForward", "dem_lanes", "entry_releases", "gather_entries",
-           "profile_parts", "split_by_profile", "stack_trees", "take_entries"]
+           "named_overrides", "profile_parts", "rolling_columns", "split_by_profile", "stack_trees",
+           "take_entries"]
 
 
-@functools.partial(jax.jit, static_argnames=("with_rolling",))
-def _crsp_params(base: crsp.Params, theta: jax.Array, with_rolling: bool = False
+@functools.partial(jax.jit, static_argnames=("rolling_cols",))
+def _crsp_params(base: crsp.Params, theta: jax.Array, rolling_cols: tuple[int, ...] = ()
                  ) -> crsp.Params:
-    """Per-task parameters: theta (T, 3) sets Kn, Kt, roughness_m in every zone;
-    with ``with_rolling`` theta (T, 4) also sets rolling_friction_deg."""
+    """Per-task parameters: theta (T, 3 + k) sets Kn, Kt, roughness_m in every
+    zone; ``rolling_cols`` (one theta column per zone, or ()) sets each zone's
+    rolling_friction_deg (``rolling_columns``)."""
     n_t, n_z = theta.shape[0], base.Kn.shape[0]
     zone = lambda v: jnp.broadcast_to(v[:, None], (n_t, n_z))  # noqa: E731
     p = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (n_t,) + a.shape), base)
     p = p._replace(Kn=zone(theta[:, 0]), Kt=zone(theta[:, 1]),
                    roughness_m=zone(theta[:, 2]))
-    if with_rolling:
-        p = p._replace(rolling_friction_deg=zone(theta[:, 3]))
+    if rolling_cols:
+        p = p._replace(rolling_friction_deg=theta[:, jnp.asarray(rolling_cols)])
     return p
+
+
+def rolling_columns(names, profile: Profile) -> tuple[int, ...]:
+    """For each zone of ``profile``, the column of ``names`` that holds its
+    rolling-resistance angle: ``rolling_friction_deg`` (every zone) or
+    ``rolling_friction_deg[<zone>]`` (``calib.model.priors.zoned_rolling_box``);
+    () when no column does (the profile's materials keep theirs). A ValueError
+    when a zone has no column, or a zoned column is mixed with the global one.
+    A zoned column for a zone this profile lacks is allowed (another profile of
+    the same fit may have it)."""
+    zones = {rolling_zone(n): j for j, n in enumerate(names) if rolling_zone(n) is not None}
+    if not zones:
+        return ()
+    if "" in zones:
+        if len(zones) > 1:
+            raise ValueError("a rolling resistance for every zone (rolling_friction_deg) "
+                             "and per zone cannot be fitted together")
+        return (zones[""],) * len(profile.zone_names)
+    missing = [z for z in profile.zone_names if z not in zones]
+    if missing:
+        raise ValueError(f"zoned rolling resistance: the profile's zone(s) "
+                         f"{', '.join(missing)} have no parameter (expected "
+                         f"{', '.join(zoned_name(z) for z in missing)})")
+    return tuple(zones[z] for z in profile.zone_names)
+
+
+def named_overrides(names, values, profile: Profile) -> dict:
+    """``solvers.crsp.params_from_profile`` overrides of one parameter set
+    (``names``, ``values``, e.g. a posterior draw): each zone's rolling
+    resistance from its column (``rolling_columns``), the rest by name."""
+    values = [float(v) for v in values]
+    out = {n: v for n, v in zip(names, values, strict=True) if rolling_zone(n) is None}
+    cols = rolling_columns(names, profile)
+    if cols:
+        out["rolling_friction_deg"] = np.asarray([values[c] for c in cols])
+    return out
 
 
 @functools.partial(jax.jit, static_argnames=("options",))
@@ -193,7 +232,8 @@ class CrspForward:
             (default 96), divided by the number of worker threads.
         box: prior box of theta. Without an effect: (Kn, Kt, roughness_m), e.g.
             ``CRSP_BOX``, or with the rolling resistance angle fourth
-            (``CRSP_ROLLING_BOX``), or a narrower box of the same names. With an
+            (``CRSP_ROLLING_BOX``), or one angle per zone of the profile(s)
+            (``zoned_rolling_box``), or a narrower box of the same names. With an
             effect: that baseline box, to which the effect's columns and their
             stock ranges are appended (``calib.model.effects.full_box``; the
             baseline's ranges are kept), or a box that already ends with the
@@ -257,6 +297,7 @@ class CrspForward:
             else:  # box already ends with them: kept, its baseline checked as full_box does
                 full_box(self.effect, self.profile, base=Box(
                     *(v[:n_base] for v in (self.box.names, self.box.lower, self.box.upper))))
+        rolling_columns(self.box.names, self.profile)  # every zone has its phi_r, or none
         self._parts = split_by_profile(self)  # entries on other profiles: own forwards
 
     @property
@@ -264,16 +305,19 @@ class CrspForward:
         return self.box.names
 
     @property
-    def fits_rolling(self) -> bool:
-        """theta's 4th column is the rolling resistance angle (``CRSP_ROLLING_BOX``)."""
-        return len(self.box.names) > 3 and self.box.names[3] == "rolling_friction_deg"
+    def n_rolling(self) -> int:
+        """theta's rolling-resistance columns after (Kn, Kt, S): 0, 1
+        (``CRSP_ROLLING_BOX``) or one per zone (``zoned_rolling_box``)."""
+        return sum(rolling_zone(n) is not None for n in self.box.names[3:])
 
     def params(self, theta) -> crsp.Params:
-        """Per-task CRSP parameters (T, ...) from theta (T, 3 + k), one set for all zones."""
+        """Per-task CRSP parameters (T, ...) from theta (T, 3 + k): Kn, Kt and S
+        for all zones, the rolling resistance for all zones or per zone."""
         theta = np.atleast_2d(np.asarray(theta, float))
-        n_core = 4 if self.fits_rolling else 3
+        n_core = 3 + self.n_rolling
         p = _crsp_params(crsp.params_from_profile(self.profile),
-                         jnp.asarray(theta[:, :n_core], jnp.float64), self.fits_rolling)
+                         jnp.asarray(theta[:, :n_core], jnp.float64),
+                         rolling_columns(self.box.names[:n_core], self.profile))
         if self.effect == "none":
             return p
         from calib.model.effects import crsp_overrides

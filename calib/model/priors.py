@@ -38,6 +38,14 @@ CRSP (restitution coefficients are velocity ratios, dimensionless):
   at the same point whatever Kn, Kt and phi_r). Assumption; the three-parameter
   ``CRSP_BOX`` of the discrepancy studies keeps 0.25 m.
 
+* Zoned rolling resistance (``zoned_rolling_box``, ``python -m calib.fit
+  --rolling-resistance zones``): one phi_r per material zone of the profile,
+  named ``rolling_friction_deg[<zone>]``, each with the same 5-40 deg box. Our
+  choice, for a slope whose parts differ (the STONE table above gives 16.7 deg
+  for a rock face and 38.7 deg for colluvium; RocFall and CRSP assign
+  parameters per material): on Tschamut one phi_r must both stop blocks on the
+  near-flat run-out and let them roll down the 34-41 deg meadow above it.
+
 DEM damping law:
 
 * power law alpha(L) = a L^-b (L in m): a in [0.05, 0.95] (alpha of a 1 m
@@ -51,10 +59,14 @@ DEM damping law:
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import numpy as np
 
-__all__ = ["Box", "CRSP_BOX", "CRSP_ROLLING_BOX", "DEM_BOXES", "crsp_box"]
+__all__ = ["Box", "CRSP_BOX", "CRSP_ROLLING_BOX", "DEM_BOXES", "ROLLING", "base_name",
+           "crsp_box", "rolling_zone", "zoned_name", "zoned_rolling_box"]
+
+ROLLING = "rolling_friction_deg"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,9 +111,41 @@ DEM_BOXES = {
 }
 
 
+def zoned_name(zone: str) -> str:
+    """The name of zone ``zone``'s own rolling-resistance angle."""
+    return f"{ROLLING}[{zone}]"
+
+
+def rolling_zone(name: str) -> str | None:
+    """The zone of a rolling-resistance parameter: "" for ``rolling_friction_deg``
+    (every zone), the zone for ``rolling_friction_deg[<zone>]``, None otherwise."""
+    if name == ROLLING:
+        return ""
+    m = re.fullmatch(re.escape(ROLLING) + r"\[(.+)\]", name)
+    return m.group(1) if m else None
+
+
+def base_name(name: str) -> str:
+    """``rolling_friction_deg`` for any rolling-resistance parameter, else ``name``."""
+    return ROLLING if rolling_zone(name) is not None else name
+
+
+def zoned_rolling_box(zones) -> Box:
+    """Kn, Kt, S as in ``CRSP_ROLLING_BOX``, then one phi_r per zone (same range)."""
+    zones = tuple(zones)
+    if not zones or len(set(zones)) != len(zones):
+        raise ValueError(f"zoned rolling resistance needs distinct zone names, got {zones}")
+    b = CRSP_ROLLING_BOX
+    return Box(b.names[:3] + tuple(zoned_name(z) for z in zones),
+               b.lower[:3] + (b.lower[3],) * len(zones), b.upper[:3] + (b.upper[3],) * len(zones))
+
+
 def crsp_box(names) -> Box:
     """The CRSP prior box whose parameters are ``names`` (a calibration's)."""
     for box in (CRSP_BOX, CRSP_ROLLING_BOX):
         if tuple(names) == box.names:
             return box
+    zones = [rolling_zone(n) for n in tuple(names)[3:]]
+    if tuple(names)[:3] == CRSP_BOX.names and zones and all(zones):
+        return zoned_rolling_box(zones)
     raise ValueError(f"no CRSP prior box has the parameters {', '.join(names)}")

@@ -12,7 +12,7 @@ Kt                    u = log(1 - Kt)      runouts change fastest as Kt -> 1
 roughness_m (S)       u = log(S)           and as S -> 0 (the Tschamut slab,
                                            S 0.05-0.1 m in a 0.01-4 m box)
 rolling_friction_deg  u = tan(phi_r)       the rolling phase's Coulomb resistance
-                                           is mu = tan(phi_r)
+(and [<zone>])                             is mu = tan(phi_r)
 any other             u = theta            (Kn, the effects' parameters)
 ====================  ===================  =========================================
 
@@ -28,7 +28,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from calib.model.priors import Box
+from calib.model.priors import Box, base_name
 
 __all__ = ["log_jacobian", "unit_coordinates", "unwarp", "warp", "warped_box",
            "warped_names"]
@@ -47,17 +47,22 @@ _WARPS = {
 }
 
 
+def _of(name):
+    """The warp of ``name`` (a zone's rolling resistance warps as the slope's), or None."""
+    return _WARPS.get(base_name(name))
+
+
 def warp(names, theta):
     """u (..., d) from theta (..., d); jnp, so it traces inside NUTS's target."""
     t = jnp.asarray(theta)
-    return jnp.stack([_WARPS[n][0](t[..., j]) if n in _WARPS else t[..., j]
+    return jnp.stack([_of(n)[0](t[..., j]) if _of(n) else t[..., j]
                       for j, n in enumerate(names)], axis=-1)
 
 
 def unwarp(names, u) -> np.ndarray:
     """theta (..., d) from u (..., d): the inverse of ``warp``."""
     u = np.asarray(u, float)
-    return np.stack([_WARPS[n][1](u[..., j]) if n in _WARPS else u[..., j]
+    return np.stack([_of(n)[1](u[..., j]) if _of(n) else u[..., j]
                      for j, n in enumerate(names)], axis=-1)
 
 
@@ -66,13 +71,13 @@ def log_jacobian(names, theta) -> np.ndarray:
     t = np.asarray(theta, float)
     out = np.zeros(t.shape[:-1])
     for j, n in enumerate(names):
-        if n in _WARPS:
-            out = out + _WARPS[n][2](t[..., j])
+        if _of(n):
+            out = out + _of(n)[2](t[..., j])
     return out
 
 
 def warped_names(names) -> tuple[str, ...]:
-    return tuple(_WARPS[n][3] if n in _WARPS else n for n in names)
+    return tuple(_of(n)[3] + n[len(base_name(n)):] if _of(n) else n for n in names)
 
 
 def warped_box(box: Box) -> Box:
