@@ -276,5 +276,10 @@ for name in ("runout_vs_size.png", "crsp_pairs.png", os.path.join("validation", 
 #   answers are the ones the outputs give: which parameter piles on its
 #   bound, which rows fall outside their bands, and `python -m calib.discover
 #   observations.csv --rolling-resistance fit` to look for the missing effect.
+# * If your slope's materials differ (rock face above, soil or scree below),
+#   give the profile one zone each (`--zones` of `solvers.profile cut`) and
+#   fit one rolling-resistance angle per zone (`calib.fit
+#   --rolling-resistance zones`). Here both zones are one meadow, and the
+#   zoned fit did worse (README, "One rolling resistance per zone").
 #   A hazard table made from a calibration that fails its own check is a
 #   number without a warrant.

@@ -528,7 +528,7 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
     timings["emulator_s"] = timings["nuts_s"] = 0.0
     if focus is not None:
         timings["realisations_s"] = 0.0
-    n_widened = 0
+    n_widened = n_nuts = 0
     screened = None
     while True:
         t0 = time.perf_counter()
@@ -553,7 +553,8 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
         emu_check["n_blocks_per_point"] = int(r_emu.shape[-1])
         timings["emulator_s"] += time.perf_counter() - t0
         t0 = time.perf_counter()
-        tick("nuts", 0, 1)
+        n_nuts += 1  # each run its own bar, numbered (re-runs after refinement or waves)
+        tick(f"nuts run {n_nuts}", 0, 1)
         posterior = run_nuts(target, nuts_box, k_nuts, budget.nuts_warmup, budget.nuts_samples,
                              budget.nuts_chains,
                              loglik_kind="summed" if focus is not None else "pointwise",
@@ -568,7 +569,7 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
 
             posterior, chain_screen, screened = screen_chains(posterior, screen_runs,
                                                                loglik_runs, obs.n_obs)
-        tick("nuts", 1, 1)
+        tick(f"nuts run {n_nuts}", 1, 1)
         timings["nuts_s"] += time.perf_counter() - t0
         if focus is None:
             break
