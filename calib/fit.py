@@ -316,20 +316,22 @@ def _fmt(v, nd=3):
 
 
 def _print_summary(result: dict, models, out: str) -> None:
-    print(f"{'model':5} {'parameter':12} {'estimate':>9} {'mean':>8} {'90% interval':>19}")
+    # the name column as wide as the longest name (rolling_friction_deg[<zone>])
+    w = max([12] + [len(n) for m in models for n in result[m]["parameters"]])
+    print(f"{'model':5} {'parameter':{w}} {'estimate':>9} {'mean':>8} {'90% interval':>19}")
     for model in models:
         sec = result[model]
         params = sec["alpha_law"] if model == "dem" else sec
         for name in sec["parameters"]:
             s = params[name]
             iv = "-" if s["q05"] is None else f"[{s['q05']:.3f}, {s['q95']:.3f}]"
-            print(f"{model:5} {name:12} {s['map']:9.3f} {_fmt(s['mean']):>8} {iv:>19}")
+            print(f"{model:5} {name:{w}} {s['map']:9.3f} {_fmt(s['mean']):>8} {iv:>19}")
         if model == "dem":
             for L, s in sec["alpha_at_L"].items():
                 iv = "-" if s["q05"] is None else f"[{s['q05']:.3f}, {s['q95']:.3f}]"
                 ref = (f"   {sec['alpha_reference']['label']}: {s['reference']:.2f}"
                        if "reference" in s else "")
-                print(f"{model:5} {'alpha(' + L + ')':12} {s['map']:9.3f} {_fmt(s['mean']):>8} "
+                print(f"{model:5} {'alpha(' + L + ')':{w}} {s['map']:9.3f} {_fmt(s['mean']):>8} "
                       f"{iv:>19}{ref}")
     print(f"\n{'model':5} {'size m':>6} {'observed m':>14} {'sim median':>10} "
           f"{'sim 5-95 %':>15} {'PIT':>5}")
