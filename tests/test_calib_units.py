@@ -13,7 +13,7 @@ from scipy.stats import norm
 import calib  # noqa: F401  (x64)
 from calib.files.observations import ObservationError, load_observations
 from calib.inference.emulator import fit_emulator, holdout_error, variance_inflation
-from calib.inference.likelihood import log_likelihood
+from calib.inference.likelihood import R_MAX_M, RUNOUT_EPS, _log_diff_ndtr, log_likelihood
 
 
 def _write(tmp_path, text, name="obs.csv"):
@@ -57,12 +57,14 @@ def test_bad_observation_files_name_the_line_and_column(tmp_path, text, needle):
 
 
 def test_point_likelihood_is_the_kernel_density():
-    """One sample r: p(y) = N(y; r, sd^2); two samples: the mixture."""
+    """Two samples: the mixture of their kernels (weight 1 - eps), plus the
+    defensive uniform eps / R_MAX."""
     r = jnp.array([[100.0, 130.0]])
     y, sd = jnp.array([110.0]), jnp.array([15.0])
     z = jnp.zeros(1)
     ll = log_likelihood(r, y, sd, z, z, jnp.array([False]))
-    expect = math.log(0.5 * norm.pdf(110, 100, 15) + 0.5 * norm.pdf(110, 130, 15))
+    kde = 0.5 * norm.pdf(110, 100, 15) + 0.5 * norm.pdf(110, 130, 15)
+    expect = math.log((1.0 - RUNOUT_EPS) * kde + RUNOUT_EPS / R_MAX_M)
     assert float(ll[0]) == pytest.approx(expect, rel=1e-10)
 
 
@@ -73,10 +75,15 @@ def test_interval_likelihood_is_a_probability_and_finite_in_the_tails():
     ll = log_likelihood(r, z, z, jnp.array([140.0]), jnp.array([160.0]), jnp.array([True]))
     # smoothed by a kernel of width h: P = P(|N(0, 10^2 + h^2)| < 10), h small
     assert math.exp(float(ll[0])) == pytest.approx(0.683, abs=0.02)
+    # far in either tail only the defensive component eps (b - a) / R_MAX is left
     far = log_likelihood(r, z, z, jnp.array([400.0]), jnp.array([500.0]), jnp.array([True]))
-    assert np.isfinite(float(far[0])) and float(far[0]) < -100
+    assert float(far[0]) == pytest.approx(math.log(RUNOUT_EPS * 100.0 / R_MAX_M), rel=1e-9)
     lower = log_likelihood(r, z, z, jnp.array([0.0]), jnp.array([10.0]), jnp.array([True]))
-    assert np.isfinite(float(lower[0])) and float(lower[0]) < -100
+    assert float(lower[0]) == pytest.approx(math.log(RUNOUT_EPS * 10.0 / R_MAX_M), rel=1e-9)
+    # and the kernel's own tail probability stays finite (no 0 - 0 underflow)
+    for hi, lo in ((-30.0, -40.0), (40.0, 30.0)):
+        v = float(_log_diff_ndtr(jnp.asarray(hi), jnp.asarray(lo)))
+        assert np.isfinite(v) and v < -400
 
 
 def test_emulator_learns_a_smooth_quantile_function_and_its_uncertainty_is_honest():

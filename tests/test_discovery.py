@@ -192,8 +192,15 @@ def test_discover_names_a_strong_hidden_effect_and_shrinks_the_gap(discover_run)
     named = next(c for c in r["candidates"] if c["effect"] == "size_dissipation")
     assert named["effective_rows"] > rows_needed(n)  # the 2-se bar, restated
     assert r["gap_after"] < r["gap_before"]
-    # where: the residuals trend with size (big blocks further than the baseline says)
-    assert r["where"]["size_trend"]["flag"] and r["where"]["size_trend"]["spearman_rho"] > 0
+    # where: size classes, on the side the hidden effect puts them (restitution
+    # x (d / 1 m)^0.5: blocks below 1 m lose more, so they travel shorter than the
+    # baseline says), and the residuals rise with size. Since the likelihood's
+    # defensive component (stop 29) the baseline fits the extremes better and the
+    # trend over all rows is no longer significant (measured: 0.4, 0.7 and 1.0 m
+    # flagged at z -3.4, -4.4, -3.4; rho +0.30, p_adj 1); before it, the trend was.
+    flagged = [c for c in r["where"]["by_size"] if c["flag"]]
+    assert flagged and all(c["z"] < 0 and c["size_m"] <= 1.0 for c in flagged), flagged
+    assert r["where"]["size_trend"]["spearman_rho"] > 0
     assert "named effect: size_dissipation" in proc.stdout
 
 

@@ -12,7 +12,7 @@ from scipy.stats import norm
 from calib.discovery.discrepancy import _loglik_design, size_classes
 from calib.files.observations import Observations
 from calib.inference.calibrate import _loglik_of_runouts
-from calib.inference.likelihood import observed_rows
+from calib.inference.likelihood import R_MAX_M, RUNOUT_EPS, log_likelihood, observed_rows
 
 NAN = np.nan
 
@@ -43,24 +43,27 @@ def _runouts(n_points: int = 3, n: int = 24) -> np.ndarray:
 def _documented(obs: Observations, runouts: np.ndarray) -> np.ndarray:
     """README.md, "Observation model", in NumPy: points (1/n) sum_j N(y; r_j, sd^2),
     intervals (1/n) sum_j [Phi((b - r_j)/h) - Phi((a - r_j)/h)], h Silverman's
-    width (>= 0.5 m), over the finished blocks."""
+    width (>= 0.5 m), over the finished blocks; each mixed with weight 1 - eps
+    with the defensive uniform eps / R_MAX (eps (b - a) / R_MAX for intervals)."""
     out = np.empty((runouts.shape[0], obs.n_obs))
     for t, by_size in enumerate(runouts):
         for i in range(obs.n_obs):
             r = by_size[obs.size_index[i]]
             r = r[np.isfinite(r)]
+            width = (obs.runout_max_m[i] - obs.runout_min_m[i]) if obs.is_interval[i] else 1.0
+            floor = RUNOUT_EPS * width / R_MAX_M
             if r.size == 0:
-                out[t, i] = -np.inf
+                out[t, i] = np.log(floor)
                 continue
             if not obs.is_interval[i]:
-                lp = norm.logpdf(obs.runout_m[i], r, obs.runout_sd_m[i])
-                out[t, i] = logsumexp(lp) - np.log(r.size)
-                continue
-            q75, q25 = np.percentile(r, [75.0, 25.0])
-            spread = min(np.std(r), (q75 - q25) / 1.34)
-            h = max(0.9 * spread * r.size ** -0.2, 0.5) if r.size >= 2 else 0.5
-            p = ndtr((obs.runout_max_m[i] - r) / h) - ndtr((obs.runout_min_m[i] - r) / h)
-            out[t, i] = np.log(np.mean(p))
+                p = np.mean(norm.pdf(obs.runout_m[i], r, obs.runout_sd_m[i]))
+            else:
+                q75, q25 = np.percentile(r, [75.0, 25.0])
+                spread = min(np.std(r), (q75 - q25) / 1.34)
+                h = max(0.9 * spread * r.size ** -0.2, 0.5) if r.size >= 2 else 0.5
+                p = np.mean(ndtr((obs.runout_max_m[i] - r) / h)
+                            - ndtr((obs.runout_min_m[i] - r) / h))
+            out[t, i] = np.log((1.0 - RUNOUT_EPS) * p + floor)
     return out
 
 
@@ -70,7 +73,8 @@ def test_fit_and_discover_score_the_same_rows_identically():
     _, row_class = size_classes(obs.block_size_m)
     discover_path = np.asarray(_loglik_design(runs, row_class, *observed_rows(obs)))
     assert fit_path.shape == (3, obs.n_obs)
-    assert np.isneginf(fit_path[-1, 2])  # no finished block of its size
+    # no finished block of its size: only the defensive component is left
+    assert fit_path[-1, 2] == pytest.approx(np.log(RUNOUT_EPS / R_MAX_M), rel=1e-12)
     np.testing.assert_allclose(discover_path, fit_path, rtol=1e-13, atol=0)
     for kind in (obs.is_interval, ~obs.is_interval):  # both kinds of row are there
         assert np.isfinite(fit_path[:, kind]).any()
@@ -88,3 +92,24 @@ def test_a_point_row_without_a_tolerance_is_refused():
         observed_rows(obs)
     with pytest.raises(ValueError, match="positive tolerance"):
         observed_rows(Observations.points([0.5], [100.0], [0.0]))
+
+
+def test_a_row_no_block_reaches_costs_a_bounded_amount():
+    """The defensive component (Hesterberg 1995): a point row 40 m from every
+    simulated block (a 2 m tolerance) scored -202 nats without it (the Tschamut
+    short runs that pushed the rolling resistance to 36 deg, stop 29); now it
+    scores log(eps / R_MAX) = -13.8. A row the blocks explain changes by
+    log(1 - eps) at most, and an interval row by its own floor."""
+    blocks = np.linspace(90.0, 110.0, 64)[None].repeat(3, 0)
+    y = np.array([50.0, 100.0, 0.0])
+    sd = np.array([2.0, 2.0, 1.0])
+    lo, hi = np.array([0.0, 0.0, 20.0]), np.array([1.0, 1.0, 40.0])
+    is_interval = np.array([False, False, True])
+    ll = np.asarray(log_likelihood(blocks, y, sd, lo, hi, is_interval))
+    kde_far = logsumexp(norm.logpdf(50.0, blocks[0], 2.0)) - np.log(64)
+    kde_near = logsumexp(norm.logpdf(100.0, blocks[1], 2.0)) - np.log(64)
+    assert kde_far < -200.0
+    assert ll[0] == pytest.approx(np.log(RUNOUT_EPS / R_MAX_M), abs=1e-9)
+    assert ll[0] == pytest.approx(-13.8155, abs=1e-4)
+    assert 0.0 < kde_near - ll[1] <= -np.log1p(-RUNOUT_EPS) + 1e-12
+    assert ll[2] == pytest.approx(np.log(RUNOUT_EPS * 20.0 / R_MAX_M), abs=1e-9)
