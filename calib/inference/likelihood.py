@@ -34,7 +34,7 @@ seed-1 split, stop 29): without it three runs that stopped after 27-36 m,
 which few simulated blocks of their groups reached, could cost tens to
 hundreds of nats each (at phi_r 20 deg, 95 % of their groups' blocks stop
 23-47 m beyond them; a 2 m kernel gives a block 23-47 m away a log weight of
--66 to -276, against about -190 for all 43 rows at the fit's optimum). They
+about -70 to -270, against about -190 for all 43 rows at the fit's optimum). They
 dominated the summed log-likelihood and pushed the rolling resistance to 36 deg, where the blocks
 of other groups stalled at their release: held-out CRPS 12.7 m, skill -0.24.
 With it: 10.6 m, skill -0.03 (+0.11 against the per-size climatology), and
