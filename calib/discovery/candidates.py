@@ -14,7 +14,7 @@ import functools
 from calib.discovery.discrepancy import Candidate
 from calib.model.effects import CRSP_EFFECTS, full_box
 from calib.model.forward import CrspForward
-from calib.model.priors import CRSP_BOX, Box, rolling_zone
+from calib.model.priors import CRSP_BOX, Box, has_rolling
 
 __all__ = ["crsp_candidates"]
 
@@ -35,7 +35,7 @@ def crsp_candidates(profile, effects=CRSP_EFFECTS, base: Box = CRSP_BOX) -> list
     rolling resistance (``base = CRSP_ROLLING_BOX``) the ``rolling_resistance``
     effect is part of the baseline and is left out."""
     names = ["none"] + [e for e in effects if e != "none"]
-    if any(rolling_zone(n) is not None for n in base.names):
+    if has_rolling(base.names):
         names = [e for e in names if e != "rolling_resistance"]
     return [Candidate(e, full_box(e, profile, base=base),
                       functools.partial(_crsp_forward, profile, e, base))

@@ -42,7 +42,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from calib.model.priors import CRSP_BOX, DEM_BOXES, Box, rolling_zone
+from calib.model.priors import CRSP_BOX, DEM_BOXES, Box, has_rolling
 
 __all__ = [
     "CRSP_EFFECTS",
@@ -170,7 +170,7 @@ def full_box(name: str, profile, model: str = "crsp", base: Box = CRSP_BOX) -> B
     extra = effect_box(name, profile, model)
     if model == "dem":
         return extra
-    if name == "rolling_resistance" and any(rolling_zone(n) is not None for n in base.names):
+    if name == "rolling_resistance" and has_rolling(base.names):
         raise ValueError("the rolling_resistance effect adds to a rolling resistance the "
                          "baseline already fits (rolling_friction_deg): the two are one "
                          "parameter")

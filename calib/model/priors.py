@@ -64,7 +64,7 @@ import re
 import numpy as np
 
 __all__ = ["Box", "CRSP_BOX", "CRSP_ROLLING_BOX", "DEM_BOXES", "ROLLING", "base_name",
-           "crsp_box", "rolling_zone", "zoned_name", "zoned_rolling_box"]
+           "crsp_box", "has_rolling", "rolling_zone", "zoned_name", "zoned_rolling_box"]
 
 ROLLING = "rolling_friction_deg"
 
@@ -123,6 +123,11 @@ def rolling_zone(name: str) -> str | None:
         return ""
     m = re.fullmatch(re.escape(ROLLING) + r"\[(.+)\]", name)
     return m.group(1) if m else None
+
+
+def has_rolling(names) -> bool:
+    """``names`` include a rolling-resistance angle (for every zone, or per zone)."""
+    return any(rolling_zone(n) is not None for n in names)
 
 
 def base_name(name: str) -> str:
