@@ -279,7 +279,9 @@ for name in ("runout_vs_size.png", "crsp_pairs.png", os.path.join("validation", 
 # * If your slope's materials differ (rock face above, soil or scree below),
 #   give the profile one zone each (`--zones` of `solvers.profile cut`) and
 #   fit one rolling-resistance angle per zone (`calib.fit
-#   --rolling-resistance zones`). Here both zones are one meadow, and the
-#   zoned fit did worse (README, "One rolling resistance per zone").
+#   --rolling-resistance zones`). Here both zones are one meadow: the zoned
+#   fit passes its checks but leaves both angles barely determined and
+#   predicts no better than one angle (README, "One rolling resistance per
+#   zone").
 #   A hazard table made from a calibration that fails its own check is a
 #   number without a warrant.
