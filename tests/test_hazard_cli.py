@@ -153,6 +153,10 @@ def bad(tmp_path):
      "--dem-stiffness-scale: expected a value in (0, 1], got 1.5"),
     ("ok", ["--dem-max-time-s", "0"], "--dem-max-time-s: expected a positive time, got 0"),
     ("ok", ["--road-x-m", "400"], "--road-x-m 400"),
+    ("ok", ["--release-x-m", "400"], "--release-x-m 400: the release lies outside the profile"),
+    ("ok", ["--release-x-m", "nan"], "--release-x-m nan: the release lies outside the profile"),
+    ("ok", ["--release-x-m", "240"],
+     "station of interest lies at or above the release at x = 240 m"),
     ("ok", ["--bogus"], "unrecognized arguments"),
 ])
 def test_bad_input_one_line_exit_2_nothing_written(bad, tmp_path, capsys, case, extra, needle):
@@ -188,3 +192,24 @@ def test_design_values_are_numbers_where_blocks_pass(run_a):
     assert np.all(passed.energy_p50_kJ <= passed.energy_p95_kJ)
     assert np.all(passed.energy_p95_kJ <= passed.energy_p99_kJ)
     assert np.all(passed.energy_p95_kJ_q05 <= passed.energy_p95_kJ_q95)
+
+
+def test_release_abscissa_is_an_option(cal_path, run_a, tmp_path, capsys):
+    """``--release-x-m`` releases every block there (a field site's release area
+    is rarely the profile's first vertex): stations at or above it are not
+    reached (undefined), the rest are, and the summary says where the blocks
+    started. Without it the calibration's release is used (the first vertex
+    for this file)."""
+    out = tmp_path / "rel"
+    assert main([cal_path, *SMALL, "--release-x-m", "100", "--out", str(out)]) == 0
+    summary = (out / "summary.txt").read_text()
+    assert "released at x = 100 m" in summary
+    assert "released at x = 0 m" in (run_a[0] / "summary.txt").read_text()
+    table = pd.read_csv(out / "hazard_table.csv")
+    assert table[table.x_m <= 100.0].reach_prob_mean.isna().all()
+    assert table[table.x_m > 100.0].reach_prob_mean.notna().all()
+    exc = pd.read_csv(out / "exceedance.csv")
+    assert (exc[exc.x_m <= 100.0].p_exceed_mean == 1.0).all()  # every block stops beyond
+    base = pd.read_csv(run_a[0] / "exceedance.csv")
+    below = exc.x_m > 100.0
+    assert not np.allclose(base[below].p_exceed_mean, exc[below].p_exceed_mean)

@@ -57,6 +57,10 @@ def build_parser() -> OneLineParser:
     p.add_argument("--release-rate-per-year", type=float,
                    help="blocks of each size released per year (gives annual frequencies "
                         "and hazard levels)")
+    p.add_argument("--release-x-m", type=float, default=None,
+                   help="release abscissa of every block, m (default: the calibration's "
+                        "release_x_m, the median release of the rows it fitted; files "
+                        "without one: the profile's first vertex)")
     p.add_argument("--road-x-m", type=float, default=None,
                    help="abscissa of the station of interest (a road) where the summary "
                         "reports, m (default: the site file's station_of_interest next to "
@@ -163,6 +167,15 @@ def main(argv: list[str] | None = None) -> int:
         if not (math.isfinite(road_x) and lo < road_x <= hi):
             raise CliError(f"{where} {road_x:g}: the station of interest lies outside the "
                            f"profile ({lo:g}, {hi:g}] m")
+        release_x = args.release_x_m
+        if release_x is not None and not (math.isfinite(release_x) and lo <= release_x < hi):
+            raise CliError(f"--release-x-m {release_x:g}: the release lies outside the "
+                           f"profile [{lo:g}, {hi:g}) m")
+        if release_x is None:
+            release_x = lo if cal.release_x_m is None else float(cal.release_x_m)
+        if road_x <= release_x:
+            raise CliError(f"{where} {road_x:g}: the station of interest lies at or above "
+                           f"the release at x = {release_x:g} m: no block can pass it")
         stations = sorted(set(stations) | {road_x})
         n_blocks = args.n_blocks or DEFAULTS[cal.model][0]
         n_post = args.n_posterior or DEFAULTS[cal.model][1]
@@ -186,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
     counts = run_hazard(cal, draws, profile, sizes, np.asarray(stations), n_blocks, args.seed,
                         chunk_blocks=args.chunk_blocks, pool=args.pool,
                         settings=crsp.Settings(max_events=args.max_events),
-                        dem_run=dem_run,
+                        dem_run=dem_run, release_x_m=release_x,
                         progress=bar.update)
     wall = time.perf_counter() - t0
     bar.close()

@@ -100,6 +100,7 @@ def _chunks(n_blocks: int, max_chunk: int) -> tuple[int, list[int]]:
 def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, stations_x_m,
                n_blocks: int, seed: int, *, chunk_blocks: int = 16384, pool: int | None = None,
                settings: crsp.Settings = crsp.Settings(), dem_run: DemRun = DEM_RUN,
+               release_x_m: float | None = None,
                progress: Callable[[int], None] | None = None, devices=None) -> HazardCounts:
     """Simulate ``n_blocks`` blocks per draw and size; reduce at the stations.
 
@@ -117,6 +118,8 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
         pool: CRSP lanes per unit (None: ``solvers.crsp.default_pool()``).
         settings: CRSP settings.
         dem_run: DEM numerics (``calib.model.dem_run``; default: the fit's).
+        release_x_m: release abscissa of every block, m (None: the
+            calibration's ``release_x_m``, else the profile's first vertex).
         progress: called with the number of blocks finished after each unit.
         devices: JAX devices (default all).
 
@@ -127,7 +130,9 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
     stations = np.asarray(stations_x_m, dtype=np.float64)
     n_draws, n_sizes, n_st = len(draws.values), len(sizes_m), len(stations)
     chunk, offsets = _chunks(n_blocks, chunk_blocks)
-    release_x = float(profile.x_m[0]) if cal.release_x_m is None else float(cal.release_x_m)
+    if release_x_m is None:
+        release_x_m = profile.x_m[0] if cal.release_x_m is None else cal.release_x_m
+    release_x = float(release_x_m)
     shape = (n_draws, n_sizes, n_st)
     acc = {k: np.zeros(shape, np.int64) for k in ("exceed", "reach", "e30", "e300")}
     n_unfinished = np.zeros((n_draws, n_sizes), np.int64)

@@ -172,8 +172,8 @@ def summary_text(c: HazardCounts, table: pd.DataFrame, road_x_m: float,
     (named ``label``: "road", or what the site file calls it) and the design
     values there."""
     lines = [f"hazard ({c.model}): {len(c.draws.values)} draw(s) from the "
-             f"{c.draws.source} x {len(c.sizes_m)} size(s) x {c.n_blocks} blocks; "
-             f"{label} at x = {road_x_m:g} m"]
+             f"{c.draws.source} x {len(c.sizes_m)} size(s) x {c.n_blocks} blocks "
+             f"released at x = {c.release_x_m:g} m; {label} at x = {road_x_m:g} m"]
     at = table[np.isclose(table["x_m"], road_x_m)]
     for _, r in at.iterrows():
         line = (f"  D = {r.block_size_m:g} m: P(reach {label}) = {r.reach_prob_mean:.3g} "
