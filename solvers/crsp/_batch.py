@@ -30,7 +30,7 @@ from solvers.crsp._model import (
     step,
 )
 from solvers.crsp._params import Block, Params, Settings
-from solvers.crsp._stations import caller_columns, empty_values, packed, record
+from solvers.crsp._stations import empty_values, record
 from solvers.parallel import default_workers, map_ordered
 from solvers.profile import Profile
 
@@ -165,8 +165,7 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
     proto = jax.eval_shape(finalize, jax.tree_util.tree_map(lambda a: a[0], states), x0[0])
     out = jax.tree_util.tree_map(lambda a: jnp.zeros((n_items,) + a.shape, a.dtype), proto)
     # station passages go straight from the lanes into the output (one
-    # (n_items, n_stations, 3) array in the caller's station order: one
-    # scatter per step), never through the lanes' state
+    # (n_items, n_stations) array per quantity), never through the lanes' state
     values = empty_values((n_items, stations_x_m.shape[0]))
 
     def cond(carry):
@@ -180,8 +179,8 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
         def steps(_, c):
             s, values = c
             s, w = jax.vmap(lane_step)(s, words, task)
-            values = values.at[item[:, None], caller_columns(w.index, order)].set(
-                packed(w), mode="drop")
+            values = tuple(v.at[item[:, None], w.index].set(x, mode="drop")
+                           for v, x in zip(values, w[1:], strict=True))
             return s, values
 
         states, values = jax.lax.fori_loop(0, refill_every, steps, (states, values))
@@ -279,28 +278,15 @@ def run_blocks(
     chunk, starts = chunk_plan(n_blocks, chunk_size, workers)
     lanes = min(default_pool() if pool is None else pool, chunk)
 
-    def call(start):
-        return simulate_pooled(params, block, key, profile, st, n_blocks=chunk, pool=lanes,
-                               settings=settings, offset=start)
-
-    # the output is allocated once and each worker copies its chunk in: a
-    # concatenation of the chunks at the end ran on one thread after the
-    # simulation and took a quarter of a run with 61 stations (0.32 s of 1e5
-    # blocks, 2026-11-25)
-    out = jax.tree_util.tree_map(lambda a: np.empty((n_blocks,) + a.shape[1:], a.dtype),
-                                 jax.eval_shape(call, 0))
-
-    def one(start: int) -> int:
+    def one(start: int):
+        res = simulate_pooled(params, block, key, profile, st, n_blocks=chunk, pool=lanes,
+                              settings=settings, offset=start)
         count = min(chunk, n_blocks - start)
-        res = call(start)
+        return jax.tree_util.tree_map(lambda a: np.asarray(a)[:count], res)
 
-        def put(o, a):
-            o[start:start + count] = np.asarray(a)[:count]
-
-        jax.tree_util.tree_map(put, out, res)
-        return count
-
-    for count in map_ordered(one, starts, workers):
+    parts = []
+    for part in map_ordered(one, starts, workers):
+        parts.append(part)
         if progress is not None:
-            progress(count)
-    return out
+            progress(part.runout_m.shape[0])
+    return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, axis=0), *parts)

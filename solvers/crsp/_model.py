@@ -529,14 +529,14 @@ def simulate(
     def loop(carry):
         s, values = carry
         s, written = body(s)
-        return s, store(values, written, order)
+        return s, store(values, written)
 
     final, values = jax.lax.while_loop(lambda c: running(c[0]), loop,
                                        (state0, empty_values(xs.shape)))
     return result_from_state(final, state0.x_m, values, order)
 
 
-def result_from_state(final: State, release_x_m: jax.Array, values: jax.Array,
+def result_from_state(final: State, release_x_m: jax.Array, values: tuple,
                       order: jax.Array) -> Result:
     """The ``Result`` of a block whose loop has ended in state ``final``; a block
     still moving (event budget spent) gets status ``BUDGET``. ``values``: the

@@ -14,9 +14,8 @@ a run with 61 stations (issue 15's benchmark):
   and its end point (inclusive): the sorted indices ``[next, end)``.
 * ``emit`` evaluates the last ``Passage`` at ``slots`` of those stations per
   loop iteration and returns them as ``Written`` values (station index and
-  values); the caller stores them in ITS station order (``store`` for one
-  block's record; the pooled batch writes them straight into its output), the
-  three values of a station side by side (one scatter per iteration). An event that crosses more
+  values); the caller stores them (``store`` for one block's record; the pooled
+  batch writes them straight into its output). An event that crosses more
   stations leaves a backlog; the event loop then emits the rest before it
   simulates the next event (``backlog``), so every record is complete and the
   physics is not changed by it.
@@ -46,8 +45,8 @@ import jax.numpy as jnp
 from solvers.crsp._contact import speed2_after
 from solvers.stations import StationRecord
 
-__all__ = ["Cursor", "Passage", "Written", "after_event", "backlog", "caller_columns", "emit",
-           "empty_values", "packed", "record", "start", "store"]
+__all__ = ["Cursor", "Passage", "Written", "after_event", "backlog", "emit", "empty_values",
+           "record", "start", "store"]
 
 
 class Passage(NamedTuple):
@@ -171,46 +170,30 @@ def emit(cursor: Cursor, stations_x_m: jax.Array, stations_z_m: jax.Array, g: fl
             Written(jnp.where(valid, j, n), e, v2, h))
 
 
-def empty_values(shape: tuple[int, ...], dtype=jnp.float64) -> jax.Array:
-    """The passages' store: ``shape + (3,)`` (energy, squared speed, clearance), all NaN,
-    stations in the CALLER's order (``store`` writes through ``order``)."""
-    return jnp.full(tuple(shape) + (3,), jnp.nan, dtype)
+def empty_values(shape: tuple[int, ...], dtype=jnp.float64) -> tuple:
+    """(energy, squared speed, clearance) arrays of ``shape``, all NaN."""
+    nan = jnp.full(shape, jnp.nan, dtype)
+    return nan, nan, nan
 
 
-def caller_columns(index: jax.Array, order: jax.Array) -> jax.Array:
-    """``Written.index`` (ascending station order) -> the column of that station
-    in the caller's order (``order``: the argsort that sorted the caller's
-    stations); an empty slot stays out of range (dropped by ``mode="drop"``)."""
-    n = order.shape[0]
-    if n == 0:  # static: nothing is ever written
-        return index
-    return jnp.where(index < n, order[jnp.minimum(index, n - 1)], n)
+def store(values: tuple, written: Written) -> tuple:
+    """One block's (energy, squared speed, clearance) arrays with ``written``
+    stored (empty slots dropped)."""
+    at = written.index
+    return tuple(v.at[at].set(w, mode="drop") for v, w in
+                 zip(values, written[1:], strict=True))
 
 
-def packed(written: Written) -> jax.Array:
-    """(slots, 3): the written (energy, squared speed, clearance) side by side,
-    so that one scatter stores all three."""
-    return jnp.stack(written[1:], axis=-1)
-
-
-def store(values: jax.Array, written: Written, order: jax.Array) -> jax.Array:
-    """One block's store (``empty_values((n_stations,))``) with ``written``
-    stored in the caller's order (empty slots dropped)."""
-    return values.at[caller_columns(written.index, order)].set(packed(written), mode="drop")
-
-
-def record(first: jax.Array, nxt: jax.Array, values: jax.Array, order: jax.Array) -> StationRecord:
+def record(first: jax.Array, nxt: jax.Array, values: tuple, order: jax.Array) -> StationRecord:
     """The ``StationRecord`` in the caller's station order, from the cursor's
-    ``first`` and ``next`` (leading batch shape B) and the store ``values``
-    (B + (n_stations, 3), already in the caller's order). ``order``: the
-    argsort that sorted the caller's stations; station c was passed when its
-    rank in ascending order lies in ``[first, next)``. (Written in the caller's
-    order from the start: permuting the (B, n_stations) arrays at the end was a
-    gather that cost a tenth of a run with 61 stations.)"""
+    ``first`` and ``next`` (leading batch shape B) and the stored values
+    (B + (n_stations,), ascending order). ``order``: the argsort that sorted
+    the caller's stations."""
     n = order.shape[0]
-    rank = jnp.zeros((n,), jnp.int32).at[order].set(jnp.arange(n, dtype=jnp.int32))
-    passed = ((rank >= jnp.asarray(first)[..., None])
-              & (rank < jnp.asarray(nxt)[..., None]))
-    return StationRecord(passed=passed, energy_kJ=values[..., 0],
-                         velocity_m_s=jnp.sqrt(values[..., 1]),
-                         bounce_height_m=values[..., 2])
+    idx = jnp.arange(n, dtype=jnp.int32)
+    passed = (idx >= jnp.asarray(first)[..., None]) & (idx < jnp.asarray(nxt)[..., None])
+    inv = jnp.zeros((n,), jnp.int32).at[order].set(idx)
+    energy, speed2, height = values
+    return StationRecord(passed=passed[..., inv], energy_kJ=energy[..., inv],
+                         velocity_m_s=jnp.sqrt(speed2[..., inv]),
+                         bounce_height_m=height[..., inv])
