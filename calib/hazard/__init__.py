@@ -33,7 +33,13 @@ from calib.hazard._intensity import (
     intensity_class,
     probability_class,
 )
-from calib.hazard._run import HazardCounts, check_dem_draws, dem_alpha, run_hazard
+from calib.hazard._run import (
+    HazardCounts,
+    check_dem_draws,
+    default_release_x_m,
+    dem_alpha,
+    run_hazard,
+)
 from calib.hazard._stats import BINS, Bins, hist_quantile
 from calib.hazard._tables import exceedance_table, hazard_table, summary_text
 from calib.model.dem_run import DemRun
@@ -49,6 +55,7 @@ __all__ = [
     "Draws",
     "HazardCounts",
     "check_dem_draws",
+    "default_release_x_m",
     "dem_alpha",
     "draw_parameters",
     "exceedance_table",

@@ -136,6 +136,7 @@ def main(argv: list[str] | None = None) -> int:
         CalibrationError,
         DemRun,
         check_dem_draws,
+        default_release_x_m,
         draw_parameters,
         exceedance_table,
         hazard_table,
@@ -172,7 +173,7 @@ def main(argv: list[str] | None = None) -> int:
             raise CliError(f"--release-x-m {release_x:g}: the release lies outside the "
                            f"profile [{lo:g}, {hi:g}) m")
         if release_x is None:
-            release_x = lo if cal.release_x_m is None else float(cal.release_x_m)
+            release_x = default_release_x_m(cal, profile)
         if road_x <= release_x:
             raise CliError(f"{where} {road_x:g}: the station of interest lies at or above "
                            f"the release at x = {release_x:g} m: no block can pass it")

@@ -26,7 +26,7 @@ from calib.model.forward import named_overrides, stack_trees
 from solvers import crsp, dem
 from solvers.profile import Profile
 
-__all__ = ["HazardCounts", "check_dem_draws", "dem_alpha", "run_hazard"]
+__all__ = ["HazardCounts", "check_dem_draws", "default_release_x_m", "dem_alpha", "run_hazard"]
 
 
 @dataclasses.dataclass
@@ -90,6 +90,13 @@ def check_dem_draws(cal: Calibration, draws: Draws, sizes_m) -> None:
         raise CalibrationError(f"{where}: {why}")
 
 
+def default_release_x_m(cal: Calibration, profile: Profile) -> float:
+    """Where a hazard run releases its blocks when not told: the calibration's
+    ``release_x_m`` (the median release of the rows it fitted), else the
+    profile's first vertex (older files, data without release points)."""
+    return float(profile.x_m[0] if cal.release_x_m is None else cal.release_x_m)
+
+
 def _chunks(n_blocks: int, max_chunk: int) -> tuple[int, list[int]]:
     """Equal chunk size and the chunk offsets covering ``n_blocks``."""
     n_chunks = -(-n_blocks // max_chunk)
@@ -118,8 +125,8 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
         pool: CRSP lanes per unit (None: ``solvers.crsp.default_pool()``).
         settings: CRSP settings.
         dem_run: DEM numerics (``calib.model.dem_run``; default: the fit's).
-        release_x_m: release abscissa of every block, m (None: the
-            calibration's ``release_x_m``, else the profile's first vertex).
+        release_x_m: release abscissa of every block, m (None:
+            ``default_release_x_m``).
         progress: called with the number of blocks finished after each unit.
         devices: JAX devices (default all).
 
@@ -130,9 +137,8 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
     stations = np.asarray(stations_x_m, dtype=np.float64)
     n_draws, n_sizes, n_st = len(draws.values), len(sizes_m), len(stations)
     chunk, offsets = _chunks(n_blocks, chunk_blocks)
-    if release_x_m is None:
-        release_x_m = profile.x_m[0] if cal.release_x_m is None else cal.release_x_m
-    release_x = float(release_x_m)
+    release_x = (default_release_x_m(cal, profile) if release_x_m is None
+                 else float(release_x_m))
     shape = (n_draws, n_sizes, n_st)
     acc = {k: np.zeros(shape, np.int64) for k in ("exceed", "reach", "e30", "e300")}
     n_unfinished = np.zeros((n_draws, n_sizes), np.int64)
