@@ -213,11 +213,11 @@ def _same_results(a, b, exact=True):
 
 @pytest.mark.slow  # an equivalence of batching, 10-23 s: run with -m slow
 def test_station_records_do_not_depend_on_slots_order_or_batching():
-    """Stations are written a few per event (``Settings.station_slots``), an
-    event that passes more leaves a backlog written before the next event: the
-    physics and the records must not depend on the number of slots (1 forces a
-    backlog at almost every event with 0.5 m spacing), on the order in which
-    the stations are given, or on the pool versus one block at a time."""
+    """Passages are evaluated a batch at a time after the events
+    (``_stations.write``, ``Settings.station_slots`` per lane and pass); more
+    take further passes: the physics and the records must not depend on the
+    number of slots (1 forces many passes with 0.5 m spacing), on the order in
+    which the stations are given, or on the pool versus one block at a time."""
     prof = load_profile(POSTIGNANO).with_materials(Kn=0.41, Kt=0.87, roughness_m=0.5)
     params = crsp.params_from_profile(prof)
     block = crsp.make_block(0.3)

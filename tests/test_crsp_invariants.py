@@ -93,7 +93,7 @@ def test_a_state_below_the_ground_is_flagged_invalid():
     prof = load_profile(POSTIGNANO)
     params = crsp.params_from_profile(prof)
     block = crsp.make_block(0.5)
-    s = crsp._model.init(params, block, jax.random.key(0), prof, jnp.zeros(0))
+    s = crsp._model.init(params, block, jax.random.key(0), prof)
     # 1 m under the talus, flying down the slope: the next event cannot fix it
     x = 50.0
     s = s._replace(x_m=jnp.float64(x), z_m=ground_z(prof, jnp.float64(x)) - 1.0,
@@ -101,8 +101,7 @@ def test_a_state_below_the_ground_is_flagged_invalid():
                    seg=jnp.int32(1), mode=jnp.int32(crsp.FLIGHT))
     from solvers._rng import key_words
     new, _ = step(s, params, block, key_words(jax.random.key(1)), prof,
-                  segment_table(prof, params, block), jnp.zeros(0), jnp.zeros(0),
-                  crsp.Settings())
+                  segment_table(prof, params, block), crsp.Settings())
     assert int(new.mode) == INVALID
     assert isinstance(new, State)
 

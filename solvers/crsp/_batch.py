@@ -30,7 +30,7 @@ from solvers.crsp._model import (
     step,
 )
 from solvers.crsp._params import Block, Params, Settings
-from solvers.crsp._stations import empty_values, record
+from solvers.crsp._stations import empty_values, first_beyond, record, write
 from solvers.parallel import default_workers, map_ordered
 from solvers.profile import Profile
 
@@ -147,45 +147,54 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
         p, b, _ = task_of(t)
         gi = (j + offset).astype(jnp.uint32)
         release_key, event_key = jax.random.split(jax.random.fold_in(key, gi))
-        s = init(p, b, release_key, profile, stations_x_m, settings)
+        s = init(p, b, release_key, profile, settings)
         return s, key_words(event_key)
 
     def lane_step(s, words, t):
         p, b, table = task_of(t)
-        # a finished lane is left unchanged by ``step`` (and emits nothing)
-        return step(s, p, b, words, profile, table, stations_x_m, stations_z_m, settings)
+        # a finished lane is left unchanged by ``step`` (and passes nothing)
+        return step(s, p, b, words, profile, table, settings)
 
-    def finalize(s, x0):
-        return raw_result(s, x0), s.stations.first, s.stations.next
+    def finalize(s, x0, first, reached):
+        return raw_result(s, x0), first, reached
 
     lane = jnp.arange(pool)
     states, words = jax.vmap(lane_init)(jnp.minimum(lane, n_items - 1))
     x0 = states.x_m
     active = lane < n_items
-    proto = jax.eval_shape(finalize, jax.tree_util.tree_map(lambda a: a[0], states), x0[0])
+    first = first_beyond(stations_x_m, x0)
+    proto = jax.eval_shape(finalize, jax.tree_util.tree_map(lambda a: a[0], states), x0[0],
+                           first[0], first[0])
     out = jax.tree_util.tree_map(lambda a: jnp.zeros((n_items,) + a.shape, a.dtype), proto)
-    # station passages go straight from the lanes into the output (one
+    # station passages go from the events' buffer straight into the output (one
     # (n_items, n_stations) array per quantity), never through the lanes' state
     values = empty_values((n_items, stations_x_m.shape[0]))
+    proto_passage = jax.eval_shape(lambda s, w, t: lane_step(s, w, t)[1],
+                                   jax.tree_util.tree_map(lambda a: a[0], states), words[0],
+                                   jnp.int32(0))
 
     def cond(carry):
         return jnp.any(carry[4])
 
     def body(carry):
-        states, words, x0, idx, active, nxt, out, values = carry
+        states, words, x0, idx, active, nxt, out, values, first, reached = carry
         task = idx // n_per_task
         item = jnp.where(active, idx, n_items)  # inactive lanes: dropped
 
-        def steps(_, c):
-            s, values = c
-            s, w = jax.vmap(lane_step)(s, words, task)
-            values = tuple(v.at[item[:, None], w.index].set(x, mode="drop")
-                           for v, x in zip(values, w[1:], strict=True))
-            return s, values
+        def steps(k, c):
+            s, buf = c
+            s, passage = jax.vmap(lane_step)(s, words, task)
+            return s, jax.tree_util.tree_map(lambda b, a: b.at[:, k].set(a), buf, passage)
 
-        states, values = jax.lax.fori_loop(0, refill_every, steps, (states, values))
+        buf = jax.tree_util.tree_map(
+            lambda a: jnp.zeros((pool, refill_every) + a.shape, a.dtype), proto_passage)
+        states, buf = jax.lax.fori_loop(0, refill_every, steps, (states, buf))
+        # the stations these events passed first, written between the steps'
+        # loops (``_stations.write``), before a finished lane is refilled
+        reached, values = write(values, item, reached, buf, stations_x_m, stations_z_m,
+                                settings.g_m_s2, settings.station_slots * pool)
         done = active & ~jax.vmap(running)(states)
-        res = jax.vmap(finalize)(states, x0)
+        res = jax.vmap(finalize)(states, x0, first, reached)
         target = jnp.where(done, idx, n_items)  # out of bounds: dropped
         out = jax.tree_util.tree_map(lambda o, r: o.at[target].set(r, mode="drop"), out, res)
         new_idx = nxt + jnp.cumsum(done) - 1
@@ -199,14 +208,17 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
         states = jax.tree_util.tree_map(pick, ns, states)
         words = pick(nw, words)
         x0 = jnp.where(refill, ns.x_m, x0)
+        new_first = first_beyond(stations_x_m, ns.x_m)
+        first = jnp.where(refill, new_first, first)
+        reached = jnp.where(refill, new_first, reached)
         idx = jnp.where(refill, new_idx, idx)
         active = (active & ~done) | refill
         nxt = nxt + jnp.sum(done)
-        return states, words, x0, idx, active, nxt, out, values
+        return states, words, x0, idx, active, nxt, out, values, first, reached
 
     carry = (states, words, x0, jnp.minimum(lane, n_items - 1), active,
-             jnp.asarray(pool), out, values)
-    *_, (res, first, last), values = jax.lax.while_loop(cond, body, carry)
+             jnp.asarray(pool), out, values, first, first)
+    _, _, _, _, _, _, (res, first, last), values, _, _ = jax.lax.while_loop(cond, body, carry)
     out = res._replace(stations=record(first, last, values, order))
     return jax.tree_util.tree_map(
         lambda a: a.reshape((n_tasks, n_per_task) + a.shape[1:]), out)

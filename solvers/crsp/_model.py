@@ -58,18 +58,8 @@ from solvers.crsp._effects import breaks, in_belt, size_scaled
 from solvers.crsp._flight import next_impact
 from solvers.crsp._impact import crsp_impact, roughness_tilt
 from solvers.crsp._params import Block, Params, Settings
-from solvers.crsp._stations import (
-    Cursor,
-    Passage,
-    Written,
-    after_event,
-    backlog,
-    emit,
-    empty_values,
-    store,
-)
+from solvers.crsp._stations import Passage, empty_values, first_beyond, write
 from solvers.crsp._stations import record as station_record
-from solvers.crsp._stations import start as stations_at_release
 from solvers.crsp._vertex import vertex_transition
 from solvers.profile import Profile, ground_z, segment_index
 from solvers.stations import StationRecord
@@ -141,8 +131,6 @@ class State(NamedTuple):
         pending: bool, the next event is an immediate CRSP impact on ``seg``
             (a rebound into the mean slope, or a rolling rock meeting a
             concave break fast enough).
-        stations: the station ``Cursor`` (``_stations``): first passages
-            written so far, in ascending station order.
         radius_m: current radius (the fragment's after a break), m.
         fragmented: bool, the block has broken (``_effects``).
         budget: int, the event budget of this block (``event_budget``).
@@ -158,7 +146,6 @@ class State(NamedTuple):
     n_events: jax.Array
     n_impacts: jax.Array
     pending: jax.Array
-    stations: Cursor
     radius_m: jax.Array
     fragmented: jax.Array
     budget: jax.Array
@@ -256,9 +243,8 @@ def segment_table(profile: Profile, params: Params, block: Block) -> SegmentTabl
 
 
 def init(params: Params, block: Block, key: jax.Array, profile: Profile,
-         stations_x_m: jax.Array, settings: Settings = Settings()) -> State:
-    """Initial state at the release point (``key``: release key; ``stations_x_m``
-    in ascending order).
+         settings: Settings = Settings()) -> State:
+    """Initial state at the release point (``key``: release key).
 
     The block starts in flight, or in ground contact when it is released on the
     ground (height 0) with a velocity that does not leave the slope (normal
@@ -280,7 +266,7 @@ def init(params: Params, block: Block, key: jax.Array, profile: Profile,
         vz_m_s=jnp.where(on_ground, u0 * jnp.sin(beta), vz0), spin_rad_s=zero,
         seg=seg, mode=jnp.where(on_ground, CONTACT, FLIGHT).astype(jnp.int32),
         n_events=jnp.asarray(0, jnp.int32), n_impacts=jnp.asarray(0, jnp.int32),
-        pending=jnp.asarray(False), stations=stations_at_release(stations_x_m, x0),
+        pending=jnp.asarray(False),
         radius_m=zero + block.radius_m, fragmented=jnp.asarray(False),
         budget=event_budget(profile, block.radius_m, settings),
     )
@@ -305,7 +291,7 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
     r, k = state.radius_m, block.inertia_ratio
     m = jnp.where(state.fragmented, table.mass_frag_kg, block.mass_kg)
     zero = jnp.zeros_like(x)
-    passage = Passage(x0_m=x, flight=jnp.asarray(True), z0_m=z, vx_m_s=vx, vz_m_s=vz,
+    passage = Passage(x0_m=x, x_end_m=x1, flight=jnp.asarray(True), z0_m=z, vx_m_s=vx, vz_m_s=vz,
                       spin_energy_m2_s2=k * (r * state.spin_rad_s) ** 2, u2_m2_s2=zero,
                       accel_m_s2=zero, drag_per_m=zero, slope_cos=zero + 1.0, mass_kg=m,
                       inertia_ratio=k)
@@ -358,7 +344,6 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
         n_events=state.n_events + 1,
         n_impacts=state.n_impacts + impact.astype(jnp.int32),
         pending=impact & ~roll & into_slope,
-        stations=state.stations,
         radius_m=r_new,
         fragmented=frag | brk,
         budget=state.budget,
@@ -391,7 +376,7 @@ def _contact_event(state: State, params: Params, block: Block, profile: Profile,
     # this move, for the stations it passes (_stations)
     m = jnp.where(state.fragmented, table.mass_frag_kg, block.mass_kg)
     zero = jnp.zeros_like(x)
-    passage = Passage(x0_m=x, flight=jnp.asarray(False), z0_m=zero, vx_m_s=zero,
+    passage = Passage(x0_m=x, x_end_m=x1, flight=jnp.asarray(False), z0_m=zero, vx_m_s=zero,
                       vz_m_s=zero, spin_energy_m2_s2=zero, u2_m2_s2=u * u,
                       accel_m_s2=mv.accel_m_s2, drag_per_m=mv.drag_per_m, slope_cos=cb,
                       mass_kg=m, inertia_ratio=k)
@@ -435,7 +420,6 @@ def _contact_event(state: State, params: Params, block: Block, profile: Profile,
         n_events=state.n_events + 1,
         n_impacts=state.n_impacts,
         pending=impact,
-        stations=state.stations,
         radius_m=r,
         fragmented=state.fragmented,
         budget=state.budget,
@@ -447,29 +431,23 @@ def _moving(mode) -> jax.Array:
 
 
 def running(state: State) -> jax.Array:
-    """bool: the block's loop goes on: it is moving within its event budget, or
-    station passages of its last event are still to be written."""
-    return ((_moving(state.mode) & (state.n_events < state.budget))
-            | backlog(state.stations))
+    """bool: the block's loop goes on: it is moving within its event budget."""
+    return _moving(state.mode) & (state.n_events < state.budget)
 
 
 def step(state: State, params: Params, block: Block, key: jax.Array, profile: Profile,
-         table: SegmentTable, stations_x_m: jax.Array, stations_z_m: jax.Array,
-         settings: Settings) -> tuple[State, Written]:
+         table: SegmentTable, settings: Settings) -> tuple[State, Passage]:
     """One loop iteration (pure): the next event (a flight to the next impact,
-    or a contact move), then up to ``settings.station_slots`` station passages,
-    returned as ``_stations.Written`` for the caller to store.
+    or a contact move), and its ``_stations.Passage`` for the caller to write
+    (``_stations.write``).
 
-    The event happens only if the block is moving within its budget and no
-    passage of the previous event waits to be written; otherwise the state is
-    unchanged but for the passages written. A finished block is unchanged.
-    After an event the block must be on or above the ground of its segment
+    The event happens only if the block is moving within its budget; a finished
+    block is unchanged and its passage ends at -inf (it passes nothing). After
+    an event the block must be on or above the ground of its segment
     (``z >= ground - GROUND_TOL_M``) with finite values, else its mode becomes
     ``INVALID``. ``key`` is the event key's two uint32 words
-    (``solvers._rng.key_words``); ``stations_x_m`` ascending, ``stations_z_m``
-    the ground under them."""
-    go = (_moving(state.mode) & (state.n_events < state.budget)
-          & ~backlog(state.stations))
+    (``solvers._rng.key_words``)."""
+    go = running(state)
     fl, fl_pass = _flight_event(state, params, block, key, profile, table, settings)
     co, co_pass = _contact_event(state, params, block, profile, table, settings)
     in_flight = state.mode == FLIGHT
@@ -479,13 +457,9 @@ def step(state: State, params: Params, block: Block, key: jax.Array, profile: Pr
     finite = (jnp.isfinite(new.x_m) & jnp.isfinite(new.z_m) & jnp.isfinite(new.vx_m_s)
               & jnp.isfinite(new.vz_m_s))
     bad = ~finite | (new.z_m < ground - GROUND_TOL_M)
-    new = new._replace(mode=jnp.where(bad, INVALID, new.mode).astype(jnp.int32),
-                       stations=after_event(state.stations, passage, new.x_m,
-                                                      stations_x_m))
+    new = new._replace(mode=jnp.where(bad, INVALID, new.mode).astype(jnp.int32))
     new = jax.tree_util.tree_map(lambda a, b: jnp.where(go, a, b), new, state)
-    cursor, written = emit(new.stations, stations_x_m, stations_z_m,
-                                     settings.g_m_s2, settings.station_slots)
-    return new._replace(stations=cursor), written
+    return new, passage._replace(x_end_m=jnp.where(go, new.x_m, -jnp.inf))
 
 
 def sorted_stations(profile: Profile, stations_x_m) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -521,29 +495,36 @@ def simulate(
     """
     xs, zs, order = sorted_stations(profile, stations_x_m)
     release_key, event_key = jax.random.split(key)
-    state0 = init(params, block, release_key, profile, xs, settings)
+    state0 = init(params, block, release_key, profile, settings)
     body = functools.partial(step, params=params, block=block, key=key_words(event_key),
                              profile=profile, table=segment_table(profile, params, block),
-                             stations_x_m=xs, stations_z_m=zs, settings=settings)
+                             settings=settings)
+    first = first_beyond(xs, state0.x_m)
+    row = jnp.zeros((1,), jnp.int32)
 
     def loop(carry):
-        s, values = carry
-        s, written = body(s)
-        return s, store(values, written)
+        s, reached, values = carry
+        s, passage = body(s)
+        reached, values = write(values, row, reached[None],
+                                jax.tree_util.tree_map(lambda a: a[None, None], passage),
+                                xs, zs, settings.g_m_s2, settings.station_slots)
+        return s, reached[0], values
 
-    final, values = jax.lax.while_loop(lambda c: running(c[0]), loop,
-                                       (state0, empty_values(xs.shape)))
-    return result_from_state(final, state0.x_m, values, order)
+    final, reached, values = jax.lax.while_loop(
+        lambda c: running(c[0]), loop, (state0, first, empty_values((1,) + xs.shape)))
+    return result_from_state(final, state0.x_m, first, reached,
+                             tuple(v[0] for v in values), order)
 
 
-def result_from_state(final: State, release_x_m: jax.Array, values: tuple,
-                      order: jax.Array) -> Result:
+def result_from_state(final: State, release_x_m: jax.Array, first: jax.Array,
+                      reached: jax.Array, values: tuple, order: jax.Array) -> Result:
     """The ``Result`` of a block whose loop has ended in state ``final``; a block
-    still moving (event budget spent) gets status ``BUDGET``. ``values``: the
-    stored station passages (``_stations.store``); ``order``: the argsort of
-    the caller's stations (``sorted_stations``)."""
+    still moving (event budget spent) gets status ``BUDGET``. ``first``,
+    ``reached`` and ``values``: the station bookkeeping and the stored
+    passages (``_stations.write``); ``order``: the argsort of the caller's
+    stations (``sorted_stations``)."""
     return raw_result(final, release_x_m)._replace(stations=station_record(
-        final.stations.first, final.stations.next, values, order))
+        first, reached, values, order))
 
 
 def raw_result(final: State, release_x_m: jax.Array) -> Result:

@@ -161,10 +161,11 @@ class Settings:
         max_events: a fixed bound on flight + contact events per block, or None
             (default) for the per-block budget of ``event_budget``.
         window: segments tested per flight event (local search).
-        station_slots: station passages written per event (``_stations``); an
-            event that passes more stations is followed by loop iterations that
-            write the rest before the next event. Speed only: results do not
-            depend on it.
+        station_slots: station passages evaluated per lane in one pass of
+            ``_stations.write`` (the pooled loop evaluates ``station_slots x
+            lanes`` at a time after every few events; ``simulate``, this many
+            after every event); more passages take further passes. Speed only:
+            results do not depend on it.
     """
 
     g_m_s2: float = 9.81

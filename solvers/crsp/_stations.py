@@ -1,32 +1,36 @@
-"""First passages of ONE CRSP block at the analysis stations, a few per event.
+"""First passages of CRSP blocks at the analysis stations, written after the events.
 
 The record and its conventions are ``solvers.stations``'. This module fills it
-without touching every station at every event, which halved the throughput of
-a run with 61 stations (issue 15's benchmark):
+without touching every station at every event, and without putting station
+work inside the event loop's step (both cost as much as the physics: issue
+15's benchmark with 61 stations):
 
 * Each event leaves a ``Passage``: the few numbers that give the block's speed,
   kinetic energy and clearance at any abscissa the event crossed (the flight's
-  parabola, or the closed-form rolling speed of ``_contact.speed2_after``).
-* Stations are walked in ascending order with a cursor. A block has passed a
-  station once its centre has reached it moving downslope; positions are
-  continuous from event to event, so the stations first passed during an event
-  are exactly those between the farthest point reached before it (exclusive)
-  and its end point (inclusive): the sorted indices ``[next, end)``.
-* ``emit`` evaluates the last ``Passage`` at ``slots`` of those stations per
-  loop iteration and returns them as ``Written`` values (station index and
-  values); the caller stores them (``store`` for one block's record; the pooled
-  batch writes them straight into its output). An event that crosses more
-  stations leaves a backlog; the event loop then emits the rest before it
-  simulates the next event (``backlog``), so every record is complete and the
-  physics is not changed by it.
-* The block's state carries only the cursor's scalars, never the (n_stations,)
-  arrays: selecting and copying those every event cost as much as the event.
+  parabola, or the closed-form rolling speed of ``_contact.speed2_after``),
+  and the abscissa where the event ended. An iteration in which the block did
+  not move leaves a passage that ends at -inf (it passes nothing).
+* The event loop keeps the passages of its last few steps (a (lanes, steps)
+  buffer; one step for ``simulate``) and hands them to ``write`` between
+  steps. Stations are taken in ascending order. A block has passed a station
+  once its centre has reached it moving downslope; positions are continuous
+  from event to event, so the stations first passed during an event are
+  exactly those between the farthest point reached before it (exclusive) and
+  its end point (inclusive): the sorted indices ``[reached before, reached
+  after)``, with ``reached`` the count of stations at or before the farthest
+  point so far (a running maximum over the events).
+* ``write`` lists those (event, station) pairs of all lanes and steps one
+  after another and evaluates them ``width`` at a time (a prefix sum over the
+  pair counts and a search give each of the ``width`` slots its event and
+  station), storing each value straight into the caller's (rows, n_stations)
+  arrays. Its cost follows the number of passages, not lanes x steps x
+  stations, and none of it runs inside the physics step.
 
 Stations at or behind the release point are never passed (the block starts
-there), and neither is a station the block reaches only by rolling back and
-then forward again over ground it had already covered: this is the "first
-crossing moving downslope" of ``solvers.stations``, with the release point as
-the farthest point reached at the start.
+there: ``reached`` starts at ``first_beyond(release)``), and neither is a
+station the block reaches only by rolling back and then forward again over
+ground it had already covered: this is the "first crossing moving downslope"
+of ``solvers.stations``.
 
 The evaluation formulas are the event's own (our code, exact for the event):
 in flight t = (x_s - x0) / vx, v^2 = vx^2 + (vz - g t)^2, clearance
@@ -45,8 +49,7 @@ import jax.numpy as jnp
 from solvers.crsp._contact import speed2_after
 from solvers.stations import StationRecord
 
-__all__ = ["Cursor", "Passage", "Written", "after_event", "backlog", "emit", "empty_values",
-           "record", "start", "store"]
+__all__ = ["Passage", "empty_values", "first_beyond", "record", "write"]
 
 
 class Passage(NamedTuple):
@@ -54,6 +57,7 @@ class Passage(NamedTuple):
 
     Attributes:
         x0_m: abscissa at the start of the event, m.
+        x_end_m: abscissa at its end, m (-inf: no event, nothing passed).
         flight: bool, a flight (else a rolling move along one segment).
         z0_m: height at the start (flight), m.
         vx_m_s, vz_m_s: velocity at the start (flight), m/s.
@@ -67,6 +71,7 @@ class Passage(NamedTuple):
     """
 
     x0_m: jax.Array
+    x_end_m: jax.Array
     flight: jax.Array
     z0_m: jax.Array
     vx_m_s: jax.Array
@@ -80,63 +85,15 @@ class Passage(NamedTuple):
     inertia_ratio: jax.Array
 
 
-class Cursor(NamedTuple):
-    """Station bookkeeping of one block (stations in ascending order).
-
-    Attributes:
-        first: index of the first station beyond the release point.
-        next: first station whose passage is not yet emitted.
-        end: stations ``[next, end)`` were passed and wait to be emitted.
-        passage: the last event's ``Passage``.
-    """
-
-    first: jax.Array
-    next: jax.Array
-    end: jax.Array
-    passage: Passage
-
-
-class Written(NamedTuple):
-    """Passages emitted by one loop iteration; each field has shape (slots,).
-
-    Attributes:
-        index: ascending-order station index, or n_stations where the slot is
-            empty (an out-of-range index: ``.at[].set(mode="drop")`` drops it).
-        energy_kJ: kinetic energy at the passage, kJ.
-        speed2_m2_s2: squared speed (the root is taken once, by ``record``).
-        bounce_height_m: clearance, m (>= 0).
-    """
-
-    index: jax.Array
-    energy_kJ: jax.Array
-    speed2_m2_s2: jax.Array
-    bounce_height_m: jax.Array
-
-
 def _count_upto(stations_x_m: jax.Array, x_m: jax.Array) -> jax.Array:
-    """Number of stations at or before ``x_m`` (stations ascending)."""
-    return jnp.sum(stations_x_m <= x_m).astype(jnp.int32)
+    """Number of stations at or before ``x_m`` (stations ascending; any shape)."""
+    return jnp.sum(stations_x_m <= x_m[..., None], axis=-1, dtype=jnp.int32)
 
 
-def start(stations_x_m: jax.Array, release_x_m: jax.Array) -> Cursor:
-    """The cursor at release (``stations_x_m`` ascending)."""
-    zero = jnp.zeros((), jnp.float64)
-    first = _count_upto(stations_x_m, release_x_m)
-    passage = Passage(release_x_m, jnp.asarray(False), *([zero] * 10))
-    return Cursor(first, first, first, passage)
-
-
-def backlog(cursor: Cursor) -> jax.Array:
-    """bool: passages of the last event are still to be emitted."""
-    return cursor.next < cursor.end
-
-
-def after_event(cursor: Cursor, passage: Passage, x_end_m: jax.Array,
-                stations_x_m: jax.Array) -> Cursor:
-    """Take a new event (only when there is no backlog): the stations it passed
-    first are those up to ``x_end_m`` beyond the farthest point reached before."""
-    end = jnp.maximum(cursor.end, _count_upto(stations_x_m, x_end_m))
-    return cursor._replace(passage=passage, end=end)
+def first_beyond(stations_x_m: jax.Array, release_x_m: jax.Array) -> jax.Array:
+    """Index of the first station beyond the release point (``reached`` at
+    release; ``stations_x_m`` ascending)."""
+    return _count_upto(stations_x_m, release_x_m)
 
 
 def _evaluate(p: Passage, x_s: jax.Array, ground_s: jax.Array, g: float):
@@ -155,19 +112,55 @@ def _evaluate(p: Passage, x_s: jax.Array, ground_s: jax.Array, g: float):
             jnp.where(p.flight, h_flight, 0.0))
 
 
-def emit(cursor: Cursor, stations_x_m: jax.Array, stations_z_m: jax.Array, g: float,
-         slots: int) -> tuple[Cursor, Written]:
-    """Emit up to ``slots`` waiting passages (the next ones in station order)."""
+def write(values: tuple, rows: jax.Array, reached: jax.Array, passages: Passage,
+          stations_x_m: jax.Array, stations_z_m: jax.Array, g: float,
+          width: int) -> tuple[jax.Array, tuple]:
+    """Store the first passages of a buffer of events (pure; not per block).
+
+    Args:
+        values: (energy kJ, squared speed m^2/s^2, clearance m) arrays of shape
+            (n_rows, n_stations), stations ascending.
+        rows: (B,) the row of ``values`` of each lane's block (n_rows or more:
+            the lane's passages are dropped).
+        reached: (B,) int32, stations passed by each lane's block so far.
+        passages: ``Passage`` with fields of shape (B, E): E events per lane,
+            in the order they happened.
+        stations_x_m, stations_z_m: (n_stations,) ascending, ground under them.
+        g: gravity, m/s^2.
+        width: passages evaluated per pass (more take further passes).
+
+    Returns:
+        (reached after the E events, values with the passages stored).
+    """
     n = stations_x_m.shape[0]
-    j = cursor.next + jnp.arange(slots, dtype=jnp.int32)
-    if n == 0:  # static: no stations, nothing to emit
-        empty = jnp.zeros((slots,), jnp.float64)
-        return cursor, Written(j * 0, empty, empty, empty)
-    valid = j < cursor.end
-    jc = jnp.minimum(j, n - 1)
-    e, v2, h = _evaluate(cursor.passage, stations_x_m[jc], stations_z_m[jc], g)
-    return (cursor._replace(next=jnp.minimum(cursor.end, cursor.next + slots)),
-            Written(jnp.where(valid, j, n), e, v2, h))
+    if n == 0:  # static: no stations, nothing to write
+        return reached, values
+    b, e = passages.x_end_m.shape
+    ends = jax.lax.cummax(jnp.maximum(_count_upto(stations_x_m, passages.x_end_m),
+                                      reached[:, None]), axis=1)
+    starts = jnp.concatenate([reached[:, None], ends[:, :-1]], axis=1).reshape(-1)
+    count = ends.reshape(-1) - starts
+    stop = jnp.cumsum(count)  # passages of pairs 0..i
+    total = stop[-1]
+    flat = jax.tree_util.tree_map(lambda a: a.reshape(-1), passages)
+    row_of = jnp.repeat(rows, e)
+    n_rows = values[0].shape[0]
+
+    def one_pass(carry):
+        base, values = carry
+        slot = base + jnp.arange(width, dtype=jnp.int32)
+        pair = jnp.minimum(jnp.searchsorted(stop, slot, side="right"), b * e - 1)
+        station = jnp.clip(starts[pair] + slot - (stop[pair] - count[pair]), 0, n - 1)
+        p = jax.tree_util.tree_map(lambda a: a[pair], flat)
+        got = _evaluate(p, stations_x_m[station], stations_z_m[station], g)
+        row = jnp.where(slot < total, row_of[pair], n_rows)  # empty slots: dropped
+        values = tuple(v.at[row, station].set(w, mode="drop")
+                       for v, w in zip(values, got, strict=True))
+        return base + width, values
+
+    _, values = jax.lax.while_loop(lambda c: c[0] < total, one_pass,
+                                   (jnp.zeros((), jnp.int32), values))
+    return ends[:, -1], values
 
 
 def empty_values(shape: tuple[int, ...], dtype=jnp.float64) -> tuple:
@@ -176,22 +169,14 @@ def empty_values(shape: tuple[int, ...], dtype=jnp.float64) -> tuple:
     return nan, nan, nan
 
 
-def store(values: tuple, written: Written) -> tuple:
-    """One block's (energy, squared speed, clearance) arrays with ``written``
-    stored (empty slots dropped)."""
-    at = written.index
-    return tuple(v.at[at].set(w, mode="drop") for v, w in
-                 zip(values, written[1:], strict=True))
-
-
-def record(first: jax.Array, nxt: jax.Array, values: tuple, order: jax.Array) -> StationRecord:
-    """The ``StationRecord`` in the caller's station order, from the cursor's
-    ``first`` and ``next`` (leading batch shape B) and the stored values
-    (B + (n_stations,), ascending order). ``order``: the argsort that sorted
-    the caller's stations."""
+def record(first: jax.Array, reached: jax.Array, values: tuple, order: jax.Array) -> StationRecord:
+    """The ``StationRecord`` in the caller's station order, from ``first`` and
+    ``reached`` (leading batch shape B) and the stored values (B +
+    (n_stations,), ascending order). ``order``: the argsort that sorted the
+    caller's stations."""
     n = order.shape[0]
     idx = jnp.arange(n, dtype=jnp.int32)
-    passed = (idx >= jnp.asarray(first)[..., None]) & (idx < jnp.asarray(nxt)[..., None])
+    passed = (idx >= jnp.asarray(first)[..., None]) & (idx < jnp.asarray(reached)[..., None])
     inv = jnp.zeros((n,), jnp.int32).at[order].set(idx)
     energy, speed2, height = values
     return StationRecord(passed=passed[..., inv], energy_kJ=energy[..., inv],
