@@ -191,7 +191,7 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
         states, buf = jax.lax.fori_loop(0, refill_every, steps, (states, buf))
         # the stations these events passed first, written between the steps'
         # loops (``_stations.write``), before a finished lane is refilled
-        reached, values = write(values, item, reached, buf, stations_x_m, stations_z_m,
+        reached, values = write(values, item, reached, buf, stations_x_m, stations_z_m, order,
                                 settings.g_m_s2, settings.station_slots * pool)
         done = active & ~jax.vmap(running)(states)
         res = jax.vmap(finalize)(states, x0, first, reached)

@@ -507,7 +507,7 @@ def simulate(
         s, passage = body(s)
         reached, values = write(values, row, reached[None],
                                 jax.tree_util.tree_map(lambda a: a[None, None], passage),
-                                xs, zs, settings.g_m_s2, settings.station_slots)
+                                xs, zs, order, settings.g_m_s2, settings.station_slots)
         return s, reached[0], values
 
     final, reached, values = jax.lax.while_loop(

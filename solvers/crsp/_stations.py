@@ -23,8 +23,9 @@ work inside the event loop's step (both cost as much as the physics: issue
   after another and evaluates them ``width`` at a time (a prefix sum over the
   pair counts and a search give each of the ``width`` slots its event and
   station), storing each value straight into the caller's (rows, n_stations)
-  arrays. Its cost follows the number of passages, not lanes x steps x
-  stations, and none of it runs inside the physics step.
+  arrays, in the caller's station order. Its cost follows the number of
+  passages, not lanes x steps x stations, none of it runs inside the physics
+  step, and ``record`` then builds the record without rewriting the arrays.
 
 Stations at or behind the release point are never passed (the block starts
 there: ``reached`` starts at ``first_beyond(release)``), and neither is a
@@ -97,8 +98,7 @@ def first_beyond(stations_x_m: jax.Array, release_x_m: jax.Array) -> jax.Array:
 
 
 def _evaluate(p: Passage, x_s: jax.Array, ground_s: jax.Array, g: float):
-    """Energy (kJ), squared speed (m^2/s^2) and clearance (m) of passage ``p``
-    at ``x_s``."""
+    """Energy (kJ), speed (m/s) and clearance (m) of passage ``p`` at ``x_s``."""
     safe_vx = jnp.where(p.vx_m_s > 0.0, p.vx_m_s, 1.0)
     ts = (x_s - p.x0_m) / safe_vx
     vzs = p.vz_m_s - g * ts
@@ -108,24 +108,27 @@ def _evaluate(p: Passage, x_s: jax.Array, ground_s: jax.Array, g: float):
     d_s = jnp.maximum((x_s - p.x0_m) / p.slope_cos, 0.0)
     v2_roll = speed2_after(p.u2_m2_s2, p.accel_m_s2, p.drag_per_m, d_s)
     e_roll = 0.5 * p.mass_kg * (1.0 + p.inertia_ratio) * v2_roll / 1000.0
-    return (jnp.where(p.flight, e_flight, e_roll), jnp.where(p.flight, v2_flight, v2_roll),
+    return (jnp.where(p.flight, e_flight, e_roll),
+            jnp.sqrt(jnp.where(p.flight, v2_flight, v2_roll)),
             jnp.where(p.flight, h_flight, 0.0))
 
 
 def write(values: tuple, rows: jax.Array, reached: jax.Array, passages: Passage,
-          stations_x_m: jax.Array, stations_z_m: jax.Array, g: float,
+          stations_x_m: jax.Array, stations_z_m: jax.Array, order: jax.Array, g: float,
           width: int) -> tuple[jax.Array, tuple]:
     """Store the first passages of a buffer of events (pure; not per block).
 
     Args:
-        values: (energy kJ, squared speed m^2/s^2, clearance m) arrays of shape
-            (n_rows, n_stations), stations ascending.
+        values: (energy kJ, speed m/s, clearance m) arrays of shape
+            (n_rows, n_stations), in the caller's station order.
         rows: (B,) the row of ``values`` of each lane's block (n_rows or more:
             the lane's passages are dropped).
         reached: (B,) int32, stations passed by each lane's block so far.
         passages: ``Passage`` with fields of shape (B, E): E events per lane,
             in the order they happened.
         stations_x_m, stations_z_m: (n_stations,) ascending, ground under them.
+        order: the argsort that sorted the caller's stations (ascending station
+            i is the caller's column ``order[i]``).
         g: gravity, m/s^2.
         width: passages evaluated per pass (more take further passes).
 
@@ -154,7 +157,7 @@ def write(values: tuple, rows: jax.Array, reached: jax.Array, passages: Passage,
         p = jax.tree_util.tree_map(lambda a: a[pair], flat)
         got = _evaluate(p, stations_x_m[station], stations_z_m[station], g)
         row = jnp.where(slot < total, row_of[pair], n_rows)  # empty slots: dropped
-        values = tuple(v.at[row, station].set(w, mode="drop")
+        values = tuple(v.at[row, order[station]].set(w, mode="drop")
                        for v, w in zip(values, got, strict=True))
         return base + width, values
 
@@ -164,21 +167,19 @@ def write(values: tuple, rows: jax.Array, reached: jax.Array, passages: Passage,
 
 
 def empty_values(shape: tuple[int, ...], dtype=jnp.float64) -> tuple:
-    """(energy, squared speed, clearance) arrays of ``shape``, all NaN."""
+    """(energy, speed, clearance) arrays of ``shape``, all NaN."""
     nan = jnp.full(shape, jnp.nan, dtype)
     return nan, nan, nan
 
 
 def record(first: jax.Array, reached: jax.Array, values: tuple, order: jax.Array) -> StationRecord:
-    """The ``StationRecord`` in the caller's station order, from ``first`` and
-    ``reached`` (leading batch shape B) and the stored values (B +
-    (n_stations,), ascending order). ``order``: the argsort that sorted the
-    caller's stations."""
+    """The ``StationRecord`` (caller's station order) from ``first`` and
+    ``reached`` (leading batch shape B) and the values ``write`` stored (B +
+    (n_stations,)). ``order``: the argsort that sorted the caller's stations."""
     n = order.shape[0]
     idx = jnp.arange(n, dtype=jnp.int32)
-    passed = (idx >= jnp.asarray(first)[..., None]) & (idx < jnp.asarray(reached)[..., None])
-    inv = jnp.zeros((n,), jnp.int32).at[order].set(idx)
-    energy, speed2, height = values
-    return StationRecord(passed=passed[..., inv], energy_kJ=energy[..., inv],
-                         velocity_m_s=jnp.sqrt(speed2[..., inv]),
-                         bounce_height_m=height[..., inv])
+    rank = jnp.zeros((n,), jnp.int32).at[order].set(idx)  # caller's j: ascending rank
+    passed = (rank >= jnp.asarray(first)[..., None]) & (rank < jnp.asarray(reached)[..., None])
+    energy, speed, height = values
+    return StationRecord(passed=passed, energy_kJ=energy, velocity_m_s=speed,
+                         bounce_height_m=height)
