@@ -48,7 +48,12 @@ def default_pool() -> int:
     63,000-72,000 with 2048 (medians of 3-4 runs, 10 % noise between runs); the
     default hazard run took 90 s with 256 lanes and 103 s with 1024, with
     identical tables; the calibration forward model ran its 96-task calls as
-    fast with 128 as with 256. Accelerators want wide pools to fill their cores.
+    fast with 128 as with 256. Re-measured after station passages moved out of
+    the step (2026-11-25, one call each, median of 7 runs, 1 m blocks):
+    without stations 135,000 / 148,000 / 124,000 / 131,000 blocks/s with
+    128 / 256 / 512 / 1024 lanes, with 61 stations 106,000 / 105,000 / 109,000
+    / 98,000 (runs within a call ranged over +-20 %): 256 stays the default.
+    Accelerators want wide pools to fill their cores.
     Results never depend on the pool (``simulate_pooled``).
     """
     return 256 if jax.default_backend() == "cpu" else 4096
