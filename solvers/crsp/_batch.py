@@ -160,16 +160,16 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
         # a finished lane is left unchanged by ``step`` (and passes nothing)
         return step(s, p, b, words, profile, table, settings)
 
-    def finalize(s, x0, first, reached):
-        return raw_result(s, x0), first, reached
+    def finalize(s, x0, reached):
+        return raw_result(s, x0), first_beyond(stations_x_m, x0), reached
 
     lane = jnp.arange(pool)
     states, words = jax.vmap(lane_init)(jnp.minimum(lane, n_items - 1))
     x0 = states.x_m
     active = lane < n_items
-    first = first_beyond(stations_x_m, x0)
+    reached = first_beyond(stations_x_m, x0)  # stations passed so far, per lane
     proto = jax.eval_shape(finalize, jax.tree_util.tree_map(lambda a: a[0], states), x0[0],
-                           first[0], first[0])
+                           reached[0])
     out = jax.tree_util.tree_map(lambda a: jnp.zeros((n_items,) + a.shape, a.dtype), proto)
     # station passages go from the events' buffer straight into the output (one
     # (n_items, n_stations) array per quantity), never through the lanes' state
@@ -182,7 +182,7 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
         return jnp.any(carry[4])
 
     def body(carry):
-        states, words, x0, idx, active, nxt, out, values, first, reached = carry
+        states, words, x0, idx, active, nxt, out, values, reached = carry
         task = idx // n_per_task
         item = jnp.where(active, idx, n_items)  # inactive lanes: dropped
 
@@ -199,7 +199,7 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
         reached, values = write(values, item, reached, buf, stations_x_m, stations_z_m, order,
                                 settings.g_m_s2, settings.station_slots * pool)
         done = active & ~jax.vmap(running)(states)
-        res = jax.vmap(finalize)(states, x0, first, reached)
+        res = jax.vmap(finalize)(states, x0, reached)
         target = jnp.where(done, idx, n_items)  # out of bounds: dropped
         out = jax.tree_util.tree_map(lambda o, r: o.at[target].set(r, mode="drop"), out, res)
         new_idx = nxt + jnp.cumsum(done) - 1
@@ -213,17 +213,15 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
         states = jax.tree_util.tree_map(pick, ns, states)
         words = pick(nw, words)
         x0 = jnp.where(refill, ns.x_m, x0)
-        new_first = first_beyond(stations_x_m, ns.x_m)
-        first = jnp.where(refill, new_first, first)
-        reached = jnp.where(refill, new_first, reached)
+        reached = jnp.where(refill, first_beyond(stations_x_m, ns.x_m), reached)
         idx = jnp.where(refill, new_idx, idx)
         active = (active & ~done) | refill
         nxt = nxt + jnp.sum(done)
-        return states, words, x0, idx, active, nxt, out, values, first, reached
+        return states, words, x0, idx, active, nxt, out, values, reached
 
     carry = (states, words, x0, jnp.minimum(lane, n_items - 1), active,
-             jnp.asarray(pool), out, values, first, first)
-    _, _, _, _, _, _, (res, first, last), values, _, _ = jax.lax.while_loop(cond, body, carry)
+             jnp.asarray(pool), out, values, reached)
+    _, _, _, _, _, _, (res, first, last), values, _ = jax.lax.while_loop(cond, body, carry)
     out = res._replace(stations=record(first, last, values, order))
     return jax.tree_util.tree_map(
         lambda a: a.reshape((n_tasks, n_per_task) + a.shape[1:]), out)
