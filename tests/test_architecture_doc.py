@@ -1,5 +1,5 @@
 """docs/architecture.md stays true: every module of calib/ and solvers/ is named
-in it, and it names no module that does not exist (issue 16)."""
+in it, and it names no module that does not exist."""
 
 from __future__ import annotations
 

@@ -1,9 +1,9 @@
-"""CRSP invariants on surveyed-like profiles (issue 15).
+"""CRSP invariants on surveyed-like profiles.
 
-Each test names the defect it guards against; each failed on the solver before
-issue 15 (collinear vertices let blocks fall through the ground, every kink
-cost a full impact, rolling on rough ground applied a full impact every
-radius, and the S -> 0 limit jumped).
+Each test names the defect it guards against and fails on a solver that has it
+(collinear vertices that let blocks fall through the ground, a full impact at
+every kink, a full impact every radius when rolling on rough ground, an
+S -> 0 limit that jumps).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Rows on their own profiles (issue 17): field runs let go from spots far
+"""Rows on their own profiles: field runs let go from spots far
 apart across a slope each follow their spot's fall line. From the runs file to
 the observations (``calib.field`` with several ``--profile``), the release
 groups, the forward models and the fit's check."""
