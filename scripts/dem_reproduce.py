@@ -1,4 +1,4 @@
-"""Reproduce the paper's DEM findings (issues 3 and 15) and print a table.
+"""Reproduce the paper's DEM findings and print a table.
 
     python scripts/dem_reproduce.py --out figures/ [--n-blocks 64] [--skip-full-stiffness]
         [--sections table1,one_alpha,fragments,damping,stiffness,deposits,breakage]

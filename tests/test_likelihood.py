@@ -1,6 +1,6 @@
 """The one observation model (``calib.inference.likelihood``): ``calib.fit``'s path
 (``calib.inference.calibrate``) and ``calib.discover``'s (``calib.discovery.discrepancy``) score the
-same rows identically, and both are the model ``README.md`` documents."""
+same rows identically, and both are the model ``docs/calibration.md`` documents."""
 
 from __future__ import annotations
 
@@ -41,7 +41,7 @@ def _runouts(n_points: int = 3, n: int = 24) -> np.ndarray:
 
 
 def _documented(obs: Observations, runouts: np.ndarray) -> np.ndarray:
-    """README.md, "Observation model", in NumPy: points (1/n) sum_j N(y; r_j, sd^2),
+    """docs/calibration.md, "Observation model", in NumPy: points (1/n) sum_j N(y; r_j, sd^2),
     intervals (1/n) sum_j [Phi((b - r_j)/h) - Phi((a - r_j)/h)], h Silverman's
     width (>= 0.5 m), over the finished blocks; each mixed with weight 1 - eps
     with the defensive uniform eps / R_MAX (eps (b - a) / R_MAX for intervals)."""

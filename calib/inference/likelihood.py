@@ -69,8 +69,8 @@ observed block is a random draw from the release conditions the solver uses;
 the tolerance is Gaussian. With few rows per size the likelihood says where
 the distribution must put mass, not its full shape.
 
-This is the one observation model of the project (``README.md``, "Observation
-model"): ``calib.fit`` (``calib.inference.calibrate``) and ``calib.discover``
+This is the one observation model of the project (``docs/calibration.md``,
+"Observation model"): ``calib.fit`` (``calib.inference.calibrate``) and ``calib.discover``
 (``calib.discovery.discrepancy``) both score runout rows with ``log_likelihood`` on the
 rows of ``observed_rows``, with v_j = 0 for simulated runouts (the kernel of a
 point row is the tolerance alone, that of an interval row the width h alone)
