@@ -42,7 +42,7 @@ def _median_se(x, seed=0, n_boot=200):
 
 @pytest.mark.parametrize("step_m", [0.5, 2.0, 5.0])
 @pytest.mark.parametrize("setting", [
-    dict(radius_m=0.1, Kn=0.44, Kt=0.96, roughness_m=0.37),   # the calibrated case
+    dict(radius_m=0.1, Kn=0.44, Kt=0.96, roughness_m=0.37),   # a Postignano calibration
     dict(radius_m=0.5, roughness_m=0.0),                        # smooth: rolls to 153 m
 ])
 def test_collinear_vertices_leave_results_unchanged(step_m, setting):
