@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from solvers.dem._alpha_law import DEFAULT_ALPHA_LAW, AlphaLawError, parse_alpha_law
+from solvers.material import ROCK_DENSITY_KG_M3
 from solvers.profile import Profile
 from solvers.status import BUDGET, INVALID, LEFT_PROFILE, RUNNING, STATUS_NAMES, STOPPED
 
@@ -134,7 +135,7 @@ class Params(NamedTuple):
     """
 
     profile: Profile
-    rho: float = 2350.0
+    rho: float = ROCK_DENSITY_KG_M3
     kn: float = 50e9
     ks: float = 50e9
     stiffness_scale: float = 1.0
