@@ -165,9 +165,10 @@ def _run(args) -> int:
 
     t0 = time.perf_counter()
     try:
-        obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
+        inputs = load_inputs(args.data, args.profile, args.out)
     except InputError as e:
         raise CliError(str(e)) from None
+    obs, profile, profile_path = inputs.obs, inputs.profile, inputs.profile_path
     velocities = _load_velocities(args.velocities, args.model, profile)
     if not args.release_tolerance_m >= 0:
         raise CliError(f"--release-tolerance-m must be >= 0, got {args.release_tolerance_m:g}")

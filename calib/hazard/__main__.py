@@ -154,8 +154,10 @@ def main(argv: list[str] | None = None) -> int:
         lo, hi = profile.x_range_m
         stations = parse_stations(args.stations or f"{lo:g}:{hi:g}:5", profile.x_range_m)
         road_x, label = args.road_x_m, "road"
+        site = load_site(cal.profile_csv)
+        cal.check_density(site.rock_density_kg_m3, f"the site file {site.path}"
+                          if site.path else "the solvers' default")
         if road_x is None:
-            site = load_site(cal.profile_csv)
             road_x, label = site.station_x_m, site.station_label
             where = f"{site.path}: station_of_interest.x_m"
             if road_x is None:

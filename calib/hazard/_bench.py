@@ -27,8 +27,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from calib.files.calibration_file import draw_parameters, load_calibration
-from calib.files.observations import crsp_radius_m
 from calib.hazard._run import run_hazard
+from calib.model.entries import crsp_radius_m
 from calib.model.forward import stack_trees
 from solvers import crsp, load_profile
 from solvers.cli import OneLineParser

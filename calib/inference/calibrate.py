@@ -78,8 +78,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.special import ndtr
 
-from calib.files.inputs import entry_profiles
-from calib.files.observations import Observations, ReleaseGroups, one_release_groups
+from calib.files.observations import Observations
 from calib.inference.adequacy import adequacy_record, better_design_point
 from calib.inference.bayes import Posterior, run_nuts
 from calib.inference.chains import chain_starts, screen_chains
@@ -104,7 +103,7 @@ from calib.inference.loglik_emulator import (
 )
 from calib.inference.predictive_check import pool_draws
 from calib.inference.realisations import realisation_check
-from calib.model.forward import entry_releases
+from calib.model.entries import Entries
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
 from solvers.percentiles import few_blocks
 from solvers.profile import segment_index
@@ -259,103 +258,58 @@ def fit_quality(obs: Observations, runouts: np.ndarray, index=None) -> list[dict
     return out
 
 
-_RELEASE_STATE = ("release_speed_m_s", "release_height_m")  # NaN: the solver's default
+def _row_entries(forward, obs: Observations) -> Entries:
+    """The forward model's entries with the entry of every row: its own
+    ``Entries.index`` (entries made from the rows, ``Entries.from_rows``), or,
+    where it has none, one entry per distinct size of the rows (``obs.size_index``)."""
+    entries = forward.entries
+    if entries.index is not None:
+        if entries.index.shape != (obs.n_obs,):
+            raise ValueError(f"the forward model's entries map {entries.index.shape[0]} rows, "
+                             f"the observations have {obs.n_obs}")
+        return entries
+    if not np.array_equal(entries.sizes_m, obs.sizes_m):
+        raise ValueError("forward must be built on the rows' entries (Entries.from_rows or "
+                         "Entries.one_per_size) or on one entry per distinct size of the rows")
+    return dataclasses.replace(entries, index=obs.size_index)
 
 
-def _entries(forward) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple]:
-    """The forward model's entries: (S,) sizes, m, releases, m (None: the profile's
-    first vertex, where both solvers release by default), release speeds, m/s,
-    release heights, m (NaN: the solver's default), and profiles (the
-    entry's own ``Profile``, or None for
-    ``forward.profile``)."""
-    sizes = np.asarray(forward.sizes_m, float)
-    rel = entry_releases(forward.profile, sizes, forward.release_x_m)
-    state = [getattr(forward, name, None) for name in _RELEASE_STATE]
-    own = getattr(forward, "entry_profiles", None)
-    profiles = tuple(None if own is None or own[i] is forward.profile else own[i]
-                     for i in range(sizes.shape[0]))
-    return (sizes, rel, *(np.full(sizes.shape, np.nan) if v is None else
-                          np.broadcast_to(np.asarray(v, float), sizes.shape) for v in state),
-            profiles)
-
-
-def _built_on(forward, groups: ReleaseGroups) -> bool:
-    """The forward model's entries are the groups: same sizes, releases, release
-    speeds, heights and profiles (not only as many: a forward on ``obs.sizes_m``
-    would ignore the releases)."""
-    sizes, rel, speed, height, profiles = _entries(forward)
-    want = entry_profiles(groups.profile_csv) or (None,) * len(groups.sizes_m)
-    return (sizes.shape == groups.sizes_m.shape and np.array_equal(sizes, groups.sizes_m)
-            and np.array_equal(rel, groups.release_x_m)
-            and np.array_equal(speed, groups.release_speed_m_s, equal_nan=True)
-            and np.array_equal(height, groups.release_height_m, equal_nan=True)
-            and all(a is b for a, b in zip(profiles, want, strict=True)))
-
-
-def _on_entries(forward, sizes_m, release_x_m, release_speed_m_s, release_height_m,
-                n_blocks: int, key: jax.Array, profiles=None):
-    """``forward`` on other entries: (E,) sizes, m, releases, m, release speeds,
-    m/s, heights, m (NaN: the solver's default), and profiles (None, or one
-    ``Profile`` or None per entry: ``entry_profiles``), with ``n_blocks``
-    blocks each and ``key``. One release for all is passed as one number and no
-    speed or height as None."""
-    rel = np.asarray(release_x_m, float)
-    fields = {"sizes_m": np.asarray(sizes_m, float), "n_blocks": n_blocks, "key": key,
-              "release_x_m": float(rel[0]) if np.all(rel == rel[0]) else tuple(rel),
-              "entry_profiles": (tuple(profiles) if profiles is not None
-                                 and any(p is not None for p in profiles) else None)}
-    for name, v in zip(_RELEASE_STATE, (release_speed_m_s, release_height_m), strict=True):
-        v = np.asarray(v, float)
-        if np.any(np.isfinite(v)) or getattr(forward, name, None) is not None:
-            fields[name] = tuple(v) if np.any(np.isfinite(v)) else None
-    return dataclasses.replace(forward, **fields)
-
-
-def _check_entries(groups: ReleaseGroups, sizes_m: np.ndarray):
+def _check_entries(entries: Entries, sizes_m: np.ndarray) -> tuple[Entries, np.ndarray]:
     """What the check simulates: first the figure's sizes ``sizes_m`` at the
     median of the rows' releases, on the command's profile, with the solver's
-    release speed and height, then every group that is not one of these entries.
+    release speed and height, then every entry of the rows that is not one of
+    these.
 
     Returns:
-        (sizes, releases, speeds, heights, profiles) of the entries (E,)
-        (profiles: ``ReleaseGroups.profile_csv``, "" for the command's), and
-        the entry of each group (G,).
+        the check's entries (E,), and the check entry of each of ``entries`` (G,).
     """
-    median = float(np.median(groups.release_x_m[groups.index]))
-    sizes, rel = list(sizes_m), [median] * len(sizes_m)
-    speed, height = [np.nan] * len(sizes_m), [np.nan] * len(sizes_m)
-    prof = [""] * len(sizes_m)
-    entry = np.empty(len(groups.sizes_m), int)
-    for g, (d, x, v, h, pf) in enumerate(zip(groups.sizes_m, groups.release_x_m,
-                                             groups.release_speed_m_s,
-                                             groups.release_height_m, groups.profile_csv)):
-        if x == median and np.isnan(v) and np.isnan(h) and not pf:
-            entry[g] = int(np.searchsorted(sizes_m, d))
+    median = float(np.median(entries.release_x_m[entries.index]))
+    figure = Entries.at_sizes(sizes_m, median, density_kg_m3=entries.density_kg_m3)
+    at = np.empty(entries.n, int)
+    own = []
+    for g in range(entries.n):
+        if (entries.release_x_m[g] == median and np.isnan(entries.release_speed_m_s[g])
+                and np.isnan(entries.release_height_m[g]) and entries.profiles[g] is None):
+            at[g] = int(np.searchsorted(sizes_m, entries.sizes_m[g]))
         else:
-            entry[g] = len(sizes)
-            sizes.append(d)
-            rel.append(x)
-            speed.append(v)
-            height.append(h)
-            prof.append(pf)
-    return (np.asarray(sizes, float), np.asarray(rel, float), np.asarray(speed, float),
-            np.asarray(height, float), np.asarray(prof, dtype=object), entry)
+            at[g] = len(sizes_m) + len(own)
+            own.append(g)
+    return (figure.concat(entries.take(own)) if own else figure), at
 
 
 def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ...],
               budget: Budget, progress: Callable[[str, int, int], None] | None = None,
-              extra_sizes_m=(), groups: ReleaseGroups | None = None) -> ModelFit:
+              extra_sizes_m=()) -> ModelFit:
     """Run the stages of the module docstring for one forward model.
 
-    Every row is scored against the blocks of its (size, release) group, one
-    entry of the forward model (``groups``); without ``groups``, every row of a
-    size is in one group released at the forward's one release
-    (``calib.files.observations.one_release_groups``).
+    Every row is scored against the blocks of its entry of the forward model
+    (``forward.entries.index``: a (size, release) group of
+    ``calib.model.entries.Entries.from_rows``); a forward without a row index
+    has one entry per distinct size of the rows, every row of a size scored
+    against its size's blocks.
 
     Args:
-        forward: ``CrspForward`` or ``DemForward`` built on the groups: one entry
-            per group, with its size, release and release speed (without
-            ``groups``: on ``obs.sizes_m`` with one release for all).
+        forward: ``CrspForward`` or ``DemForward`` built on the rows' entries.
         obs: observations.
         key: PRNG key of the fit (common random numbers, directions, NUTS, check).
         methods: subset of ("gradient", "bayes").
@@ -364,19 +318,9 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
         extra_sizes_m: more block sizes to simulate in the check (for figures);
             ``ModelFit.check_sizes_m`` lists every size checked, simulated at
             the median of the rows' releases (``ModelFit.check_runouts``).
-        groups: the rows' (size, release) groups (``calib.files.observations.
-            release_groups``); None: ``one_release_groups`` at the forward's
-            release.
     """
-    if groups is None:
-        if np.ndim(forward.release_x_m) > 0:
-            raise ValueError("a forward with one release per entry needs its release groups "
-                             "(groups=...)")
-        groups = one_release_groups(obs, _entries(forward)[1][0])
-    if not _built_on(forward, groups):
-        raise ValueError("forward must be built on the groups' sizes, releases, release "
-                         "speeds and release heights")
-    index = groups.index
+    entries = _row_entries(forward, obs)
+    index = entries.index
     k_design, k_grad, k_nuts, k_pilot, k_check = jax.random.split(key, 5)
     tick = progress or (lambda *a: None)
     timings, posterior, gfit, emu_check, x, design_ll = {}, None, None, None, None, None
@@ -427,10 +371,10 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     else:
         estimate, source = posterior.map, "posterior_mode"
     t0 = time.perf_counter()
-    e_sizes, e_rel, e_speed, e_height, e_prof, entry = _check_entries(groups, sizes)
-    runs = _on_entries(forward, e_sizes, e_rel, e_speed, e_height, budget.n_check,
-                       k_check, entry_profiles(e_prof)).runouts(estimate[None])[0]
-    tally("check", runs[None], estimate[None], e_sizes)
+    checked, entry = _check_entries(entries, sizes)
+    runs = dataclasses.replace(forward, entries=checked, n_blocks=budget.n_check,
+                               key=k_check).runouts(estimate[None])[0]
+    tally("check", runs[None], estimate[None], checked.sizes_m)
     check, at_rows = runs[:len(sizes)], runs[entry]
     quality = fit_quality(obs, at_rows, index)
     better = None
@@ -675,9 +619,8 @@ def _adequacy(forward, obs: Observations, posterior: Posterior | None, check: np
     ``n_predictive_draws`` draws spread evenly over the chains' output, with
     ``n_blocks_predictive`` fresh blocks per draw and size; without a posterior,
     the check's runouts at the point estimate (plug-in)."""
-    e = _entries(forward)
-    release = e[1]
-    slopes_deg = _release_slopes_deg(forward.profile, release, e[4])
+    release = forward.entries.release_x_m
+    slopes_deg = _release_slopes_deg(forward.profile, release, forward.entries.profiles)
     if posterior is None:
         return adequacy_record(None, forward.box, obs, check,
                                f"plug-in at the point estimate, {check.shape[-1]} blocks "
