@@ -1,7 +1,8 @@
 """The command-line kit (``solvers.cli``) and what every command owes its user.
 
 * Commands share plumbing through the public kit, never through another
-  module's private names (an AST scan of ``calib/`` and ``solvers/``).
+  module's private names (an AST scan of ``calib/``, ``solvers/`` and ``terrain/``).
+* The packages import one way: ``calib`` -> ``terrain`` -> ``solvers``.
 * Both solvers name the quantities they share alike.
 * ``--help`` of every command shows every default.
 """
@@ -14,7 +15,7 @@ import pathlib
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-PACKAGES = ("calib", "solvers")
+PACKAGES = ("calib", "solvers", "terrain")
 
 # Private names still imported across modules (none left; an entry must name the
 # change that removes it).
@@ -75,10 +76,10 @@ def cross_module_private_imports() -> list[str]:
 
 def _is_command(name: str) -> bool:
     """A command module (or a benchmark run as one): calib/<x>.py, any
-    ``__main__``, ``bench``/``_bench`` and the profile command's code."""
+    ``__main__``, ``bench``/``_bench`` and the terrain cut."""
     parts = name.split(".")
     return ((parts[0] == "calib" and len(parts) == 2) or parts[-1] in
-            ("__main__", "bench", "_bench", "profile_cli") or name == "solvers.cli")
+            ("__main__", "bench", "_bench") or name in ("solvers.cli", "terrain.cut"))
 
 
 def library_imports_of_the_cli_kit() -> list[str]:
@@ -116,6 +117,33 @@ def test_the_known_exceptions_are_still_there():
     assert not KNOWN - seen, f"remove from KNOWN: {sorted(KNOWN - seen)}"
 
 
+# Imports that go against the layering: none but the deprecated command name
+# ``python -m solvers.profile cut``, which runs ``terrain.cut`` (removed with it).
+LAYERING_EXCEPTIONS = {("solvers.profile", "terrain.cut")}
+
+
+def layering_violations() -> list[tuple[str, str]]:
+    """(module, imported module) of every import from ``solvers`` into ``terrain``
+    or ``calib``, and from ``terrain`` into ``calib``."""
+    above = {"solvers": ("terrain", "calib"), "terrain": ("calib",), "calib": ()}
+    bad = []
+    for path, name, is_pkg in _modules():
+        for _, src, what in _imports(path, name, is_pkg):
+            top = src.split(".")[0]
+            full = src if what is None or top != src else f"{src}.{what}"
+            if top in above[name.split(".")[0]]:
+                bad.append((name, full))
+    return list(dict.fromkeys(bad))
+
+
+def test_packages_import_one_way():
+    """``solvers`` (the physics and the profile) imports neither ``terrain`` nor
+    ``calib``; ``terrain`` (rasters, lines in plan, the cut) does not import
+    ``calib``."""
+    bad = set(layering_violations())
+    assert bad == LAYERING_EXCEPTIONS, sorted(bad ^ LAYERING_EXCEPTIONS)
+
+
 # ---------------------------------------------------------------- solver outputs
 
 def test_both_solvers_name_shared_station_quantities_alike():
@@ -145,7 +173,7 @@ def test_both_solvers_name_shared_station_quantities_alike():
 
 # ---------------------------------------------------------------- --help shows defaults
 
-COMMANDS = ["solvers.crsp.__main__", "solvers.dem.__main__", "solvers.profile_cli", "solvers.bench",
+COMMANDS = ["solvers.crsp.__main__", "solvers.dem.__main__", "terrain.cut", "solvers.bench",
             "calib.fit", "calib.discover", "calib.power", "calib.synth", "calib.validate",
             "calib.field", "calib.hazard.__main__"]
 
