@@ -210,8 +210,9 @@ def test_every_option_with_a_default_says_it(module):
 
 
 @pytest.mark.parametrize("module, needles", [
-    ("solvers.crsp.__main__", ["default 1000", "default 0.5", "default 2350"]),
-    ("solvers.dem.__main__", ["default: 256", "default: unbalanced", "default: 200.0"]),
+    ("solvers.crsp.__main__", ["default 1000", "default 1.0", "default 2350"]),
+    ("solvers.dem.__main__", ["default: 256", "default: unbalanced", "default: 200.0",
+                              "Default 0.01", "default: 2350"]),
     ("calib.fit", ["default: both", "default 0", "default 1.0 m"]),
     ("calib.hazard.__main__", ["0.2,0.5,1.0,2.0", "default 5000"]),
 ])
@@ -245,3 +246,30 @@ def test_few_blocks_is_the_one_rule_below_20():
     many = few_blocks_warning([(f"row {i}", 3) for i in range(12)], max_named=8)
     assert "in 12 row(s)" in many and "row 7 (3 blocks); and 4 more" in many
     assert "row 8 (" not in many
+
+
+# ---------------------------------------------------------------- deprecated names
+
+def test_a_deprecated_option_name_still_works_and_warns_once(capsys):
+    """``deprecated_alias``: the old name parses as the new one does, converted
+    (a radius r read as the diameter 2 r), stores where the new one stores, and
+    says so in one line on stderr naming the new option; the new option's
+    default stands when neither is given, and --help marks the old one."""
+    from solvers.cli import OneLineParser, deprecated_alias
+
+    p = OneLineParser(prog="cmd")
+    p.add_argument("--block-size-m", type=float, default=1.0, help="diameter, m")
+    deprecated_alias(p, "--radius-m", "--block-size-m", convert=lambda r: 2.0 * r)
+    assert p.parse_args([]).block_size_m == 1.0
+    assert capsys.readouterr().err == ""
+    assert p.parse_args(["--radius-m", "0.3"]).block_size_m == 0.6
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("cmd: warning: --radius-m is deprecated")
+    assert "--block-size-m 0.6" in err
+    assert p.parse_args(["--block-size-m", "0.3"]).block_size_m == 0.3
+    assert capsys.readouterr().err == ""
+    with pytest.raises(SystemExit):
+        p.parse_args(["--radius-m", "x"])  # parsed as the new option is: a float
+    assert "--radius-m" in capsys.readouterr().err
+    help_text = " ".join(p.format_help().split())
+    assert "--radius-m RADIUS_M deprecated name of --block-size-m" in help_text
