@@ -373,7 +373,7 @@ def run_columns(block_size_m: float, status, runout_m, stop_x_m, stop_z_m,
 
     codes = np.asarray(status).ravel()
     n_blocks = codes.size // n_fragments
-    cols = {
+    return {
         "block": np.repeat(np.arange(n_blocks), n_fragments),
         "fragment": np.tile(np.arange(n_fragments), n_blocks),
         "block_size_m": np.full(codes.size, float(block_size_m)),
@@ -382,7 +382,6 @@ def run_columns(block_size_m: float, status, runout_m, stop_x_m, stop_z_m,
         "stop_x_m": np.asarray(stop_x_m).ravel(),
         "stop_z_m": np.asarray(stop_z_m).ravel(),
     }
-    return cols
 
 
 def run_columns_help(own: dict[str, str], energy_per_m: bool = False) -> str:
