@@ -24,7 +24,7 @@ from calib.model.entries import Entries
 from calib.model.forward import CrspForward, DemForward
 from calib.model.priors import CRSP_ROLLING_BOX
 from solvers.profile import load_profile
-from solvers.profile_cli import main as profile_main
+from terrain.cut import main as cut_main
 
 DATA = "data/tschamut2014"
 LINE = load_profile(f"{DATA}/profile.csv")
@@ -180,18 +180,18 @@ def test_cut_along_one_spots_fall_line(tmp_path, capsys):
     """--fall-line-near E,N,R cuts the mean fall line of the runs released within
     R m of (E, N), and records it; no run there is one line, exit 2."""
     out = tmp_path / "spot.csv"
-    rc, _, err = run_cli(profile_main, ["cut", f"{DATA}/terrain_proxy.asc", "--fall-line",
-                                     f"{DATA}/runs.csv", "--fall-line-near", "59,257.5,10",
-                                     "--margin-m", "40", "--zones", "steep:0:100,flat:100:",
-                                     "--out", str(out)], capsys)
+    rc, _, err = run_cli(cut_main, [f"{DATA}/terrain_proxy.asc", "--fall-line",
+                                    f"{DATA}/runs.csv", "--fall-line-near", "59,257.5,10",
+                                    "--margin-m", "40", "--zones", "steep:0:100,flat:100:",
+                                    "--out", str(out)], capsys)
     assert rc == 0, err
     assert _text(out) == _text(f"{DATA}/east_spot_profile.csv")
     info = json.loads(_text(tmp_path / "spot.cut.json"))
     assert info["line"]["runs_released_near"] == {"east_m": 59.0, "north_m": 257.5,
                                                   "radius_m": 10.0}
-    rc, _, err = run_cli(profile_main, ["cut", f"{DATA}/terrain_proxy.asc", "--fall-line",
-                                     f"{DATA}/runs.csv", "--fall-line-near", "0,0,5",
-                                     "--out", str(tmp_path / "none.csv")], capsys)
+    rc, _, err = run_cli(cut_main, [f"{DATA}/terrain_proxy.asc", "--fall-line",
+                                    f"{DATA}/runs.csv", "--fall-line-near", "0,0,5",
+                                    "--out", str(tmp_path / "none.csv")], capsys)
     assert rc == 2 and "no run is released within 5 m of (0, 0)" in err
     assert not (tmp_path / "none.csv").exists()
 
