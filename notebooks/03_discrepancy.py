@@ -165,5 +165,5 @@ display(Image(os.path.join(out_p, "before_after.png")))
 # printed above. Two rows cannot give a meaningful standard error, so with this
 # little data the rule falls back on the 4-nat threshold alone.
 #
-# The development log (`data/README.md`, and the closing note of issue 6) reports
-# the full run.
+# `docs/studies.md` reports the measured power studies (how often the workflow
+# names each hidden effect, with the commands that reproduce them).

@@ -281,7 +281,7 @@ for name in ("runout_vs_size.png", "crsp_pairs.png", os.path.join("validation", 
 #   fit one rolling-resistance angle per zone (`calib.fit
 #   --rolling-resistance zones`). Here both zones are one meadow: the zoned
 #   fit passes its checks but leaves both angles barely determined and
-#   predicts no better than one angle (README, "One rolling resistance per
-#   zone").
+#   predicts no better than one angle (docs/studies.md, "one rolling
+#   resistance per zone").
 #   A hazard table made from a calibration that fails its own check is a
 #   number without a warrant.

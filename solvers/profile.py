@@ -331,7 +331,7 @@ def refine(profile: Profile, step_m: float, z_noise_m: float = 0.0,
     segment they split), each keeping its segment's zone.
 
     A surveyed profile is the same ground sampled more finely: the solvers'
-    results must not depend on it (issue 15), which the tests check with this.
+    results must not depend on it, which the tests check with this.
     ``z_noise_m`` adds Gaussian noise of that standard deviation to the new
     and old inner vertices (seeded), to mimic survey noise; the end vertices
     stay put.

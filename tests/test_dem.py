@@ -1,4 +1,4 @@
-"""Tests of the rigid-block DEM (issue 3): analytic cases, invariants, batching, CLI."""
+"""Tests of the rigid-block DEM: analytic cases, invariants, batching, CLI."""
 
 from __future__ import annotations
 

@@ -197,10 +197,10 @@ def test_discover_names_a_strong_hidden_effect_and_shrinks_the_gap(discover_run)
     assert r["gap_after"] < r["gap_before"]
     # where: size classes, on the side the hidden effect puts them (restitution
     # x (d / 1 m)^0.5: blocks below 1 m lose more, so they travel shorter than the
-    # baseline says), and the residuals rise with size. Since the likelihood's
-    # defensive component (stop 29) the baseline fits the extremes better and the
-    # trend over all rows is no longer significant (measured: 0.4, 0.7 and 1.0 m
-    # flagged at z -3.4, -4.4, -3.4; rho +0.30, p_adj 1); before it, the trend was.
+    # baseline says), and the residuals rise with size. With the likelihood's
+    # defensive component the baseline fits the extremes better and the trend
+    # over all rows is not significant (measured 2026-11-25: 0.4, 0.7 and 1.0 m
+    # flagged at z -3.4, -4.4, -3.4; rho +0.30, p_adj 1); without it, it was.
     flagged = [c for c in r["where"]["by_size"] if c["flag"]]
     assert flagged and all(c["z"] < 0 and c["size_m"] <= 1.0 for c in flagged), flagged
     assert r["where"]["size_trend"]["spearman_rho"] > 0
@@ -451,7 +451,7 @@ def test_a_fold_with_a_large_khat_reaches_the_discovery_record():
 
 
 def test_gap_warning_when_the_named_effect_widens_the_gap():
-    """Tschamut (stop 23): size_dissipation was named with the gap growing from
+    """Tschamut (2026-11-24): size_dissipation was named with the gap growing from
     16.65 to 30.78 m; that is warned about. A shrinking gap, or no effect
     named, says nothing."""
     (w,) = gap_warnings("size_dissipation", 16.65, 30.78)

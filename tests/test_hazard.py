@@ -1,4 +1,4 @@
-"""Hazard Monte Carlo (issue 5): exceedance step for a deterministic setting,
+"""Hazard Monte Carlo: exceedance step for a deterministic setting,
 monotone bounded curves, reach vs per-block output, 1/sqrt(N) bands, chunking
 invariance, histogram quantiles, intensity classes and matrix."""
 

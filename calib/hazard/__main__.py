@@ -28,7 +28,7 @@ from solvers.cli import (
 from solvers.dem import check_run_numerics
 
 # model -> (blocks per draw and size, posterior draws); DEM defaults keep the
-# default DEM run under 10 minutes on 2 CPU cores (measured 4.3 min: see README.md)
+# default DEM run under 10 minutes on 2 CPU cores (254 s on 2026-11-21: docs/studies.md)
 DEFAULTS = {"crsp": (20000, 100), "dem": (64, 16)}
 
 

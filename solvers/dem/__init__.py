@@ -1,4 +1,4 @@
-"""Smooth-contact rigid-block DEM in JAX, in the spirit of UDEC (issues 3, 15).
+"""Smooth-contact rigid-block DEM in JAX, in the spirit of UDEC.
 
 Rigid squares (optionally pre-split into n x n bonded fragments) fall down a
 2D slope polyline; penalty contacts with Mohr-Coulomb friction (paper eqs.
