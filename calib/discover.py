@@ -82,7 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--velocities", default=None, metavar="FILE",
                    help="passage speeds at stations, CSV with columns station_x_m, "
                         "block_size_m, velocity_m_s, velocity_sd_m_s[, source] (e.g. from "
-                        "video of induced rockfalls; calib.synth --velocity-stations writes "
+                        "video of induced rockfalls; calib.synth --velocity-stations-m writes "
                         "one); scored with the runouts by every candidate; crsp only")
     p.add_argument("--rolling-resistance", choices=["profile", "fit"], default="profile",
                    help="CRSP baseline: keep the profile's per-zone rolling resistance and fit "
@@ -165,9 +165,10 @@ def _run(args) -> int:
 
     t0 = time.perf_counter()
     try:
-        obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
+        inputs = load_inputs(args.data, args.profile, args.out)
     except InputError as e:
         raise CliError(str(e)) from None
+    obs, profile, profile_path = inputs.obs, inputs.profile, inputs.profile_path
     velocities = _load_velocities(args.velocities, args.model, profile)
     if not args.release_tolerance_m >= 0:
         raise CliError(f"--release-tolerance-m must be >= 0, got {args.release_tolerance_m:g}")

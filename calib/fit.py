@@ -26,6 +26,7 @@ tolerance (points) or known to lie in an interval.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import time
@@ -34,7 +35,6 @@ import warnings
 import jax
 import numpy as np
 
-from calib.files.calibration_file import SCHEMA, CalibrationFile, posterior_csv_text
 from calib.files.provenance import provenance, versions
 from solvers.cli import (
     CliError,
@@ -48,7 +48,6 @@ from solvers.percentiles import few_blocks_warning
 __all__ = ["main"]
 
 PROG = "python -m calib.fit"
-ALPHA_AT_L = (0.2, 0.9, 1.8)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -98,173 +97,136 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run(args) -> int:
-    from calib.files.calibration_file import model_section, summary_stats
+    from calib.files.calibration_file import fit_document, posterior_csv_text
     from calib.files.inference_data import inference_data, netcdf_writer
-    from calib.files.inputs import InputError, common_release_m, entry_profiles, load_inputs
-    from calib.files.observations import one_release_groups
-    from calib.files.site import SiteError, load_site
+    from calib.plots import figures
+
+    t_start = time.perf_counter()
+    inputs, data_csv, files = _inputs(args)
+    entries = inputs.entries(args.release_tolerance_m)
+    grouped = inputs.own_releases
+    if grouped:
+        _print_entries(inputs, entries, args.release_tolerance_m)
+    models = ["crsp", "dem"] if args.model == "both" else [args.model]
+    methods = ("gradient", "bayes") if args.method == "both" else (args.method,)
+    key = jax.random.key(args.seed)
+    fits = {model: _fit_model(model, args, inputs, entries, methods, jax.random.fold_in(key, i))
+            for i, model in enumerate(models)}
+    header = {"command": " ".join([PROG] + sys.argv[1:]), "data_csv": data_csv,
+              "seed": args.seed, "quick": bool(args.quick), "methods": methods,
+              "versions": versions(),
+              "inputs": provenance(PROG, args.seed, {"data": args.data,
+                                                     "profile": inputs.profile_path})["inputs"]}
+    cal = fit_document(header, inputs, entries, fits, grouped, args.release_tolerance_m,
+                       time.perf_counter() - t_start)
+    figs, writers = {}, {}
+    for model, (fit, _, form) in fits.items():
+        post = fit.posterior
+        if post is not None:
+            files[f"{model}_posterior.csv"] = posterior_csv_text(fit.names, post.samples)
+            writers[f"{model}_posterior.nc"] = netcdf_writer(inference_data(post, inputs.obs,
+                                                                            model))
+            figs[f"{model}_pairs.png"] = figures.pairs(
+                post.samples, fit.names, title=f"{model.upper()} posterior "
+                f"({post.samples.shape[0]} draws{'' if post.ok else ', DIAGNOSTICS FAILED'})")
+        if form is not None:
+            figs["alpha_law.png"] = figures.fitted_alpha_law(form, fit, inputs.site,
+                                                             inputs.obs.sizes_m)
+    figs["runout_vs_size.png"] = figures.runout_vs_size(
+        inputs.obs, {m: (f.check_sizes_m, f.check_runouts) for m, (f, _, _) in fits.items()})
+    files["calibration.json"] = cal.to_json()
+    write_outputs(args.out, files, figs, writers)
+    _print_summary(cal.doc, models, args.out)
+    if args.holdout_fraction:
+        _validate(args, models)
+    return 0
+
+
+def _inputs(args):
+    """The checked inputs (``calib.files.inputs.Inputs``), with the rows of the
+    hold-out split's fit part under ``--holdout-fraction``; the path of the
+    rows fitted; the row files the split adds to the outputs."""
+    from calib.files.inputs import InputError, load_inputs
+
+    try:
+        inputs = load_inputs(args.data, args.profile, args.out)
+    except InputError as e:
+        raise CliError(str(e)) from None
+    if not args.release_tolerance_m >= 0:
+        raise CliError(f"--release-tolerance-m must be >= 0, got {args.release_tolerance_m:g}")
+    files, data_csv = {}, args.data
+    if args.holdout_fraction:
+        obs, data_csv = _split(args, inputs.obs, files)
+        inputs = dataclasses.replace(inputs, obs=obs)
+    return inputs, data_csv, files
+
+
+def _print_entries(inputs, entries, tol_m: float) -> None:
+    """Say how the rows' own releases were grouped into simulated entries."""
+    obs, x0 = inputs.obs, float(inputs.profile.x_m[0])
+    rel = np.asarray(obs.release_x_m, float)
+    err = np.abs(entries.release_x_m[entries.index] - np.where(np.isfinite(rel), rel, x0))
+    print(f"each row released from its own point, rows of one size within {tol_m:g} m "
+          f"grouped: {entries.n} simulated releases for {obs.n_obs} rows (largest release "
+          f"shift {err.max():.2f} m)")
+    own = [p for p in dict.fromkeys(obs.profile) if p]
+    if own:
+        print("rows on their own profiles: " + "; ".join(
+            f"{int(np.sum(obs.profile == p))} on {p}" for p in own)
+              + f"; {int(np.sum(obs.profile == ''))} on {inputs.profile_path}")
+    speed, height = (np.asarray(v, float) for v in (obs.release_speed_m_s,
+                                                     obs.release_height_m))
+    gspeed, gheight = (v[entries.index] for v in (entries.release_speed_m_s,
+                                                  entries.release_height_m))
+    known = np.isfinite(speed) & np.isfinite(gspeed)
+    if known.any():
+        print(f"each group released at its rows' mean tracked speed (largest "
+              f"release-speed shift {np.abs(gspeed - speed)[known].max():.2f} m/s)")
+    high = np.isfinite(height)
+    if high.any():
+        print(f"each group released at its rows' mean height above the ground, "
+              f"{np.nanmin(entries.release_height_m):.2f} to "
+              f"{np.nanmax(entries.release_height_m):.2f} m (largest release-height "
+              f"shift {np.abs(gheight - height)[high].max():.2f} m)")
+
+
+def _fit_model(model: str, args, inputs, entries, methods, key):
+    """One model's calibration: (``ModelFit``, its forward model, the DEM's
+    alpha-law form or None)."""
     from calib.inference.calibrate import calibrate, presets
-    from calib.model.alpha_law import alpha_of, check_fit
+    from calib.model.alpha_law import check_fit
     from calib.model.forward import CrspForward, DemForward
     from calib.model.priors import CRSP_BOX, CRSP_ROLLING_BOX, zoned_rolling_box
     from calib.model.unfinished import UnfinishedBlocksWarning
 
-    t_start = time.perf_counter()
-    try:
-        obs, profile, profile_path = load_inputs(args.data, args.profile, args.out)
-    except InputError as e:
-        raise CliError(str(e)) from None
-    try:
-        site = load_site(profile_path)
-    except SiteError as e:
-        raise CliError(str(e)) from None
-    files, figs, predictive, writers = {}, {}, {}, {}
-    data_csv = args.data
-    if args.holdout_fraction:
-        obs, data_csv = _split(args, obs, files)
-    release = common_release_m(obs, profile)
-    groups = None
-    if not args.release_tolerance_m >= 0:
-        raise CliError(f"--release-tolerance-m must be >= 0, got {args.release_tolerance_m:g}")
-    models = ["crsp", "dem"] if args.model == "both" else [args.model]
-    rel = getattr(obs, "release_x_m", None)
-    if rel is not None and (np.any(np.isfinite(rel)) or any(obs.profile)):
-        from calib.files.observations import release_groups
-
-        groups = release_groups(obs, float(profile.x_m[0]), args.release_tolerance_m)
-        err = np.abs(groups.release_x_m[groups.index] - np.where(
-            np.isfinite(rel), rel, float(profile.x_m[0])))
-        print(f"each row released from its own point, rows of one size within "
-              f"{args.release_tolerance_m:g} m grouped: {len(groups.sizes_m)} simulated "
-              f"releases for {obs.n_obs} rows (largest release shift {err.max():.2f} m)")
-        own = [p for p in dict.fromkeys(obs.profile) if p]
-        if own:
-            print("rows on their own profiles: " + "; ".join(
-                f"{int(np.sum(obs.profile == p))} on {p}" for p in own)
-                  + f"; {int(np.sum(obs.profile == ''))} on {profile_path}")
-        speed = np.asarray(obs.release_speed_m_s, float)
-        gspeed = groups.release_speed_m_s[groups.index]
-        known = np.isfinite(speed) & np.isfinite(gspeed)
-        if known.any():
-            print(f"each group released at its rows' mean tracked speed (largest "
-                  f"release-speed shift {np.abs(gspeed - speed)[known].max():.2f} m/s)")
-        height = np.asarray(obs.release_height_m, float)
-        high = np.isfinite(height)
-        if high.any():
-            gh = groups.release_height_m[groups.index]
-            print(f"each group released at its rows' mean height above the ground, "
-                  f"{np.nanmin(groups.release_height_m):.2f} to "
-                  f"{np.nanmax(groups.release_height_m):.2f} m (largest release-height "
-                  f"shift {np.abs(gh - height)[high].max():.2f} m)")
-    methods = ("gradient", "bayes") if args.method == "both" else (args.method,)
-    key = jax.random.key(args.seed)
-    result = {"schema": SCHEMA,
-              "command": " ".join([PROG] + sys.argv[1:]),
-              "data_csv": data_csv, "profile_csv": profile_path, "seed": args.seed,
-              "release_x_m": release,
-              "release_groups": None if groups is None else {
-                  "tolerance_m": args.release_tolerance_m, "models": models,
-                  "speed_and_height_models": models,
-                  "groups": [{"block_size_m": float(d), "release_x_m": float(x),
-                              "release_speed_m_s": None if not np.isfinite(v) else float(v),
-                              "release_height_m": None if not np.isfinite(h) else float(h),
-                              "profile_csv": pf or profile_path,
-                              "n_rows": int(np.sum(groups.index == g))}
-                             for g, (d, x, v, h, pf) in enumerate(zip(
-                                 groups.sizes_m, groups.release_x_m,
-                                 groups.release_speed_m_s, groups.release_height_m,
-                                 groups.profile_csv))]},
-              "quick": bool(args.quick), "methods": list(methods), "versions": versions(),
-              "inputs": provenance(PROG, args.seed, {"data": args.data,
-                                                     "profile": profile_path})["inputs"],
-              "block_size_mapping": {"crsp_radius_m": "block_size_m / 2",
-                                     "dem_side_m": "block_size_m"},
-              "likelihood": "point: (1/n) sum_j N(y; r_j, sd^2 + v_j); interval: (1/n) sum_j "
-                            "[Phi((b-r_j)/w_j) - Phi((a-r_j)/w_j)] (calib/inference/likelihood.py)",
-              "n_observations": obs.n_obs, "fit_quality": {}, "timings_s": {}}
-    from calib.plots import figures
-
-    for m_i, model in enumerate(models):
-        budget = presets(model, args.quick)
-        mkey = jax.random.fold_in(key, m_i)
-        if model == "crsp":
-            # rows without their own release: one group per size at the common one
-            crsp_groups = groups if groups is not None else one_release_groups(obs, release)
-            own = entry_profiles(crsp_groups.profile_csv) or ()
-            box = {"fit": CRSP_ROLLING_BOX, "profile": CRSP_BOX}.get(args.rolling_resistance) \
-                or zoned_rolling_box(dict.fromkeys(
-                    z for pr in (profile, *own) if pr is not None for z in pr.zone_names))
-            forward = CrspForward(profile, crsp_groups.sizes_m, budget.n_blocks_design,
-                                  jax.random.fold_in(mkey, 1), box=box,
-                                  release_x_m=tuple(crsp_groups.release_x_m),
-                                  release_speed_m_s=tuple(crsp_groups.release_speed_m_s),
-                                  release_height_m=tuple(crsp_groups.release_height_m),
-                                  entry_profiles=own or None)
-        else:
-            dem_groups = groups if groups is not None else one_release_groups(obs, release)
-            forward = DemForward(profile, dem_groups.sizes_m, budget.n_blocks_design,
-                                 jax.random.fold_in(mkey, 1), form=args.alpha_law,
-                                 release_x_m=tuple(dem_groups.release_x_m),
-                                 release_speed_m_s=tuple(dem_groups.release_speed_m_s),
-                                 release_height_m=tuple(dem_groups.release_height_m),
-                                 entry_profiles=entry_profiles(dem_groups.profile_csv))
-        bar = Progress(not args.no_progress, model.upper())
-        # the check also simulates a grid of sizes for the runout-vs-size figure
-        extra = (np.geomspace(0.2, 2.0, 6) if model == "crsp" else
-                 [0.2, 0.9, 2.0] if args.quick else [0.2, 0.5, 0.9, 1.4, 2.0])
-        with warnings.catch_warnings():  # reported below, in the summary and the json
-            warnings.simplefilter("ignore", UnfinishedBlocksWarning)
-            fit = calibrate(forward, obs, jax.random.fold_in(mkey, 2), methods, budget, bar,
-                            extra_sizes_m=extra,
-                            groups=crsp_groups if model == "crsp" else dem_groups)
-        bar.close()
-        t0 = time.perf_counter()
-        sec = model_section(model, fit, forward, args.alpha_law if model == "dem" else None)
-        post = fit.posterior
-        if post is not None:
-            files[f"{model}_posterior.csv"] = posterior_csv_text(fit.names, post.samples)
-            writers[f"{model}_posterior.nc"] = netcdf_writer(inference_data(post, obs, model))
-            figs[f"{model}_pairs.png"] = figures.pairs(
-                post.samples, fit.names, title=f"{model.upper()} posterior "
-                f"({post.samples.shape[0]} draws{'' if post.ok else ', DIAGNOSTICS FAILED'})")
-        predictive[model] = (fit.check_sizes_m, fit.check_runouts)
-        if model == "dem":
-            try:
-                check_fit(args.alpha_law, fit.estimate,
-                          None if fit.posterior is None else fit.posterior.samples, obs.sizes_m)
-            except ValueError as e:
-                raise CliError(str(e)) from None
-            ref = dict(site.alpha_reference)
-            ls = np.asarray(sorted(ref) if ref else ALPHA_AT_L)
-            at = np.asarray(alpha_of(args.alpha_law, fit.estimate, ls))
-            samp = None if post is None else np.asarray(alpha_of(args.alpha_law, post.samples,
-                                                                 ls))
-            sec["alpha_at_L"] = {
-                f"{L:g}": {**summary_stats(None if samp is None else samp[:, i], at[i]),
-                           **({"reference": ref[L]} if ref else {})}
-                for i, L in enumerate(ls)}
-            if ref:
-                sec["alpha_reference"] = {"label": site.alpha_reference_label,
-                                          "site_file": site.path}
-            lo_l, hi_l = min(ls.min(), obs.sizes_m.min()), max(ls.max(), obs.sizes_m.max())
-            lgrid = np.geomspace(0.75 * lo_l, 1.25 * hi_l, 60)
-            figs["alpha_law.png"] = figures.alpha_law(
-                lgrid, np.asarray(alpha_of(args.alpha_law, fit.estimate, lgrid)),
-                None if post is None else np.asarray(alpha_of(args.alpha_law, post.samples,
-                                                              lgrid)), args.alpha_law,
-                reference=site.alpha_reference, reference_label=site.alpha_reference_label)
-        fit.timings_s["report_s"] = time.perf_counter() - t0
-        result[model] = sec
-        result["fit_quality"][model] = fit.quality
-        result["timings_s"][model] = fit.timings_s
-    figs["runout_vs_size.png"] = figures.runout_vs_size(obs, predictive)
-    result["timings_s"]["total_s"] = time.perf_counter() - t_start
-    files["calibration.json"] = CalibrationFile.from_dict(result).to_json()
-    write_outputs(args.out, files, figs, writers)
-    _print_summary(result, models, args.out)
-    if args.holdout_fraction:
-        _validate(args, models)
-    return 0
+    budget = presets(model, args.quick)
+    profile = inputs.profile
+    if model == "crsp":
+        box = {"fit": CRSP_ROLLING_BOX, "profile": CRSP_BOX}.get(args.rolling_resistance) \
+            or zoned_rolling_box(dict.fromkeys(
+                z for pr in (profile, *entries.profiles) if pr is not None
+                for z in pr.zone_names))
+        forward = CrspForward(profile, entries, budget.n_blocks_design,
+                              jax.random.fold_in(key, 1), box=box)
+        extra = np.geomspace(0.2, 2.0, 6)  # the check's sizes for the runout-vs-size figure
+    else:
+        forward = DemForward(profile, entries, budget.n_blocks_design,
+                             jax.random.fold_in(key, 1), form=args.alpha_law)
+        extra = [0.2, 0.9, 2.0] if args.quick else [0.2, 0.5, 0.9, 1.4, 2.0]
+    bar = Progress(not args.no_progress, model.upper())
+    with warnings.catch_warnings():  # reported below, in the summary and the json
+        warnings.simplefilter("ignore", UnfinishedBlocksWarning)
+        fit = calibrate(forward, inputs.obs, jax.random.fold_in(key, 2), methods, budget, bar,
+                        extra_sizes_m=extra)
+    bar.close()
+    if model == "dem":
+        try:
+            check_fit(args.alpha_law, fit.estimate,
+                      None if fit.posterior is None else fit.posterior.samples,
+                      inputs.obs.sizes_m)
+        except ValueError as e:
+            raise CliError(str(e)) from None
+    return fit, forward, (args.alpha_law if model == "dem" else None)
 
 
 def _split(args, obs, files):

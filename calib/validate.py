@@ -55,8 +55,9 @@ def build_parser() -> OneLineParser:
 
 def _load(args):
     from calib.files.calibration_file import CalibrationError, load_calibration
-    from calib.files.inputs import InputError, entry_profiles, on_command_profile
+    from calib.files.inputs import InputError, on_command_profile, own_profile
     from calib.files.observations import ObservationError, load_observations
+    from calib.files.site import SiteError, load_site
     from solvers.profile import ProfileError, load_profile
 
     try:
@@ -74,8 +75,13 @@ def _load(args):
         # rows on their own profiles (Observations.profile): read them now, so a
         # bad file is one line here
         heldout = on_command_profile(heldout, cal.profile_csv)
-        entry_profiles(heldout.profile)
-    except (ObservationError, ProfileError, InputError) as e:
+        for p in dict.fromkeys(heldout.profile):
+            if p:
+                own_profile(p)
+        site = load_site(cal.profile_csv)
+        cal.check_density(site.rock_density_kg_m3, f"the site file {site.path}"
+                          if site.path else "the solvers' default")
+    except (ObservationError, ProfileError, InputError, SiteError, CalibrationError) as e:
         raise CliError(str(e)) from None
     if args.n_posterior < 1:
         raise CliError(f"--n-posterior: expected a positive count, got {args.n_posterior}")

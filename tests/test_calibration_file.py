@@ -27,6 +27,7 @@ from calib.files.calibration_file import (
 )
 from calib.hazard._run import _crsp_units, _dem_units, check_dem_draws
 from calib.model.dem_run import DEM_RUN, DemRun
+from calib.model.entries import Entries
 from calib.model.forward import CrspForward, DemForward
 from calib.model.priors import CRSP_BOX, CRSP_ROLLING_BOX, DEM_BOXES
 from solvers import crsp
@@ -48,7 +49,7 @@ def _box_points(box, n_random: int, seed: int) -> np.ndarray:
 def _write_fit(folder, model: str, box, estimate, samples, form=None) -> str:
     """calibration.json and the posterior CSV as ``calib.fit`` writes them, for a
     fit whose estimate and posterior draws are given."""
-    post = SimpleNamespace(samples=samples, summary=lambda: {}, ok=True, problems=[],
+    post = SimpleNamespace(samples=samples, summary=lambda: {}, ok=True, problems=[], criteria={},
                            divergences=0, accept_prob=0.9, n_chains=1)
     fit = SimpleNamespace(names=box.names, estimate=np.asarray(estimate, float),
                           estimate_source="posterior_mode", posterior=post, gradient=None,
@@ -90,8 +91,8 @@ def test_every_dem_calibration_the_fit_can_write_is_accepted_by_hazard(tmp_path,
         assert cal.alpha_form == form
         for draws in _drawn(cal):
             check_dem_draws(cal, draws, SIZES_M)  # raises if refused
-            units = _dem_units(cal, draws, profile, 0.0, SIZES_M, stations, 2, 0, 2, [0],
-                               DEM_RUN)
+            units = _dem_units(cal, draws, profile, Entries.at_sizes(SIZES_M, 0.0), stations,
+                               2, 0, 2, [0], DEM_RUN)
             ran = np.full((len(draws.values), len(SIZES_M)), np.nan)
             for (d, t_sl), make_args, _ in units:
                 ran[d, t_sl] = np.asarray(make_args()[1].alpha)[0]
@@ -115,7 +116,8 @@ def test_every_crsp_calibration_the_fit_can_write_is_accepted_by_hazard(tmp_path
         cal = load_calibration(_write_fit(str(folder), "crsp", box, estimate, samples), "crsp")
         assert cal.names == box.names
         for draws in _drawn(cal):
-            units = _crsp_units(draws, profile, 0.0, SIZES_M, stations, 2, 0, 2, [0], 64,
+            units = _crsp_units(draws, profile, Entries.at_sizes(SIZES_M, 0.0), stations, 2, 0, 2,
+                                [0], 64,
                                 crsp.Settings())
             want = fit_forward.params(draws.values)
             for (d, _), make_args, _ in units:

@@ -29,7 +29,8 @@ from calib.discovery.scores import (
 from calib.files.observations import Observations
 from solvers.profile import load_profile
 
-PROFILE = load_profile("data/postignano_profile.csv")
+PROFILE_CSV = "data/postignano_profile.csv"
+PROFILE = load_profile(PROFILE_CSV)
 
 
 _cli = run_module
@@ -108,7 +109,8 @@ def test_locate_flags_the_size_class_that_is_off_and_nothing_else():
 def synth_files(tmp_path_factory):
     out = tmp_path_factory.mktemp("synth")
     proc = _cli("calib.synth", "--effect", "size_dissipation", "--strength", "2",
-                "--n-obs", "36", "--seed", "11", "--out", str(out / "synth.csv"))
+                "--n-obs", "36", "--seed", "11", "--profile", PROFILE_CSV,
+                "--out", str(out / "synth.csv"))
     return proc, out
 
 
@@ -132,9 +134,10 @@ def test_synth_writes_data_truth_and_profile_but_hides_the_effect(synth_files):
     (["--effect", "none", "--n-obs", "0"], "--n-obs"),
     (["--effect", "none", "--strength", "-1"], "--strength"),
     (["--effect", "bogus"], "invalid choice"),
+    (["--effect", "none", "--sd-m", "0"], "--sd-m: expected a positive number of metres"),
 ])
 def test_synth_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, needle):
-    proc = _cli("calib.synth", *args, "--out", str(tmp_path / "s.csv"))
+    proc = _cli("calib.synth", "--profile", PROFILE_CSV, *args, "--out", str(tmp_path / "s.csv"))
     assert proc.returncode == 2
     assert needle in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
     assert os.listdir(tmp_path) == []

@@ -16,13 +16,15 @@ from cli_run import run_cli
 
 import calib  # noqa: F401  (x64)
 from calib.field import main as field_main
-from calib.files.inputs import entry_profiles, on_command_profile, own_profile
-from calib.files.observations import ObservationError, load_observations, release_groups
-from calib.inference.calibrate import _built_on, _check_entries, _release_slopes_deg
+from calib.files.inputs import on_command_profile, own_profile
+from calib.files.observations import ObservationError, load_observations
+from calib.inference.calibrate import _row_entries
+from calib.inference.fit_check import check_entries, release_slopes_deg
+from calib.model.entries import Entries
 from calib.model.forward import CrspForward, DemForward
 from calib.model.priors import CRSP_ROLLING_BOX
 from solvers.profile import load_profile
-from solvers.profile_cli import main as profile_main
+from terrain.cut import main as cut_main
 
 DATA = "data/tschamut2014"
 LINE = load_profile(f"{DATA}/profile.csv")
@@ -43,18 +45,16 @@ def test_an_entry_runs_on_its_own_profile_alone():
     key, same blocks); entries on the command's profile, given as None or as
     the profile itself, are untouched."""
     kw = dict(n_blocks=64, key=jax.random.key(5), box=CRSP_ROLLING_BOX)
-    both = CrspForward(LINE, np.array([0.3677, 0.3677, 0.3066]), release_x_m=(41.5, 40.2, 41.0),
-                       release_speed_m_s=(0.8, 0.3, 0.5), release_height_m=(1.3, 0.4, 1.2),
-                       entry_profiles=(None, EAST, LINE), **kw)
+    both = CrspForward(LINE, Entries([0.3677, 0.3677, 0.3066], (41.5, 40.2, 41.0),
+                                     (0.8, 0.3, 0.5), (1.3, 0.4, 1.2), (None, EAST, LINE), None),
+                       **kw)
     r = both.runouts(THETA)
-    alone_east = CrspForward(EAST, np.array([0.3677]), release_x_m=(40.2,),
-                             release_speed_m_s=(0.3,), release_height_m=(0.4,), **kw)
-    alone_line = CrspForward(LINE, np.array([0.3677, 0.3066]), release_x_m=(41.5, 41.0),
-                             release_speed_m_s=(0.8, 0.5), release_height_m=(1.3, 1.2), **kw)
+    alone_east = CrspForward(EAST, Entries([0.3677], 40.2, 0.3, 0.4, None, None), **kw)
+    alone_line = CrspForward(LINE, Entries([0.3677, 0.3066], (41.5, 41.0), (0.8, 0.5),
+                                           (1.3, 1.2), None, None), **kw)
     np.testing.assert_array_equal(r[:, 1], alone_east.runouts(THETA)[:, 0])
     np.testing.assert_array_equal(r[:, [0, 2]], alone_line.runouts(THETA))
-    same = CrspForward(LINE, np.array([0.3677]), release_x_m=(41.5,), release_speed_m_s=(0.8,),
-                       release_height_m=(1.3,), entry_profiles=(LINE,), **kw)
+    same = CrspForward(LINE, Entries([0.3677], 41.5, 0.8, 1.3, (LINE,), None), **kw)
     np.testing.assert_array_equal(same.runouts(THETA)[:, 0], r[:, 0])
 
 
@@ -62,17 +62,17 @@ def test_dem_entries_on_their_own_profiles():
     """The DEM forward splits the same way: the entry on the spot's profile is
     that profile's forward alone."""
     kw = dict(n_blocks=2, key=jax.random.key(2), form="constant")
-    both = DemForward(LINE, np.array([0.4, 0.4]), release_x_m=(41.5, 40.2),
-                      entry_profiles=(None, EAST), **kw)
-    alone = DemForward(EAST, np.array([0.4]), release_x_m=(40.2,), **kw)
+    both = DemForward(LINE, Entries([0.4, 0.4], (41.5, 40.2), None, None, (None, EAST), None),
+                      **kw)
+    alone = DemForward(EAST, Entries.at_sizes([0.4], 40.2), **kw)
     a = np.array([[0.6, 0.6]])
     np.testing.assert_array_equal(both.runouts_at_alpha(a)[:, 1],
                                   alone.runouts_at_alpha(a[:, :1])[:, 0])
 
 
 def test_entry_profiles_must_be_one_per_entry():
-    with pytest.raises(ValueError, match="entry_profiles: 1 entries for 2"):
-        CrspForward(LINE, np.array([0.3, 0.4]), 4, jax.random.key(0), entry_profiles=(EAST,))
+    with pytest.raises(ValueError, match="profiles: 1 for 2 entries"):
+        Entries([0.3, 0.4], 40.0, None, None, (EAST,), None)
 
 
 def test_release_groups_split_rows_of_different_profiles():
@@ -81,8 +81,8 @@ def test_release_groups_split_rows_of_different_profiles():
     obs = types.SimpleNamespace(block_size_m=np.ones(4), n_obs=4,
                                 release_x_m=np.array([40.0, 40.2, 40.1, 40.0]),
                                 profile=np.array(["", "b.csv", "", "b.csv"], dtype=object))
-    g = release_groups(obs, 0.0, tol_m=1.0)
-    assert g.profile_csv.tolist() == ["", "b.csv"]
+    g = Entries.from_rows(obs, 0.0, tol_m=1.0, profile_of=lambda p: EAST)
+    assert g.profile_csv.tolist() == ["", "b.csv"] and g.profiles == (None, EAST)
     assert g.index.tolist() == [0, 1, 0, 1]
     np.testing.assert_allclose(g.release_x_m, [40.05, 40.1])
 
@@ -113,17 +113,17 @@ def test_the_check_simulates_groups_on_their_profiles():
     obs = types.SimpleNamespace(block_size_m=np.array([0.3, 0.3]), n_obs=2,
                                 release_x_m=np.array([40.2, 40.2]),
                                 profile=np.array(["", f"{DATA}/east_spot_profile.csv"], object))
-    g = release_groups(obs, 0.0)
-    sizes, rel, speed, height, prof, entry = _check_entries(g, np.array([0.3]))
+    g = Entries.from_rows(obs, 0.0, profile_of=own_profile)
+    checked, entry = check_entries(g, np.array([0.3]))
     # the group on the command's profile at the median release is the figure's
     # entry; the one at the same abscissa on the spot's profile is not
-    assert prof.tolist() == ["", f"{DATA}/east_spot_profile.csv"] and entry.tolist() == [0, 1]
-    fw = CrspForward(LINE, g.sizes_m, 4, jax.random.key(0), release_x_m=tuple(g.release_x_m),
-                     entry_profiles=entry_profiles(g.profile_csv))
-    assert _built_on(fw, g)
-    assert not _built_on(CrspForward(LINE, g.sizes_m, 4, jax.random.key(0),
-                                     release_x_m=tuple(g.release_x_m)), g)
-    slopes = _release_slopes_deg(LINE, g.release_x_m, entry_profiles(g.profile_csv))
+    assert checked.profiles == (None, EAST) and entry.tolist() == [0, 1]
+    fw = CrspForward(LINE, g, 4, jax.random.key(0))
+    assert _row_entries(fw, obs) is g
+    with pytest.raises(ValueError, match="forward must be built on the rows' entries"):
+        _row_entries(CrspForward(LINE, np.array([0.3, 0.3]), 4, jax.random.key(0)),
+                     types.SimpleNamespace(n_obs=2, sizes_m=np.array([0.3])))
+    slopes = release_slopes_deg(LINE, g.release_x_m, g.profiles)
     assert 36 < slopes[1] < 40 and slopes[0] > 40, slopes
 
 
@@ -180,18 +180,18 @@ def test_cut_along_one_spots_fall_line(tmp_path, capsys):
     """--fall-line-near E,N,R cuts the mean fall line of the runs released within
     R m of (E, N), and records it; no run there is one line, exit 2."""
     out = tmp_path / "spot.csv"
-    rc, _, err = run_cli(profile_main, ["cut", f"{DATA}/terrain_proxy.asc", "--fall-line",
-                                     f"{DATA}/runs.csv", "--fall-line-near", "59,257.5,10",
-                                     "--margin-m", "40", "--zones", "steep:0:100,flat:100:",
-                                     "--out", str(out)], capsys)
+    rc, _, err = run_cli(cut_main, [f"{DATA}/terrain_proxy.asc", "--fall-line",
+                                    f"{DATA}/runs.csv", "--fall-line-near", "59,257.5,10",
+                                    "--margin-m", "40", "--zones", "steep:0:100,flat:100:",
+                                    "--out", str(out)], capsys)
     assert rc == 0, err
     assert _text(out) == _text(f"{DATA}/east_spot_profile.csv")
     info = json.loads(_text(tmp_path / "spot.cut.json"))
     assert info["line"]["runs_released_near"] == {"east_m": 59.0, "north_m": 257.5,
                                                   "radius_m": 10.0}
-    rc, _, err = run_cli(profile_main, ["cut", f"{DATA}/terrain_proxy.asc", "--fall-line",
-                                     f"{DATA}/runs.csv", "--fall-line-near", "0,0,5",
-                                     "--out", str(tmp_path / "none.csv")], capsys)
+    rc, _, err = run_cli(cut_main, [f"{DATA}/terrain_proxy.asc", "--fall-line",
+                                    f"{DATA}/runs.csv", "--fall-line-near", "0,0,5",
+                                    "--out", str(tmp_path / "none.csv")], capsys)
     assert rc == 2 and "no run is released within 5 m of (0, 0)" in err
     assert not (tmp_path / "none.csv").exists()
 

@@ -15,7 +15,8 @@ import pytest
 import calib  # noqa: F401  (x64)
 from calib.discovery.discrepancy import Budget, Candidate, discover
 from calib.files.observations import Observations
-from calib.model.forward import DemForward, entry_releases
+from calib.model.entries import Entries
+from calib.model.forward import DemForward, as_entries
 from calib.model.priors import Box
 from solvers.profile import load_profile
 
@@ -24,12 +25,12 @@ PROFILE = load_profile("data/postignano_profile.csv")
 
 def test_entry_releases_broadcast_and_count():
     sizes = np.array([0.5, 1.0, 1.0])
-    np.testing.assert_array_equal(entry_releases(PROFILE, sizes, None), [0.0, 0.0, 0.0])
-    np.testing.assert_array_equal(entry_releases(PROFILE, sizes, 20.0), [20.0] * 3)
-    np.testing.assert_array_equal(entry_releases(PROFILE, sizes, (1.0, 2.0, 3.0)),
+    np.testing.assert_array_equal(as_entries(sizes, PROFILE).release_x_m, [0.0, 0.0, 0.0])
+    np.testing.assert_array_equal(Entries.at_sizes(sizes, 20.0).release_x_m, [20.0] * 3)
+    np.testing.assert_array_equal(Entries.at_sizes(sizes, (1.0, 2.0, 3.0)).release_x_m,
                                   [1.0, 2.0, 3.0])
-    with pytest.raises(ValueError, match="2 entries for 3"):
-        entry_releases(PROFILE, sizes, (1.0, 2.0))
+    with pytest.raises(ValueError, match="2 values for 3 entries"):
+        Entries.at_sizes(sizes, (1.0, 2.0))
 
 
 def test_dem_forward_runs_each_entry_from_its_release():
@@ -39,8 +40,8 @@ def test_dem_forward_runs_each_entry_from_its_release():
     slope, stops sooner."""
     key = jax.random.key(0)
     alpha = np.array([[0.5, 0.5]])
-    own = DemForward(PROFILE, np.array([1.0, 1.0]), 1, key, form="constant",
-                     release_x_m=(0.0, 150.0)).runouts_at_alpha(alpha)[0]
+    own = DemForward(PROFILE, Entries.at_sizes([1.0, 1.0], (0.0, 150.0)), 1, key,
+                     form="constant").runouts_at_alpha(alpha)[0]
     top = DemForward(PROFILE, np.array([1.0]), 1, key, form="constant").runouts_at_alpha(
         alpha[:, :1])[0]
     print("runouts from 0 m and 150 m:", own[:, 0], "from the top alone:", top[0])
@@ -55,17 +56,18 @@ def test_dem_forward_releases_each_entry_at_its_speed_and_height():
     an entry whose speed and height are NaN is the rule's, to the bit."""
     key = jax.random.key(0)
     alpha = np.array([[0.5, 0.5]])
-    fw = DemForward(PROFILE, np.array([1.0, 1.0]), 1, key, form="constant",
-                    release_x_m=(150.0, 150.0), release_speed_m_s=(float("nan"), 4.0),
-                    release_height_m=(float("nan"), 3.0))
+    fw = DemForward(PROFILE, Entries.at_sizes([1.0, 1.0], 150.0,
+                                              release_speed_m_s=(float("nan"), 4.0),
+                                              release_height_m=(float("nan"), 3.0)),
+                    1, key, form="constant")
     r = fw.runouts_at_alpha(alpha)[0]
-    rule = DemForward(PROFILE, np.array([1.0]), 1, key, form="constant",
-                      release_x_m=150.0).runouts_at_alpha(alpha[:, :1])[0]
+    rule = DemForward(PROFILE, Entries.at_sizes([1.0], 150.0), 1, key,
+                      form="constant").runouts_at_alpha(alpha[:, :1])[0]
     print("by the rule:", r[0, 0], "from 3 m at 4 m/s:", r[1, 0])
     np.testing.assert_array_equal(r[0], rule[0])
     assert np.all(np.isfinite(r)) and r[1, 0] > r[0, 0] + 5.0
-    with pytest.raises(ValueError, match="1 entries for 2"):
-        DemForward(PROFILE, np.array([1.0, 1.0]), 1, key, release_height_m=(1.0,))
+    with pytest.raises(ValueError, match="release_height_m: 1 values for 2 entries"):
+        Entries.at_sizes([1.0, 1.0], 150.0, release_height_m=(1.0,))
 
 
 class _Falls:
@@ -75,11 +77,10 @@ class _Falls:
 
     built: list = []
 
-    def __init__(self, sizes_m, n_blocks, key, release_x_m=None, release_speed_m_s=None,
-                 release_height_m=None):
-        self.sizes = np.asarray(sizes_m, float)
-        self.release = np.broadcast_to(np.asarray(0.0 if release_x_m is None else release_x_m,
-                                                  float), self.sizes.shape)
+    def __init__(self, entries, n_blocks, key):
+        entries = as_entries(entries, PROFILE)
+        self.sizes_m = self.sizes = entries.sizes_m
+        self.release = entries.release_x_m
         _Falls.built.append(tuple(self.release))
         self.noise = np.asarray(jax.random.normal(key, (self.sizes.size, n_blocks)))
 

@@ -111,7 +111,7 @@ def test_realisations_put_no_weight_outside_the_prior_box():
 
 
 def test_simulating_at_the_realisations_draws_repairs_the_spread():
-    """The repair, in ``calibrate._bayesian``'s order: while NUTS fails its
+    """The repair, in ``calib.inference.bayes_stage``'s order: while NUTS fails its
     diagnostics (chains started as the fit starts them,
     ``calib.inference.chains.chain_starts``), 8 of its draws are simulated and
     join the GP's design (at most 2 such refinements); then, while the check

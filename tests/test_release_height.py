@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 import calib  # noqa: F401  (x64)
-from calib.files.observations import Observations, release_groups
+from calib.files.observations import Observations
+from calib.model.entries import Entries
 from calib.model.forward import CrspForward
 from calib.model.priors import CRSP_ROLLING_BOX
 from solvers.profile import load_profile
@@ -27,9 +28,9 @@ HEIGHTS_M = (np.nan, 0.0, 1e-6, 1.5)
 
 def _runouts(release_x_m: float, speed_m_s: float) -> np.ndarray:
     n = len(HEIGHTS_M)
-    fw = CrspForward(TSCHAMUT, np.full(n, 0.3677), 200, jax.random.key(3), box=CRSP_ROLLING_BOX,
-                     release_x_m=(release_x_m,) * n, release_speed_m_s=(speed_m_s,) * n,
-                     release_height_m=HEIGHTS_M)
+    entries = Entries.at_sizes(np.full(n, 0.3677), release_x_m, release_speed_m_s=speed_m_s,
+                               release_height_m=HEIGHTS_M)
+    fw = CrspForward(TSCHAMUT, entries, 200, jax.random.key(3), box=CRSP_ROLLING_BOX)
     return fw.runouts(THETA)[0]  # (heights, blocks)
 
 
@@ -58,7 +59,7 @@ def test_release_groups_split_releases_of_different_heights():
         block_size_m=np.ones(6), n_obs=6,
         release_x_m=np.array([10.0, 10.5, 10.2, 40.0, 10.3, 10.1]),
         release_height_m=np.array([1.2, np.nan, 2.0, np.nan, 2.4, 0.0]))
-    g = release_groups(obs, 0.0, tol_m=1.0)
+    g = Entries.from_rows(obs, 0.0, tol_m=1.0)
     np.testing.assert_array_equal(g.index, [0, 3, 0, 4, 2, 1])
     np.testing.assert_allclose(g.release_x_m, [10.1, 10.1, 10.3, 10.5, 40.0])
     np.testing.assert_allclose(g.release_height_m, [1.6, 0.0, 2.4, np.nan, np.nan])

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 from test_hazard_fixtures import write_calibration
 
-from calib.files.observations import Observations, one_release_groups, release_groups
+from calib.files.observations import Observations
 from calib.inference.predictive_check import score_rows
+from calib.model.entries import Entries
 from calib.model.forward import CrspForward
 from calib.validate import main, print_summary
 from solvers.profile import load_profile
@@ -84,10 +85,11 @@ def test_per_size_baseline_falls_back_to_all_rows():
 def test_groups_of_rows_with_and_without_release():
     obs = types.SimpleNamespace(block_size_m=np.array([1.0, 1.0, 0.5, 1.0]), n_obs=4,
                                 release_x_m=np.array([5.0, np.nan, 5.0, 5.0]))
-    sizes, rel, index, speed, height, prof = release_groups(obs, 0.0)
-    assert np.isnan(speed).all() and np.isnan(height).all() and not any(prof)
-    assert sizes.tolist() == [0.5, 1.0, 1.0] and rel.tolist() == [5.0, 0.0, 5.0]
-    assert index.tolist() == [2, 1, 0, 2]
+    e = Entries.from_rows(obs, 0.0)
+    assert np.isnan(e.release_speed_m_s).all() and np.isnan(e.release_height_m).all()
+    assert not any(e.profile_csv) and e.profiles == (None,) * 3
+    assert e.sizes_m.tolist() == [0.5, 1.0, 1.0] and e.release_x_m.tolist() == [5.0, 0.0, 5.0]
+    assert e.index.tolist() == [2, 1, 0, 2]
 
 
 def test_release_groups_within_a_tolerance():
@@ -99,7 +101,7 @@ def test_release_groups_within_a_tolerance():
                                 n_obs=6, release_x_m=rel,
                                 release_speed_m_s=np.array([1.0, np.nan, 2.0, 0.5, np.nan,
                                                             np.nan]))
-    g = release_groups(obs, 0.0, tol_m=1.0)
+    g = Entries.from_rows(obs, 0.0, tol_m=1.0)
     assert g.sizes_m.tolist() == [0.5, 1.0, 1.0, 1.0]
     np.testing.assert_allclose(g.release_x_m, [10.2, (10.0 + 10.4 + 10.9) / 3, 11.2, 30.0])
     assert g.index.tolist() == [1, 1, 1, 2, 0, 3]
@@ -107,7 +109,7 @@ def test_release_groups_within_a_tolerance():
     np.testing.assert_array_equal(g.release_speed_m_s, [np.nan, 1.5, 0.5, np.nan])
     assert np.all(np.abs(g.release_x_m[g.index] - rel) <= 1.0)
     with pytest.raises(ValueError, match="tolerance"):
-        release_groups(obs, 0.0, tol_m=-1.0)
+        Entries.from_rows(obs, 0.0, tol_m=-1.0)
 
 
 def test_forward_runs_each_group_from_its_release():
@@ -117,13 +119,14 @@ def test_forward_runs_each_group_from_its_release():
     theta = np.array([[0.41, 0.87, 2.0]])
     key = jax.random.key(5)
     plain = CrspForward(PROFILE, np.array([1.0]), 32, key).runouts(theta)[0, 0]
-    both = CrspForward(PROFILE, np.array([1.0, 1.0]), 32, key,
-                       release_x_m=(0.0, 150.0)).runouts(theta)[0]
+    both = CrspForward(PROFILE, Entries.at_sizes([1.0, 1.0], (0.0, 150.0)), 32,
+                       key).runouts(theta)[0]
     np.testing.assert_array_equal(both[0], plain)
     assert np.nanmax(both[1]) < 20.0 < np.nanmin(both[0])
     # a release speed per entry: NaN keeps the default (same blocks), 6 m/s differs
-    fast = CrspForward(PROFILE, np.array([1.0, 1.0]), 32, key, release_x_m=(0.0, 0.0),
-                       release_speed_m_s=(np.nan, 6.0)).runouts(theta)[0]
+    fast = CrspForward(PROFILE, Entries.at_sizes([1.0, 1.0], 0.0,
+                                                 release_speed_m_s=(np.nan, 6.0)),
+                       32, key).runouts(theta)[0]
     np.testing.assert_array_equal(fast[0], plain)
     assert not np.array_equal(fast[1], plain)
 
@@ -248,50 +251,47 @@ def test_calibrate_scores_each_row_against_its_own_release():
                        np.full(2, np.nan), np.full(2, np.nan), np.zeros(2, bool),
                        ("top", "low"), release_x_m=np.array([0.0, 150.0]),
                        release_speed_m_s=np.array([1.5, np.nan]))
-    groups = release_groups(obs, 0.0)
+    groups = Entries.from_rows(obs, 0.0)
     assert groups.release_x_m.tolist() == [0.0, 150.0]
-    fw = CrspForward(PROFILE, groups.sizes_m, 16, jax.random.key(3), box=CRSP_BOX,
-                     release_x_m=tuple(groups.release_x_m),
-                     release_speed_m_s=tuple(groups.release_speed_m_s))
+    fw = CrspForward(PROFILE, groups, 16, jax.random.key(3), box=CRSP_BOX)
     budget = Budget(grad_starts=1, grad_steps=1, grad_k=1, n_blocks_grad=16, n_check=64)
-    fit = calibrate(fw, obs, jax.random.key(4), ("gradient",), budget, groups=groups)
+    fit = calibrate(fw, obs, jax.random.key(4), ("gradient",), budget)
     top, low = fit.quality
     assert low["sim_median_m"] < 20.0 < top["sim_median_m"]
     assert fit.check_sizes_m.tolist() == [1.0]
     # the figure's sizes (other entries than the groups) run without the groups' speeds
-    fit = calibrate(fw, obs, jax.random.key(4), ("gradient",), budget, groups=groups,
+    fit = calibrate(fw, obs, jax.random.key(4), ("gradient",), budget,
                     extra_sizes_m=(0.5, 2.0))
     assert fit.check_sizes_m.tolist() == [0.5, 1.0, 2.0]
-    with pytest.raises(ValueError, match="groups"):
-        calibrate(CrspForward(PROFILE, np.array([1.0]), 16, jax.random.key(3)), obs,
-                  jax.random.key(4), ("gradient",), budget, groups=groups)
+    with pytest.raises(ValueError, match="entries"):
+        calibrate(CrspForward(PROFILE, np.array([1.0, 1.0]), 16, jax.random.key(3)), obs,
+                  jax.random.key(4), ("gradient",), budget)
 
 
 def test_calibrate_without_groups_is_the_one_release_grouping():
-    """Without release groups every row of a size is in one group, released at the
-    forward's one release (one_release_groups): the same fit as with that grouping
-    passed; the rows read the figure's simulation (its sizes include theirs), so
-    the check simulates the figure's sizes only. A forward with release speeds is
-    not built on that grouping."""
+    """A forward on one entry per size (no row index) scores every row of a size
+    against its size's blocks: the same fit as with the one-per-size entries
+    (``Entries.one_per_size``); the rows read the figure's simulation (its sizes
+    include theirs), so the check simulates the figure's sizes only. A forward
+    on other sizes than the rows' is refused."""
     from calib.inference.calibrate import Budget, calibrate
 
     obs = Observations.points([0.5, 2.0, 0.5], [60.0, 112.0, 70.0], 10.0)
-    groups = one_release_groups(obs, float(PROFILE.x_m[0]))
+    groups = Entries.one_per_size(obs, float(PROFILE.x_m[0]))
     assert groups.sizes_m.tolist() == [0.5, 2.0] and groups.index.tolist() == [0, 1, 0]
     assert groups.release_x_m.tolist() == [float(PROFILE.x_m[0])] * 2
     assert np.isnan(groups.release_speed_m_s).all()
     fw = CrspForward(PROFILE, obs.sizes_m, 16, jax.random.key(3))
     budget = Budget(grad_starts=1, grad_steps=1, grad_k=1, n_blocks_grad=16, n_check=32)
     plain = calibrate(fw, obs, jax.random.key(4), ("gradient",), budget, extra_sizes_m=(1.0,))
-    given = calibrate(fw, obs, jax.random.key(4), ("gradient",), budget, extra_sizes_m=(1.0,),
-                      groups=groups)
+    given = calibrate(CrspForward(PROFILE, groups, 16, jax.random.key(3)), obs,
+                      jax.random.key(4), ("gradient",), budget, extra_sizes_m=(1.0,))
     assert plain.quality == given.quality
     np.testing.assert_array_equal(plain.check_runouts, given.check_runouts)
     assert plain.check_sizes_m.tolist() == [0.5, 1.0, 2.0]
     assert plain.unfinished["stages"]["check"]["n_blocks"] == 3 * 32
-    with pytest.raises(ValueError, match="groups"):
-        calibrate(CrspForward(PROFILE, obs.sizes_m, 16, jax.random.key(3),
-                              release_speed_m_s=(2.0, 2.0)),
+    with pytest.raises(ValueError, match="entries"):
+        calibrate(CrspForward(PROFILE, np.array([0.5, 1.0, 2.0]), 16, jax.random.key(3)),
                   obs, jax.random.key(4), ("gradient",), budget)
 
 

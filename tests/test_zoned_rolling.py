@@ -11,18 +11,18 @@ from test_hazard_fixtures import write_calibration
 
 from calib.files.calibration_file import load_calibration
 from calib.hazard import draw_parameters, run_hazard
+from calib.model.entries import Entries
 from calib.model.forward import CrspForward, rolling_columns
 from calib.model.priors import CRSP_ROLLING_BOX, crsp_box, zoned_rolling_box
 from solvers.profile import load_profile
 
 TSCHAMUT = load_profile("data/tschamut2014/profile.csv")  # zones steep (0-100 m), flat
 POSTIGNANO = load_profile("data/postignano_profile.csv")  # cliff, talus, lower
-RELEASE = dict(release_x_m=(41.5,), release_speed_m_s=(0.4,), release_height_m=(1.0,))
+RELEASE = Entries.at_sizes([0.36], 41.5, release_speed_m_s=0.4, release_height_m=1.0)
 
 
 def _forward(box, n_blocks=256):
-    return CrspForward(TSCHAMUT, np.array([0.36]), n_blocks, jax.random.key(3), box=box,
-                       **RELEASE)
+    return CrspForward(TSCHAMUT, RELEASE, n_blocks, jax.random.key(3), box=box)
 
 
 def test_equal_zone_angles_are_the_slope_wide_angle():
@@ -44,7 +44,7 @@ def test_a_zones_angle_moves_only_the_blocks_that_reach_the_zone():
     fw = _forward(zoned_rolling_box(TSCHAMUT.zone_names))
     r = fw.runouts([[0.34, 0.96, 0.1, 36.0, 36.0], [0.34, 0.96, 0.1, 36.0, 15.0]])[:, 0]
     flat_start_m = float(TSCHAMUT.x_m[np.argmax(np.asarray(TSCHAMUT.zone_id) == 1)])
-    stop_x = RELEASE["release_x_m"][0] + r[0]
+    stop_x = RELEASE.release_x_m[0] + r[0]
     on_steep = stop_x < flat_start_m - 1.0
     assert 0 < on_steep.sum() < len(stop_x), on_steep.sum()  # both kinds occur
     np.testing.assert_array_equal(r[1][on_steep], r[0][on_steep])

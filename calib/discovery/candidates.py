@@ -19,13 +19,9 @@ from calib.model.priors import CRSP_BOX, Box, has_rolling
 __all__ = ["crsp_candidates"]
 
 
-def _crsp_forward(profile, effect, base, sizes_m, n_blocks, key, stations_x_m=(),
-                  release_x_m=None, release_speed_m_s=None, release_height_m=None,
-                  entry_profiles=None):
-    return CrspForward(profile, sizes_m, n_blocks, key, box=base, effect=effect,
-                       stations_x_m=tuple(stations_x_m), release_x_m=release_x_m,
-                       release_speed_m_s=release_speed_m_s, release_height_m=release_height_m,
-                       entry_profiles=entry_profiles)
+def _crsp_forward(profile, effect, base, entries, n_blocks, key, stations_x_m=()):
+    return CrspForward(profile, entries, n_blocks, key, box=base, effect=effect,
+                       stations_x_m=tuple(stations_x_m))
 
 
 def crsp_candidates(profile, effects=CRSP_EFFECTS, base: Box = CRSP_BOX) -> list[Candidate]:

@@ -30,15 +30,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from calib.discovery.discrepancy import Candidate
-from calib.files.observations import dem_side_m
 from calib.model.alpha_law import alpha_of
 from calib.model.dem_run import DEM_RUN, DemRun
 from calib.model.effects import DEM_EFFECTS, EFFECTS, effect_box
 from calib.model.forward import (
     DemForward,
+    as_entries,
     dem_lanes,
-    entry_releases,
-    entry_values,
     gather_entries,
     split_by_profile,
     stack_trees,
@@ -59,36 +57,32 @@ class DemEffectForward:
     """DEM runouts (T, S, n_blocks) of a candidate for theta (T, p), NaN for a
     block that did not finish; common random numbers (block j of every theta and
     size uses ``fold_in(key, j)``). ``run``: the DEM numerics (``calib.model.dem_run``),
-    the fit's and the hazard run's. ``release_x_m``: one release for all entries,
-    one per entry of ``sizes_m``, or None (the profile's first vertex);
-    ``release_speed_m_s``, ``release_height_m``: per entry or None, as in
-    ``calib.model.forward.DemForward``. ``entry_profiles``: each entry's own
-    profile (None: ``profile``), as in ``calib.model.forward.CrspForward``;
-    each profile's entries run as their own forward."""
+    the fit's and the hazard run's. ``entries``: what is simulated
+    (``calib.model.entries.Entries``, or an array of block sizes), as in
+    ``calib.model.forward.DemForward``; each profile's entries run as their
+    own forward."""
 
     profile: Profile
-    sizes_m: np.ndarray
+    entries: object
     n_blocks: int
     key: jax.Array
     effect: str = "none"
     run: DemRun = DEM_RUN
-    release_x_m: float | tuple[float, ...] | None = None
-    release_speed_m_s: tuple[float, ...] | None = None
-    release_height_m: tuple[float, ...] | None = None
-    entry_profiles: tuple[Profile | None, ...] | None = None
 
     def __post_init__(self):
         if self.effect not in DEM_EFFECTS:
             raise ValueError(f"effect {self.effect!r} is not available for the DEM")
-        self._x0 = entry_releases(self.profile, self.sizes_m, self.release_x_m)
+        self.entries = as_entries(self.entries, self.profile)
         self._parts = split_by_profile(self)  # entries on other profiles: own forwards
         if self.effect != "fragmentation":
             form = "constant" if self.effect == "none" else "power"
-            self._single = DemForward(self.profile, np.asarray(self.sizes_m, float),
-                                      self.n_blocks, self.key, form=form, run=self.run,
-                                      release_x_m=self.release_x_m,
-                                      release_speed_m_s=self.release_speed_m_s,
-                                      release_height_m=self.release_height_m)
+            self._single = DemForward(self.profile, self.entries, self.n_blocks, self.key,
+                                      form=form, run=self.run)
+
+    @property
+    def sizes_m(self) -> np.ndarray:
+        """(S,) block size of each entry, m."""
+        return self.entries.sizes_m
 
     @property
     def box(self):
@@ -106,16 +100,16 @@ class DemEffectForward:
         from solvers.dem import make_block
 
         strength = 10.0 ** float(log10_strength)
-        params = self.run.params(self.profile, c_joint_pa=strength, t_joint_pa=strength)
-        sides = dem_side_m(self.sizes_m)
+        e = self.entries
+        params = self.run.params(self.profile, c_joint_pa=strength, t_joint_pa=strength,
+                                 rho=e.density_kg_m3)
+        sides = e.dem_side_m
         # the one clipping rule of calib.model.alpha_law (the box stops at ALPHA_MAX already)
         a = float(alpha_of("constant", [alpha], sides[:1])[0])
-        n_s = len(sides)
         blocks = [make_block(float(L), alpha=a, n_fragments=N_FRAGMENTS, release_x_m=float(x0),
                              release_speed_m_s=float(v), release_height_m=float(h))
-                  for L, x0, v, h in zip(sides, self._x0,
-                                         entry_values(self.release_speed_m_s, n_s),
-                                         entry_values(self.release_height_m, n_s), strict=True)]
+                  for L, x0, v, h in zip(sides, e.release_x_m, e.release_speed_m_s,
+                                         e.release_height_m, strict=True)]
         options = self.run.options(params, sides, n_fragments=N_FRAGMENTS, adaptive=False)
         lanes = [b for b in blocks for _ in range(self.n_blocks)]
         keys = jax.vmap(lambda j: jax.random.fold_in(self.key, j))(
@@ -130,11 +124,8 @@ def _grid(box, shape) -> np.ndarray:
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(shape))
 
 
-def _forward(profile, effect, sizes_m, n_blocks, key, release_x_m=None,
-             release_speed_m_s=None, release_height_m=None, entry_profiles=None):
-    return DemEffectForward(profile, sizes_m, n_blocks, key, effect=effect,
-                            release_x_m=release_x_m, release_speed_m_s=release_speed_m_s,
-                            release_height_m=release_height_m, entry_profiles=entry_profiles)
+def _forward(profile, effect, entries, n_blocks, key):
+    return DemEffectForward(profile, entries, n_blocks, key, effect=effect)
 
 
 def dem_candidates(profile, effects=DEM_EFFECTS) -> list[Candidate]:

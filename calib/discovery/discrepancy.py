@@ -71,11 +71,11 @@ from calib.discovery.scores import (
     folds,
     naming_threshold,
 )
-from calib.files.inputs import entry_profiles
-from calib.files.observations import ReleaseGroups, release_groups
+from calib.files.inputs import own_profile
 from calib.inference.importance import KHAT_MAX, ess, psis_weights, weighted_quantile
 from calib.inference.likelihood import log_likelihood, observed_rows, velocity_log_likelihood
 from calib.inference.predictive_check import pool_draws
+from calib.model.entries import Entries
 from calib.model.priors import Box
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
 from calib.model.warp import unit_coordinates
@@ -159,12 +159,11 @@ def preset_budget(model: str, quick: bool = False, n_blocks: int | None = None) 
 class Candidate:
     """A model to fit: its effect name, prior box and forward-model factory.
 
-    ``forward(sizes_m, n_blocks, key)`` returns an object whose ``runouts(theta)``
-    maps (T, p) parameters to (T, S, n_blocks) runouts (``calib.model.forward``),
-    its blocks released at the profile's first vertex; where the rows give their
-    own releases the call gets ``release_x_m=``, ``release_speed_m_s=`` and
-    ``release_height_m=`` too
-    (one per entry of ``sizes_m``: an entry is then a (size, release) group);
+    ``forward(entries, n_blocks, key)`` returns an object whose ``runouts(theta)``
+    maps (T, p) parameters to (T, S, n_blocks) runouts (``calib.model.forward``)
+    of the S simulated ``calib.model.entries.Entries`` (block size, release,
+    profile, density: a size class, or a (size class, release) group where the
+    rows give their own releases);
     with passage velocities it gets ``stations_x_m=`` and the object's
     ``simulate(theta)`` must also give the speeds there (``CrspForward``).
     ``design`` (optional) replaces the adaptive design by a fixed one: a
@@ -363,7 +362,7 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
                   budget: Budget, fold: np.ndarray, progress=None,
                   warm: tuple[np.ndarray, np.ndarray] | None = None,
                   velocities: VelocityRows | None = None,
-                  entries: ReleaseGroups | None = None) -> CandidateFit:
+                  entries: Entries | None = None) -> CandidateFit:
     """Fit one candidate by adaptive importance sampling; score it (see module doc).
 
     ``warm``: (mean, cov) in unit coordinates of the first parameters (the
@@ -372,7 +371,7 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     ``size_class`` indexes the entries). ``entries``: what the forward model
     simulates, (size, release) groups with the entry of each runout row
     (``index``); None: one entry per size class ``class_sizes_m``, released at
-    the profile's first vertex.
+    the profile's first vertex (``calib.model.forward.as_entries``).
     """
     t0 = time.perf_counter()
     box = cand.box
@@ -381,17 +380,13 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     vel = velocities if velocities is not None and velocities.n_obs else None
     st_kw = {} if vel is None else {"stations_x_m": tuple(map(float, vel.stations_m))}
     if entries is None:
-        entry_sizes, row_entry, rel_kw = np.asarray(class_sizes_m, float), row_class, {}
+        simulated, row_entry = np.asarray(class_sizes_m, float), row_class
     else:
-        entry_sizes, row_entry = entries.sizes_m, entries.index
-        rel_kw = {"release_x_m": tuple(map(float, entries.release_x_m)),
-                  "release_speed_m_s": tuple(map(float, entries.release_speed_m_s)),
-                  "release_height_m": tuple(map(float, entries.release_height_m))}
-        if any(entries.profile_csv):  # rows on their own profiles (Observations.profile)
-            rel_kw["entry_profiles"] = entry_profiles(entries.profile_csv)
+        simulated, row_entry = entries, entries.index
+    entry_sizes = np.asarray(getattr(simulated, "sizes_m", simulated), float)
     try:
-        fw = cand.forward(entry_sizes, cand.n_blocks or budget.n_blocks,
-                          jax.random.fold_in(key, 1), **rel_kw, **st_kw)
+        fw = cand.forward(simulated, cand.n_blocks or budget.n_blocks,
+                          jax.random.fold_in(key, 1), **st_kw)
     except TypeError:
         if vel is None:
             raise
@@ -470,7 +465,7 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     q05 = np.array([weighted_quantile(theta[:, j], w, 0.05) for j in range(dim)])
     q95 = np.array([weighted_quantile(theta[:, j], w, 0.95) for j in range(dim)])
     elpd, khat_folds = cv_elpd(ll, log_q, fold)
-    samples = _predictive(cand, fw, theta, w, entry_sizes, key, budget, rng, tallies, rel_kw)
+    samples = _predictive(cand, fw, theta, w, simulated, key, budget, rng, tallies)
     if entries is None:
         gap_c, gap_m = gap(samples, obs, row_class, rng)
         per_class = samples
@@ -528,7 +523,7 @@ def _mixture_log_q(z, counts, logpdfs):
     return logsumexp(np.stack(terms), axis=0) - np.log(sum(counts))
 
 
-def _predictive(cand, fw, theta, w, entry_sizes, key, budget, rng, tallies, rel_kw):
+def _predictive(cand, fw, theta, w, simulated, key, budget, rng, tallies):
     """(E, M) posterior-predictive runouts per entry: ``n_draws`` systematic-
     resampled posterior draws, each simulated with fresh blocks (a key the fit
     never used; their unfinished blocks are counted in ``tallies["predictive"]``).
@@ -537,10 +532,9 @@ def _predictive(cand, fw, theta, w, entry_sizes, key, budget, rng, tallies, rel_
     u = (rng.uniform() + np.arange(m)) / m
     idx = np.minimum(np.searchsorted(np.cumsum(w), u), len(w) - 1)
     if budget.n_blocks_check > 0:
-        fresh = cand.forward(entry_sizes, budget.n_blocks_check, jax.random.fold_in(key, 2),
-                             **rel_kw)
+        fresh = cand.forward(simulated, budget.n_blocks_check, jax.random.fold_in(key, 2))
         runs = fresh.runouts(theta[idx])  # (M, E, n)
-        tallies["predictive"] = UnfinishedTally(tuple(map(float, entry_sizes)))
+        tallies["predictive"] = UnfinishedTally(tuple(map(float, fresh.sizes_m)))
         tallies["predictive"].add(runs, theta[idx], cand.box.names)
     else:
         runs = fw.runouts(theta[idx])
@@ -561,7 +555,7 @@ class Discovery:
     gap_before: float
     gap_after: float
     timings_s: dict
-    entries: ReleaseGroups | None = None
+    entries: Entries | None = None
 
 
 def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: Budget,
@@ -578,7 +572,7 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
     is not None), every row is simulated from its own point, as ``calib.fit``
     does: rows of one size class whose releases lie within
     ``release_tolerance_m`` share one simulated (size class, release) group
-    (``calib.files.observations.release_groups``; rows without a release start
+    (``calib.model.entries.Entries.from_rows``; rows without a release start
     at the profile's first vertex), and stop positions for the residual tests
     are each row's release plus its runout. Velocity rows are simulated from the
     median of the rows' releases. Otherwise every block starts at the
@@ -612,7 +606,7 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
         row_release = entries.release_x_m[entries.index[:n_run]]
         if vel_class is not None:  # the velocity rows' entries follow the runout rows'
             vel_class = entries.index[n_run:]
-        entries = entries._replace(index=entries.index[:n_run])
+        entries = dataclasses.replace(entries, index=entries.index[:n_run])
     if vel_class is not None:
         vel = VelocityRows(velocities.stations_m, velocities.station_index, vel_class,
                            velocities.velocity_m_s, velocities.velocity_sd_m_s)
@@ -661,8 +655,7 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
                      base.gap, fits[named].gap, timings, entries)
 
 
-def _entries(obs, profile, class_sizes, row_class, vel_class, tol_m
-             ) -> ReleaseGroups | None:
+def _entries(obs, profile, class_sizes, row_class, vel_class, tol_m) -> Entries | None:
     """The simulated (size class, release) groups of ``discover``, None where every
     block starts at the profile's first vertex (no ``release_x_m`` in the rows,
     or ``tol_m`` None). Runout rows first in ``index``, then the velocity rows
@@ -672,15 +665,12 @@ def _entries(obs, profile, class_sizes, row_class, vel_class, tol_m
     if tol_m is None or not (np.any(np.isfinite(rel)) or any(obs.profile)):
         return None
     binned = dataclasses.replace(obs, block_size_m=np.asarray(class_sizes)[row_class])
-    g = release_groups(binned, float(profile.x_m[0]), tol_m)
+    g = Entries.from_rows(binned, float(profile.x_m[0]), tol_m, profile_of=own_profile)
     if vel_class is None:
         return g
     median = float(np.median(g.release_x_m[g.index]))
     used = np.unique(vel_class)
-    n_g = g.sizes_m.size
-    return ReleaseGroups(np.concatenate([g.sizes_m, np.asarray(class_sizes)[used]]),
-                         np.concatenate([g.release_x_m, np.full(used.size, median)]),
-                         np.concatenate([g.index, n_g + np.searchsorted(used, vel_class)]),
-                         np.concatenate([g.release_speed_m_s, np.full(used.size, np.nan)]),
-                         np.concatenate([g.release_height_m, np.full(used.size, np.nan)]),
-                         np.concatenate([g.profile_csv, np.full(used.size, "", dtype=object)]))
+    speed = g.concat(Entries.at_sizes(np.asarray(class_sizes)[used], median,
+                                      density_kg_m3=g.density_kg_m3))
+    return dataclasses.replace(speed, index=np.concatenate(
+        [g.index, g.n + np.searchsorted(used, vel_class)]))

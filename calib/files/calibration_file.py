@@ -40,10 +40,11 @@ import numpy as np
 from calib.model.alpha_law import FORMS, PARAMETER_RANGES
 from calib.model.priors import base_name, rolling_zone
 from solvers.dem import check_run_numerics
+from solvers.material import ROCK_DENSITY_KG_M3
 
-__all__ = ["SCHEMA", "Calibration", "CalibrationError", "CalibrationFile", "Draws",
-           "draw_parameters", "load_calibration", "model_section", "posterior_csv_text",
-           "summary_stats"]
+__all__ = ["ALPHA_AT_L", "SCHEMA", "Calibration", "CalibrationError", "CalibrationFile", "Draws",
+           "dem_alpha_section", "draw_parameters", "fit_document", "load_calibration",
+           "model_section", "posterior_csv_text", "summary_stats"]
 
 SCHEMA = "rockfall-calibration/1"
 
@@ -87,6 +88,9 @@ class Calibration(NamedTuple):
             that record a ``release_height_m`` for their release groups; DEM
             fits listed in ``release_groups.speed_and_height_models``); False:
             on the ground (DEM fits and CRSP fits of older files).
+        rock_density_kg_m3: the rock density the fit simulated its blocks at
+            (key ``rock_density_kg_m3``; older files: the solvers' default,
+            ``solvers.material.ROCK_DENSITY_KG_M3``, which they ran with).
     """
 
     path: str
@@ -102,6 +106,16 @@ class Calibration(NamedTuple):
     dem_run: dict | None = None
     own_releases: bool = True
     release_heights: bool = False
+    rock_density_kg_m3: float = ROCK_DENSITY_KG_M3
+
+    def check_density(self, density_kg_m3: float, where: str) -> None:
+        """Refuse to simulate this calibration's blocks at another rock density
+        than the one it was fitted at (``where`` names what gives the other one)."""
+        if float(density_kg_m3) != self.rock_density_kg_m3:
+            raise CalibrationError(
+                f"{self.path}: fitted at a rock density of {self.rock_density_kg_m3:g} kg/m^3, "
+                f"but {where} gives {float(density_kg_m3):g} kg/m^3: refit at that density "
+                "(the DEM's contact forces and CRSP's energies depend on it)")
 
 
 class Draws(NamedTuple):
@@ -288,13 +302,16 @@ def _model_from_doc(path: str, doc: dict, model: str | None) -> Calibration:
     release = doc.get("release_x_m")
     if release is not None:
         release = _number(path, "release_x_m", release, -math.inf, math.inf, True)
+    rho = _number(path, "rock_density_kg_m3", doc.get("rock_density_kg_m3", ROCK_DENSITY_KG_M3),
+                  0.0, math.inf, False)
     return Calibration(path=path, model=model, profile_csv=profile_csv, names=names,
                        point=np.asarray(point, dtype=np.float64), posterior=posterior,
                        posterior_csv=post_path, alpha_form=form, data_csv=data_csv,
                        release_x_m=release, dem_run=_dem_run(path, sec) if model == "dem"
                        else None, own_releases=model == "crsp" or "dem" in _grouped(doc),
                        release_heights=(model == "crsp" and _with_heights(doc))
-                       or model in _grouped(doc, "speed_and_height_models"))
+                       or model in _grouped(doc, "speed_and_height_models"),
+                       rock_density_kg_m3=rho)
 
 
 def _with_heights(doc: dict) -> bool:
@@ -468,8 +485,6 @@ def model_section(name: str, fit, forward, law_form: str | None = None) -> dict:
     gradient and Bayes records with their diagnostics, fit quality, adequacy,
     unfinished blocks, budgets and timings; ``posterior_csv`` and
     ``posterior_netcdf`` name the files written next to it."""
-    from calib.inference.bayes import ESS_MIN, RHAT_MAX
-
     post = fit.posterior
     sec = {"parameters": list(fit.names), "estimate_source": fit.estimate_source,
            "fit_quality": fit.quality, "unfinished_blocks": fit.unfinished,
@@ -494,9 +509,7 @@ def model_section(name: str, fit, forward, law_form: str | None = None) -> dict:
             "summary": post.summary(), "ok": post.ok, "problems": post.problems,
             "divergences": post.divergences, "accept_prob": post.accept_prob,
             "n_draws": int(post.samples.shape[0]), "n_chains": post.n_chains,
-            "diagnostics": {"rhat": "rank-normalised split R-hat (Vehtari et al. 2021)",
-                            "rhat_max": RHAT_MAX, "ess": "bulk and tail ESS (same paper)",
-                            "ess_min": ESS_MIN},
+            "diagnostics": post.criteria,
             "emulator": fit.emulator_check, "focus": fit.focus,
             "chain_screen": fit.chain_screen}
         sec["posterior_csv"] = f"{name}_posterior.csv"
@@ -511,3 +524,72 @@ def model_section(name: str, fit, forward, law_form: str | None = None) -> dict:
                             "expression": "a*L**-b" if law_form == "power" else "alpha",
                             **stats}
     return sec
+
+
+ALPHA_AT_L = (0.2, 0.9, 1.8)  # DEM square sides at which alpha(L) is reported by default, m
+
+BLOCK_SIZE_MAPPING = {"crsp_radius_m": "block_size_m / 2", "dem_side_m": "block_size_m",
+                      "crsp_mass_kg": "rock_density_kg_m3 * pi * block_size_m**3 / 6",
+                      "dem_mass_kg_per_m": "rock_density_kg_m3 * block_size_m**2"}
+
+
+def dem_alpha_section(form: str, fit, site, sizes_m) -> dict:
+    """alpha(L) of a DEM fit at the site's reference sides (``site.alpha_reference``)
+    or at ``ALPHA_AT_L``: ``map``/``mean``/``q05``/``q95`` per side, with the
+    published value beside it where the site gives one."""
+    from calib.model.alpha_law import alpha_of
+
+    ref = dict(site.alpha_reference)
+    ls = np.asarray(sorted(ref) if ref else ALPHA_AT_L)
+    at = np.asarray(alpha_of(form, fit.estimate, ls))
+    post = fit.posterior
+    samp = None if post is None else np.asarray(alpha_of(form, post.samples, ls))
+    sec = {"alpha_at_L": {f"{L:g}": {**summary_stats(None if samp is None else samp[:, i], at[i]),
+                                     **({"reference": ref[L]} if ref else {})}
+                          for i, L in enumerate(ls)}}
+    if ref:
+        sec["alpha_reference"] = {"label": site.alpha_reference_label, "site_file": site.path}
+    return sec
+
+
+def fit_document(header: dict, inputs, entries, fits: dict, grouped: bool,
+                 tolerance_m: float, total_s: float) -> CalibrationFile:
+    """The calibration file of one ``calib.fit`` run, from its typed results.
+
+    Args:
+        header: ``command``, ``data_csv``, ``seed``, ``quick``, ``methods``,
+            ``inputs`` (provenance), ``versions`` as the command ran.
+        inputs: ``calib.files.inputs.Inputs`` (profile, site, rows).
+        entries: the rows' ``calib.model.entries.Entries``.
+        fits: model -> (``ModelFit``, forward model, alpha-law form or None).
+        grouped: True where each row was released from its own point (the
+            ``release_groups`` record is written).
+        tolerance_m: the grouping tolerance, m.
+        total_s: the run's wall time, s.
+    """
+    models = list(fits)
+    doc = {"schema": SCHEMA, "command": header["command"], "data_csv": header["data_csv"],
+           "profile_csv": inputs.profile_path, "seed": header["seed"],
+           "release_x_m": inputs.release_x_m,
+           "release_groups": None if not grouped else {
+               "tolerance_m": tolerance_m, "models": models,
+               "speed_and_height_models": models,
+               "groups": [{k: v for k, v in g.items()}
+                          for g in entries.record(inputs.profile_path)]},
+           "quick": header["quick"], "methods": list(header["methods"]),
+           "versions": header["versions"], "inputs": header["inputs"],
+           "rock_density_kg_m3": entries.density_kg_m3,
+           "rock_density_source": inputs.site.density_source,
+           "block_size_mapping": BLOCK_SIZE_MAPPING,
+           "likelihood": "point: (1/n) sum_j N(y; r_j, sd^2 + v_j); interval: (1/n) sum_j "
+                         "[Phi((b-r_j)/w_j) - Phi((a-r_j)/w_j)] (calib/inference/likelihood.py)",
+           "n_observations": inputs.obs.n_obs, "fit_quality": {}, "timings_s": {}}
+    for model, (fit, forward, form) in fits.items():
+        sec = model_section(model, fit, forward, form)
+        if form is not None:
+            sec.update(dem_alpha_section(form, fit, inputs.site, inputs.obs.sizes_m))
+        doc[model] = sec
+        doc["fit_quality"][model] = fit.quality
+        doc["timings_s"][model] = fit.timings_s
+    doc["timings_s"]["total_s"] = total_s
+    return CalibrationFile.from_dict(doc)

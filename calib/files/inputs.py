@@ -1,5 +1,6 @@
-"""The inputs of a calibration command: observations and their profile, read and
-checked together, and the one release of a data set.
+"""The inputs of a calibration command: observations, their profile and site,
+read and checked together (``Inputs``), the one release of a data set, and
+what the rows make the solvers simulate (``Inputs.entries``).
 
 Shared by ``python -m calib.fit`` and ``python -m calib.discover`` (the
 commands only parse options and print). Bad input is an ``InputError`` naming
@@ -14,8 +15,8 @@ import os
 
 import numpy as np
 
-__all__ = ["InputError", "common_release_m", "default_profile", "entry_profiles",
-           "load_inputs", "on_command_profile", "own_profile"]
+__all__ = ["InputError", "Inputs", "common_release_m", "default_profile", "load_inputs",
+           "on_command_profile", "own_profile"]
 
 
 class InputError(ValueError):
@@ -60,15 +61,6 @@ def own_profile(path: str):
         raise InputError(str(e)) from None
 
 
-def entry_profiles(profile_csv) -> tuple | None:
-    """Per-entry profiles of release groups (``ReleaseGroups.profile_csv``) for
-    the forward models' ``entry_profiles``: None where every entry runs on the
-    command's profile, else one ``own_profile`` (None for the command's) per entry."""
-    if profile_csv is None or not any(profile_csv):
-        return None
-    return tuple(own_profile(p) if p else None for p in profile_csv)
-
-
 def _check_reach(obs, profile, profile_path: str) -> None:
     """Every row's release lies on its profile (its own, or the command's) and
     its observed runout between that release and the profile's end."""
@@ -109,11 +101,56 @@ def on_command_profile(obs, profile_path: str):
     return dataclasses.replace(obs, profile=prof)
 
 
-def load_inputs(data: str, profile_arg: str | None, out: str):
-    """Observations, profile and its path, checked for a command (``InputError``
-    on bad input): the files exist and parse, every runout lies on the profile, ``out``
-    can be a folder. Shared by ``calib.fit`` and ``calib.discover``."""
+@dataclasses.dataclass(frozen=True)
+class Inputs:
+    """A calibration command's checked inputs.
+
+    Attributes:
+        obs: the observed rows (``calib.files.observations.Observations``).
+        profile: the command's profile (``solvers.profile.Profile``).
+        profile_path: its file.
+        site: its site (``calib.files.site.Site``: station of interest,
+            reference values, the rock density).
+    """
+
+    obs: object
+    profile: object
+    profile_path: str
+    site: object
+
+    @property
+    def release_x_m(self) -> float:
+        """The data set's one release (``common_release_m``)."""
+        return common_release_m(self.obs, self.profile)
+
+    @property
+    def own_releases(self) -> bool:
+        """True where the rows give their own release points or profiles."""
+        return bool(np.any(np.isfinite(self.obs.release_x_m)) or any(self.obs.profile))
+
+    def entries(self, tol_m: float | None):
+        """What the rows make the solvers simulate (``calib.model.entries``), at the
+        site's rock density: with ``tol_m`` (m) and rows that give their own
+        releases, one entry per (profile, size, release) group within
+        ``tol_m`` (``Entries.from_rows``, rows without a release at the
+        profile's first vertex); else one entry per size at the data set's
+        one release (``Entries.one_per_size``)."""
+        from calib.model.entries import Entries
+
+        rho = self.site.rock_density_kg_m3
+        if tol_m is None or not self.own_releases:
+            return Entries.one_per_size(self.obs, self.release_x_m, density_kg_m3=rho)
+        return Entries.from_rows(self.obs, float(self.profile.x_m[0]), tol_m,
+                                 profile_of=own_profile, density_kg_m3=rho)
+
+
+def load_inputs(data: str, profile_arg: str | None, out: str) -> Inputs:
+    """Observations, profile, its path and its site, checked for a command
+    (``InputError`` on bad input): the files exist and parse, every runout
+    lies on the profile, ``out`` can be a folder. Shared by ``calib.fit`` and
+    ``calib.discover``."""
     from calib.files.observations import ObservationError, load_observations
+    from calib.files.site import SiteError, load_site
     from solvers.profile import ProfileError, load_profile
 
     profile_path = profile_arg or default_profile(data)
@@ -125,10 +162,11 @@ def load_inputs(data: str, profile_arg: str | None, out: str):
         raise InputError(f"{profile_path}: no such profile file (give --profile)")
     try:
         profile = load_profile(profile_path)
-    except ProfileError as e:
+        site = load_site(profile_path)
+    except (ProfileError, SiteError) as e:
         raise InputError(str(e)) from None
     obs = on_command_profile(obs, profile_path)
     _check_reach(obs, profile, profile_path)
     if os.path.exists(out) and not os.path.isdir(out):
         raise InputError(f"--out {out}: exists and is not a folder")
-    return obs, profile, profile_path
+    return Inputs(obs, profile, profile_path, site)

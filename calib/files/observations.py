@@ -44,13 +44,8 @@ A second, optional table holds PASSAGE VELOCITIES at stations (``load_velocities
   from a belt of trees that brakes blocks lower down; a speed measured ABOVE the
   belt can (``docs/studies.md``, "Passage speeds").
 
-Block-size mapping, used everywhere (CRSP, DEM, hazard, discrepancy):
-
-* CRSP sphere radius r = d / 2.
-* DEM square side L = d. The paper's UDEC squares were meant to match the CRSP
-  masses, but its Table 1 sides (0.2, 0.9, 1.8 m) do not follow from its radii
-  (``data/README.md``); we take the square side equal to the average diameter,
-  which reproduces Table 1's L for d = 0.2 and 1.8 m within 10 %.
+What the solvers make of the rows (the block-size rule, grouping rows by
+release into simulated entries) is ``calib.model.entries``.
 """
 
 from __future__ import annotations
@@ -58,14 +53,12 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 
-__all__ = ["ObservationError", "Observations", "ReleaseGroups", "Velocities", "crsp_radius_m",
-           "dem_side_m", "load_observations", "load_velocities",
-           "one_release_groups", "read_table", "release_groups", "row_profiles"]
+__all__ = ["ObservationError", "Observations", "Velocities", "load_observations",
+           "load_velocities", "read_table"]
 
 REQUIRED = ("block_size_m",)
 OPTIONAL = ("runout_m", "runout_sd_m", "runout_min_m", "runout_max_m", "source",
@@ -74,120 +67,8 @@ OPTIONAL = ("runout_m", "runout_sd_m", "runout_min_m", "runout_max_m", "source",
 SHAPES = ("sphere", "cylinder", "disc")
 
 
-class ReleaseGroups(NamedTuple):
-    """Simulation groups of the rows: the solvers run once per group.
-
-    Attributes:
-        sizes_m: (G,) block size of each group, m.
-        release_x_m: (G,) release abscissa of each group, m.
-        index: (n_obs,) group of each row.
-        release_speed_m_s: (G,) mean tracked release speed of the group's rows
-            that give one, m/s; NaN where none does (the solver's default).
-        release_height_m: (G,) mean release height of the group's rows that
-            give one, m; NaN where none does (released on the ground).
-        profile_csv: (G,) profile file of each group (``Observations.profile``;
-            "" for the command's profile), str array.
-    """
-
-    sizes_m: np.ndarray
-    release_x_m: np.ndarray
-    index: np.ndarray
-    release_speed_m_s: np.ndarray
-    release_height_m: np.ndarray
-    profile_csv: np.ndarray
-
-
-def release_groups(obs: Observations, default_release_x_m: float,
-                   tol_m: float = 0.0) -> ReleaseGroups:
-    """Group the rows by (profile, block size, release point).
-
-    Rows of one profile and one size whose release abscissae AND release heights lie within
-    ``tol_m`` of those of the first (lowest) release of their group share one
-    group, released at the mean of their releases (greedy: rows in ascending
-    order of release, each joining the first group it fits, else opening one);
-    ``tol_m = 0`` groups only equal releases. Rows without a height match only
-    each other. Without heights this is a greedy split of the sorted releases.
-    A row without ``release_x_m`` (NaN) is released at ``default_release_x_m``.
-    A group's release speed and height are the means of its rows'
-    ``release_speed_m_s`` and ``release_height_m`` where given. Our choice: the
-    tolerance trades simulation cost (one simulated sample per group) against
-    the release error of a row, at most ``tol_m``.
-
-    Args:
-        obs: the rows.
-        default_release_x_m: release of rows that give none, m.
-        tol_m: grouping tolerance, m (>= 0).
-    """
-    if not tol_m >= 0:
-        raise ValueError(f"release grouping tolerance must be >= 0 m, got {tol_m!r}")
-    rel = np.asarray(obs.release_x_m, float)
-    rel = np.where(np.isfinite(rel), rel, float(default_release_x_m))
-    size = np.asarray(obs.block_size_m, float)
-    speed = getattr(obs, "release_speed_m_s", None)
-    speed = np.full(obs.n_obs, np.nan) if speed is None else np.asarray(speed, float)
-    height = getattr(obs, "release_height_m", None)
-    height = np.full(obs.n_obs, np.nan) if height is None else np.asarray(height, float)
-    prof = row_profiles(obs)
-    sizes, releases, speeds, heights, profiles = [], [], [], [], []
-    index = np.empty(obs.n_obs, int)
-    for pf, d in sorted({(pf, d) for pf, d in zip(prof, size)}, key=lambda k: (k[1], k[0])):
-        rows = np.flatnonzero((size == d) & (prof == pf))
-        rows = rows[np.argsort(rel[rows], kind="stable")]
-        leaders, members = [], []  # first row of each group of this size, its rows
-        for i in rows:
-            for g, lead in enumerate(leaders):
-                same_h = (np.isnan(height[i]) and np.isnan(height[lead])) or (
-                    abs(height[i] - height[lead]) <= tol_m)
-                if rel[i] - rel[lead] <= tol_m and same_h:
-                    members[g].append(i)
-                    break
-            else:
-                leaders.append(i)
-                members.append([i])
-        for m in members:
-            m = np.asarray(m)
-            index[m] = len(sizes)
-            sizes.append(d)
-            profiles.append(pf)
-            releases.append(float(np.mean(rel[m])))
-            for values, out in ((speed, speeds), (height, heights)):
-                known = values[m][np.isfinite(values[m])]
-                out.append(float(np.mean(known)) if known.size else np.nan)
-    return ReleaseGroups(np.asarray(sizes, float), np.asarray(releases, float), index,
-                         np.asarray(speeds, float), np.asarray(heights, float),
-                         np.asarray(profiles, dtype=object))
-
-
-def row_profiles(obs: Observations) -> np.ndarray:
-    """(n_obs,) profile file of each row ("" for the command's profile), str array."""
-    prof = getattr(obs, "profile", None)
-    return np.full(obs.n_obs, "", dtype=object) if prof is None else np.asarray(prof, object)
-
-
-def one_release_groups(obs: Observations, release_x_m: float) -> ReleaseGroups:
-    """The grouping of a fit that releases every block from one point (the DEM
-    fit, a CRSP fit of rows without ``release_x_m``): one group per block size
-    (``obs.sizes_m``, ``obs.size_index``), released at ``release_x_m`` (m) at the
-    solver's default speed, on the ground (NaN), on the command's profile,
-    whatever the rows' own releases say."""
-    sizes = obs.sizes_m
-    nan = np.full(sizes.shape, np.nan)
-    return ReleaseGroups(sizes, np.full(sizes.shape, float(release_x_m)), obs.size_index,
-                         nan, nan, np.full(sizes.shape, "", dtype=object))
-
-
 class ObservationError(ValueError):
     """Bad observation file; the message names file, row and column."""
-
-
-def crsp_radius_m(block_size_m):
-    """CRSP sphere radius for an average block diameter d: r = d / 2."""
-    return 0.5 * np.asarray(block_size_m, dtype=float)
-
-
-def dem_side_m(block_size_m):
-    """DEM square side for an average block diameter d: L = d (see module docstring)."""
-    return np.asarray(block_size_m, dtype=float)
 
 
 @dataclasses.dataclass(frozen=True)

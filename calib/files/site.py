@@ -14,10 +14,16 @@ Schema (every key optional; ``data/README.md`` says where each shipped value
 comes from)::
 
     {"name": "Postignano (central Italy)",
+     "rock_density_kg_m3": 2350, "rock_density_source": "...",
      "station_of_interest": {"x_m": 230.0, "label": "road", "source": "..."},
      "alpha_reference": {"label": "paper, Table 1", "L_m": [0.2, 0.9, 1.8],
                          "alpha": [0.90, 0.43, 0.30], "source": "..."}}
 
+``rock_density_kg_m3`` is the site's one rock density: every simulation of
+the site's blocks (the fit, the predictive check, the discrepancy workflow,
+the hazard run) builds its blocks with it, so that a simulated block weighs
+what the rock weighed, and ``calibration.json`` records it; without it the
+solvers' default ``solvers.material.ROCK_DENSITY_KG_M3`` (2350 kg/m^3).
 ``station_of_interest`` is where ``calib.hazard`` reports the reach probability
 and design values (``--road-x-m`` overrides it); ``alpha_reference`` is drawn
 on the DEM damping-law figure and reported next to the fitted alpha(L). A
@@ -31,6 +37,8 @@ import dataclasses
 import json
 import math
 import os
+
+from solvers.material import ROCK_DENSITY_KG_M3
 
 __all__ = ["Site", "SiteError", "load_site", "site_path"]
 
@@ -50,6 +58,10 @@ class Site:
         alpha_reference: ((L_m, alpha), ...) published damping values, or ().
         alpha_reference_label: their legend label.
         path: the site file read, or None.
+        rock_density_kg_m3: the site's rock density, kg/m^3 (the solvers'
+            default where the site file gives none).
+        density_source: where the density comes from (the site file's
+            ``rock_density_source``, or "default").
     """
 
     name: str = ""
@@ -58,6 +70,8 @@ class Site:
     alpha_reference: tuple[tuple[float, float], ...] = ()
     alpha_reference_label: str = "reference"
     path: str | None = None
+    rock_density_kg_m3: float = ROCK_DENSITY_KG_M3
+    density_source: str = "default (solvers.material.ROCK_DENSITY_KG_M3)"
 
 
 def site_path(profile_path: str) -> str:
@@ -117,4 +131,10 @@ def load_site(profile_path: str) -> Site:
         ref_label = ar.get("label", "reference")
         if not isinstance(ref_label, str):
             raise SiteError(f"{path}: key 'alpha_reference.label': expected text")
-    return Site(name, x, label, ref, ref_label, path)
+    rho, rho_source = ROCK_DENSITY_KG_M3, Site.density_source
+    if "rock_density_kg_m3" in doc:
+        rho = _number(path, "rock_density_kg_m3", doc["rock_density_kg_m3"], 1.0, 2.0e4)
+        rho_source = doc.get("rock_density_source", path)
+        if not isinstance(rho_source, str):
+            raise SiteError(f"{path}: key 'rock_density_source': expected text")
+    return Site(name, x, label, ref, ref_label, path, rho, rho_source)

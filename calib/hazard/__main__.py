@@ -19,6 +19,7 @@ from calib.model.dem_run import DEM_RUN
 from solvers.cli import (
     CliError,
     OneLineParser,
+    deprecated_alias,
     fail,
     parse_floats,
     parse_stations,
@@ -46,10 +47,13 @@ def build_parser() -> OneLineParser:
     p.add_argument("calibration", help="calibration.json written by python -m calib.fit")
     p.add_argument("--model", choices=("crsp", "dem"),
                    help="solver (default: crsp if calibrated, else dem)")
-    p.add_argument("--stations", help="stations 'start:stop:step' or 'x1,x2,...' in m "
+    p.add_argument("--stations-m", help="stations 'start:stop:step' or 'x1,x2,...' in m "
                    "(default: the profile's range every 5 m)")
-    p.add_argument("--block-sizes", default="0.2,0.5,1.0,2.0",
-                   help="block sizes (average diameter), m (default 0.2,0.5,1.0,2.0)")
+    deprecated_alias(p, "--stations", "--stations-m")
+    p.add_argument("--block-sizes-m", default="0.2,0.5,1.0,2.0",
+                   help="block sizes d (the diameter), m: CRSP spheres of radius d/2, DEM "
+                        "squares of side d (default 0.2,0.5,1.0,2.0)")
+    deprecated_alias(p, "--block-sizes", "--block-sizes-m")
     p.add_argument("--n-blocks", type=int, help="blocks per draw and size "
                    f"(default {DEFAULTS['crsp'][0]} CRSP, {DEFAULTS['dem'][0]} DEM)")
     p.add_argument("--n-posterior", type=int, help="posterior draws; 1 = the point "
@@ -98,12 +102,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     prog = parser.prog
     try:
-        sizes = parse_floats(args.block_sizes, "--block-sizes")
+        sizes = parse_floats(args.block_sizes_m, "--block-sizes-m")
         bad = [s for s in sizes if s <= 0]
         if bad:
-            raise CliError(f"--block-sizes: sizes must be positive, got {bad[0]:g}")
+            raise CliError(f"--block-sizes-m: sizes must be positive, got {bad[0]:g}")
         if len(set(sizes)) != len(sizes):
-            raise CliError("--block-sizes: sizes must be distinct")
+            raise CliError("--block-sizes-m: sizes must be distinct")
         for name in ("n_blocks", "n_posterior"):
             v = getattr(args, name)
             if v is not None:
@@ -152,14 +156,16 @@ def main(argv: list[str] | None = None) -> int:
         cal = load_calibration(args.calibration, args.model)
         profile = load_profile(cal.profile_csv)
         lo, hi = profile.x_range_m
-        stations = parse_stations(args.stations or f"{lo:g}:{hi:g}:5", profile.x_range_m)
+        stations = parse_stations(args.stations_m or f"{lo:g}:{hi:g}:5", profile.x_range_m)
         road_x, label = args.road_x_m, "road"
+        site = load_site(cal.profile_csv)
+        cal.check_density(site.rock_density_kg_m3, f"the site file {site.path}"
+                          if site.path else "the solvers' default")
         if road_x is None:
-            site = load_site(cal.profile_csv)
             road_x, label = site.station_x_m, site.station_label
             where = f"{site.path}: station_of_interest.x_m"
             if road_x is None:
-                road_x, label = max(stations), "last station"
+                road_x, label, where = max(stations), "last station", "the last station"
                 print(f"no station of interest (no --road-x-m, and no site file "
                       f"{site_path(cal.profile_csv)} giving one): the summary reports at "
                       f"the last station, x = {road_x:g} m")
@@ -168,15 +174,24 @@ def main(argv: list[str] | None = None) -> int:
         if not (math.isfinite(road_x) and lo < road_x <= hi):
             raise CliError(f"{where} {road_x:g}: the station of interest lies outside the "
                            f"profile ({lo:g}, {hi:g}] m")
-        release_x = args.release_x_m
-        if release_x is not None and not (math.isfinite(release_x) and lo <= release_x < hi):
-            raise CliError(f"--release-x-m {release_x:g}: the release lies outside the "
-                           f"profile [{lo:g}, {hi:g}) m")
+        release_x, release_where = args.release_x_m, "--release-x-m"
         if release_x is None:
             release_x = default_release_x_m(cal, profile)
+            release_where = (f"{cal.path}: release_x_m" if cal.release_x_m is not None
+                             else "the profile's first vertex")
+        if not (math.isfinite(release_x) and lo <= release_x < hi):
+            raise CliError(f"{release_where} {release_x:g}: the release lies outside the "
+                           f"profile [{lo:g}, {hi:g}) m")
+        if road_x <= release_x and args.release_x_m is not None and args.road_x_m is None:
+            # the release was typed, the station was not: the flag is what to change
+            raise CliError(f"--release-x-m {release_x:g}: the release lies at or downslope of "
+                           f"the station of interest at x = {road_x:g} m ({where}), so no block "
+                           f"can pass it; the profile spans [{lo:g}, {hi:g}) m: release above "
+                           f"x = {road_x:g} m, or give --road-x-m")
         if road_x <= release_x:
             raise CliError(f"{where} {road_x:g}: the station of interest lies at or above "
-                           f"the release at x = {release_x:g} m: no block can pass it")
+                           f"the release at x = {release_x:g} m ({release_where}): no block "
+                           "can pass it")
         stations = sorted(set(stations) | {road_x})
         n_blocks = args.n_blocks or DEFAULTS[cal.model][0]
         n_post = args.n_posterior or DEFAULTS[cal.model][1]

@@ -16,12 +16,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from calib.files.calibration_file import Calibration, CalibrationError, Draws
-from calib.files.observations import crsp_radius_m, dem_side_m
 from calib.hazard._sharding import run_units
 from calib.hazard._stats import BINS, hist_quantile
 from calib.hazard._units import crsp_chunk, dem_chunk, draw_key
 from calib.model.alpha_law import alpha_of, check_law
 from calib.model.dem_run import DEM_RUN, DemRun
+from calib.model.entries import Entries, dem_side_m
 from calib.model.forward import named_overrides, stack_trees
 from solvers import crsp, dem
 from solvers.profile import Profile
@@ -167,14 +167,15 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
         if progress is not None:
             progress(int(out.n_blocks) * (t_sl.stop - t_sl.start))
 
+    # what is simulated: each size at the release, at the calibration's rock density
+    entries = Entries.at_sizes(sizes_m, release_x, density_kg_m3=cal.rock_density_kg_m3)
     if cal.model == "crsp":
-        units = _crsp_units(draws, profile, release_x, sizes_m, st_dev, n_blocks, seed, chunk,
-                            offsets,
+        units = _crsp_units(draws, profile, entries, st_dev, n_blocks, seed, chunk, offsets,
                             pool, settings)
     else:
         check_dem_draws(cal, draws, sizes_m)
-        units = _dem_units(cal, draws, profile, release_x, sizes_m, stations, n_blocks, seed,
-                           chunk, offsets, dem_run)
+        units = _dem_units(cal, draws, profile, entries, stations, n_blocks, seed, chunk,
+                           offsets, dem_run)
     run_units(units, on_result, devices=devices)
     return HazardCounts(model=cal.model, sizes_m=sizes_m, stations_x_m=stations,
                         release_x_m=release_x, n_blocks=n_blocks, draws=draws,
@@ -183,10 +184,11 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
                         **acc)
 
 
-def _crsp_units(draws, profile, release_x, sizes_m, stations, n_blocks, seed, chunk, offsets,
+def _crsp_units(draws, profile, entries: Entries, stations, n_blocks, seed, chunk, offsets,
                 pool, settings):
-    n_sizes = len(sizes_m)
-    blocks = stack_trees([crsp.make_block(float(r)) for r in crsp_radius_m(sizes_m)])
+    n_sizes, release_x = entries.n, float(entries.release_x_m[0])
+    blocks = stack_trees([crsp.make_block(float(r), density_kg_m3=entries.density_kg_m3)
+                          for r in entries.crsp_radius_m])
     pool = crsp.default_pool() if pool is None else pool
     fn = functools.partial(crsp_chunk, n_chunk=chunk, pool=min(pool, n_sizes * chunk),
                            settings=settings)
@@ -205,10 +207,10 @@ def _crsp_units(draws, profile, release_x, sizes_m, stations, n_blocks, seed, ch
             yield (d, slice(0, n_sizes)), make_args, fn
 
 
-def _dem_units(cal, draws, profile, release, sizes_m, stations, n_blocks, seed, chunk,
+def _dem_units(cal, draws, profile, entries: Entries, stations, n_blocks, seed, chunk,
                offsets, run: DemRun):
-    params = run.params(profile)
-    sides = dem_side_m(sizes_m)
+    params = run.params(profile, rho=entries.density_kg_m3)
+    sides, release = entries.dem_side_m, float(entries.release_x_m[0])
     # one static step bound for every size (one compilation; calib.model.dem_run)
     fn = functools.partial(dem_chunk, n_chunk=chunk, options=run.options(params, sides))
     alphas = np.asarray(alpha_of(cal.alpha_form, draws.values, sides))  # (D, T)

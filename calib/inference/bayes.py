@@ -107,6 +107,13 @@ class Posterior:
         """Highest-posterior-density draw (a MAP approximation)."""
         return self.samples[int(np.argmax(self.log_density))]
 
+    @property
+    def criteria(self) -> dict:
+        """The diagnostics this posterior was judged by (recorded with it)."""
+        return {"rhat": "rank-normalised split R-hat (Vehtari et al. 2021)",
+                "rhat_max": RHAT_MAX, "ess": "bulk and tail ESS (same paper)",
+                "ess_min": ESS_MIN}
+
     def summary(self) -> dict:
         q05, q50, q95 = np.quantile(self.samples, [0.05, 0.5, 0.95], axis=0)
         mean = self.samples.mean(axis=0)

@@ -185,8 +185,9 @@ def score_rows(obs: Observations, predictive: np.ndarray, group_index: np.ndarra
 def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
                        n_blocks: int | None, seed: int):
     """The posterior predictive runouts of held-out rows, each from its own
-    release (``calib.files.observations.release_groups``) at ``n_posterior`` draws of
-    the calibration ``cal`` (``calib.files.calibration_file``).
+    release (``calib.model.entries.Entries.from_rows``) at ``n_posterior`` draws of
+    the calibration ``cal`` (``calib.files.calibration_file``), its blocks at the
+    calibration's rock density.
 
     Returns:
         (pooled (G, n_posterior * n_blocks) runouts per (size, release) group,
@@ -200,8 +201,8 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
     import jax
 
     from calib.files.calibration_file import draw_parameters
-    from calib.files.inputs import entry_profiles
-    from calib.files.observations import release_groups
+    from calib.files.inputs import own_profile
+    from calib.model.entries import Entries
     from calib.model.forward import CrspForward, DemForward
 
     start = float(profile.x_m[0])
@@ -210,27 +211,26 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
     # (calib.fit's release groups); a DEM fit of an older file ran every block at
     # the calibration's one release
     default = start if cal.own_releases else common
-    sizes, releases, index, speeds, heights, prof_csv = release_groups(heldout, default)
-    own = entry_profiles(prof_csv)  # rows on their own profiles (Observations.profile)
+    entries = Entries.from_rows(heldout, default, profile_of=own_profile,
+                                density_kg_m3=cal.rock_density_kg_m3)
+    releases, index = entries.release_x_m, entries.index
     for g, x0 in enumerate(releases):
-        p, name = ((profile, cal.profile_csv) if own is None or own[g] is None
-                   else (own[g], prof_csv[g]))
+        p, name = ((profile, cal.profile_csv) if entries.profiles[g] is None
+                   else (entries.profiles[g], entries.profile_csv[g]))
         lo, hi = float(p.x_m[0]), float(p.x_m[-1])
         if not lo <= x0 < hi:
             raise ValueError(f"release_x_m {x0:g}: outside the profile {name} "
                              f"({lo:g} to {hi:g} m)")
     draws = draw_parameters(cal, n_posterior, seed)
     key = jax.random.fold_in(jax.random.key(seed), 7)
-    if not cal.release_heights and np.any(np.isfinite(heights)):
+    if not cal.release_heights and np.any(np.isfinite(entries.release_height_m)):
         raise ValueError(f"the held-out rows give release_height_m but the {cal.model.upper()} "
                          f"fit {cal.path} released its rows on the ground (an older "
                          "calibration file): refit with calib.fit to release both alike")
     if cal.model == "crsp":
         from calib.model.priors import crsp_box
 
-        fw = CrspForward(profile, sizes, n_blocks or 100, key, box=crsp_box(draws.names),
-                         release_x_m=tuple(releases), release_speed_m_s=tuple(speeds),
-                         release_height_m=tuple(heights), entry_profiles=own)
+        fw = CrspForward(profile, entries, n_blocks or 100, key, box=crsp_box(draws.names))
     else:
         from calib.model.dem_run import DEM_RUN, DemRun
 
@@ -238,9 +238,8 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
             raise ValueError(f"the DEM fit released every block at x = {common:g} m; held-out "
                              "rows with other release_x_m need a calibration that releases "
                              "each row from its own point (refit with calib.fit)")
-        state = ({"release_speed_m_s": tuple(speeds), "release_height_m": tuple(heights)}
-                 if cal.release_heights else {})
-        fw = DemForward(profile, sizes, n_blocks or 4, key, form=cal.alpha_form,
-                        release_x_m=tuple(releases), entry_profiles=own, **state,
+        if not cal.release_heights:  # an older DEM fit released on the ground
+            entries = entries.with_release_state()
+        fw = DemForward(profile, entries, n_blocks or 4, key, form=cal.alpha_form,
                         run=DemRun(**cal.dem_run) if cal.dem_run else DEM_RUN)
     return pool_draws(fw.runouts(draws.values)), index, draws, fw.n_blocks

@@ -63,7 +63,7 @@ def alpha_of(form: str, theta, side_m):
     Args:
         form: "power" (theta = (a, b): law a L^-b) or "constant" (theta = (alpha,)).
         theta: (..., n_params) law parameters.
-        side_m: (S,) DEM square sides L, m (``calib.files.observations.dem_side_m``).
+        side_m: (S,) DEM square sides L, m (``calib.model.entries.dem_side_m``).
 
     Returns:
         (..., S) alpha per size, dimensionless, in [0, ALPHA_MAX] (NaN only for
@@ -132,7 +132,7 @@ def check_fit(form: str, estimate, samples, sizes_m) -> None:
     Raises:
         ValueError: naming the first set that would be refused, and why.
     """
-    from calib.files.observations import dem_side_m
+    from calib.model.entries import dem_side_m
 
     est = np.asarray(estimate, float)[None]
     rows = est if samples is None else np.vstack([est, np.asarray(samples, float)])

@@ -12,7 +12,7 @@ sets at one theta, to measure the Monte Carlo error itself.
 * ``CrspForward``: theta = (Kn, Kt, roughness_m), one set for the whole slope
   (with ``box=CRSP_ROLLING_BOX`` also the rolling resistance angle, with
   ``zoned_rolling_box`` one angle per material zone);
-  sphere radius d / 2 (``calib.files.observations``). One lane pool runs all
+  sphere radius d / 2 (``calib.model.entries``). One lane pool runs all
   (theta, size) tasks (``solvers.crsp.simulate_tasks``).
 * ``DemForward``: theta = the damping law's parameters; a block of size d is a
   single square of side L = d with alpha(L) (``calib.model.alpha_law``, clipped as
@@ -36,18 +36,17 @@ import jax.numpy as jnp
 import numpy as np
 
 import solvers.crsp as crsp
-from calib.files.observations import crsp_radius_m, dem_side_m
 from calib.model.alpha_law import ALPHA_MAX, alpha_of
 from calib.model.dem_run import DEM_RUN, DemRun
+from calib.model.entries import Entries
 from calib.model.priors import CRSP_BOX, DEM_BOXES, Box, rolling_zone, zoned_name
 from calib.model.unfinished import mask_unfinished
 from calib.model.warp import unwarp, warp, warped_box
 from solvers.parallel import default_workers, map_ordered
 from solvers.profile import Profile
 
-__all__ = ["CrspForward", "DemForward", "dem_lanes", "entry_releases", "gather_entries",
-           "named_overrides", "profile_parts", "rolling_columns", "split_by_profile", "stack_trees",
-           "take_entries"]
+__all__ = ["CrspForward", "DemForward", "as_entries", "dem_lanes", "gather_entries",
+           "named_overrides", "rolling_columns", "split_by_profile", "stack_trees"]
 
 
 @functools.partial(jax.jit, static_argnames=("rolling_cols",))
@@ -110,90 +109,25 @@ def dem_lanes(params, blocks, keys, options):
     return jax.vmap(lambda b, k: simulate(params, b, k, options))(blocks, keys)
 
 
-def entry_releases(profile: Profile, sizes_m, release_x_m) -> np.ndarray:
-    """(S,) release abscissa of each entry of ``sizes_m``, m: ``release_x_m`` one
-    for all, one per entry, or None (the profile's first vertex).
-
-    Raises:
-        ValueError: a count of releases that is neither one nor one per entry.
-    """
-    n_s = len(np.atleast_1d(sizes_m))
-    if release_x_m is None:
-        return np.full(n_s, float(profile.x_m[0]))
-    rel = np.asarray(release_x_m, float)
-    if rel.ndim > 0 and rel.shape != (n_s,):
-        raise ValueError(f"release_x_m: {rel.size} entries for {n_s} entries of sizes_m "
-                         "(one per entry, or one for all)")
-    return np.broadcast_to(rel, (n_s,)).copy()
-
-
-def profile_parts(profile: Profile, entry_profiles, n_s: int):
-    """Entries split by the profile they run on: None where every entry runs on
-    ``profile`` (``entry_profiles`` None, or all None or ``profile`` itself),
-    else [(profile_k, entry indices), ...] in order of first appearance, an
-    entry's None standing for ``profile``.
-
-    Raises:
-        ValueError: a count of entry profiles that is not one per entry.
-    """
-    if entry_profiles is None:
-        return None
-    if len(entry_profiles) != n_s:
-        raise ValueError(f"entry_profiles: {len(entry_profiles)} entries for {n_s} entries "
-                         "of sizes_m (one per entry)")
-    own = [profile if p is None else p for p in entry_profiles]
-    if all(p is profile for p in own):
-        return None
-    parts: list[tuple[Profile, list[int]]] = []
-    for i, p in enumerate(own):
-        for q, idx in parts:
-            if q is p:
-                idx.append(i)
-                break
-        else:
-            parts.append((p, [i]))
-    return [(p, np.asarray(idx)) for p, idx in parts]
-
-
-def take_entries(v, idx):
-    """Per-entry attribute ``v`` (None, one for all, or one per entry) at ``idx``."""
-    if v is None or np.ndim(v) == 0:
-        return v
-    return tuple(np.asarray(v, float)[idx])
-
-
-_ENTRY_FIELDS = ("release_x_m", "release_speed_m_s", "release_height_m")
-
-
-def _check_entry_fields(fw):
-    """Refuse per-entry release fields whose count is not that of ``fw.sizes_m``."""
-    n_s = len(np.atleast_1d(fw.sizes_m))
-    entry_releases(fw.profile, fw.sizes_m, fw.release_x_m)  # checks the count
-    for name in _ENTRY_FIELDS[1:]:
-        v = getattr(fw, name)
-        if v is not None and np.ndim(v) > 0 and len(v) != n_s:
-            raise ValueError(f"{name}: {len(v)} entries for {n_s} entries of "
-                             "sizes_m (one per entry, or one for all)")
-
-
-def entry_values(v, n_s: int) -> np.ndarray:
-    """(S,) values of a per-entry release field (None, one for all, or one per
-    entry; None and NaN: the solver's default)."""
-    return np.broadcast_to(np.nan if v is None else np.asarray(v, float), (n_s,))
+def as_entries(entries, profile: Profile) -> Entries:
+    """``entries`` as ``Entries``: an ``Entries`` as it is, or an array of block
+    sizes (m), one entry each, released at ``profile``'s first vertex at the
+    solver's default speed and height (the solvers' own default release)."""
+    if isinstance(entries, Entries):
+        return entries
+    return Entries.at_sizes(entries, float(profile.x_m[0]))
 
 
 def split_by_profile(fw) -> list | None:
-    """One forward per profile of ``fw.entry_profiles`` (``profile_parts``):
+    """One forward per profile of ``fw.entries`` (``Entries.by_profile``):
     [(sub-forward, entry indices), ...], each sub-forward ``fw`` on its
-    profile's entries (sizes and the per-entry release fields it has), or None
-    where every entry runs on ``fw.profile``. Shared by every forward model."""
-    parts = profile_parts(fw.profile, fw.entry_profiles, len(fw.sizes_m))
+    profile's entries, or None where every entry runs on ``fw.profile``.
+    Shared by every forward model."""
+    parts = fw.entries.by_profile(fw.profile)
     if parts is None:
         return None
-    return [(dataclasses.replace(
-        fw, profile=p, sizes_m=np.asarray(fw.sizes_m)[idx], entry_profiles=None,
-        **{n: take_entries(getattr(fw, n), idx) for n in _ENTRY_FIELDS if hasattr(fw, n)}),
-        idx) for p, idx in parts]
+    return [(dataclasses.replace(fw, profile=p, entries=fw.entries.take(idx)), idx)
+            for p, idx in parts]
 
 
 def gather_entries(parts, n_s: int, run):
@@ -223,7 +157,20 @@ class CrspForward:
 
     Attributes:
         profile: slope (its materials give the fixed parameters, e.g. rolling friction).
-        sizes_m: (S,) average block diameters d, m.
+        entries: what is simulated (``calib.model.entries.Entries``: per entry a
+            block size d, sphere radius d / 2, a release abscissa, speed and
+            height, a profile, and the rock density that sets the mass), or an
+            array of block sizes (m), one entry each released at the
+            profile's first vertex. Entries need not have distinct sizes: an
+            entry is a (size, release) group, e.g. the held-out rows of
+            ``calib.inference.predictive_check``. A tracked release speed is the
+            block's horizontal release velocity (``release_vx_m_s``; released
+            on the ground it then rolls along the slope at speed times
+            cos(slope)), the direction of a tracked release being seldom known
+            (our choice); a release height starts the block in flight at that
+            height (``solvers.crsp.init``). An entry on a profile of its own
+            runs as its own forward with the same theta, key and settings, so
+            its runouts do not depend on the other entries.
         n_blocks: blocks per (theta, size).
         key: PRNG key shared by all thetas (common random numbers).
         pool: lanes of the scheduler (default ``solvers.crsp.default_pool()``); results do
@@ -244,33 +191,10 @@ class CrspForward:
             CRSP); its parameters follow the baseline's in theta.
         stations_x_m: abscissae (m) at which ``simulate`` records passage speeds.
         settings: CRSP solver settings (event budget, search window).
-        release_x_m: release abscissa, m: one for every entry, or (S,) one per
-            entry of ``sizes_m``, or None (every block starts at the profile's
-            first vertex). With one per entry ``sizes_m`` need not be distinct:
-            an entry is a (size, release) group, e.g. the held-out rows of
-            ``calib.inference.predictive_check``.
-        release_speed_m_s: (S,) release speed of each entry, m/s, or None; NaN
-            keeps the solver's default (1 m/s). Our choice: the tracked speed
-            is the block's horizontal release velocity (``release_vx_m_s``;
-            released on the ground it then rolls along the slope at speed
-            times cos(slope)), the direction of a tracked release being
-            seldom known.
-        release_height_m: (S,) release height of each entry above the
-            ground, m, or None; NaN keeps the solver's default (0: on the
-            ground). The block starts in flight at that height with the
-            release velocity above (``solvers.crsp.init``): a hand or bucket
-            release from above the ground, as tracked field runs record it
-            (``calib.files.field_runs``).
-        entry_profiles: (S,) profile of each entry (None: ``profile``), or
-            None (all on ``profile``): runs released from spots far apart, each
-            along its own fall line (``Observations.profile``). Each profile's
-            entries run as their own forward with the same theta, key and
-            settings, so an entry's runouts do not depend on the other entries.
-            Abscissae (release, stations) are each entry's own profile's.
     """
 
     profile: Profile
-    sizes_m: np.ndarray
+    entries: Entries
     n_blocks: int
     key: jax.Array
     pool: int = dataclasses.field(default_factory=crsp.default_pool)
@@ -279,13 +203,9 @@ class CrspForward:
     effect: str = "none"
     stations_x_m: tuple[float, ...] = ()
     settings: crsp.Settings = crsp.Settings()
-    release_x_m: float | tuple[float, ...] | None = None
-    release_speed_m_s: tuple[float, ...] | None = None
-    release_height_m: tuple[float, ...] | None = None
-    entry_profiles: tuple[Profile | None, ...] | None = None
 
     def __post_init__(self):
-        _check_entry_fields(self)
+        self.entries = as_entries(self.entries, self.profile)
         if self.effect != "none":
             from calib.model.effects import effect_box, full_box
 
@@ -303,6 +223,11 @@ class CrspForward:
     @property
     def names(self) -> tuple[str, ...]:
         return self.box.names
+
+    @property
+    def sizes_m(self) -> np.ndarray:
+        """(S,) block size of each entry, m."""
+        return self.entries.sizes_m
 
     @property
     def n_rolling(self) -> int:
@@ -345,42 +270,31 @@ class CrspForward:
         n_t, n_s = theta.shape[0], len(self.sizes_m)
         if self._parts is not None:
             return self._simulate_parts(theta)
+        e = self.entries
         rep = np.repeat(theta, n_s, axis=0)  # task = (t, s)
-        radius = np.tile(crsp_radius_m(self.sizes_m), n_t)
-        release = (None if self.release_x_m is None else
-                   np.tile(np.broadcast_to(np.asarray(self.release_x_m, float), (n_s,)), n_t))
-        speed, height = (None if v is None else
-                         np.tile(np.broadcast_to(np.asarray(v, float), (n_s,)), n_t)
-                         for v in (self.release_speed_m_s, self.release_height_m))
+        radius, release, speed, height = (np.tile(v, n_t) for v in (
+            e.crsp_radius_m, e.release_x_m, e.release_speed_m_s, e.release_height_m))
         n_tasks = rep.shape[0]
         chunk = max(1, -(-self.task_chunk // default_workers()))
         pad = (-n_tasks) % chunk
         rep = np.concatenate([rep, np.repeat(rep[-1:], pad, axis=0)])
-        radius = np.concatenate([radius, np.repeat(radius[-1:], pad)])
-        if release is not None:
-            release = np.concatenate([release, np.repeat(release[-1:], pad)])
-        if speed is not None:
-            speed = np.concatenate([speed, np.repeat(speed[-1:], pad)])
-        if height is not None:
-            height = np.concatenate([height, np.repeat(height[-1:], pad)])
+        radius, release, speed, height = (np.concatenate([v, np.repeat(v[-1:], pad)])
+                                          for v in (radius, release, speed, height))
         stations = jnp.asarray(np.asarray(self.stations_x_m, float).reshape(-1), jnp.float64)
 
         def one_chunk(c0: int):
             params = self.params(rep[c0:c0 + chunk])
-            if release is not None:
-                params = params._replace(
-                    release_x_m=jnp.asarray(release[c0:c0 + chunk], jnp.float64))
-            if speed is not None:
-                s = speed[c0:c0 + chunk]
-                params = params._replace(release_vx_m_s=jnp.asarray(
-                    np.where(np.isfinite(s), s, np.broadcast_to(params.release_vx_m_s, s.shape)),
+            s, h = speed[c0:c0 + chunk], height[c0:c0 + chunk]  # NaN: the solver's default
+            params = params._replace(
+                release_x_m=jnp.asarray(release[c0:c0 + chunk], jnp.float64),
+                release_vx_m_s=jnp.asarray(np.where(
+                    np.isfinite(s), s, np.broadcast_to(params.release_vx_m_s, s.shape)),
+                    jnp.float64),
+                release_height_m=jnp.asarray(np.where(
+                    np.isfinite(h), h, np.broadcast_to(params.release_height_m, h.shape)),
                     jnp.float64))
-            if height is not None:
-                h = height[c0:c0 + chunk]
-                params = params._replace(release_height_m=jnp.asarray(
-                    np.where(np.isfinite(h), h,
-                             np.broadcast_to(params.release_height_m, h.shape)), jnp.float64))
-            blocks = stack_trees([crsp.make_block(float(r)) for r in radius[c0:c0 + chunk]])
+            blocks = stack_trees([crsp.make_block(float(r), density_kg_m3=e.density_kg_m3)
+                                  for r in radius[c0:c0 + chunk]])
             res = crsp.simulate_tasks(params, blocks, self.key, self.profile, stations,
                                       n_per_task=self.n_blocks,
                                       pool=min(self.pool, chunk * self.n_blocks),
@@ -471,7 +385,14 @@ class DemForward:
 
     Attributes:
         profile: slope.
-        sizes_m: (S,) average block diameters d (square side L = d), m.
+        entries: what is simulated (``calib.model.entries.Entries``: square side
+            L = d, release, speed, height, profile, density), or an array of
+            block sizes, as in ``CrspForward``. A NaN release speed or height
+            keeps the DEM's release rule (``solvers.dem.Params``: 1 cm above the
+            ground, speed uniform in 0-1 m/s); the DEM still offsets each block
+            up to 0.5 m downslope and turns it at random. The density sets the
+            mass per metre of width, with which the contact and damping
+            forces scale.
         n_blocks: blocks per (alpha, size); few, the DEM is expensive.
         key: PRNG key shared by all (common random numbers).
         form: "power" or "constant" (``calib.model.alpha_law``).
@@ -479,38 +400,23 @@ class DemForward:
             ``calib.model.dem_run``), the hazard run's too.
         lane_batch: blocks per compiled call (the last call is padded), so every
             call reuses one compiled program.
-        release_x_m: release abscissa, m: one for every entry, or (S,) one per
-            entry of ``sizes_m`` (an entry is then a (size, release) group, as in
-            ``CrspForward``), or None (the profile's first vertex).
-        release_speed_m_s, release_height_m: (S,) release speed (horizontal,
-            m/s) and height (of the block's lowest possible point above the
-            ground, m) of each entry, or None; NaN keeps the DEM's release rule
-            (``solvers.dem.Params``: 1 cm above the ground, speed uniform in
-            0-1 m/s). As in ``CrspForward``; the DEM still offsets each block
-            up to 0.5 m downslope and turns it at random.
-        entry_profiles: (S,) profile of each entry (None: ``profile``), or None,
-            as in ``CrspForward``.
     """
 
     profile: Profile
-    sizes_m: np.ndarray
+    entries: Entries
     n_blocks: int
     key: jax.Array
     form: str = "power"
     run: DemRun = DEM_RUN
     lane_batch: int = 32
-    release_x_m: float | tuple[float, ...] | None = None
-    release_speed_m_s: tuple[float, ...] | None = None
-    release_height_m: tuple[float, ...] | None = None
-    entry_profiles: tuple[Profile | None, ...] | None = None
 
     def __post_init__(self):
-        _check_entry_fields(self)
+        self.entries = as_entries(self.entries, self.profile)
         self._parts = split_by_profile(self)
         if self.form not in DEM_BOXES:
             raise ValueError(f"unknown alpha law form {self.form!r}; expected one of "
                              f"{', '.join(DEM_BOXES)}")
-        self._params = self.run.params(self.profile)
+        self._params = self.run.params(self.profile, rho=self.entries.density_kg_m3)
         self._fn = None
 
     @property
@@ -522,12 +428,17 @@ class DemForward:
         return self.box.names
 
     @property
+    def sizes_m(self) -> np.ndarray:
+        """(S,) block size of each entry, m."""
+        return self.entries.sizes_m
+
+    @property
     def input_box(self) -> Box:
         return Box(("alpha",), (0.0,), (ALPHA_MAX,))
 
     def _compiled(self):
         if self._fn is None:
-            options = self.run.options(self._params, dem_side_m(self.sizes_m))
+            options = self.run.options(self._params, self.entries.dem_side_m)
             self._fn = functools.partial(dem_lanes, self._params, options=options)
         return self._fn
 
@@ -538,15 +449,14 @@ class DemForward:
 
         alpha = np.asarray(alpha, float)
         n_t, n_s = alpha.shape
-        if self._parts is not None:  # one forward per profile (entry_profiles)
+        if self._parts is not None:  # one forward per profile (Entries.profiles)
             return gather_entries(self._parts, n_s,
                                   lambda sub, idx: sub.runouts_at_alpha(alpha[:, idx]))
-        x0 = entry_releases(self.profile, self.sizes_m, self.release_x_m)
+        e = self.entries
         proto = [make_block(float(L), alpha=0.5, release_x_m=float(x),
                             release_speed_m_s=float(v), release_height_m=float(h))
-                 for L, x, v, h in zip(dem_side_m(self.sizes_m), x0,
-                                       entry_values(self.release_speed_m_s, n_s),
-                                       entry_values(self.release_height_m, n_s), strict=True)]
+                 for L, x, v, h in zip(e.dem_side_m, e.release_x_m, e.release_speed_m_s,
+                                       e.release_height_m, strict=True)]
         lanes, keys = [], []
         for t in range(n_t):
             for s in range(n_s):
@@ -569,7 +479,7 @@ class DemForward:
 
     def alphas(self, theta) -> np.ndarray:
         """alpha per size (T, S) for theta (T, n_params)."""
-        return np.asarray(alpha_of(self.form, np.atleast_2d(theta), dem_side_m(self.sizes_m)))
+        return np.asarray(alpha_of(self.form, np.atleast_2d(theta), self.entries.dem_side_m))
 
     def runouts(self, theta) -> np.ndarray:
         """Runouts (T, S, n_blocks), m, for law parameters theta (T, n_params)."""
@@ -587,4 +497,4 @@ class DemForward:
 
     def emulator_inputs(self, theta):
         """Emulator input of each size: its alpha(L) -> (S, 1)."""
-        return alpha_of(self.form, jnp.asarray(theta), dem_side_m(self.sizes_m))[:, None]
+        return alpha_of(self.form, jnp.asarray(theta), self.entries.dem_side_m)[:, None]

@@ -71,6 +71,23 @@ def alpha_law(sizes_m: np.ndarray, alpha_map: np.ndarray, alpha_samples: np.ndar
     return fig
 
 
+def fitted_alpha_law(form: str, fit, site, sizes_m) -> plt.Figure:
+    """``alpha_law`` of a DEM fit (``calib.inference.calibrate.ModelFit``) over the
+    fitted sizes and the site's reference sides (or the default sides of
+    ``calib.files.calibration_file.ALPHA_AT_L``), 25 % beyond both ends."""
+    from calib.files.calibration_file import ALPHA_AT_L
+    from calib.model.alpha_law import alpha_of
+
+    ls = np.asarray(sorted(dict(site.alpha_reference)) or ALPHA_AT_L, float)
+    sizes = np.asarray(sizes_m, float)
+    grid = np.geomspace(0.75 * min(ls.min(), sizes.min()), 1.25 * max(ls.max(), sizes.max()), 60)
+    post = fit.posterior
+    return alpha_law(grid, np.asarray(alpha_of(form, fit.estimate, grid)),
+                     None if post is None else np.asarray(alpha_of(form, post.samples, grid)),
+                     form, reference=site.alpha_reference,
+                     reference_label=site.alpha_reference_label)
+
+
 def pairs(samples: np.ndarray, names: tuple[str, ...], truth=None, title: str = ""
           ) -> plt.Figure:
     """Pair plot of posterior draws (n, d)."""

@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from solvers.material import ROCK_DENSITY_KG_M3
 from solvers.profile import Profile
 
 __all__ = ["Block", "Params", "Settings", "make_block", "params_from_profile"]
@@ -39,7 +40,7 @@ class Block(NamedTuple):
 def make_block(
     radius_m: float,
     shape: str = "sphere",
-    density_kg_m3: float = 2350.0,
+    density_kg_m3: float = ROCK_DENSITY_KG_M3,
     length_m: float | None = None,
 ) -> Block:
     """CRSP block of a given shape.
@@ -47,7 +48,7 @@ def make_block(
     Shapes (CRSP 4.0): sphere (I = 2/5 m r^2); cylinder rolling on its curved
     face, of axial length ``length_m`` (default 2 r), I = 1/2 m r^2; disc on its
     rim, thickness ``length_m`` (default r / 2), I = 1/2 m r^2. The density
-    default is the paper's rho = 2350 kg/m^3 (Sect. 4.1).
+    default is ``solvers.material.ROCK_DENSITY_KG_M3``, the paper's 2350 kg/m^3.
 
     Raises:
         ValueError: unknown shape or non-positive sizes.

@@ -35,6 +35,7 @@ from solvers.dem._integrate import (
 )
 from solvers.dem._params import (
     DAMPING_MODES,
+    RUN_STIFFNESS_SCALE,
     STATUS_NAMES,
     Block,
     Options,
@@ -50,6 +51,7 @@ from solvers.dem._params import (
 __all__ = [
     "DAMPING_MODES",
     "DEFAULT_ALPHA_LAW",
+    "RUN_STIFFNESS_SCALE",
     "STATUS_NAMES",
     "AlphaLawError",
     "Block",

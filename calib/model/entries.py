@@ -1,0 +1,289 @@
+"""Simulated entries: what the solvers run, once per parameter point.
+
+An ENTRY is one simulated release: a block size, a release abscissa on a
+profile, a release speed and height, and the rock's density. A forward model
+(``calib.model.forward``) simulates ``n_blocks`` blocks per entry and
+parameter point; the calibration, the discrepancy workflow, the predictive
+check and the hazard run all describe what they simulate as ``Entries``.
+Observed rows map onto entries through ``Entries.index`` (row -> entry).
+
+Block-size rule (one place, used by every solver run):
+
+* the block size d is the average block diameter, m (the paper's wording,
+  Sect. 4.1; ``block_size_m`` of every input and output);
+* CRSP: a sphere of radius r = d / 2 and mass rho pi d^3 / 6;
+* DEM: a square of side L = d, mass rho L^2 per metre of width. The paper's
+  UDEC squares were meant to match the CRSP masses, but its Table 1 sides
+  (0.2, 0.9, 1.8 m) do not follow from its radii (``data/README.md``); we take
+  the side equal to the average diameter, which reproduces Table 1's L for
+  d = 0.2 and 1.8 m within 10 % (our choice).
+
+Release state: a NaN release speed or height keeps the solver's own default
+(CRSP: 1 m/s on the ground; DEM: ``solvers.dem.Params``' release rule). The
+density is one per site (``calib.files.site``), the solvers' default
+``solvers.material.ROCK_DENSITY_KG_M3`` where the site says nothing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import numpy as np
+
+from solvers.material import ROCK_DENSITY_KG_M3, check_density
+
+__all__ = ["Entries", "crsp_radius_m", "dem_side_m"]
+
+
+def crsp_radius_m(block_size_m):
+    """CRSP sphere radius for an average block diameter d: r = d / 2."""
+    return 0.5 * np.asarray(block_size_m, dtype=float)
+
+
+def dem_side_m(block_size_m):
+    """DEM square side for an average block diameter d: L = d (module docstring)."""
+    return np.asarray(block_size_m, dtype=float)
+
+
+def _column(values, n: int) -> np.ndarray:
+    """(n,) floats from None (all NaN), one value for all, or one per entry."""
+    if values is None:
+        return np.full(n, np.nan)
+    v = np.asarray(values, float)
+    if v.ndim > 0 and v.shape != (n,):
+        raise ValueError(f"{v.size} values for {n} entries (one per entry, or one for all)")
+    return np.broadcast_to(v, (n,)).copy()
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Entries:
+    """What a forward model simulates: E entries (NumPy arrays of length E).
+
+    Attributes:
+        sizes_m: (E,) block size d (average diameter), m.
+        release_x_m: (E,) release abscissa on the entry's profile, m.
+        release_speed_m_s: (E,) release speed, m/s (NaN: the solver's default).
+        release_height_m: (E,) release height above the ground, m (NaN: the
+            solver's default, on the ground).
+        profiles: (E,) the entry's own ``Profile``, or None for the forward
+            model's profile: runs released from spots far apart, each along
+            its own fall line (``Observations.profile``).
+        profile_csv: (E,) the file of each entry's own profile ("" for the
+            forward model's), for records.
+        index: (n_obs,) the entry of each observed row, or None where the
+            entries were not made from rows.
+        density_kg_m3: rock density rho of every block, kg/m^3.
+    """
+
+    sizes_m: np.ndarray
+    release_x_m: np.ndarray
+    release_speed_m_s: np.ndarray
+    release_height_m: np.ndarray
+    profiles: tuple
+    profile_csv: np.ndarray
+    index: np.ndarray | None = None
+    density_kg_m3: float = ROCK_DENSITY_KG_M3
+
+    def __post_init__(self):
+        n = np.asarray(self.sizes_m).shape[0]
+        object.__setattr__(self, "sizes_m", np.asarray(self.sizes_m, float).reshape(n))
+        for name in ("release_x_m", "release_speed_m_s", "release_height_m"):
+            try:
+                object.__setattr__(self, name, _column(getattr(self, name), n))
+            except ValueError as e:
+                raise ValueError(f"{name}: {e}") from None
+        profiles = (None,) * n if self.profiles is None else tuple(self.profiles)
+        if len(profiles) != n:
+            raise ValueError(f"profiles: {len(profiles)} for {n} entries (one per entry)")
+        object.__setattr__(self, "profiles", profiles)
+        csv = np.full(n, "", dtype=object) if self.profile_csv is None else np.asarray(
+            self.profile_csv, dtype=object)
+        object.__setattr__(self, "profile_csv", csv)
+        object.__setattr__(self, "density_kg_m3", check_density(self.density_kg_m3))
+        if np.any(~np.isfinite(self.release_x_m)):
+            raise ValueError("release_x_m: every entry needs a finite release abscissa")
+
+    @classmethod
+    def at_sizes(cls, sizes_m, release_x_m: float, *, density_kg_m3: float = ROCK_DENSITY_KG_M3,
+                 release_speed_m_s=None, release_height_m=None) -> Entries:
+        """One entry per size of ``sizes_m``, all released at ``release_x_m`` (m;
+        or one per size) on the forward model's profile."""
+        sizes = np.atleast_1d(np.asarray(sizes_m, float))
+        return cls(sizes, release_x_m, release_speed_m_s, release_height_m, None, None,
+                   density_kg_m3=density_kg_m3)
+
+    @classmethod
+    def one_per_size(cls, obs, release_x_m: float, *,
+                     density_kg_m3: float = ROCK_DENSITY_KG_M3) -> Entries:
+        """The entries of a fit that releases every block from one point (the DEM
+        fit, a CRSP fit of rows without ``release_x_m``): one per distinct size
+        of the rows (``obs.sizes_m``), released at ``release_x_m`` at the
+        solver's default speed, on the ground, on the command's profile,
+        whatever the rows' own releases say."""
+        e = cls.at_sizes(obs.sizes_m, release_x_m, density_kg_m3=density_kg_m3)
+        return dataclasses.replace(e, index=np.asarray(obs.size_index))
+
+    @classmethod
+    def from_rows(cls, obs, default_release_x_m: float, tol_m: float = 0.0, *,
+                  profile_of: Callable[[str], object] | None = None,
+                  density_kg_m3: float = ROCK_DENSITY_KG_M3) -> Entries:
+        """Group the rows by (profile, block size, release point).
+
+        Rows of one profile and one size whose release abscissae AND release
+        heights lie within ``tol_m`` of those of the first (lowest) release of
+        their group share one entry, released at the mean of their releases
+        (greedy: rows in ascending order of release, each joining the first
+        group it fits, else opening one); ``tol_m = 0`` groups only equal
+        releases. Rows without a height match only each other. A row without
+        ``release_x_m`` (NaN) is released at ``default_release_x_m``. An
+        entry's release speed and height are the means of its rows'
+        ``release_speed_m_s`` and ``release_height_m`` where given. Our
+        choice: the tolerance trades simulation cost (one simulated sample per
+        entry) against the release error of a row, at most ``tol_m``.
+
+        Args:
+            obs: the rows (``calib.files.observations.Observations``).
+            default_release_x_m: release of rows that give none, m.
+            tol_m: grouping tolerance, m (>= 0).
+            profile_of: the ``Profile`` of a row's own profile file
+                (``Observations.profile``); needed only where rows name one.
+            density_kg_m3: the site's rock density.
+        """
+        if not tol_m >= 0:
+            raise ValueError(f"release grouping tolerance must be >= 0 m, got {tol_m!r}")
+        n_obs = obs.n_obs
+        rel = np.asarray(obs.release_x_m, float)
+        rel = np.where(np.isfinite(rel), rel, float(default_release_x_m))
+        size = np.asarray(obs.block_size_m, float)
+        speed, height = (np.asarray(getattr(obs, name, None) if getattr(obs, name, None)
+                                    is not None else np.full(n_obs, np.nan), float)
+                         for name in ("release_speed_m_s", "release_height_m"))
+        prof = getattr(obs, "profile", None)
+        prof = np.full(n_obs, "", dtype=object) if prof is None else np.asarray(prof, object)
+        sizes, releases, speeds, heights, csv = [], [], [], [], []
+        index = np.empty(n_obs, int)
+        for pf, d in sorted({(pf, d) for pf, d in zip(prof, size)}, key=lambda k: (k[1], k[0])):
+            rows = np.flatnonzero((size == d) & (prof == pf))
+            rows = rows[np.argsort(rel[rows], kind="stable")]
+            for m in _greedy_groups(rows, rel, height, tol_m):
+                index[m] = len(sizes)
+                sizes.append(d)
+                csv.append(pf)
+                releases.append(float(np.mean(rel[m])))
+                for values, out in ((speed, speeds), (height, heights)):
+                    known = values[m][np.isfinite(values[m])]
+                    out.append(float(np.mean(known)) if known.size else np.nan)
+        if any(csv) and profile_of is None:
+            raise ValueError("rows name their own profiles: give profile_of")
+        profiles = tuple(profile_of(p) if p else None for p in csv)
+        return cls(np.asarray(sizes, float), np.asarray(releases, float), speeds, heights,
+                   profiles, np.asarray(csv, dtype=object), index, density_kg_m3)
+
+    @property
+    def n(self) -> int:
+        """Number of entries E."""
+        return int(self.sizes_m.shape[0])
+
+    @property
+    def crsp_radius_m(self) -> np.ndarray:
+        """(E,) CRSP sphere radii d / 2, m."""
+        return crsp_radius_m(self.sizes_m)
+
+    @property
+    def dem_side_m(self) -> np.ndarray:
+        """(E,) DEM square sides L = d, m."""
+        return dem_side_m(self.sizes_m)
+
+    @property
+    def mass_kg(self) -> np.ndarray:
+        """(E,) CRSP sphere mass rho pi d^3 / 6, kg."""
+        return self.density_kg_m3 * np.pi * self.sizes_m**3 / 6.0
+
+    @property
+    def own_profiles(self) -> bool:
+        """True where some entry runs on a profile of its own."""
+        return any(p is not None for p in self.profiles)
+
+    def take(self, idx) -> Entries:
+        """The entries at ``idx`` (no row index: rows map onto the whole set)."""
+        idx = np.atleast_1d(np.asarray(idx, int))
+        return Entries(self.sizes_m[idx], self.release_x_m[idx], self.release_speed_m_s[idx],
+                       self.release_height_m[idx], tuple(self.profiles[i] for i in idx),
+                       self.profile_csv[idx], None, self.density_kg_m3)
+
+    def concat(self, other: Entries) -> Entries:
+        """These entries followed by ``other``'s (same density; no row index)."""
+        if other.density_kg_m3 != self.density_kg_m3:
+            raise ValueError("entries of different rock densities cannot be simulated together")
+        cat = np.concatenate
+        return Entries(cat([self.sizes_m, other.sizes_m]),
+                       cat([self.release_x_m, other.release_x_m]),
+                       cat([self.release_speed_m_s, other.release_speed_m_s]),
+                       cat([self.release_height_m, other.release_height_m]),
+                       self.profiles + other.profiles,
+                       cat([self.profile_csv, other.profile_csv]), None, self.density_kg_m3)
+
+    def with_release_state(self, release_speed_m_s=None, release_height_m=None) -> Entries:
+        """The same entries at other release speeds and heights (None: NaN)."""
+        return dataclasses.replace(self, release_speed_m_s=release_speed_m_s,
+                                   release_height_m=release_height_m)
+
+    def same_as(self, other: Entries) -> bool:
+        """Same sizes, releases, release states, profiles and density."""
+        return (self.n == other.n and np.array_equal(self.sizes_m, other.sizes_m)
+                and np.array_equal(self.release_x_m, other.release_x_m)
+                and np.array_equal(self.release_speed_m_s, other.release_speed_m_s,
+                                   equal_nan=True)
+                and np.array_equal(self.release_height_m, other.release_height_m,
+                                   equal_nan=True)
+                and all(a is b for a, b in zip(self.profiles, other.profiles, strict=True))
+                and self.density_kg_m3 == other.density_kg_m3)
+
+    def by_profile(self, profile) -> list | None:
+        """The entries split by the profile they run on: None where every entry
+        runs on ``profile`` (its own is None or ``profile`` itself), else
+        [(profile_k, entry indices), ...] in order of first appearance."""
+        own = [profile if p is None else p for p in self.profiles]
+        if all(p is profile for p in own):
+            return None
+        parts: list[tuple[object, list[int]]] = []
+        for i, p in enumerate(own):
+            for q, idx in parts:
+                if q is p:
+                    idx.append(i)
+                    break
+            else:
+                parts.append((p, [i]))
+        return [(p, np.asarray(idx)) for p, idx in parts]
+
+    def record(self, command_profile_csv: str) -> list[dict]:
+        """One JSON-ready dict per entry (calibration and discovery files)."""
+        def num(v):
+            return None if not np.isfinite(v) else float(v)
+
+        counts = (np.bincount(self.index, minlength=self.n) if self.index is not None
+                  else np.zeros(self.n, int))
+        return [{"block_size_m": float(d), "release_x_m": float(x),
+                 "release_speed_m_s": num(v), "release_height_m": num(h),
+                 "profile_csv": pf or command_profile_csv, "n_rows": int(k)}
+                for d, x, v, h, pf, k in zip(self.sizes_m, self.release_x_m,
+                                             self.release_speed_m_s, self.release_height_m,
+                                             self.profile_csv, counts, strict=True)]
+
+
+def _greedy_groups(rows: np.ndarray, rel: np.ndarray, height: np.ndarray, tol_m: float):
+    """Rows (sorted by release) in groups: each joins the first group whose
+    leader's release and height lie within ``tol_m`` (``Entries.from_rows``)."""
+    leaders, members = [], []
+    for i in rows:
+        for g, lead in enumerate(leaders):
+            same_h = (np.isnan(height[i]) and np.isnan(height[lead])) or (
+                abs(height[i] - height[lead]) <= tol_m)
+            if rel[i] - rel[lead] <= tol_m and same_h:
+                members[g].append(i)
+                break
+        else:
+            leaders.append(i)
+            members.append([i])
+    return [np.asarray(m) for m in members]
