@@ -136,12 +136,53 @@ def _near(text: str | None) -> tuple[float, float, float] | None:
     return e, n, r
 
 
+def _line(args):
+    """The line in plan the cut follows, and its record for the ``.cut.json``."""
+    from solvers.cli import CliError
+    from terrain import plan_line
+
+    if args.line and args.fall_line_near:
+        raise CliError("--fall-line-near: only with --fall-line")
+    if args.line:
+        line = plan_line.read_line(args.line)
+        line_info = {"kind": "geojson" if not args.line.endswith(".csv") else "csv",
+                     "source": args.line}
+    else:
+        release_cols = _columns(args.release_cols, "--release-cols")
+        stop_cols = _columns(args.stop_cols, "--stop-cols")
+        near = _near(args.fall_line_near)
+        line = plan_line.read_fall_line(args.fall_line, args.margin_m, release_cols, stop_cols,
+                                        near=near)
+        line_info = {"kind": "mean fall line of field runs (mean release point to mean "
+                             "stop point, extended by margin_m at both ends)",
+                     "source": args.fall_line, "margin_m": args.margin_m,
+                     "release_columns": list(release_cols), "stop_columns": list(stop_cols)}
+        if near is not None:
+            line_info["runs_released_near"] = {"east_m": near[0], "north_m": near[1],
+                                               "radius_m": near[2]}
+    return line, line_info
+
+
+def _summary(args, cut, line, used, materials_out: str, sidecar: str) -> None:
+    """What the cut printed: vertices, heights, each zone's extent and mean slope."""
+    x, z = cut.x_m, cut.z_m
+    print(f"cut {x.shape[0]} vertices every {args.step_m:g} m along {line.length_m:.2f} m of "
+          f"line ({line.source}); z {z.min():.2f} to {z.max():.2f} m")
+    seg_zone = np.array(cut.zone)
+    for name in used:
+        k = np.flatnonzero(seg_zone == name)
+        x0, x1 = x[k[0]], x[k[-1] + 1]
+        drop = z[k[0]] - z[k[-1] + 1]
+        print(f"  zone {name}: x {x0:.2f} to {x1:.2f} m, {k.size} segments, mean slope "
+              f"{math.degrees(math.atan2(drop, x1 - x0)):.1f} deg")
+    print(f"wrote {args.out}, {materials_out}, {sidecar}")
+
+
 def _run_cut(args, argv: list[str]) -> int:
     import json
     import shlex
 
     from solvers.cli import CliError, text_writer, write_all_atomic
-    from terrain import plan_line
     from terrain import raster as rs
 
     if not args.out.endswith(".csv"):
@@ -150,25 +191,7 @@ def _run_cut(args, argv: list[str]) -> int:
     sidecar = args.out[:-4] + ".cut.json"
     try:
         grid = rs.read_raster(args.raster)
-        if args.line and args.fall_line_near:
-            raise CliError("--fall-line-near: only with --fall-line")
-        if args.line:
-            line = plan_line.read_line(args.line)
-            line_info = {"kind": "geojson" if not args.line.endswith(".csv") else "csv",
-                         "source": args.line}
-        else:
-            release_cols = _columns(args.release_cols, "--release-cols")
-            stop_cols = _columns(args.stop_cols, "--stop-cols")
-            near = _near(args.fall_line_near)
-            line = plan_line.read_fall_line(args.fall_line, args.margin_m, release_cols, stop_cols,
-                                            near=near)
-            line_info = {"kind": "mean fall line of field runs (mean release point to mean "
-                                 "stop point, extended by margin_m at both ends)",
-                         "source": args.fall_line, "margin_m": args.margin_m,
-                         "release_columns": list(release_cols), "stop_columns": list(stop_cols)}
-            if near is not None:
-                line_info["runs_released_near"] = {"east_m": near[0], "north_m": near[1],
-                                                   "radius_m": near[2]}
+        line, line_info = _line(args)
         zones = rs.parse_zones(args.zones)
         cut = rs.cut_profile(grid, line, args.step_m, zones)
         used = list(dict.fromkeys(cut.zone))
@@ -226,17 +249,7 @@ def _run_cut(args, argv: list[str]) -> int:
         })
     except OSError as e:
         raise CliError(f"cannot write {args.out}: {e.strerror or e}; nothing written") from None
-    x, z = cut.x_m, cut.z_m
-    print(f"cut {x.shape[0]} vertices every {args.step_m:g} m along {line.length_m:.2f} m of "
-          f"line ({line.source}); z {z.min():.2f} to {z.max():.2f} m")
-    seg_zone = np.array(cut.zone)
-    for name in used:
-        k = np.flatnonzero(seg_zone == name)
-        x0, x1 = x[k[0]], x[k[-1] + 1]
-        drop = z[k[0]] - z[k[-1] + 1]
-        print(f"  zone {name}: x {x0:.2f} to {x1:.2f} m, {k.size} segments, mean slope "
-              f"{math.degrees(math.atan2(drop, x1 - x0)):.1f} deg")
-    print(f"wrote {args.out}, {materials_out}, {sidecar}")
+    _summary(args, cut, line, used, materials_out, sidecar)
     return 0
 
 

@@ -183,7 +183,7 @@ def _area_text(r: Raster) -> str:
     return f"(cell centres span east {w:g} to {e:g} m, north {s:g} to {n:g} m)"
 
 
-def read_ascii_grid(path: str | os.PathLike) -> Raster:
+def read_ascii_grid(path: str | os.PathLike) -> Raster:  # long: one check per header key
     """Read an ESRI ASCII grid (format in the module docstring).
 
     Args:
