@@ -1,10 +1,11 @@
 """Command line: ``python -m calib.hazard results/calibration.json [options]``.
 
-Writes into ``--out`` (default ``results/hazard/``): ``exceedance.csv``,
-``hazard_table.csv``, ``exceedance.png``, ``envelopes.png`` and
-``summary.txt``, each through a temporary file and a rename, only after the
-whole run succeeded. Bad input: one line on stderr, exit status 2, nothing
-written.
+Writes into ``--out`` (default ``results/hazard/``): ``hazard.nc`` (the results
+Dataset, ``calib.files.hazard_results``: what ``python -m calib.design`` reads),
+and from it ``exceedance.csv``, ``hazard_table.csv``, ``exceedance.png``,
+``envelopes.png`` and ``summary.txt``, each through a temporary file and a
+rename, only after the whole run succeeded. Bad input: one line on stderr, exit
+status 2, nothing written.
 """
 
 from __future__ import annotations
@@ -40,8 +41,8 @@ def build_parser() -> OneLineParser:
             "posterior draws x block sizes x blocks; runout exceedance curves with posterior "
             "bands, reach probability, energy / bounce-height / velocity design values, Swiss "
             "intensity classes and (with --release-rate-per-year) annual frequencies and "
-            "hazard levels. Writes exceedance.csv, hazard_table.csv, two PNG figures and "
-            "summary.txt."),
+            "hazard levels. Writes hazard.nc (every result, for python -m calib.design) and "
+            "from it exceedance.csv, hazard_table.csv, two PNG figures and summary.txt."),
         epilog="Example: python -m calib.hazard results/calibration.json --n-posterior 20 "
                "--n-blocks 5000 --release-rate-per-year 0.5 --out results/hazard/")
     p.add_argument("calibration", help="calibration.json written by python -m calib.fit")
@@ -219,9 +220,15 @@ def main(argv: list[str] | None = None) -> int:
                         progress=bar.update)
     wall = time.perf_counter() - t0
     bar.close()
-    exc_df = exceedance_table(counts)
-    table = hazard_table(counts, profile, rate)
-    text = summary_text(counts, table, road_x, rate, label)
+    from calib.files.hazard_results import results_writer
+    from calib.hazard._results import hazard_dataset
+
+    results = hazard_dataset(counts, profile, seed=args.seed, road_x_m=road_x, road_label=label,
+                             release_rate_per_year=rate,
+                             record=_record(parser.prog, args.seed, cal, args.calibration))
+    exc_df = exceedance_table(results)
+    table = hazard_table(results)
+    text = summary_text(results, table, road_x, rate, label)
     title = (f"{cal.model.upper()}: {len(draws.values)} draw(s) ({draws.source}) x "
              f"{n_blocks} blocks per size")
 
@@ -229,6 +236,7 @@ def main(argv: list[str] | None = None) -> int:
         return lambda p: df.to_csv(p, index=False)
 
     writers = {
+        "hazard.nc": results_writer(results),
         "exceedance.csv": csv_writer(exc_df),
         "hazard_table.csv": csv_writer(table),
         "exceedance.png": lambda p: plot_exceedance(exc_df, profile, road_x, p, title, label),
@@ -245,6 +253,29 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{total:,} blocks in {wall:.1f} s ({total / wall:,.0f} blocks/s incl. compile) on "
           f"{len(jax.devices())} device(s); wrote {names} to {args.out}")
     return 0
+
+
+def _record(prog: str, seed: int, cal, path: str) -> dict:
+    """What ``hazard.nc`` says about its calibration: the provenance of the run
+    (``calib.files.provenance``), the calibration's own predictive check
+    (``adequacy`` of its model section, ``calib.inference.adequacy``) and the
+    site's rock density (key ``rock_density_kg_m3``, where the file has one)."""
+    from calib.files.calibration_file import CalibrationFile
+    from calib.files.provenance import provenance
+    from solvers.profile import default_materials_path
+
+    doc = CalibrationFile.from_json(path)
+    section = doc.models.get(cal.model, {})
+    density = doc.record.get("rock_density_kg_m3", section.get("rock_density_kg_m3"))
+    materials = default_materials_path(cal.profile_csv)
+    return {
+        "calibration": path,
+        "provenance_json": provenance(prog, seed, {
+            "calibration": path, "posterior": cal.posterior_csv, "profile": cal.profile_csv,
+            "materials": materials if os.path.isfile(materials) else None}),
+        "adequacy_json": section.get("adequacy"),
+        "rock_density_kg_m3": float(density) if isinstance(density, int | float) else None,
+    }
 
 
 if __name__ == "__main__":
