@@ -39,8 +39,12 @@ the DEM runs one size per unit), so they would hold only for some runs and
 make the numbers depend on the chunking. Nested fine bins keep every count an
 integer that adds up the same whatever the chunking or the device, and their
 coarse sums are the ``BINS`` histograms bit for bit (a fine bin lies inside one
-coarse bin by construction: ``Bins.index`` with ``sub``), so the hazard tables
-do not change.
+coarse bin by construction: ``Bins.index`` with ``sub`` computes both from one
+y = BPD log10(v / v_min); a separate 1000-per-decade index would disagree with
+the coarse one for values within rounding of a bin edge), so the hazard tables
+do not change (checked byte for byte on a run). Both are computed under jit, as
+the chunks are: jit and op-by-op evaluation of the logarithm may round a value
+on a bin edge differently.
 
 Monte Carlo error of a percentile (``percentile_interval``): the
 distribution-free interval of order statistics. Among n independent values,
