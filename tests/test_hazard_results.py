@@ -31,6 +31,7 @@ from calib.hazard._stats import (
     PERCENTILES,
     hist_quantile,
     percentile_interval,
+    percentile_table,
     rebin,
 )
 
@@ -93,12 +94,11 @@ def synthetic_results(samples, *, sizes_m, stations_x_m, n_blocks, release_x_m=0
     for q in QUANTITIES:
         data[f"hist_{q}"] = rebin(fine[q].sum(axis=0), FINE)
         bins[f"hist_{q}"] = BINS[q]
-        per = [percentile_interval(fine[q], pc / 100.0, FINE_BINS[q]) for pc in PERCENTILES]
-        pooled = [percentile_interval(fine[q].sum(axis=0), pc / 100.0, FINE_BINS[q])
-                  for pc in PERCENTILES]
+        per = percentile_table(fine[q], FINE_BINS[q])
+        pooled = percentile_table(fine[q].sum(axis=0), FINE_BINS[q])
         for j, end in enumerate(("", "_lo", "_hi")):
-            data[f"{q}_pct{end}"] = np.stack([v[j] for v in per], axis=-1)
-            data[f"{q}_pct_pooled{end}"] = np.stack([v[j] for v in pooled], axis=-1)
+            data[f"{q}_pct{end}"] = per[j]
+            data[f"{q}_pct_pooled{end}"] = pooled[j]
     for q in ("energy_kJ", "bounce_height_m"):
         data[f"draw_hist_{q}"] = rebin(fine[q], DRAW_SUB).astype(np.int32)
         bins[f"draw_hist_{q}"] = DRAW_BINS[q]

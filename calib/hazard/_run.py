@@ -26,7 +26,7 @@ from calib.hazard._stats import (
     FINE_BINS,
     PERCENTILES,
     hist_quantile,
-    percentile_interval,
+    percentile_table,
     rebin,
 )
 from calib.hazard._units import crsp_chunk, dem_chunk, draw_key
@@ -61,7 +61,7 @@ class HazardCounts:
             its ``BINS`` histogram (the hazard table's band).
         percentiles: quantity -> (value, lo, hi), each (D, T, S, P): each draw's
             ``_stats.PERCENTILES`` of its passers and their 95 % intervals, read
-            from ``FINE_BINS`` (``_stats.percentile_interval``).
+            from ``FINE_BINS`` (``_stats.percentile_table``).
         pooled_percentiles: quantity -> (value, lo, hi), each (T, S, P): the same
             for the passers of all draws pooled.
         draw_hist: "energy_kJ" and "bounce_height_m" -> (D, T, S, B) per-draw counts
@@ -204,9 +204,7 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
         units = _dem_units(cal, draws, profile, entries, stations, n_blocks, seed, chunk,
                            offsets, dem_run)
     run_units(units, on_result, devices=devices)
-    pooled = {q: tuple(np.stack(v, axis=-1) for v in zip(*(
-        percentile_interval(f, p / 100.0, FINE_BINS[q]) for p in PERCENTILES), strict=True))
-        for q, f in fine.items()}
+    pooled = {q: percentile_table(f, FINE_BINS[q]) for q, f in fine.items()}
     return HazardCounts(model=cal.model, sizes_m=sizes_m, stations_x_m=stations,
                         release_x_m=release_x, n_blocks=n_blocks, draws=draws,
                         n_unfinished=n_unfinished, n_left_profile=n_left_profile,
@@ -223,9 +221,8 @@ def _draw_done(d: int, dh: dict, e95: np.ndarray, pct: dict, kept: dict) -> None
     into its rows of ``e95``, ``pct`` and ``kept`` (``HazardCounts``)."""
     e95[d] = hist_quantile(rebin(dh["energy_kJ"], FINE), 0.95, BINS["energy_kJ"])
     for q, counts in dh.items():
-        for i, p in enumerate(PERCENTILES):
-            for j, v in enumerate(percentile_interval(counts, p / 100.0, FINE_BINS[q])):
-                pct[q][j, d, ..., i] = v
+        for j, v in enumerate(percentile_table(counts, FINE_BINS[q])):
+            pct[q][j, d] = v
         if q in kept:
             kept[q][d] = rebin(counts, DRAW_SUB)
 

@@ -70,8 +70,8 @@ import numpy as np
 from solvers.status import INVALID, LEFT_PROFILE, finished
 
 __all__ = ["BINS", "DRAW_BINS", "DRAW_SUB", "FINE", "FINE_BINS", "PERCENTILES", "Bins",
-           "ChunkStats", "hist_exceedance", "hist_quantile", "percentile_interval", "rebin",
-           "reduce_chunk"]
+           "ChunkStats", "hist_exceedance", "hist_quantile", "percentile_interval",
+           "percentile_table", "rebin", "reduce_chunk"]
 
 
 class Bins(NamedTuple):
@@ -222,20 +222,43 @@ def rebin(counts: np.ndarray, factor: int) -> np.ndarray:
     return np.concatenate([counts[..., :1], mid, counts[..., -1:]], axis=-1)
 
 
-def _at_rank(counts: np.ndarray, cum: np.ndarray, rank: np.ndarray, bins: Bins) -> np.ndarray:
-    """The value of rank ``rank`` (the smallest v with count(<= v) >= rank),
-    interpolated geometrically in its bin; 0 in the underflow, +inf in the overflow."""
-    # first bin whose cumulative count reaches the rank (at least one count in it)
-    k = np.argmax((cum >= rank[..., None]) & (counts > 0), axis=-1)
-    c_k = np.take_along_axis(counts, k[..., None], axis=-1)[..., 0]
-    below = np.take_along_axis(cum, k[..., None], axis=-1)[..., 0] - c_k
-    frac = np.clip((rank - below) / np.maximum(c_k, 1), 0.0, 1.0)
-    edges = bins.edges()
-    j = np.clip(k - 1, 0, bins.n_log - 1)
-    lo, hi = edges[j], edges[j + 1]
-    val = lo * (hi / lo) ** frac
-    val = np.where(k == 0, 0.0, val)
-    return np.where(k == bins.n - 1, np.inf, val)
+class _Ranks:
+    """Histogram counts ready to be read at many ranks: the cumulative counts, and
+    every row shifted above the previous one so that one binary search finds the
+    bin of a rank in all rows at once."""
+
+    def __init__(self, counts: np.ndarray):
+        self.counts = np.asarray(counts, dtype=np.int64)
+        self.cum = np.cumsum(self.counts, axis=-1)
+        self.n = self.cum[..., -1]
+        b = self.cum.shape[-1]
+        flat = self.cum.reshape(-1, b).astype(np.float64)
+        self.offset = np.arange(flat.shape[0], dtype=np.float64) * (
+            flat[:, -1].max(initial=0.0) + 2.0)
+        self.sorted = (flat + self.offset[:, None]).ravel()
+
+    def value(self, rank, bins: Bins) -> np.ndarray:
+        """The value of rank ``rank`` (the smallest v with count(<= v) >= rank),
+        interpolated geometrically in its bin; 0 in the underflow, +inf in the
+        overflow (NaN-free: callers mask empty rows)."""
+        counts, cum = self.counts, self.cum
+        shape, b = cum.shape[:-1], cum.shape[-1]
+        rank = np.asarray(rank, dtype=np.float64)
+        # first bin whose cumulative count reaches the rank and holds a count: for a
+        # rank r > 0 the first k with cum[k] >= r (then counts[k] > 0), for r <= 0
+        # the first k with cum[k] >= 1
+        target = np.maximum(np.broadcast_to(rank, shape).reshape(-1), 1.0) + self.offset
+        hit = np.searchsorted(self.sorted, target, side="left")
+        k = np.minimum(hit - np.arange(target.size) * b, b - 1).reshape(shape)
+        c_k = np.take_along_axis(counts, k[..., None], axis=-1)[..., 0]
+        below = np.take_along_axis(cum, k[..., None], axis=-1)[..., 0] - c_k
+        frac = np.clip((rank - below) / np.maximum(c_k, 1), 0.0, 1.0)
+        edges = bins.edges()
+        j = np.clip(k - 1, 0, bins.n_log - 1)
+        lo, hi = edges[j], edges[j + 1]
+        val = lo * (hi / lo) ** frac
+        val = np.where(k == 0, 0.0, val)
+        return np.where(k == bins.n - 1, np.inf, val)
 
 
 def hist_quantile(counts: np.ndarray, q: float, bins: Bins) -> np.ndarray:
@@ -256,11 +279,8 @@ def hist_quantile(counts: np.ndarray, q: float, bins: Bins) -> np.ndarray:
     Returns:
         (...) float64 quantiles.
     """
-    counts = np.asarray(counts, dtype=np.int64)
-    cum = np.cumsum(counts, axis=-1)
-    n = cum[..., -1]
-    val = _at_rank(counts, cum, q * n, bins)
-    return np.where(n > 0, val, np.nan)
+    r = _Ranks(counts)
+    return np.where(r.n > 0, r.value(q * r.n, bins), np.nan)
 
 
 def percentile_interval(counts: np.ndarray, q: float, bins: Bins, level: float = 0.95
@@ -282,18 +302,28 @@ def percentile_interval(counts: np.ndarray, q: float, bins: Bins, level: float =
     Returns:
         (value, lo, hi), each (...) float64; all NaN where no values.
     """
+    return _interval(_Ranks(counts), q, bins, level)
+
+
+def percentile_table(counts: np.ndarray, bins: Bins, percentiles=PERCENTILES,
+                     level: float = 0.95) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``percentile_interval`` at each of ``percentiles`` (in %), the cumulative
+    counts formed once: (value, lo, hi), each (..., P)."""
+    r = _Ranks(counts)
+    parts = [_interval(r, p / 100.0, bins, level) for p in percentiles]
+    return tuple(np.stack([part[i] for part in parts], axis=-1) for i in range(3))
+
+
+def _interval(r: _Ranks, q: float, bins: Bins, level: float):
     from scipy.stats import binom
 
-    counts = np.asarray(counts, dtype=np.int64)
-    cum = np.cumsum(counts, axis=-1)
-    n = cum[..., -1]
-    value = np.where(n > 0, _at_rank(counts, cum, q * n, bins), np.nan)
+    n = r.n
+    value = np.where(n > 0, r.value(q * n, bins), np.nan)
     nn = np.maximum(n, 1)
     j_lo = binom.ppf((1.0 - level) / 2.0, nn, q)
     j_hi = binom.ppf((1.0 + level) / 2.0, nn, q) + 1.0
-    lo = np.where((n > 0) & (j_lo >= 1), _at_rank(counts, cum, j_lo, bins), np.nan)
-    hi = np.where((n > 0) & (j_hi <= n), _at_rank(counts, cum, np.minimum(j_hi, nn), bins),
-                  np.nan)
+    lo = np.where((n > 0) & (j_lo >= 1), r.value(j_lo, bins), np.nan)
+    hi = np.where((n > 0) & (j_hi <= n), r.value(np.minimum(j_hi, nn), bins), np.nan)
     return value, lo, hi
 
 
