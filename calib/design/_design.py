@@ -90,6 +90,10 @@ def design_record(ds, x_m: float, block, options: dict, with_barrier=None) -> di
                        "position upslope, or a larger run)")
     distance, distance_src = _distance(ds, x_m, args.protected_distance_m)
     kit = next((k for k in options["kits"] if kit_row and k.name == kit_row["kit"]), None)
+    for k, row in zip(options["kits"], rows, strict=True):  # every kit, no partial factors
+        p = kit_probabilities(ds, dv, k, args.energy_level)
+        row["P_E_gt_capacity_mean"] = p.get(f"P_E_gt_{args.energy_level}", {}).get("mean")
+        row["P_h_gt_nominal_height_mean"] = p["P_h_gt_nominal_height"]["mean"]
     rate = optional_attr(ds, "release_rate_per_year")
     warnings = []
     if dv.n_passers < 20:

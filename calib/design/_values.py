@@ -176,8 +176,10 @@ def design_values(ds, x_m: float, block: DesignBlock, factors, percentile: float
           "E_p_kJ": _mc(e_p, e_lo, e_hi, n_blocks)}
     for name, r in rel_draw.items():
         finite = r[np.isfinite(r)]
-        mc[name]["per_draw_median_rel_half_width"] = (float(np.median(finite)) if finite.size
-                                                      else math.nan)
+        med = float(np.median(finite)) if finite.size else math.nan
+        mc[name]["per_draw_median_rel_half_width"] = med
+        mc[name]["per_draw_blocks_for_target"] = (
+            math.ceil(n_blocks * (med / MC_TARGET) ** 2) if math.isfinite(med) else None)
     with np.errstate(invalid="ignore"):
         p_reach = reach / n_blocks
     return DesignValues(
