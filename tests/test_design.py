@@ -276,6 +276,22 @@ def test_residual_exceedance_of_a_run_with_the_barrier(hazard, tmp_path, capsys)
     assert not (tmp_path / "x").exists()
 
 
+def test_density_from_the_file_else_the_default_with_a_warning(hazard, tmp_path):
+    """The file's rock density (the calibration's) is the default; without one, 2350
+    kg/m^3 and a warning; another density than the run simulated scales the energies
+    by mass and says so."""
+    path, ds = hazard
+    block, warnings = design_block(ds, path)
+    assert block.density_kg_m3 == DENSITY and not warnings
+    bare = ds.copy()
+    del bare.attrs["rock_density_kg_m3"]
+    block, warnings = design_block(bare, path)
+    assert block.density_kg_m3 == 2350.0 and "no rock density" in warnings[0]
+    block, warnings = design_block(ds, path, density_kg_m3=2650.0)
+    assert block.energy_scale == pytest.approx(2650.0 / DENSITY)
+    assert "simulated blocks of 2350 kg/m^3" in warnings[0]
+
+
 def test_dem_run_needs_a_thickness_and_scales_by_it(tmp_path, capsys):
     """A DEM file's energies are per cube of side D: with --dem-thickness-m t the design
     block is D^2 t and the simulated energies scale by t / D."""

@@ -119,13 +119,21 @@ def design_block(ds, path: str, *, size_m=None, size_percentile=None, volume_m3=
     if density_kg_m3 is not None:
         rho, rho_src = float(density_kg_m3), "--density-kg-m3"
     elif optional_attr(ds, "rock_density_kg_m3") is not None:
-        rho, rho_src = float(ds.attrs["rock_density_kg_m3"]), f"{path}: rock_density_kg_m3"
+        rho = float(ds.attrs["rock_density_kg_m3"])
+        rho_src = f"{path}: " + (optional_attr(ds, "rock_density_source")
+                                 or "rock_density_kg_m3")
     else:
         rho, rho_src = DEFAULT_DENSITY_KG_M3, "toolkit default (the seed paper, Sect. 4.1)"
         warnings.append(f"warning: no rock density in {path} (its calibration has no "
                         f"rock_density_kg_m3) and no --density-kg-m3: using "
                         f"{DEFAULT_DENSITY_KG_M3:g} kg/m^3")
     mass = float(ds["block_mass_kg"].sel(block_size_m=d))
+    simulated = mass / (d**3 if model == "dem" else math.pi * d**3 / 6.0)
+    if not math.isclose(simulated, rho, rel_tol=1e-6):
+        warnings.append(f"warning: the run simulated blocks of {simulated:.6g} kg/m^3, the "
+                        f"design uses {rho:g} kg/m^3 ({rho_src}): energies are scaled by mass, "
+                        "which holds for CRSP's lumped-mass kinematics, not for the DEM's "
+                        "contacts")
     return DesignBlock(d, vol, vol_src, rho, rho_src, mass), warnings
 
 

@@ -258,15 +258,18 @@ def main(argv: list[str] | None = None) -> int:
 def _record(prog: str, seed: int, cal, path: str) -> dict:
     """What ``hazard.nc`` says about its calibration: the provenance of the run
     (``calib.files.provenance``), the calibration's own predictive check
-    (``adequacy`` of its model section, ``calib.inference.adequacy``) and the
-    site's rock density (key ``rock_density_kg_m3``, where the file has one)."""
+    (``adequacy`` of its model section, ``calib.inference.adequacy``) and the rock
+    density the run simulated, where the calibration file states it (key
+    ``rock_density_kg_m3``; older files fall back on the solvers' default, and
+    ``hazard.nc`` then names no density)."""
     from calib.files.calibration_file import CalibrationFile
     from calib.files.provenance import provenance
     from solvers.profile import default_materials_path
 
     doc = CalibrationFile.from_json(path)
     section = doc.models.get(cal.model, {})
-    density = doc.record.get("rock_density_kg_m3", section.get("rock_density_kg_m3"))
+    stated = "rock_density_kg_m3" in doc.record
+    source = doc.record.get("rock_density_source")
     materials = default_materials_path(cal.profile_csv)
     return {
         "calibration": path,
@@ -274,7 +277,10 @@ def _record(prog: str, seed: int, cal, path: str) -> dict:
             "calibration": path, "posterior": cal.posterior_csv, "profile": cal.profile_csv,
             "materials": materials if os.path.isfile(materials) else None}),
         "adequacy_json": section.get("adequacy"),
-        "rock_density_kg_m3": float(density) if isinstance(density, int | float) else None,
+        "rock_density_kg_m3": float(cal.rock_density_kg_m3) if stated else None,
+        "rock_density_source": (f"{path}: rock_density_kg_m3"
+                                + (f" ({source})" if isinstance(source, str) else ""))
+        if stated else None,
     }
 
 
