@@ -3,10 +3,13 @@
 ``simulate(params, block, key, profile=...)`` runs ONE block; ``jax.vmap`` or
 ``run_blocks`` run thousands. See ``_model`` for the event loop, ``_impact`` for
 the impact law, ``_flight`` for the closed-form next impact and ``_contact`` for
-the rolling phase. ``python -m solvers.crsp --help`` for the command line.
+the rolling phase, ``_barrier`` for the protection barrier (``Params.barrier_*``,
+``Result.barrier``, status ``STOPPED_BY_BARRIER``). ``python -m solvers.crsp
+--help`` for the command line.
 """
 
 import solvers  # noqa: F401  (enables float64)
+from solvers.crsp._barrier import BarrierRecord
 from solvers.crsp._batch import (
     block_keys,
     chunk_plan,
@@ -25,6 +28,7 @@ from solvers.crsp._model import (
     LEFT_PROFILE,
     MAX_EVENTS,
     STOPPED,
+    STOPPED_BY_BARRIER,
     Result,
     State,
     simulate,
@@ -39,6 +43,8 @@ __all__ = [
     "LEFT_PROFILE",
     "MAX_EVENTS",
     "STOPPED",
+    "STOPPED_BY_BARRIER",
+    "BarrierRecord",
     "Block",
     "ImpactOut",
     "Params",

@@ -22,6 +22,10 @@ each solved in closed form:
   otherwise the rock rounds the edge and rolls on.
 * STOPPED: at rest where rest is possible (``tan|beta| <= mu``).
 * LEFT_PROFILE: passed either end of the profile (not a stop).
+* A protection barrier (``_barrier``; none by default): the event in which
+  the block first crosses its abscissa downslope is evaluated there; a block
+  that passes lower than its height is stopped (STOPPED_BY_BARRIER) or breaks
+  through with reduced energy, and the event ends at the barrier.
 
 Status codes are those of ``solvers.status``. After every event the block must
 lie on or above the ground (``z >= ground - GROUND_TOL_M``) with finite values;
@@ -53,6 +57,16 @@ import jax
 import jax.numpy as jnp
 
 from solvers._rng import key_words, uniform_from_counter
+from solvers.crsp._barrier import (
+    Barrier,
+    BarrierRecord,
+    Crossing,
+    at_barrier,
+    barrier_site,
+    hits,
+    start_crossing,
+)
+from solvers.crsp._barrier import record as barrier_record
 from solvers.crsp._contact import asperity_loss, contact_move
 from solvers.crsp._effects import breaks, in_belt, size_scaled
 from solvers.crsp._flight import next_impact
@@ -63,7 +77,14 @@ from solvers.crsp._stations import record as station_record
 from solvers.crsp._vertex import vertex_transition
 from solvers.profile import Profile, ground_z, segment_index
 from solvers.stations import StationRecord
-from solvers.status import BUDGET, GROUND_TOL_M, INVALID, LEFT_PROFILE, STOPPED
+from solvers.status import (
+    BUDGET,
+    GROUND_TOL_M,
+    INVALID,
+    LEFT_PROFILE,
+    STOPPED,
+    STOPPED_BY_BARRIER,
+)
 
 __all__ = [
     "BUDGET",
@@ -73,6 +94,7 @@ __all__ = [
     "LEFT_PROFILE",
     "MAX_EVENTS",
     "STOPPED",
+    "STOPPED_BY_BARRIER",
     "Result",
     "State",
     "event_budget",
@@ -125,7 +147,8 @@ class State(NamedTuple):
         spin_rad_s: rolling-positive spin, rad/s.
         seg: segment under the block.
         mode: FLIGHT or CONTACT while moving; then the final status
-            (``solvers.status``: STOPPED, LEFT_PROFILE or INVALID).
+            (``solvers.status``: STOPPED, STOPPED_BY_BARRIER, LEFT_PROFILE or
+            INVALID).
         n_events: events so far.
         n_impacts: CRSP impacts so far (the counter of the roughness draws).
         pending: bool, the next event is an immediate CRSP impact on ``seg``
@@ -134,6 +157,7 @@ class State(NamedTuple):
         radius_m: current radius (the fragment's after a break), m.
         fragmented: bool, the block has broken (``_effects``).
         budget: int, the event budget of this block (``event_budget``).
+        barrier: ``_barrier.Crossing``, the block's meeting with the barrier.
     """
 
     x_m: jax.Array
@@ -149,6 +173,7 @@ class State(NamedTuple):
     radius_m: jax.Array
     fragmented: jax.Array
     budget: jax.Array
+    barrier: Crossing
 
 
 class Result(NamedTuple):
@@ -159,11 +184,13 @@ class Result(NamedTuple):
             position, m (for blocks not stopped: to where they were at the end;
             never a runout unless ``solvers.status.finished(status)``).
         stop_x_m, stop_z_m: final position, m.
-        stopped: bool, at rest where rest is possible.
-        status: ``solvers.status`` code: STOPPED, LEFT_PROFILE, BUDGET or INVALID.
+        stopped: bool, at rest: where rest is possible, or caught by the barrier.
+        status: ``solvers.status`` code: STOPPED, STOPPED_BY_BARRIER,
+            LEFT_PROFILE, BUDGET or INVALID.
         n_events, n_impacts: counts.
         release_x_m: the release abscissa actually used, m.
         stations: ``StationRecord`` with fields of shape (n_stations,).
+        barrier: ``_barrier.BarrierRecord``, what the block did at the barrier.
     """
 
     runout_m: jax.Array
@@ -175,6 +202,7 @@ class Result(NamedTuple):
     n_impacts: jax.Array
     release_x_m: jax.Array
     stations: StationRecord
+    barrier: BarrierRecord
 
 
 def _segment_geometry(profile: Profile, seg):
@@ -194,7 +222,8 @@ def _line_z(profile: Profile, seg, x_m):
 class SegmentTable(NamedTuple):
     """Per-segment constants, computed once per block outside the event loop
     (transcendentals inside the loop dominated its cost on CPU). Shapes (S,).
-    The ``*_frag`` fields are those of a fragment (``_effects``)."""
+    The ``*_frag`` fields are those of a fragment (``_effects``); ``barrier``:
+    the run's ``_barrier.Barrier`` (scalars), looked up on the profile once."""
 
     beta: jax.Array
     cos: jax.Array
@@ -211,6 +240,7 @@ class SegmentTable(NamedTuple):
     Kt_frag: jax.Array
     mass_frag_kg: jax.Array
     belt_keep: jax.Array
+    barrier: Barrier
 
 
 def segment_table(profile: Profile, params: Params, block: Block) -> SegmentTable:
@@ -239,6 +269,8 @@ def segment_table(profile: Profile, params: Params, block: Block) -> SegmentTabl
         Kn_frag=size_scaled(Kn, r_frag, gamma), Kt_frag=size_scaled(Kt, r_frag, gamma),
         mass_frag_kg=block.mass_kg * params.frag_radius_ratio**3,
         belt_keep=jnp.sqrt(1.0 - params.belt_loss),
+        barrier=barrier_site(profile, params.barrier_x_m, params.barrier_height_m,
+                             params.barrier_capacity_kJ),
     )
 
 
@@ -269,6 +301,7 @@ def init(params: Params, block: Block, key: jax.Array, profile: Profile,
         pending=jnp.asarray(False),
         radius_m=zero + block.radius_m, fragmented=jnp.asarray(False),
         budget=event_budget(profile, block.radius_m, settings),
+        barrier=start_crossing(x0, params.barrier_x_m),
     )
 
 
@@ -347,6 +380,7 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
         radius_m=r_new,
         fragmented=frag | brk,
         budget=state.budget,
+        barrier=state.barrier,
     ), passage
 
 
@@ -423,6 +457,7 @@ def _contact_event(state: State, params: Params, block: Block, profile: Profile,
         radius_m=r,
         fragmented=state.fragmented,
         budget=state.budget,
+        barrier=state.barrier,
     ), passage
 
 
@@ -442,7 +477,9 @@ def step(state: State, params: Params, block: Block, key: jax.Array, profile: Pr
     (``_stations.write``).
 
     The event happens only if the block is moving within its budget; a finished
-    block is unchanged and its passage ends at -inf (it passes nothing). After
+    block is unchanged and its passage ends at -inf (it passes nothing). An
+    event that crosses the barrier is cut there when the block hits the net
+    (``_barrier_event``). After
     an event the block must be on or above the ground of its segment
     (``z >= ground - GROUND_TOL_M``) with finite values, else its mode becomes
     ``INVALID``. ``key`` is the event key's two uint32 words
@@ -453,6 +490,7 @@ def step(state: State, params: Params, block: Block, key: jax.Array, profile: Pr
     in_flight = state.mode == FLIGHT
     new = jax.tree_util.tree_map(lambda a, b: jnp.where(in_flight, a, b), fl, co)
     passage = jax.tree_util.tree_map(lambda a, b: jnp.where(in_flight, a, b), fl_pass, co_pass)
+    new = _barrier_event(state, new, passage, go, table, settings)
     ground = _line_z(profile, new.seg, new.x_m)
     finite = (jnp.isfinite(new.x_m) & jnp.isfinite(new.z_m) & jnp.isfinite(new.vx_m_s)
               & jnp.isfinite(new.vz_m_s))
@@ -460,6 +498,37 @@ def step(state: State, params: Params, block: Block, key: jax.Array, profile: Pr
     new = new._replace(mode=jnp.where(bad, INVALID, new.mode).astype(jnp.int32))
     new = jax.tree_util.tree_map(lambda a, b: jnp.where(go, a, b), new, state)
     return new, passage._replace(x_end_m=jnp.where(go, new.x_m, -jnp.inf))
+
+
+def _barrier_event(state: State, new: State, passage: Passage, go: jax.Array,
+                   table: SegmentTable, settings: Settings) -> State:
+    """The event ``state`` -> ``new`` (of ``passage``) against the barrier
+    (``_barrier``): a block still open to it whose event crosses its abscissa
+    downslope (``x0 < x_b <= x1``) records the crossing; if it passes lower than
+    the barrier's height, the event ends at the barrier instead of ``new``:
+    stopped there (STOPPED_BY_BARRIER) or going on from the crossing point with
+    velocity and spin scaled by ``keep``, in its mode (flight, or rolling on its
+    segment), with the radius, fragment state and impact count it had before
+    the event (what the event did beyond the barrier is discarded)."""
+    site = table.barrier
+    cb = state.barrier
+    meet = go & cb.open & (passage.x0_m < site.x_m) & (new.x_m >= site.x_m)
+    kin = at_barrier(passage, state.z_m, state.spin_rad_s, table.sin[state.seg],
+                     state.radius_m, site, settings.g_m_s2)
+    in_net, stopped, keep = hits(kin, site)
+    net = meet & in_net
+    at_net = state._replace(
+        x_m=site.x_m + jnp.zeros_like(state.x_m), z_m=kin.z_m, vx_m_s=keep * kin.vx_m_s,
+        vz_m_s=keep * kin.vz_m_s, spin_rad_s=keep * kin.spin_rad_s,
+        seg=jnp.where(passage.flight, site.seg, state.seg).astype(jnp.int32),
+        mode=jnp.where(stopped, STOPPED_BY_BARRIER, state.mode).astype(jnp.int32),
+        n_events=new.n_events, pending=jnp.asarray(False), barrier=new.barrier)
+    new = jax.tree_util.tree_map(lambda a, b: jnp.where(net, a, b), at_net, new)
+    crossing = Crossing(open=cb.open & ~meet, reached=cb.reached | meet,
+                        clearance_m=kin.clearance_m, vx_m_s=kin.vx_m_s, vz_m_s=kin.vz_m_s,
+                        energy_kJ=kin.energy_kJ, energy_after_kJ=keep * keep * kin.energy_kJ)
+    return new._replace(barrier=jax.tree_util.tree_map(
+        lambda a, b: jnp.where(meet, a, b), crossing, cb))
 
 
 def sorted_stations(profile: Profile, stations_x_m) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -535,10 +604,11 @@ def raw_result(final: State, release_x_m: jax.Array) -> Result:
         runout_m=final.x_m - release_x_m,
         stop_x_m=final.x_m,
         stop_z_m=final.z_m,
-        stopped=final.mode == STOPPED,
+        stopped=(final.mode == STOPPED) | (final.mode == STOPPED_BY_BARRIER),
         status=jnp.where(moving, BUDGET, final.mode).astype(jnp.int32),
         n_events=final.n_events,
         n_impacts=final.n_impacts,
         release_x_m=release_x_m,
         stations=None,
+        barrier=barrier_record(final.barrier),
     )

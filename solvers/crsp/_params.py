@@ -2,8 +2,9 @@
 
 ``Block`` and ``make_block`` (the rock's shape classes, CRSP 4.0), ``Params``
 and ``params_from_profile`` (restitution, roughness and rolling resistance per
-zone, the release, the optional effects of ``_effects``) and the static
-``Settings``. The model that uses them is ``solvers.crsp._model``.
+zone, the release, the optional effects of ``_effects``, the protection barrier
+of ``_barrier``) and the static ``Settings``. The model that uses them is
+``solvers.crsp._model``.
 """
 
 from __future__ import annotations
@@ -97,6 +98,12 @@ class Params(NamedTuple):
         belt_start_m, belt_end_m: abscissae of the vegetation belt, m.
         belt_loss: fraction of the rebound energy lost at an impact in the belt,
             and extra rolling resistance there (0: off).
+        barrier_x_m: abscissa of a protection barrier, m (+inf: none). See
+            ``_barrier``.
+        barrier_height_m: its height H above the ground there, m (a block whose
+            lowest point passes at H or higher flies over it).
+        barrier_capacity_kJ: the energy E_cap it absorbs, kJ (+inf: unlimited):
+            a block hitting it with more breaks through keeping E - E_cap.
     """
 
     Kn: jax.Array
@@ -117,6 +124,9 @@ class Params(NamedTuple):
     belt_start_m: jax.Array
     belt_end_m: jax.Array
     belt_loss: jax.Array
+    barrier_x_m: jax.Array
+    barrier_height_m: jax.Array
+    barrier_capacity_kJ: jax.Array
 
 
 def params_from_profile(profile: Profile, **overrides) -> Params:
@@ -127,7 +137,13 @@ def params_from_profile(profile: Profile, **overrides) -> Params:
     about 1.3 cm), release at the profile's first vertex, on the ground, with
     1 m/s horizontal velocity (the block is pushed over the crest). The optional
     effects of ``_effects`` are off (fragment size and speed ratios 0.5 and 0.7,
-    assumptions, matter only once ``frag_energy_kJ`` is finite).
+    assumptions, matter only once ``frag_energy_kJ`` is finite). There is no
+    barrier (``barrier_x_m`` +inf); given an abscissa only, the barrier is
+    unlimited (height and capacity +inf: it stops every block that reaches it).
+
+    Raises:
+        TypeError: an unknown parameter name.
+        ValueError: a barrier height or capacity that is negative or NaN.
     """
     n_zones = len(profile.zone_names)
     values = dict(
@@ -137,12 +153,14 @@ def params_from_profile(profile: Profile, **overrides) -> Params:
         release_x_spread_m=0.0, release_height_m=0.0, release_vx_m_s=1.0,
         release_vz_m_s=0.0, restitution_size_exponent=0.0, frag_energy_kJ=float("inf"),
         frag_radius_ratio=0.5, frag_speed_ratio=0.7, rolling_resistance=0.0,
-        belt_start_m=0.0, belt_end_m=0.0, belt_loss=0.0,
+        belt_start_m=0.0, belt_end_m=0.0, belt_loss=0.0, barrier_x_m=float("inf"),
+        barrier_height_m=float("inf"), barrier_capacity_kJ=float("inf"),
     )
     unknown = set(overrides) - set(values)
     if unknown:
         raise TypeError(f"unknown CRSP parameter(s): {', '.join(sorted(unknown))}")
     values.update(overrides)
+    _check_barrier(values)
     zone_fields = ("Kn", "Kt", "roughness_m", "rolling_friction_deg")
     out = {}
     for name, v in values.items():
@@ -151,6 +169,18 @@ def params_from_profile(profile: Profile, **overrides) -> Params:
             arr = jnp.broadcast_to(arr, (n_zones,))
         out[name] = arr
     return Params(**out)
+
+
+def _check_barrier(values: dict) -> None:
+    """Refuse a negative or NaN barrier height or capacity and a NaN abscissa
+    (traced values are not checked)."""
+    for name in ("barrier_x_m", "barrier_height_m", "barrier_capacity_kJ"):
+        if isinstance(values[name], jax.core.Tracer):
+            continue
+        v = np.asarray(values[name], dtype=float)
+        if np.any(np.isnan(v)) or (name != "barrier_x_m" and np.any(v < 0.0)):
+            raise ValueError(f"{name} must be a number"
+                             f"{'' if name == 'barrier_x_m' else ' >= 0'}, got {values[name]}")
 
 
 @dataclasses.dataclass(frozen=True)
