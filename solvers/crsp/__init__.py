@@ -4,8 +4,10 @@
 ``run_blocks`` run thousands. See ``_model`` for the event loop, ``_impact`` for
 the impact law, ``_flight`` for the closed-form next impact and ``_contact`` for
 the rolling phase, ``_barrier`` for the protection barrier (``Params.barrier_*``,
-``Result.barrier``, status ``STOPPED_BY_BARRIER``). ``python -m solvers.crsp
---help`` for the command line.
+``Result.barrier``, status ``STOPPED_BY_BARRIER``), ``_break`` for a break
+recorded so that every fragment can run on (``Result.breakup``,
+``simulate_fragments``). ``python -m solvers.crsp --help`` for the command
+line.
 """
 
 import solvers  # noqa: F401  (enables float64)
@@ -19,6 +21,7 @@ from solvers.crsp._batch import (
     simulate_pooled,
     simulate_tasks,
 )
+from solvers.crsp._break import BreakRecord, fragment_key, simulate_fragment, simulate_fragments
 from solvers.crsp._impact import ImpactOut, crsp_impact, roughness_tilt
 from solvers.crsp._model import (
     BUDGET,
@@ -46,6 +49,7 @@ __all__ = [
     "STOPPED_BY_BARRIER",
     "BarrierRecord",
     "Block",
+    "BreakRecord",
     "ImpactOut",
     "Params",
     "Result",
@@ -53,6 +57,7 @@ __all__ = [
     "State",
     "block_keys",
     "crsp_impact",
+    "fragment_key",
     "make_block",
     "params_from_profile",
     "roughness_tilt",
@@ -61,6 +66,8 @@ __all__ = [
     "run_blocks",
     "simulate",
     "simulate_batch",
+    "simulate_fragment",
+    "simulate_fragments",
     "simulate_pooled",
     "simulate_tasks",
 ]

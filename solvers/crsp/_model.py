@@ -26,6 +26,9 @@ each solved in closed form:
   the block first crosses its abscissa downslope is evaluated there; a block
   that passes lower than its height is stopped (STOPPED_BY_BARRIER) or breaks
   through with reduced energy, and the event ends at the barrier.
+* A break (``_effects``) is recorded in ``Result.breakup`` (``_break``);
+  with ``Settings.split_at_break`` the run ends there, for a caller that runs
+  every fragment on from the record.
 
 Status codes are those of ``solvers.status``. After every event the block must
 lie on or above the ground (``z >= ground - GROUND_TOL_M``) with finite values;
@@ -67,6 +70,7 @@ from solvers.crsp._barrier import (
     start_crossing,
 )
 from solvers.crsp._barrier import record as barrier_record
+from solvers.crsp._break import BreakRecord, no_break, note_break
 from solvers.crsp._contact import asperity_loss, contact_move
 from solvers.crsp._effects import breaks, in_belt, size_scaled
 from solvers.crsp._flight import next_impact
@@ -102,6 +106,7 @@ __all__ = [
     "result_from_state",
     "running",
     "simulate",
+    "simulate_from",
     "sorted_stations",
 ]
 
@@ -158,6 +163,7 @@ class State(NamedTuple):
         fragmented: bool, the block has broken (``_effects``).
         budget: int, the event budget of this block (``event_budget``).
         barrier: ``_barrier.Crossing``, the block's meeting with the barrier.
+        breakup: ``_break.BreakRecord``, the block's break, if it broke.
     """
 
     x_m: jax.Array
@@ -174,6 +180,7 @@ class State(NamedTuple):
     fragmented: jax.Array
     budget: jax.Array
     barrier: Crossing
+    breakup: BreakRecord
 
 
 class Result(NamedTuple):
@@ -191,6 +198,7 @@ class Result(NamedTuple):
         release_x_m: the release abscissa actually used, m.
         stations: ``StationRecord`` with fields of shape (n_stations,).
         barrier: ``_barrier.BarrierRecord``, what the block did at the barrier.
+        breakup: ``_break.BreakRecord``, the block's break (``_effects``), if any.
     """
 
     runout_m: jax.Array
@@ -203,6 +211,7 @@ class Result(NamedTuple):
     release_x_m: jax.Array
     stations: StationRecord
     barrier: BarrierRecord
+    breakup: BreakRecord
 
 
 def _segment_geometry(profile: Profile, seg):
@@ -302,6 +311,7 @@ def init(params: Params, block: Block, key: jax.Array, profile: Profile,
         radius_m=zero + block.radius_m, fragmented=jnp.asarray(False),
         budget=event_budget(profile, block.radius_m, settings),
         barrier=start_crossing(x0, params.barrier_x_m),
+        breakup=no_break(),
     )
 
 
@@ -365,7 +375,7 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
     hit = fh.hit
     mode = jnp.where(hit, jnp.where(roll, CONTACT, FLIGHT),
                      jnp.where(fh.left_profile, LEFT_PROFILE, FLIGHT)).astype(jnp.int32)
-    return State(
+    new = State(
         x_m=x1,
         z_m=jnp.where(hit, z_line, z1),
         vx_m_s=jnp.where(hit, jnp.where(roll, u_t * cb, imp.vx_m_s), vx),
@@ -381,7 +391,11 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
         fragmented=frag | brk,
         budget=state.budget,
         barrier=state.barrier,
-    ), passage
+        breakup=state.breakup,
+    )
+    # the break, for a caller that follows every fragment (_break)
+    return note_break(state, new, brk, vx, vz1, block, params, table.mass_frag_kg,
+                      settings), passage
 
 
 def _contact_event(state: State, params: Params, block: Block, profile: Profile,
@@ -458,6 +472,7 @@ def _contact_event(state: State, params: Params, block: Block, profile: Profile,
         fragmented=state.fragmented,
         budget=state.budget,
         barrier=state.barrier,
+        breakup=state.breakup,
     ), passage
 
 
@@ -562,9 +577,20 @@ def simulate(
     Returns:
         ``Result``.
     """
-    xs, zs, order = sorted_stations(profile, stations_x_m)
     release_key, event_key = jax.random.split(key)
     state0 = init(params, block, release_key, profile, settings)
+    return simulate_from(state0, params, block, event_key, profile=profile,
+                         stations_x_m=stations_x_m, settings=settings)
+
+
+def simulate_from(state0: State, params: Params, block: Block, event_key: jax.Array, *,
+                  profile: Profile, stations_x_m: jax.Array | None = None,
+                  settings: Settings = Settings()) -> Result:
+    """``simulate`` from the state ``state0`` with the event key ``event_key`` (the
+    i-th impact draws from its words and i): the event loop of every run, from a
+    release (``simulate``) or from a break (``_break.simulate_fragment``). The
+    runout is counted from ``state0.x_m``; stations at or behind it are not passed."""
+    xs, zs, order = sorted_stations(profile, stations_x_m)
     body = functools.partial(step, params=params, block=block, key=key_words(event_key),
                              profile=profile, table=segment_table(profile, params, block),
                              settings=settings)
@@ -611,4 +637,5 @@ def raw_result(final: State, release_x_m: jax.Array) -> Result:
         release_x_m=release_x_m,
         stations=None,
         barrier=barrier_record(final.barrier),
+        breakup=final.breakup,
     )

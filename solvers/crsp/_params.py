@@ -197,9 +197,14 @@ class Settings:
             lanes`` at a time after every few events; ``simulate``, this many
             after every event); more passages take further passes. Speed only:
             results do not depend on it.
+        split_at_break: a block that breaks (``_effects``) ends its run at the
+            break (status BUDGET, ``Result.breakup`` says it broke) so that the
+            caller can run every fragment on (``_break``); False (default): the
+            model follows one fragment.
     """
 
     g_m_s2: float = 9.81
     max_events: int | None = None
     window: int = 4
     station_slots: int = 4
+    split_at_break: bool = False
