@@ -3,7 +3,8 @@
 Writes into ``--out`` (default ``results/hazard/``): ``hazard.nc`` (the results
 Dataset, ``calib.files.hazard_results``: what ``python -m calib.design`` reads),
 and from it ``exceedance.csv``, ``hazard_table.csv``, ``exceedance.png``,
-``envelopes.png`` and ``summary.txt``, each through a temporary file and a
+``envelopes.png``, ``summary.txt`` (and with fragmentation ``fragments.csv``,
+``calib.hazard._fragments``), each through a temporary file and a
 rename, only after the whole run succeeded. Bad input: one line on stderr, exit
 status 2, nothing written.
 """
@@ -16,6 +17,7 @@ import os
 import sys
 import time
 
+from calib.hazard._fragments import add_options as add_fragment_options
 from calib.model.dem_run import DEM_RUN
 from solvers.cli import (
     CliError,
@@ -90,6 +92,7 @@ def build_parser() -> OneLineParser:
                    help="DEM: simulated-time bound per block, s (default: the fit's, from "
                         f"the calibration file; {DEM_RUN.max_time_s:g} for files without one)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_fragment_options(p)
     return p
 
 
@@ -150,6 +153,7 @@ def main(argv: list[str] | None = None) -> int:
         summary_text,
     )
     from calib.hazard._figures import plot_envelopes, plot_exceedance
+    from calib.hazard._fragments import fragment_outputs, fragmentation_from_args
     from solvers import crsp
     from solvers.profile import ProfileError, load_profile
 
@@ -199,6 +203,7 @@ def main(argv: list[str] | None = None) -> int:
         draws = draw_parameters(cal, n_post, args.seed)
         if cal.model == "dem":
             check_dem_draws(cal, draws, sizes)
+        fragments = fragmentation_from_args(args, cal, draws, profile)
     except (CalibrationError, ProfileError, CliError, SiteError) as exc:
         fail(prog, str(exc))
 
@@ -217,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
                         chunk_blocks=args.chunk_blocks, pool=args.pool,
                         settings=crsp.Settings(max_events=args.max_events),
                         dem_run=dem_run, release_x_m=release_x,
-                        progress=bar.update)
+                        progress=bar.update, fragments=fragments)
     wall = time.perf_counter() - t0
     bar.close()
     from calib.files.hazard_results import results_writer
@@ -242,6 +247,7 @@ def main(argv: list[str] | None = None) -> int:
         "exceedance.png": lambda p: plot_exceedance(exc_df, profile, road_x, p, title, label),
         "envelopes.png": lambda p: plot_envelopes(table, profile, road_x, p, title),
     }
+    text = fragment_outputs(counts.fragments, results, writers, text, road_x, label)
     try:
         written = write_outputs(args.out, {"summary.txt": text + "\n"}, writers=writers)
     except OSError as exc:

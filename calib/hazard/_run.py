@@ -68,6 +68,9 @@ class HazardCounts:
             in ``_stats.DRAW_BINS``.
         block_mass_kg: (T,) mass of the simulated block of each size, kg (the DEM:
             the cube of side D whose energy the tables report).
+        fragments: a fragment run's per-fragment counts
+            (``_fragments.FragmentCounts``; the other fields are then per parent
+            block), or None.
     """
 
     model: str
@@ -88,6 +91,7 @@ class HazardCounts:
     pooled_percentiles: dict = dataclasses.field(default_factory=dict)
     draw_hist: dict = dataclasses.field(default_factory=dict)
     block_mass_kg: np.ndarray | None = None
+    fragments: object = None
 
 
 def dem_alpha(cal: Calibration, values: np.ndarray, size_m: float) -> float:
@@ -133,7 +137,8 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
                n_blocks: int, seed: int, *, chunk_blocks: int = 16384, pool: int | None = None,
                settings: crsp.Settings = crsp.Settings(), dem_run: DemRun = DEM_RUN,
                release_x_m: float | None = None,
-               progress: Callable[[int], None] | None = None, devices=None) -> HazardCounts:
+               progress: Callable[[int], None] | None = None, devices=None,
+               fragments=None) -> HazardCounts:
     """Simulate ``n_blocks`` blocks per draw and size; reduce at the stations.
 
     Args:
@@ -154,6 +159,8 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
             ``default_release_x_m``).
         progress: called with the number of blocks finished after each unit.
         devices: JAX devices (default all).
+        fragments: a ``_fragments.Fragmentation``: every block broken and every
+            fragment run as its own block (None: unbroken blocks).
 
     Returns:
         ``HazardCounts``.
@@ -203,6 +210,10 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
         check_dem_draws(cal, draws, sizes_m)
         units = _dem_units(cal, draws, profile, entries, stations, n_blocks, seed, chunk,
                            offsets, dem_run)
+    frag = None
+    if fragments is not None:  # every fragment its own block (_fragments)
+        units, on_result, frag = fragments.plan(units, on_result, cal, draws, sizes_m,
+                                                stations, dem_run)
     run_units(units, on_result, devices=devices)
     pooled = {q: percentile_table(f, FINE_BINS[q]) for q, f in fine.items()}
     return HazardCounts(model=cal.model, sizes_m=sizes_m, stations_x_m=stations,
@@ -212,7 +223,7 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
                         energy_p95_per_draw_kJ=e95,
                         percentiles={q: tuple(v) for q, v in pct.items()},
                         pooled_percentiles=pooled, draw_hist=kept,
-                        block_mass_kg=_block_mass_kg(cal.model, entries),
+                        block_mass_kg=_block_mass_kg(cal.model, entries), fragments=frag,
                         **acc)
 
 
