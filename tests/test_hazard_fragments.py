@@ -314,7 +314,7 @@ def test_fragment_runouts_of_a_1_8_m_block_against_the_paper(tmp_path, n_fragmen
     ``--model dem --fragments N`` on Postignano, released at the profile's first
     vertex, the Table 1 trend alpha = 0.40 L^-0.5 at each fragment's side (the
     paper assigns alpha by fragment size), the toolkit's stiffness (x 0.01) and
-    400 s of simulated time (as tests/test_dem_paper.py), 4 blocks (key 0): every
+    at least 400 s of simulated time (as tests/test_dem_paper.py), 4 blocks: every
     fragment at rest, and the 10th-90th percentiles of the fragments' runouts,
     read from the 1 m stations, inside the paper's range."""
     path = write_calibration(tmp_path, crsp=None, dem=(0.40, 0.5))
@@ -328,8 +328,12 @@ def test_fragment_runouts_of_a_1_8_m_block_against_the_paper(tmp_path, n_fragmen
     n = int(f["frag_n_fragments"][0, 0])
     assert int(f["frag_n_unfinished"][0, 0]) == 0, f"{int(f['frag_n_unfinished'][0, 0])}/{n}"
     share_beyond = f["frag_n_exceed"][0, 0] / n
-    p10 = stations[np.argmax(share_beyond < 0.9)]   # first station passed by < 90 %
-    p90 = stations[np.argmax(share_beyond < 0.1)]
+
+    def first_below(level):  # the first station fewer than ``level`` of them pass
+        idx = np.flatnonzero(share_beyond < level)
+        return float(stations[idx[0]]) if idx.size else math.inf
+
+    p10, p90 = first_below(0.9), first_below(0.1)
     lo, hi = PAPER_RANGES_M[n_fragments]
-    assert lo <= p10 and p90 <= hi, json.dumps({"p10_m": float(p10), "p90_m": float(p90),
+    assert lo <= p10 and p90 <= hi, json.dumps({"p10_m": p10, "p90_m": p90,
                                                 "broken": int(f["frag_n_broken"][0, 0])})

@@ -243,10 +243,13 @@ def fragmentation_from_args(args, cal, draws, profile) -> Fragmentation | None:
         if args.fragmentation or crsp_only:
             raise CliError(f"{args.fragmentation and '--fragmentation' or crsp_only[0]}: the "
                            "CRSP break rule; the DEM breaks its --fragments by its joints")
+        strength = dem.Params._field_defaults
         return Fragmentation("dem", args.fragments, description=(
             f"DEM: each block is {args.fragments} bonded square fragments ({n} x {n}) whose "
-            "joints break at the DEM's joint strengths (solvers.dem.Params); alpha of each "
-            "fragment from the calibration's law at the fragment's side"))
+            f"joints break at the DEM's joint strengths (solvers.dem.Params: cohesion "
+            f"{strength['c_joint_pa'] / 1e6:g} MPa, tension {strength['t_joint_pa'] / 1e6:g} "
+            f"MPa, x sqrt of the stiffness scale); alpha of each fragment from the "
+            f"calibration's law at the fragment's side"))
     if args.fragmentation is None:
         if crsp_only:
             raise CliError(f"{crsp_only[0]}: give --fragmentation crsp to break the blocks")
@@ -499,7 +502,8 @@ def crsp_fragment_chunk(params, blocks, key, profile, stations_x_m, offset, n_va
     st_x = np.asarray(stations_x_m)
     n_tasks, offset, n = res.status.shape[0], int(offset), spec.n_per_break
     valid = np.arange(n_chunk) < int(n_valid)
-    broken = np.asarray(res.breakup.broken) & valid[None]
+    # a block made invalid by the event that broke it stays invalid, unbroken
+    broken = np.asarray(res.breakup.broken) & valid[None] & (res.status != INVALID)
     flat = jax.tree_util.tree_map(lambda a: np.asarray(a).reshape((-1,) + a.shape[2:]),
                                   (res.stop_x_m, res.status, res.stations))
     parents = _Parents(*flat)
@@ -702,9 +706,11 @@ def fragment_summary(ds, table: pd.DataFrame, road_x_m: float, label: str = "roa
     """The summary's fragmentation lines: how the blocks broke, and at the station of
     interest per size: P(break), the parent exceedance, fragments and mass beyond."""
     lines = [f"fragmentation: {ds.attrs['fragmentation']}",
-             "  the lines above and exceedance.csv, hazard_table.csv are " + PER_PARENT,
-             f"  fragments (fragments.csv, frag_* of hazard.nc); energies: "
-             f"{ds.attrs['fragment_energy_basis']}"]
+             "  the lines above, exceedance.csv and hazard_table.csv are per parent block: a "
+             "block exceeds (reaches) x when any of its pieces ends beyond (passes) x "
+             "(hazard.nc attribute fragmentation_per_parent)",
+             f"  per fragment (fragments.csv, frag_* of hazard.nc), energies "
+             f"{ds.attrs['fragment_energy_basis']}:"]
     at = table[np.isclose(table["x_m"], road_x_m)]
     for r in at.itertuples():
         line = (f"  D = {r.block_size_m:g} m ({r.n_fragments_per_break} fragments of "
