@@ -104,9 +104,10 @@ from calib.inference.loglik_emulator import (
 from calib.inference.predictive_check import pool_draws
 from calib.inference.realisations import realisation_check
 from calib.model.entries import Entries
+from calib.model.forward import CrspForward, release_rolling_deg
+from calib.model.forward import release_slopes_deg as _release_slopes_deg
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
 from solvers.percentiles import few_blocks
-from solvers.profile import segment_index
 
 __all__ = ["Budget", "ModelFit", "calibrate", "fit_quality", "presets"]
 
@@ -388,7 +389,7 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     timings["check_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     adequacy = _adequacy(forward, obs, posterior, at_rows, budget,
-                         jax.random.fold_in(k_check, 1), tally, index, better)
+                         jax.random.fold_in(k_check, 1), tally, index, better, estimate)
     timings["adequacy_s"] = time.perf_counter() - t0
     record = unfinished_record(tallies, f"{type(forward).__name__} calibration")
     warn_unfinished(record)
@@ -594,37 +595,31 @@ def _bayesian(forward, obs: Observations, index, loglik_runs, budget: Budget, ke
     return posterior, emu_check, focus_record, chain_screen, x, design_ll
 
 
-def _release_slopes_deg(profile, release_x_m, profiles=None) -> np.ndarray:
-    """The slope just below each release abscissa on its profile (``profiles``:
-    the entry's own, None for ``profile``), that of the segment the release
-    lies on (the lower one at a vertex), deg, > 0 downhill."""
-    rel = np.atleast_1d(np.asarray(release_x_m, float))
-    own = profiles or (None,) * rel.shape[0]
-    out = np.empty(rel.shape[0])
-    for i, (x0, p) in enumerate(zip(rel, own, strict=True)):
-        p = profile if p is None else p
-        x, z = np.asarray(p.x_m, float), np.asarray(p.z_m, float)
-        seg = int(segment_index(p, jnp.asarray(x0, jnp.float64)))
-        out[i] = np.degrees(np.arctan2(z[seg] - z[seg + 1], x[seg + 1] - x[seg]))
-    return out
-
-
 MAX_REFINE = 2  # refinement waves: screened draws added to the log-likelihood GP
 
 
 def _adequacy(forward, obs: Observations, posterior: Posterior | None, check: np.ndarray,
-              budget: Budget, key: jax.Array, tally, index, better: dict | None = None
-              ) -> dict:
+              budget: Budget, key: jax.Array, tally, index, better: dict | None = None,
+              estimate=None) -> dict:
     """``calib.inference.adequacy`` of one fit: posterior predictive runouts at
     ``n_predictive_draws`` draws spread evenly over the chains' output, with
     ``n_blocks_predictive`` fresh blocks per draw and size; without a posterior,
-    the check's runouts at the point estimate (plug-in)."""
+    the check's runouts at the point estimate (plug-in). CRSP: with the rolling
+    resistance angle at each release of every draw (or of the estimate), for
+    the rows that stall at their release (``adequacy_record``)."""
     release = forward.entries.release_x_m
     slopes_deg = _release_slopes_deg(forward.profile, release, forward.entries.profiles)
+
+    def rolling(theta):
+        if not isinstance(forward, CrspForward) or theta is None:
+            return None
+        return release_rolling_deg(forward.box.names, theta, forward.profile, forward.entries)
+
     if posterior is None:
         return adequacy_record(None, forward.box, obs, check,
                                f"plug-in at the point estimate, {check.shape[-1]} blocks "
-                               "per size (no posterior)", index, release, slopes_deg, better)
+                               "per size (no posterior)", index, release, slopes_deg, better,
+                               rolling(None if estimate is None else np.atleast_2d(estimate)))
     n = posterior.samples.shape[0]
     pick = np.linspace(0, n - 1, min(budget.n_predictive_draws, n)).round().astype(int)
     draws = posterior.samples[pick]
@@ -634,4 +629,4 @@ def _adequacy(forward, obs: Observations, posterior: Posterior | None, check: np
     return adequacy_record(posterior.samples, forward.box, obs, pool_draws(runs),
                            f"posterior predictive, {len(pick)} draws x "
                            f"{budget.n_blocks_predictive} blocks per size", index, release,
-                           slopes_deg, better)
+                           slopes_deg, better, rolling(draws))
