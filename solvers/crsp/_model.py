@@ -35,8 +35,9 @@ reverse-differentiated (calibration uses common-random-number objectives; see
 ``calib``).
 
 Randomness: ``key`` is split into a release key (release jitter, height and
-speed; ``init``) and an event key; the i-th CRSP impact (not the i-th event) draws its roughness from a
-counter-based hash of the event key's words and i (``solvers._rng``). Events
+speed; ``init``) and an event key; the i-th CRSP impact (not the i-th event)
+draws its roughness from a counter-based hash of the event key's words and i
+(``solvers._rng``). Events
 that draw nothing (window hops of a long flight, segment ends while rolling,
 touch-downs) do not consume draws, so inserting collinear vertices into a
 profile leaves every block's impact sequence, and so its result, unchanged
