@@ -82,7 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--velocities", default=None, metavar="FILE",
                    help="passage speeds at stations, CSV with columns station_x_m, "
                         "block_size_m, velocity_m_s, velocity_sd_m_s[, source] (e.g. from "
-                        "video of induced rockfalls; calib.synth --velocity-stations writes "
+                        "video of induced rockfalls; calib.synth --velocity-stations-m writes "
                         "one); scored with the runouts by every candidate; crsp only")
     p.add_argument("--rolling-resistance", choices=["profile", "fit"], default="profile",
                    help="CRSP baseline: keep the profile's per-zone rolling resistance and fit "

@@ -65,8 +65,8 @@ def build_parser() -> argparse.ArgumentParser:
             "    --out data/tschamut2014/observations.csv"))
     p.add_argument("runs", help="field runs CSV, one run per row")
     p.add_argument("--profile", required=True, action="append",
-                   help="profile CSV with east_m,north_m columns (python -m solvers.profile "
-                        "cut) whose plan trace the points are projected onto. Give it once "
+                   help="profile CSV with east_m,north_m columns (python -m terrain.cut) "
+                        "whose plan trace the points are projected onto. Give it once "
                         "per fall line for runs let go from spots far apart: each run goes "
                         "on the profile that passes nearest its release point, and a "
                         "profile column (path relative to OUT's folder) says which")
@@ -115,9 +115,9 @@ def _names(text: str, n: int, option: str) -> tuple[str, ...]:
 
 
 def _run(args) -> int:
-    from solvers.plan_line import read_profile_trace
     from solvers.profile import ProfileError, load_profile
-    from solvers.raster import RasterError
+    from terrain.plan_line import read_profile_trace
+    from terrain.raster import RasterError
 
     for opt, val in (("--density-kg-m3", args.density_kg_m3), ("--runout-sd-m", args.runout_sd_m),
                      ("--max-offset-m", args.max_offset_m)):

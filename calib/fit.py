@@ -283,6 +283,21 @@ def _fmt(v, nd=3):
 
 
 def _print_summary(result: dict, models, out: str) -> None:
+    """The fit's summary: parameters, rows, warnings, checks, the NUTS repairs,
+    stage times."""
+    _print_parameters(result, models)
+    _print_rows(result, models)
+    _print_checks(result, models)
+    _print_nuts_repairs(result, models)
+    tim = result["timings_s"]
+    parts = []
+    for model in models:
+        parts.append(model + ": " + ", ".join(f"{k[:-2]} {v:.0f} s" for k, v in tim[model].items()))
+    print("\nstage times: " + "; ".join(parts) + f"; total {tim['total_s']:.0f} s")
+    print(f"wrote {os.path.join(out, 'calibration.json')} and figures in {out}/")
+
+
+def _print_parameters(result: dict, models) -> None:
     # the name column as wide as the longest name (rolling_friction_deg[<zone>])
     w = max([12] + [len(n) for m in models for n in result[m]["parameters"]])
     print(f"{'model':5} {'parameter':{w}} {'estimate':>9} {'mean':>8} {'90% interval':>19}")
@@ -300,6 +315,9 @@ def _print_summary(result: dict, models, out: str) -> None:
                        if "reference" in s else "")
                 print(f"{model:5} {'alpha(' + L + ')':{w}} {s['map']:9.3f} {_fmt(s['mean']):>8} "
                       f"{iv:>19}{ref}")
+
+
+def _print_rows(result: dict, models) -> None:
     print(f"\n{'model':5} {'size m':>6} {'observed m':>14} {'sim median':>10} "
           f"{'sim 5-95 %':>15} {'PIT':>5}")
     for model in models:
@@ -316,6 +334,9 @@ def _print_summary(result: dict, models, out: str) -> None:
                 flag += f"  from {q['sim_n_finished']} blocks"
             print(f"{model:5} {q['block_size_m']:6.2f} {o:>14} {q['sim_median_m']:10.1f} "
                   f"{q['sim_q05_m']:6.1f}-{q['sim_q95_m']:<6.1f} {pit:5.2f}{flag}")
+
+
+def _print_checks(result: dict, models) -> None:
     few = few_blocks_warning(
         [(f"{model} row {q['row']} ({q['block_size_m']:g} m)", q["sim_n_finished"])
          for model in models for q in result["fit_quality"][model] if q.get("sim_few_blocks")],
@@ -338,6 +359,9 @@ def _print_summary(result: dict, models, out: str) -> None:
                       f"{n} {max(b['lower'], b['upper']):.0%}" for n, b in a["bounds"].items()))
         if not a["ok"]:
             print(f"\n!!! {model.upper()} CALIBRATION: {a['message']}.", file=sys.stderr)
+
+
+def _print_nuts_repairs(result: dict, models) -> None:
     for model in models:
         b = result[model].get("bayes")
         screen = (b or {}).get("chain_screen") or {}
@@ -376,12 +400,6 @@ def _print_summary(result: dict, models, out: str) -> None:
             print(f"\n!!! {model.upper()} POSTERIOR DIAGNOSTICS FAILED: "
                   f"{'; '.join(b['problems'])}. Treat its intervals as unreliable.",
                   file=sys.stderr)
-    tim = result["timings_s"]
-    parts = []
-    for model in models:
-        parts.append(model + ": " + ", ".join(f"{k[:-2]} {v:.0f} s" for k, v in tim[model].items()))
-    print("\nstage times: " + "; ".join(parts) + f"; total {tim['total_s']:.0f} s")
-    print(f"wrote {os.path.join(out, 'calibration.json')} and figures in {out}/")
 
 
 def main(argv=None) -> int:

@@ -27,7 +27,7 @@ import sys
 
 import numpy as np
 
-from solvers.cli import CliError, OneLineParser, parse_floats, run_guarded
+from solvers.cli import CliError, OneLineParser, deprecated_alias, parse_floats, run_guarded
 
 __all__ = ["main", "parse_seeds"]
 
@@ -42,9 +42,11 @@ def build_parser() -> argparse.ArgumentParser:
         "grid and writes power.csv / power.json with detection rates and their exact 90 % "
         "intervals.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="Example (about 2.5 minutes per run on 2 cores at the default budget):\n"
-               "  python -m calib.power --effects vegetation_belt --strengths 1,2 "
-               "--n-obs 60,180 --seeds 3001-3005 --out results/power/")
+        epilog="Example (the Postignano slope shipped in data/; about 2.5 minutes per run on "
+               "2 cores at the default budget):\n"
+               "  python -m calib.power --profile data/postignano_profile.csv \\\n"
+               "      --effects vegetation_belt --strengths 1,2 --n-obs 60,180 \\\n"
+               "      --seeds 3001-3005 --out results/power/")
     p.add_argument("--effects", default="fragmentation,vegetation_belt",
                    help="comma-separated effects to hide in the data, 'none' for null data "
                         "(default fragmentation,vegetation_belt)")
@@ -53,9 +55,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--n-obs", default="60", help="comma-separated numbers of rows (default 60)")
     p.add_argument("--seeds", default="3001-3005",
                    help="data seeds: a list '1,2,3' or a range '3001-3005' (default 3001-3005)")
-    p.add_argument("--profile", default=os.path.join("data", "postignano_profile.csv"),
-                   help="slope profile CSV (default data/postignano_profile.csv)")
-    p.add_argument("--sd", type=float, default=5.0, help="measurement noise, m (default 5)")
+    p.add_argument("--profile", required=True,
+                   help="slope profile CSV (x_m,z_m,zone; its materials CSV next to it), "
+                        "e.g. data/postignano_profile.csv")
+    p.add_argument("--sd-m", type=float, default=5.0,
+                   help="measurement noise and stated tolerance of each row, m (default 5)")
+    deprecated_alias(p, "--sd", "--sd-m")
     p.add_argument("--out", default=os.path.join("results", "power"),
                    help="output folder (default results/power/)")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed of the fits (default 0)")
@@ -64,7 +69,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="blocks per (design point, size class) in the fits (as calib.discover "
                         "--n-blocks; default 128, 32 with --quick)")
     add_speed_options(p, "also make passage speeds at these abscissae, m, and score them "
-                         "(as calib.synth --velocity-stations and calib.discover --velocities)")
+                         "(as calib.synth --velocity-stations-m and calib.discover "
+                         "--velocities)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
@@ -116,8 +122,8 @@ def _run(args) -> int:
         raise CliError(f"--n-obs: expected whole numbers of at least 1, got {args.n_obs!r}")
     n_list = [int(n) for n in n_list]
     seeds = parse_seeds(args.seeds)
-    if not (np.isfinite(args.sd) and args.sd > 0):
-        raise CliError(f"--sd: expected a positive number of metres, got {args.sd}")
+    if not (np.isfinite(args.sd_m) and args.sd_m > 0):
+        raise CliError(f"--sd-m: expected a positive number of metres, got {args.sd_m:g}")
     try:
         profile = load_profile(args.profile)
     except (OSError, ValueError) as e:
@@ -132,7 +138,7 @@ def _run(args) -> int:
     speeds, speed_tag = speed_design(args, profile), ""
     if speeds is not None:
         speed_tag = (f"_v{speeds[1]}at{'+'.join(f'{x:g}' for x in speeds[0])}"
-                     f"sd{args.velocity_sd:g}")
+                     f"sd{args.velocity_sd_m_s:g}")
     grid = [(e, s if e != "none" else 1.0, n, k) for e in effects
             for s in (strengths if e != "none" else [1.0]) for n in n_list for k in seeds]
     grid = list(dict.fromkeys(grid))  # null data: strength does not apply
@@ -145,12 +151,12 @@ def _run(args) -> int:
     runs = []
     for e, s, n, k in grid:
         path = os.path.join(runs_dir, f"{e}_s{s:g}_n{n}_seed{k}_fit{args.seed}_{budget_name}"
-                                      f"_sd{args.sd:g}{speed_tag}.json")
+                                      f"_sd{args.sd_m:g}{speed_tag}.json")
         if os.path.exists(path):
             with open(path) as f:
                 rec = json.load(f)
         else:
-            rec = one_run(profile, e, s, n, k, args.sd, args.seed, budget, speeds)
+            rec = one_run(profile, e, s, n, k, args.sd_m, args.seed, budget, speeds)
             rec["budget"] = budget_name
             _write_json_atomic(path, rec)
         runs.append(rec)

@@ -34,7 +34,7 @@
 #   paper had to make alpha fall with block size (Table 1: 0.90, 0.43, 0.30 for
 #   L = 0.2, 0.9, 1.8 m); we fit alpha(L) = a L^-b.
 #
-# **How the fit works** (details in `README.md`):
+# **How the fit works** (details in `docs/calibration.md`):
 # 1. Each observation is treated as one block drawn from the simulated runout
 #    distribution of blocks of its size, seen with a ± tolerance.
 # 2. *Gradient fit*: the optimiser (Adam) follows a smoothed gradient of that

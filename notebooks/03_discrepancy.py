@@ -59,7 +59,8 @@ work = tempfile.mkdtemp(prefix="discovery-")
 # %%
 data = os.path.join(work, "synth.csv")
 synth.main(["--effect", "rolling_resistance", "--strength", "1.5", "--seed", "21",
-            "--n-obs", "30" if SMALL else "60", "--out", data])
+            "--n-obs", "30" if SMALL else "60", "--profile", "data/postignano_profile.csv",
+            "--out", data])
 print(open(data).read().splitlines()[:4])
 
 # %%
@@ -94,14 +95,15 @@ print(f"gap before {result['gap_before']:.1f} m -> after {result['gap_after']:.1
 # runouts of big blocks. So does a lower tangential restitution Kt everywhere,
 # and with runouts and sizes alone the baseline can mimic the belt that way
 # (docs/studies.md, "Passage speeds"). The two differ *above* the belt: a lower
-# Kt slows blocks there too, a belt does not. `calib.synth --velocity-stations 110` also
+# Kt slows blocks there too, a belt does not. `calib.synth --velocity-stations-m 110` also
 # writes the speeds of some blocks passing 110 m (the belt starts at 129 m), and
 # `calib.discover --velocities` scores them together with the runouts.
 
 # %%
 data_b = os.path.join(work, "belt.csv")
 synth.main(["--effect", "vegetation_belt", "--seed", "99", "--n-obs", "30" if SMALL else "60",
-            "--velocity-stations", "110", "--n-velocity", "12" if SMALL else "30",
+            "--profile", "data/postignano_profile.csv",
+            "--velocity-stations-m", "110", "--n-velocity", "12" if SMALL else "30",
             "--out", data_b])
 out_b = os.path.join(work, "belt")
 discover.main([data_b, "--velocities", os.path.join(work, "belt_velocities.csv"),
@@ -163,5 +165,5 @@ display(Image(os.path.join(out_p, "before_after.png")))
 # printed above. Two rows cannot give a meaningful standard error, so with this
 # little data the rule falls back on the 4-nat threshold alone.
 #
-# The development log (`data/README.md`, and the closing note of issue 6) reports
-# the full run.
+# `docs/studies.md` reports the measured power studies (how often the workflow
+# names each hidden effect, with the commands that reproduce them).

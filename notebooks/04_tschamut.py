@@ -20,7 +20,7 @@
 # ODbL with DbCL; provenance in `data/tschamut2014/README.md`):
 #
 # 1. cut a 2D slope profile from the raster along the mean fall line of the runs
-#    (`python -m solvers.profile cut`);
+#    (`python -m terrain.cut`);
 # 2. turn the runs into observations: distance travelled along the profile,
 #    each block's size from its mass, each run's own release point
 #    (`python -m calib.field`);
@@ -56,8 +56,8 @@ from calib import field  # noqa: E402
 from calib import fit as calib_fit  # noqa: E402
 from calib.files.calibration_file import CalibrationFile  # noqa: E402
 from solvers import load_profile  # noqa: E402
-from solvers import profile as profile_cli  # noqa: E402
-from solvers.raster import read_raster  # noqa: E402
+from terrain import cut as terrain_cut  # noqa: E402
+from terrain.raster import read_raster  # noqa: E402
 
 QUICK = os.environ.get("NOTEBOOK_QUICK", "0") == "1"
 RESULTS = os.environ.get("NOTEBOOK_RESULTS", "")
@@ -102,7 +102,7 @@ plt.show()
 
 # %%
 prof_csv = os.path.join(WORK, "profile.csv")
-profile_cli.main(["cut", os.path.join(SITE, "terrain_proxy.asc"),
+terrain_cut.main([os.path.join(SITE, "terrain_proxy.asc"),
                   "--fall-line", os.path.join(SITE, "runs.csv"), "--margin-m", "40",
                   "--zones", "steep:0:100,flat:100:", "--out", prof_csv])
 ours, shipped = pd.read_csv(prof_csv), pd.read_csv(os.path.join(SITE, "profile.csv"))
@@ -118,7 +118,7 @@ profile = load_profile(os.path.join(SITE, "profile.csv"))
 
 # %%
 spot_csv = os.path.join(WORK, "east_spot_profile.csv")
-profile_cli.main(["cut", os.path.join(SITE, "terrain_proxy.asc"),
+terrain_cut.main([os.path.join(SITE, "terrain_proxy.asc"),
                   "--fall-line", os.path.join(SITE, "runs.csv"),
                   "--fall-line-near", "59,257.5,10", "--margin-m", "40",
                   "--zones", "steep:0:100,flat:100:", "--out", spot_csv])
@@ -277,11 +277,11 @@ for name in ("runout_vs_size.png", "crsp_pairs.png", os.path.join("validation", 
 #   bound, which rows fall outside their bands, and `python -m calib.discover
 #   observations.csv --rolling-resistance fit` to look for the missing effect.
 # * If your slope's materials differ (rock face above, soil or scree below),
-#   give the profile one zone each (`--zones` of `solvers.profile cut`) and
+#   give the profile one zone each (`--zones` of `terrain.cut`) and
 #   fit one rolling-resistance angle per zone (`calib.fit
 #   --rolling-resistance zones`). Here both zones are one meadow: the zoned
 #   fit passes its checks but leaves both angles barely determined and
-#   predicts no better than one angle (README, "One rolling resistance per
-#   zone").
+#   predicts no better than one angle (docs/studies.md, "one rolling
+#   resistance per zone").
 #   A hazard table made from a calibration that fails its own check is a
 #   number without a warrant.

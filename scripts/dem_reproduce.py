@@ -1,4 +1,4 @@
-"""Reproduce the paper's DEM findings (issues 3 and 15) and print a table.
+"""Reproduce the paper's DEM findings and print a table.
 
     python scripts/dem_reproduce.py --out figures/ [--n-blocks 64] [--skip-full-stiffness]
         [--sections table1,one_alpha,fragments,damping,stiffness,deposits,breakage]
@@ -8,10 +8,10 @@
 3. the 1.8 m block in 4, 16, 64 fragments, alpha per fragment from 0.40*L**-0.5;
 4. final fragment positions on the profile (like the paper's Figs. 5 and 6), PNG;
 plus the damping-mode difference and the stiffness-scaling check;
-"deposits" (issue 15): the 16- and 64-fragment deposits under local damping
+"deposits": the 16- and 64-fragment deposits under local damping
 (the paper's) and contact dashpots, each relaxed for 5 s with every damping
 off (``deposit_check``): how far the fragments move;
-"breakage" (issue 15): joint breakage of the 1.8 m block in 4 fragments, c = t
+"breakage": joint breakage of the 1.8 m block in 4 fragments, c = t
 = 1 MPa, at stiffness x1 and x0.01 with unscaled and sqrt-scaled strengths.
 """
 

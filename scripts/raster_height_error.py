@@ -18,7 +18,7 @@ raster at the point itself). A true release height is >= 0 (a block cannot be
 released inside the ground), so a negative h is the raster's error, not the
 rock's. d is the volume-equivalent sphere diameter from the mass at the given
 density (``calib.files.field_runs.sphere_diameter_m``, as ``calib.field``);
-the raster is sampled bilinearly (``solvers.raster.Raster.sample``). The
+the raster is sampled bilinearly (``terrain.raster.Raster.sample``). The
 raster's slope at a point is the magnitude of its central-difference gradient
 over one cell.
 
@@ -52,7 +52,7 @@ from calib.files.field_runs import (  # noqa: E402
     load_runs,
     sphere_diameter_m,
 )
-from solvers.raster import read_raster  # noqa: E402
+from terrain.raster import read_raster  # noqa: E402
 
 QUANTILES = (0.0, 0.05, 0.16, 0.25, 0.5, 0.75, 0.84, 0.95, 1.0)
 
@@ -135,7 +135,7 @@ def main(argv=None) -> int:
     print(f"  speed {np.quantile(np.linalg.norm(v, axis=1), [0, 0.5, 1]).round(2)} m/s "
           f"(min, median, max); mean along the fall line {along.mean():+.3f} m/s (se "
           f"{along.std(ddof=1) / np.sqrt(along.size):.3f}); components' mean "
-          f"{np.round(v.mean(axis=0), 3)} m/s, sd {np.round(v.std(axis=0, ddof=1), 3)}, "
+          f"{np.round(v.mean(axis=0), 3)} m/s, sd {np.round(v.std(axis=0, ddof=1), 3)} m/s, "
           f"robust sd {np.round(mad, 3)} m/s (vx, vy, vz)")
     return 0
 

@@ -1,8 +1,6 @@
 """Rockfall solvers along a 2D slope profile, in JAX.
 
 * ``solvers.profile``: the slope (height-field polyline with material zones).
-* ``solvers.raster``: a profile cut from a raster (DEM) along a line in plan
-  (``solvers.plan_line``).
 * ``solvers.crsp``: the CRSP lumped-mass impact model (Pfeiffer & Bowen 1989).
 * ``solvers.dem``: a smooth-contact rigid-block DEM in the spirit of UDEC.
 

@@ -1,6 +1,6 @@
 """Throughput benchmarks: ``python -m solvers.bench [--json] [--quick]``.
 
-CRSP (issue 15): the Postignano profile, Kn 0.41, Kt 0.87, roughness S = 2 m,
+CRSP: the Postignano profile, Kn 0.41, Kt 0.87, roughness S = 2 m,
 spheres of diameter 0.2, 0.5, 1 and 2 m, N = 1e5 blocks each, without stations
 and with 61 stations (every 5 m from 0 to 300 m): blocks per second (compiled,
 steady state: a warm-up call on the same chunk shape first), mean and maximum
@@ -13,8 +13,8 @@ environment, never a project dependency: ``--pyrockfall-python
 DEM: figures from ``solvers.dem.bench.run_benchmarks`` when the DEM is present.
 
 A benchmark, not a test: it asserts nothing; compare runs of the same command.
-Targets (issue 15, 2 CPU cores): >= 100,000 blocks/s for 1 m blocks and >=
-50,000 for 0.2 m blocks, with stations.
+Targets (the project's specification, 2 CPU cores): >= 100,000 blocks/s for
+1 m blocks and >= 50,000 for 0.2 m blocks, with stations.
 """
 
 from __future__ import annotations

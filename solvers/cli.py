@@ -1,12 +1,13 @@
 """The command-line kit every ``python -m`` command of the project uses.
 
 One-line errors with exit code 2 (``CliError``, ``OneLineParser``,
-``run_guarded``), option parsing, progress bars on stderr
-(``Progress``), atomic writes of all of a command's outputs
-(``write_all_atomic``, ``write_outputs``), JSON-ready values (``json_ready``),
-and the station columns both solvers write (``station_columns``). No physics
-here. Commands
-import these names from this module, never another command's private helpers.
+``run_guarded``), option parsing, deprecated option names kept for one release
+(``deprecated_alias``), progress bars on stderr (``Progress``), atomic writes
+of all of a command's outputs (``write_all_atomic``, ``write_outputs``),
+JSON-ready values (``json_ready``), and the one schema of both solvers' output
+CSVs (``RUN_COLUMNS``, ``run_columns``, ``station_columns``, described for
+``--help`` by ``run_columns_help``). No physics here. Commands import these
+names from this module, never another command's private helpers.
 """
 
 from __future__ import annotations
@@ -25,10 +26,14 @@ __all__ = [
     "DefaultsHelpFormatter",
     "OneLineParser",
     "Progress",
+    "RUN_COLUMNS",
+    "deprecated_alias",
     "fail",
     "json_ready",
     "parse_floats",
     "parse_stations",
+    "run_columns",
+    "run_columns_help",
     "run_guarded",
     "station_column_names",
     "station_columns",
@@ -69,6 +74,46 @@ class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
                 or "default" in text.lower()):
             return text
         return text + " (default: %(default)s)"
+
+
+class _DeprecatedAlias(argparse.Action):
+    """Store an old option's value where its new option stores (``deprecated_alias``)."""
+
+    def __init__(self, option_strings, dest, new: str = "", convert=None, **kw):
+        super().__init__(option_strings, dest, **kw)
+        self.new, self.convert = new, convert
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        value = values if self.convert is None else self.convert(values)
+        shown = f"{value:g}" if isinstance(value, float) else str(value)
+        sys.stderr.write(f"{parser.prog}: warning: {option_string} is deprecated and goes in "
+                         f"the next release; read as {self.new} {shown}\n")
+        setattr(namespace, self.dest, value)
+
+
+def deprecated_alias(parser: argparse.ArgumentParser, old: str, new: str, convert=None,
+                     note: str = "") -> None:
+    """Accept option ``old`` for one release as a deprecated name of option ``new``.
+
+    The old option parses its value as ``new`` does (same type and choices),
+    passes it through ``convert`` if given (e.g. a radius r to the diameter
+    d = 2 r), stores it where ``new`` stores, and prints one warning line on
+    stderr naming ``new`` and the value it reads. Its ``--help`` line says it
+    is deprecated. Given both, the one typed last wins (argparse's rule for a
+    repeated option).
+
+    Args:
+        parser: the command's parser, ``new`` already added.
+        old, new: option strings, e.g. ``"--radius-m"``, ``"--block-size-m"``.
+        convert: value of ``old`` -> value of ``new``; None: the same value.
+        note: said after "deprecated name of NEW" in ``--help``, e.g. "; d = 2 r".
+    """
+    target = parser._option_string_actions[new]
+    parser.add_argument(old, action=_DeprecatedAlias, new=new, convert=convert,
+                        dest=target.dest, type=target.type, choices=target.choices,
+                        metavar=old.lstrip("-").replace("-", "_").upper(),
+                        default=argparse.SUPPRESS,
+                        help=f"deprecated name of {new}{note}; goes in the next release")
 
 
 def fail(prog: str, message: str) -> None:
@@ -136,7 +181,7 @@ def parse_floats(text: str, name: str) -> list[float]:
 
 
 def parse_stations(text: str | None, x_range_m: tuple[float, float],
-                   name: str = "--stations") -> list[float]:
+                   name: str = "--stations-m") -> list[float]:
     """Stations as ``"110,230"`` or a range ``"start:stop:step"`` (stop included);
     errors name the option ``name``.
 
@@ -289,3 +334,74 @@ def station_columns(stations_x_m, record, energy_per_m: bool = False) -> dict:
             v = np.asarray(getattr(record, field))
             cols[name] = v.reshape(-1, v.shape[-1])[:, j]
     return cols
+
+
+# The one schema of the solvers' output CSVs (python -m solvers.crsp --out,
+# python -m solvers.dem --out): these columns first, in this order, then the
+# solver's own counts, then the station columns (station_column_names).
+RUN_COLUMNS = {
+    "block": "block index i, 0 to N-1; its random key is fold_in(key(seed), i)",
+    "fragment": "fragment index in the block, 0 to F-1 (CRSP: 0, a block is one piece; DEM: "
+                "the n x n fragments of --fragments)",
+    "block_size_m": "block size d, the diameter, m (CRSP sphere radius r = d/2; DEM square "
+                    "side L = d)",
+    "status": "how the row's run ended: stopped, left_profile, budget (still moving when "
+              "its budget ran out) or invalid (solvers.status); a DEM fragment that passed "
+              "the profile's end is left_profile, its resting siblings stopped",
+    "runout_m": "horizontal distance from the release abscissa to stop_x_m, m (a runout only "
+                "where status is stopped or left_profile)",
+    "stop_x_m": "abscissa where the row's run ended, m",
+    "stop_z_m": "height there, m",
+}
+
+
+def run_columns(block_size_m: float, status, runout_m, stop_x_m, stop_z_m,
+                n_fragments: int = 1) -> dict:
+    """The ``RUN_COLUMNS`` of a solver's output CSV, one row per fragment.
+
+    Args:
+        block_size_m: the blocks' size d (the diameter), m.
+        status: (N F,) ``solvers.status`` codes of each row, blocks in order and,
+            within a block, its fragments in order.
+        runout_m, stop_x_m, stop_z_m: (N F,) m, same order.
+        n_fragments: F, fragments per block (1 for CRSP).
+
+    Returns:
+        column name -> (N F,) values, in ``RUN_COLUMNS`` order.
+    """
+    from solvers.status import STATUS_NAMES
+
+    codes = np.asarray(status).ravel()
+    n_blocks = codes.size // n_fragments
+    return {
+        "block": np.repeat(np.arange(n_blocks), n_fragments),
+        "fragment": np.tile(np.arange(n_fragments), n_blocks),
+        "block_size_m": np.full(codes.size, float(block_size_m)),
+        "status": [STATUS_NAMES.get(int(c), str(c)) for c in codes],
+        "runout_m": np.asarray(runout_m).ravel(),
+        "stop_x_m": np.asarray(stop_x_m).ravel(),
+        "stop_z_m": np.asarray(stop_z_m).ravel(),
+    }
+
+
+def run_columns_help(own: dict[str, str], energy_per_m: bool = False) -> str:
+    """The output CSV's columns as ``--help`` text: ``RUN_COLUMNS``, then the
+    solver's ``own`` columns (name -> meaning), then the station columns."""
+    import textwrap
+
+    energy = ("energy_kJ_per_m_<x>m: kinetic energy (translation and rotation), kJ per "
+              "metre of block width (the DEM is 2D)" if energy_per_m else
+              "energy_kJ_<x>m: kinetic energy (translation and rotation), kJ per block")
+    rows = [*RUN_COLUMNS.items(), *own.items(),
+            ("per station x (--stations-m)",
+             f"passed_<x>m: crossed x moving downslope; at that first passage, {energy}, "
+             "velocity_m_s_<x>m: speed, m/s, bounce_height_m_<x>m: "
+             "clearance of the block's lowest point above the ground, m (empty where not "
+             "passed; solvers.stations)")]
+    lines = textwrap.wrap("Output CSV (--out), one row per fragment of each block, the same "
+                          "schema for python -m solvers.crsp and python -m solvers.dem "
+                          "(solvers.cli.RUN_COLUMNS):", 80)
+    for name, what in rows:
+        lines += textwrap.wrap(f"{name}: {what}", 78, initial_indent="  ",
+                               subsequent_indent="      ")
+    return "\n".join(lines)

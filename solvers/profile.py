@@ -32,9 +32,10 @@ File formats (CSV, header row required):
 Loading validates everything before any array reaches jitted code, and every
 error names the file, the line and the column (``ProfileError``).
 
-Command line: ``python -m solvers.profile cut RASTER --line LINE --out P.csv``
-cuts a profile from a digital elevation model along a line in plan (the logic
-is in ``solvers.raster``; ``python -m solvers.profile cut --help``).
+A profile can be cut from a digital elevation model along a line in plan:
+``python -m terrain.cut RASTER --line LINE --out P.csv`` (package ``terrain``).
+``python -m solvers.profile cut ...`` still runs that command, after a warning
+line, for one release.
 """
 
 from __future__ import annotations
@@ -330,7 +331,7 @@ def refine(profile: Profile, step_m: float, z_noise_m: float = 0.0,
     segment they split), each keeping its segment's zone.
 
     A surveyed profile is the same ground sampled more finely: the solvers'
-    results must not depend on it (issue 15), which the tests check with this.
+    results must not depend on it, which the tests check with this.
     ``z_noise_m`` adds Gaussian noise of that standard deviation to the new
     and old inner vertices (seeded), to mimic survey noise; the end vertices
     stay put.
@@ -391,15 +392,27 @@ def ground_z(profile: Profile, x_m: jax.Array) -> jax.Array:
     return za + (zb - za) * (x_m - xa) / (xb - xa)
 
 
-# The command ``python -m solvers.profile cut ...`` lives in solvers/profile_cli.py
-# (logic in solvers.raster); this is its entry point.
+# ``python -m solvers.profile cut ...``: the deprecated name of ``python -m
+# terrain.cut`` (kept one release). The one import of ``terrain`` from
+# ``solvers``, and only here, at run time: the alias goes with the next release.
+_ALIAS_PROG = "python -m solvers.profile"
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m solvers.profile cut ...`` (``solvers.profile_cli``)."""
-    from solvers.profile_cli import main as run
+    """``python -m solvers.profile cut ARGS``: one warning line on stderr, then
+    ``python -m terrain.cut ARGS``; anything else: one line, exit status 2."""
+    import sys
 
-    return run(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] != "cut":
+        sys.stderr.write(f"{_ALIAS_PROG}: error: the profile cut is now python -m terrain.cut "
+                         "RASTER --line LINE --out P.csv (see its --help)\n")
+        raise SystemExit(2)
+    sys.stderr.write(f"{_ALIAS_PROG}: warning: '{_ALIAS_PROG} cut' is deprecated and goes in "
+                     "the next release; use 'python -m terrain.cut' (same arguments)\n")
+    from terrain.cut import main as cut
+
+    return cut(argv[1:])
 
 
 if __name__ == "__main__":

@@ -36,7 +36,7 @@ RUNNING, STOPPED, LEFT_PROFILE, BUDGET, INVALID = 0, 2, 3, 4, 5
 STATUS_NAMES = {RUNNING: "running", STOPPED: "stopped", LEFT_PROFILE: "left_profile",
                 BUDGET: "budget", INVALID: "invalid"}
 
-# tolerance of the "never below the ground" invariant (issue 15: z >= ground - 1 mm)
+# tolerance of the "never below the ground" invariant (z >= ground - 1 mm)
 GROUND_TOL_M = 1e-3
 
 

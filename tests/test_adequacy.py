@@ -1,4 +1,4 @@
-"""A calibration says when it cannot fit (issue 17): posterior mass at the prior
+"""A calibration says when it cannot fit: posterior mass at the prior
 bounds and posterior predictive coverage of the calibration rows."""
 
 from __future__ import annotations
@@ -64,8 +64,8 @@ def test_rows_drawn_from_the_predictive_are_covered_at_about_the_nominal_rate(tm
 
 
 def test_a_model_that_stops_too_early_is_flagged(tmp_path):
-    """18 rows of which 7 lie beyond the simulated 90 % band (the Tschamut
-    symptom of issue 17): coverage of the 90 % band is flagged, and the record
+    """18 rows of which 7 lie beyond the simulated 90 % band (the symptom
+    seen on Tschamut): coverage of the 90 % band is flagged, and the record
     says the model may not fit."""
     rng = np.random.default_rng(2)
     sim = 80.0 + 5.0 * rng.standard_normal((1, 4000))

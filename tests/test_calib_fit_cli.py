@@ -74,7 +74,7 @@ def test_quick_run_writes_every_output(quick_run):
     rows = (out / "crsp_posterior.csv").read_text().splitlines()
     assert rows[0] == "Kn,Kt,roughness_m,rolling_friction_deg" and len(rows) > 100
     assert 5.0 <= cal["crsp"]["rolling_friction_deg"]["map"] <= 40.0
-    # the fit says whether it can fit (issue 17): bound mass and predictive coverage
+    # the fit says whether it can fit: bound mass and predictive coverage
     for m in ("crsp", "dem"):
         a = cal[m]["adequacy"]
         assert set(a["bounds"]) == set(cal[m]["parameters"])

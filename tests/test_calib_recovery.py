@@ -1,4 +1,4 @@
-"""Calibration recovers known truth on data made by the solvers (issue 4).
+"""Calibration recovers known truth on data made by the solvers.
 
 Tolerances were fixed before the first run: the point estimate within 15 % of
 each parameter's prior width of the truth, and the 90 % credible interval
@@ -131,9 +131,9 @@ def test_posterior_90_interval_covers_crsp_truth(crsp_fit):
     """The 90 % interval covers the truth for every parameter and is informative
     (narrower than half the prior) for Kt and S. Kn is weakly identified by runouts
     (its interval was 0.24-0.58 of a 0.15-0.60 prior when written).
-    From stop 24 until the log-deficit warp and the chain starts (2026-11-25)
-    this failed: Kn 0.154-0.248, Kt 0.974-0.980, S 0.327-0.513 m, then both
-    chains on a plateau at the corner Kn 0.150, S 4.0 m. Measured after: Kn
+    Without the log-deficit warp and the chain starts this failed: Kn
+    0.154-0.248, Kt 0.974-0.980, S 0.327-0.513 m, then both chains on a
+    plateau at the corner Kn 0.150, S 4.0 m. With them (2026-11-25): Kn
     0.198-0.579, Kt 0.844-0.975, S 0.558-0.991 m (the quick budget's
     diagnostics still fail: bulk ESS 62-119, which this test does not ask)."""
     s = crsp_fit.posterior.summary()
@@ -154,9 +154,9 @@ def test_coverage_of_90_intervals_over_synthetic_data_sets():
     Measured with the GP-realisation waves: 13 of 15 at this quick budget and
     13 of 15 at the default one (the misses: S 1.061-1.532 m and 1.023-1.626
     m against 1.017, Kt 0.719-0.959 and 0.690-0.950 against 0.960); with the
-    likelihood's defensive component (stop 29), 14 of 15 at this quick budget
+    likelihood's defensive component (2026-11-25), 14 of 15 at this quick budget
     (the miss: S 1.074-1.582 m against 1.017; 214 s on 2 cores; the default
-    budget not re-measured). Before the log-deficit warp of the log-likelihood GP and
+    budget not re-measured). Without the log-deficit warp of the log-likelihood GP and
     the chain starts: 5 of 15 (quick) and 7 of 15 (default), with posteriors
     that passed every diagnostic and missed all three parameters."""
     rng = np.random.default_rng(17)
@@ -199,7 +199,7 @@ def dem_fit():
 
 @pytest.mark.slow
 def test_dem_posterior_recovers_power_law_exponent(dem_fit):
-    """Issue 4: b recovered within +-0.15, and the 90 % interval covers it."""
+    """b recovered within +-0.15, and the 90 % interval covers it."""
     s = dem_fit.posterior.summary()
     assert dem_fit.posterior.ok, dem_fit.posterior.problems
     assert abs(s["b"]["map"] - DEM_TRUTH[1]) < 0.15

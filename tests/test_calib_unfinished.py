@@ -1,4 +1,4 @@
-"""Unfinished blocks in calibration (issue 15): a block still moving when the
+"""Unfinished blocks in calibration: a block still moving when the
 solver's budget ran out (``solvers.status.BUDGET``) or in an invalid state
 (``INVALID``) has no runout. Forward models exclude it (NaN) and the
 likelihood, the fit check and the warnings count it; it never enters as a
@@ -23,7 +23,7 @@ THETA = np.array([0.41, 0.87, 2.0])  # the paper's Kn, Kt, S
 SIZES = np.array([0.5, 2.0])
 N = 32
 # a budget of 20 events: on the Postignano profile a block of either size needs
-# 15-25 of them (CRSP of issue 15), so many, but not all, are still moving
+# 15-25 of them, so many, but not all, are still moving
 SETTINGS = crsp.Settings(max_events=20)
 
 

@@ -1,7 +1,8 @@
 """The command-line kit (``solvers.cli``) and what every command owes its user.
 
 * Commands share plumbing through the public kit, never through another
-  module's private names (an AST scan of ``calib/`` and ``solvers/``).
+  module's private names (an AST scan of ``calib/``, ``solvers/`` and ``terrain/``).
+* The packages import one way: ``calib`` -> ``terrain`` -> ``solvers``.
 * Both solvers name the quantities they share alike.
 * ``--help`` of every command shows every default.
 """
@@ -14,7 +15,7 @@ import pathlib
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-PACKAGES = ("calib", "solvers")
+PACKAGES = ("calib", "solvers", "terrain")
 
 # Private names still imported across modules (none left; an entry must name the
 # change that removes it).
@@ -75,10 +76,10 @@ def cross_module_private_imports() -> list[str]:
 
 def _is_command(name: str) -> bool:
     """A command module (or a benchmark run as one): calib/<x>.py, any
-    ``__main__``, ``bench``/``_bench`` and the profile command's code."""
+    ``__main__``, ``bench``/``_bench`` and the terrain cut."""
     parts = name.split(".")
     return ((parts[0] == "calib" and len(parts) == 2) or parts[-1] in
-            ("__main__", "bench", "_bench", "profile_cli") or name == "solvers.cli")
+            ("__main__", "bench", "_bench") or name in ("solvers.cli", "terrain.cut"))
 
 
 def library_imports_of_the_cli_kit() -> list[str]:
@@ -116,6 +117,33 @@ def test_the_known_exceptions_are_still_there():
     assert not KNOWN - seen, f"remove from KNOWN: {sorted(KNOWN - seen)}"
 
 
+# Imports that go against the layering: none but the deprecated command name
+# ``python -m solvers.profile cut``, which runs ``terrain.cut`` (removed with it).
+LAYERING_EXCEPTIONS = {("solvers.profile", "terrain.cut")}
+
+
+def layering_violations() -> list[tuple[str, str]]:
+    """(module, imported module) of every import from ``solvers`` into ``terrain``
+    or ``calib``, and from ``terrain`` into ``calib``."""
+    above = {"solvers": ("terrain", "calib"), "terrain": ("calib",), "calib": ()}
+    bad = []
+    for path, name, is_pkg in _modules():
+        for _, src, what in _imports(path, name, is_pkg):
+            top = src.split(".")[0]
+            full = src if what is None or top != src else f"{src}.{what}"
+            if top in above[name.split(".")[0]]:
+                bad.append((name, full))
+    return list(dict.fromkeys(bad))
+
+
+def test_packages_import_one_way():
+    """``solvers`` (the physics and the profile) imports neither ``terrain`` nor
+    ``calib``; ``terrain`` (rasters, lines in plan, the cut) does not import
+    ``calib``."""
+    bad = set(layering_violations())
+    assert bad == LAYERING_EXCEPTIONS, sorted(bad ^ LAYERING_EXCEPTIONS)
+
+
 # ---------------------------------------------------------------- solver outputs
 
 def test_both_solvers_name_shared_station_quantities_alike():
@@ -145,7 +173,7 @@ def test_both_solvers_name_shared_station_quantities_alike():
 
 # ---------------------------------------------------------------- --help shows defaults
 
-COMMANDS = ["solvers.crsp.__main__", "solvers.dem.__main__", "solvers.profile_cli", "solvers.bench",
+COMMANDS = ["solvers.crsp.__main__", "solvers.dem.__main__", "terrain.cut", "solvers.bench",
             "calib.fit", "calib.discover", "calib.power", "calib.synth", "calib.validate",
             "calib.field", "calib.hazard.__main__"]
 
@@ -182,8 +210,9 @@ def test_every_option_with_a_default_says_it(module):
 
 
 @pytest.mark.parametrize("module, needles", [
-    ("solvers.crsp.__main__", ["default 1000", "default 0.5", "default 2350"]),
-    ("solvers.dem.__main__", ["default: 256", "default: unbalanced", "default: 200.0"]),
+    ("solvers.crsp.__main__", ["default 1000", "default 1.0", "default 2350"]),
+    ("solvers.dem.__main__", ["default: 256", "default: unbalanced", "default: 200.0",
+                              "Default 0.01", "default: 2350"]),
     ("calib.fit", ["default: both", "default 0", "default 1.0 m"]),
     ("calib.hazard.__main__", ["0.2,0.5,1.0,2.0", "default 5000"]),
 ])
@@ -217,3 +246,30 @@ def test_few_blocks_is_the_one_rule_below_20():
     many = few_blocks_warning([(f"row {i}", 3) for i in range(12)], max_named=8)
     assert "in 12 row(s)" in many and "row 7 (3 blocks); and 4 more" in many
     assert "row 8 (" not in many
+
+
+# ---------------------------------------------------------------- deprecated names
+
+def test_a_deprecated_option_name_still_works_and_warns_once(capsys):
+    """``deprecated_alias``: the old name parses as the new one does, converted
+    (a radius r read as the diameter 2 r), stores where the new one stores, and
+    says so in one line on stderr naming the new option; the new option's
+    default stands when neither is given, and --help marks the old one."""
+    from solvers.cli import OneLineParser, deprecated_alias
+
+    p = OneLineParser(prog="cmd")
+    p.add_argument("--block-size-m", type=float, default=1.0, help="diameter, m")
+    deprecated_alias(p, "--radius-m", "--block-size-m", convert=lambda r: 2.0 * r)
+    assert p.parse_args([]).block_size_m == 1.0
+    assert capsys.readouterr().err == ""
+    assert p.parse_args(["--radius-m", "0.3"]).block_size_m == 0.6
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("cmd: warning: --radius-m is deprecated")
+    assert "--block-size-m 0.6" in err
+    assert p.parse_args(["--block-size-m", "0.3"]).block_size_m == 0.3
+    assert capsys.readouterr().err == ""
+    with pytest.raises(SystemExit):
+        p.parse_args(["--radius-m", "x"])  # parsed as the new option is: a float
+    assert "--radius-m" in capsys.readouterr().err
+    help_text = " ".join(p.format_help().split())
+    assert "--radius-m RADIUS_M deprecated name of --block-size-m" in help_text

@@ -272,7 +272,7 @@ def test_paper_fig3_setting_reports_medians():
     hold: every block finishes and stops where rest is possible, and, CRSP's
     size effect through S / R, the median runout does not fall with the radius.
     Measured 2026-11-23 (2000 blocks, key 0): medians 110.1, 110.2, 119.2 m,
-    p90 110.1, 111.5, 130.3 m (before issue 15: see the issue's closing note)."""
+    p90 110.1, 111.5, 130.3 m."""
     prof = load_profile(POSTIGNANO).with_materials(Kn=0.41, Kt=0.87, roughness_m=2.0)
     params = crsp.params_from_profile(prof)
     medians = []

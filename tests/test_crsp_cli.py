@@ -6,7 +6,7 @@ import pandas as pd
 import pytest
 from cli_run import run_module
 
-from solvers.cli import station_column_names
+from solvers.cli import RUN_COLUMNS, station_column_names
 
 PROFILE = "data/postignano_profile.csv"
 
@@ -17,14 +17,15 @@ def _run(*args):
 
 def test_cli_writes_one_row_per_block(tmp_path):
     out = tmp_path / "runouts.csv"
-    r = _run("--profile", PROFILE, "--n-blocks", "64", "--radius-m", "0.5", "--Kn", "0.41",
+    r = _run("--profile", PROFILE, "--n-blocks", "64", "--block-size-m", "1", "--Kn", "0.41",
              "--Kt", "0.87", "--roughness-m", "2.0", "--seed", "0", "--out", str(out),
-             "--stations", "110,230")
+             "--stations-m", "110,230")
     assert r.returncode == 0, r.stderr
+    assert r.stderr.strip() == ""
     df = pd.read_csv(out)
     assert len(df) == 64
-    for col in ("runout_m", "stop_x_m", "stop_z_m", "stopped", "passed_110m", "energy_kJ_230m"):
-        assert col in df.columns
+    assert list(df.columns[:9]) == [*RUN_COLUMNS, "n_impacts", "n_events"]
+    assert (df.block_size_m == 1.0).all() and (df.fragment == 0).all()
     # station columns: the names python -m solvers.dem writes too (energy per block here)
     names = [*station_column_names(110).values(), *station_column_names(230).values()]
     assert names == ["passed_110m", "energy_kJ_110m", "velocity_m_s_110m", "bounce_height_m_110m",
@@ -33,13 +34,23 @@ def test_cli_writes_one_row_per_block(tmp_path):
     assert "median" in r.stdout and "blocks/s" in r.stdout
 
 
+def test_radius_is_read_as_the_diameter(capsys):
+    """``--radius-m`` (deprecated, one release) gives the size as the radius r:
+    the command reads d = 2 r, and the sphere it simulates has radius d / 2."""
+    from solvers.crsp.__main__ import build_parser
+
+    args = build_parser().parse_args(["--profile", PROFILE, "--radius-m", "0.5", "--out", "o"])
+    assert args.block_size_m == 1.0
+    assert "--radius-m is deprecated" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("args, needle", [
     (["--profile", "missing.csv"], "missing.csv: file not found"),
     (["--profile", PROFILE, "--n-blocks", "0"], "--n-blocks must be positive"),
-    (["--profile", PROFILE, "--radius-m", "-1"], "--radius-m"),
+    (["--profile", PROFILE, "--block-size-m", "-1"], "--block-size-m"),
     (["--profile", PROFILE, "--Kn", "1.4"], "restitution"),
-    (["--profile", PROFILE, "--stations", "400"], "outside the profile"),
-    (["--profile", PROFILE, "--stations", "a,b"], "--stations"),
+    (["--profile", PROFILE, "--stations-m", "400"], "outside the profile"),
+    (["--profile", PROFILE, "--stations-m", "a,b"], "--stations-m"),
     (["--profile", PROFILE, "--release-x-m", "300"], "--release-x-m"),
     (["--profile", PROFILE, "--bogus"], "unrecognized arguments"),
 ])

@@ -1,9 +1,9 @@
-"""CRSP invariants on surveyed-like profiles (issue 15).
+"""CRSP invariants on surveyed-like profiles.
 
-Each test names the defect it guards against; each failed on the solver before
-issue 15 (collinear vertices let blocks fall through the ground, every kink
-cost a full impact, rolling on rough ground applied a full impact every
-radius, and the S -> 0 limit jumped).
+Each test names the defect it guards against and fails on a solver that has it
+(collinear vertices that let blocks fall through the ground, a full impact at
+every kink, a full impact every radius when rolling on rough ground, an
+S -> 0 limit that jumps).
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ def _median_se(x, seed=0, n_boot=200):
 
 @pytest.mark.parametrize("step_m", [0.5, 2.0, 5.0])
 @pytest.mark.parametrize("setting", [
-    dict(radius_m=0.1, Kn=0.44, Kt=0.96, roughness_m=0.37),   # the issue's calibrated case
+    dict(radius_m=0.1, Kn=0.44, Kt=0.96, roughness_m=0.37),   # a Postignano calibration
     dict(radius_m=0.5, roughness_m=0.0),                        # smooth: rolls to 153 m
 ])
 def test_collinear_vertices_leave_results_unchanged(step_m, setting):

@@ -1,4 +1,4 @@
-"""Tests of the rigid-block DEM (issue 3): analytic cases, invariants, batching, CLI."""
+"""Tests of the rigid-block DEM: analytic cases, invariants, batching, CLI."""
 
 from __future__ import annotations
 
@@ -516,12 +516,12 @@ BAD_ARGS = [
     ["--profile", PROFILE_CSV, "--block-size-m", "-1", "--out", "x.csv"],
     ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--fragments", "5", "--out", "x.csv"],
     ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--alpha", "1.5", "--out", "x.csv"],
-    ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--alpha-law", "__import__('os')",
+    ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--alpha-law-expr", "__import__('os')",
      "--out", "x.csv"],
-    ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--alpha", "0.4", "--alpha-law",
+    ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--alpha", "0.4", "--alpha-law-expr",
      "0.4*L", "--out", "x.csv"],
     ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--n-blocks", "0", "--out", "x.csv"],
-    ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--stations", "500", "--out", "x.csv"],
+    ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--stations-m", "500", "--out", "x.csv"],
     ["--profile", PROFILE_CSV, "--block-size-m", "abc", "--out", "x.csv"],
     ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--restitution", "0.5",
      "--out", "x.csv"],                                                 # not viscous
@@ -533,6 +533,7 @@ BAD_ARGS = [
     ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--stiffness-scale", "0",
      "--out", "x.csv"],
     ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--max-time-s", "nan", "--out", "x.csv"],
+    ["--profile", PROFILE_CSV, "--block-size-m", "0.9", "--density-kg-m3", "0", "--out", "x.csv"],
 ]
 
 
@@ -549,20 +550,46 @@ def test_cli_writes_rows(tmp_path):
     out = tmp_path / "dem.csv"
     p = subprocess.run([sys.executable, "-m", "solvers.dem", "--profile", PROFILE_CSV,
                         "--block-size-m", "0.9", "--n-blocks", "2", "--alpha", "0.43",
-                        "--fragments", "4", "--stiffness-scale", "0.01", "--max-time-s", "5",
-                        "--seed", "0", "--stations", "110", "--no-progress",
+                        "--fragments", "4", "--max-time-s", "5", "--density-kg-m3", "9400",
+                        "--seed", "0", "--stations-m", "110", "--no-progress",
                         "--out", str(out)], capture_output=True, text=True)
     assert p.returncode == 0, p.stderr
+    import re
+
     import pandas as pd
+
+    from solvers.cli import RUN_COLUMNS
     df = pd.read_csv(out)
     assert len(df) == 8
-    for col in ("runout_m", "stop_x_m", "stop_z_m", "stopped", "block_id", "fragment_id"):
-        assert col in df.columns
+    # the schema of python -m solvers.crsp (solvers.cli.RUN_COLUMNS), one row per fragment
+    assert list(df.columns[:len(RUN_COLUMNS) + 1]) == [*RUN_COLUMNS, "n_steps"]
+    assert list(df.block) == [0] * 4 + [1] * 4 and list(df.fragment) == [0, 1, 2, 3] * 2
+    assert (df.block_size_m == 0.9).all()
+    # --density-kg-m3 reaches the parameters: 4x the paper's 2350 is 2x the stable step
+    # (dt ~ sqrt(m / k)) at the default stiffness scale, the calibration's
+    params = make_params(load_profile(PROFILE_CSV), stiffness_scale=0.01)
+    dt_paper = float(stable_dt(params, make_block(0.9, alpha=0.43, n_fragments=4)))
+    dt = float(re.search(r"dt=([0-9.e+-]+) s", p.stdout).group(1))
+    assert abs(dt / dt_paper - 2.0) < 2e-2, (dt, dt_paper)  # dt printed to 3 digits
     # python -m solvers.crsp's station names; the 2D energy says it is per metre of width
     assert list(df.columns[-4:]) == ["passed_110m", "energy_kJ_per_m_110m",
                                      "velocity_m_s_110m", "bounce_height_m_110m"]
     assert len(p.stdout.strip().splitlines()) == 1
     assert "DEM:" not in p.stderr  # --no-progress: no bar
+
+
+def test_cli_fragment_status():
+    """Each row's status is its fragment's: every fragment of an invalid block is
+    invalid; a fragment that passed the profile's end left it, its siblings at
+    rest stopped; a block out of budget leaves its fragments out of budget."""
+    from solvers.dem.__main__ import _fragment_status
+    from solvers.status import BUDGET, INVALID, LEFT_PROFILE, STOPPED
+
+    block = np.array([INVALID, LEFT_PROFILE, BUDGET, STOPPED])
+    exited = np.array([[True, False], [True, False], [True, False], [False, False]])
+    stopped = np.array([[False, False], [False, True], [False, False], [True, True]])
+    assert list(_fragment_status(block, exited, stopped)) == [
+        INVALID, INVALID, LEFT_PROFILE, STOPPED, LEFT_PROFILE, BUDGET, STOPPED, STOPPED]
 
 
 def test_cli_viscous_batches(tmp_path):

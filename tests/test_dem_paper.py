@@ -1,4 +1,4 @@
-"""Slow paper-reproduction checks of the DEM (issue 3; run with ``pytest -m slow``).
+"""Slow paper-reproduction checks of the DEM (run with ``pytest -m slow``).
 
 Targets (paper Sect. 4, ../shared/seed): single blocks L = 0.2, 0.9, 1.8 m with
 the Table 1 damping (alpha 0.90, 0.43, 0.30) stop in the observed 110-220 m
@@ -8,8 +8,8 @@ Table 1 trend 0.40 L^-0.5) runs out less the finer it breaks, 16 fragments in
 110-160 m and 64 fragments in 40-110 m.
 
 All runs: kn = ks = 50 GPa/m x 0.01 (the documented stiffness scale; joint
-strengths x sqrt(0.01), issue 15), UDEC's unbalanced-force damping, fixed
-keys, the rest test of issue 15 (rest only where statically admissible; a
+strengths x sqrt(0.01)), UDEC's unbalanced-force damping, fixed
+keys, the DEM's rest test (rest only where statically admissible; a
 run still moving at MAX_TIME_S is not at rest and its "runout" is a position,
 not a runout). Monte Carlo tolerances come from the standard error of the
 difference of means, never from the results. Where a target is not met the
@@ -114,7 +114,7 @@ def test_runout_decreases_from_16_to_64_fragments():
     assert np.median(r16) > np.median(r64), (float(np.median(r16)), float(np.median(r64)))
 
 
-@pytest.mark.xfail(strict=True, reason="measured (key 0, scale 0.01, issue 15 rest test and "
+@pytest.mark.xfail(strict=True, reason="measured (key 0, scale 0.01, the rest test and "
                    "strength scaling): the 16 fragments are at rest between 107.9 and 123.8 m "
                    "(median 110.8, p10-p90 108.4-119.9 m); the lowest is 2.1 m short of the "
                    "paper's 110 m and the upper part of 110-160 m is not reached (another "
@@ -132,7 +132,7 @@ def test_sixteen_fragments_in_paper_range():
                    "the 40 deg talus, where a lone fragment cannot rest by friction (phi 30); "
                    "with every damping off they slide 2.6-2.7 m in 5 s (deposit check, "
                    "scripts/dem_reproduce.py --sections deposits): held by local damping. "
-                   "Before issue 15 the rest test declared this pile at rest")
+                   "A rest test on speed alone (< 0.05 m/s for 1 s) declared this pile at rest")
 def test_sixty_four_fragments_in_paper_range():
     """Paper Fig. 6: the 64 fragments stop between 40 and 110 m (10th-90th
     percentile), most of them above the slope break at 110 m (all at rest)."""
@@ -158,7 +158,7 @@ def test_sixty_four_fragments_spread_wider_than_sixteen():
     assert w64 > w16 and np.percentile(r64, 10) < 70.0, (float(w16), float(w64))
 
 
-# ---------------------------------------------------------------- issue 15
+# ------------------------------------------------ joint strength under the stiffness scale
 
 N_BREAK = 16
 BREAK_TIME_S = 6.0     # release, first impacts on the talus and a little after
@@ -182,7 +182,7 @@ def test_breakage_invariant_under_stiffness_shortcut(strength_pa):
     |mean difference| <= 2 standard errors of the difference + one joint of one
     block (1 / (4 N)). Peak impact forces scale as sqrt(k), so the strengths are
     scaled by sqrt(stiffness_scale) (``Params.joint_strength_exponent``).
-    Before issue 15 (unscaled strengths), at 1 MPa: 0.375 at x0.01 against 1.0
+    With unscaled strengths, at 1 MPa: 0.375 at x0.01 against 1.0
     at x1 (16 blocks)."""
     full, short = breakage(1.0, strength_pa), breakage(SCALE, strength_pa)
     assert abs(full.mean() - short.mean()) <= 2.0 * _se_diff(full, short) + 1.0 / (4 * N_BREAK), \

@@ -1,10 +1,10 @@
-"""DEM status codes and the rest test (issue 15).
+"""DEM status codes and the rest test.
 
 A block may be declared at rest only where rest is statically admissible: a
 single block released at rest on a slope steeper than its friction angle
 (tan(beta) > tan(phi)) slides on, however slowly local damping lets it move;
-below phi it stops. Before issue 15 the rule was "speed < 0.05 m/s for 1 s",
-which stopped a 0.2 m block with alpha 0.9 after ~1-2 cm on 31-33 deg slopes.
+below phi it stops. A rule on speed alone, "speed < 0.05 m/s for 1 s",
+stopped a 0.2 m block with alpha 0.9 after ~1-2 cm on 31-33 deg slopes.
 """
 
 from __future__ import annotations

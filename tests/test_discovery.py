@@ -29,7 +29,8 @@ from calib.discovery.scores import (
 from calib.files.observations import Observations
 from solvers.profile import load_profile
 
-PROFILE = load_profile("data/postignano_profile.csv")
+PROFILE_CSV = "data/postignano_profile.csv"
+PROFILE = load_profile(PROFILE_CSV)
 
 
 _cli = run_module
@@ -108,7 +109,8 @@ def test_locate_flags_the_size_class_that_is_off_and_nothing_else():
 def synth_files(tmp_path_factory):
     out = tmp_path_factory.mktemp("synth")
     proc = _cli("calib.synth", "--effect", "size_dissipation", "--strength", "2",
-                "--n-obs", "36", "--seed", "11", "--out", str(out / "synth.csv"))
+                "--n-obs", "36", "--seed", "11", "--profile", PROFILE_CSV,
+                "--out", str(out / "synth.csv"))
     return proc, out
 
 
@@ -132,9 +134,10 @@ def test_synth_writes_data_truth_and_profile_but_hides_the_effect(synth_files):
     (["--effect", "none", "--n-obs", "0"], "--n-obs"),
     (["--effect", "none", "--strength", "-1"], "--strength"),
     (["--effect", "bogus"], "invalid choice"),
+    (["--effect", "none", "--sd-m", "0"], "--sd-m: expected a positive number of metres"),
 ])
 def test_synth_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, needle):
-    proc = _cli("calib.synth", *args, "--out", str(tmp_path / "s.csv"))
+    proc = _cli("calib.synth", "--profile", PROFILE_CSV, *args, "--out", str(tmp_path / "s.csv"))
     assert proc.returncode == 2
     assert needle in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
     assert os.listdir(tmp_path) == []
@@ -194,10 +197,10 @@ def test_discover_names_a_strong_hidden_effect_and_shrinks_the_gap(discover_run)
     assert r["gap_after"] < r["gap_before"]
     # where: size classes, on the side the hidden effect puts them (restitution
     # x (d / 1 m)^0.5: blocks below 1 m lose more, so they travel shorter than the
-    # baseline says), and the residuals rise with size. Since the likelihood's
-    # defensive component (stop 29) the baseline fits the extremes better and the
-    # trend over all rows is no longer significant (measured: 0.4, 0.7 and 1.0 m
-    # flagged at z -3.4, -4.4, -3.4; rho +0.30, p_adj 1); before it, the trend was.
+    # baseline says), and the residuals rise with size. With the likelihood's
+    # defensive component the baseline fits the extremes better and the trend
+    # over all rows is not significant (measured 2026-11-25: 0.4, 0.7 and 1.0 m
+    # flagged at z -3.4, -4.4, -3.4; rho +0.30, p_adj 1); without it, it was.
     flagged = [c for c in r["where"]["by_size"] if c["flag"]]
     assert flagged and all(c["z"] < 0 and c["size_m"] <= 1.0 for c in flagged), flagged
     assert r["where"]["size_trend"]["spearman_rho"] > 0
@@ -448,7 +451,7 @@ def test_a_fold_with_a_large_khat_reaches_the_discovery_record():
 
 
 def test_gap_warning_when_the_named_effect_widens_the_gap():
-    """Tschamut (stop 23): size_dissipation was named with the gap growing from
+    """Tschamut (2026-11-24): size_dissipation was named with the gap growing from
     16.65 to 30.78 m; that is warned about. A shrinking gap, or no effect
     named, says nothing."""
     (w,) = gap_warnings("size_dissipation", 16.65, 30.78)

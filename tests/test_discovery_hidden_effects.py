@@ -2,7 +2,7 @@
 
 For each effect (and the null), 5 synthetic data sets (CRSP, 60 rows over six
 sizes 0.2-2.0 m, sd 5 m, strength 1 = "moderate", seeds 1001-1005, which no
-development run used) go through the default workflow. Required (issue 6): the
+development run used) go through the default workflow. Required: the
 effect is named in at least 4 of 5 seeds; on null data ``none`` in at least
 4 of 5; whenever an effect is named, gap_after < gap_before.
 
@@ -66,11 +66,11 @@ def _run(effect: str) -> list[dict]:
 
 
 _SHORT = {
-    # Measured with this test at the default budget (2026-11-21, issue 6 note).
+    # Measured with this test at the default budget (2026-11-21).
     # The requirement stays 4 of 5; the belt does not reach it at
     # moderate strength with 60 rows, and every miss was "none", not another effect.
-    # Fragmentation was the second shortfall (3 of 5 on 2026-11-21); after the
-    # observation model was unified (one likelihood, issue 16) it was named in
+    # Fragmentation was the second shortfall (3 of 5 on 2026-11-21); with one likelihood
+    # shared by calib.fit and calib.discover it was named in
     # 4 of 5 (2026-11-24: 1001 gain 14.6 +- 6.8 nats, 1003-1005; 1002 named
     # size_dissipation), so it is held to the requirement again.
     "vegetation_belt": "named in 0 of 5 seeds (gains -1.7 to +1.9 nats): a baseline with a "

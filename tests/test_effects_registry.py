@@ -1,4 +1,4 @@
-"""The effect registry (issue 16): one declaration per effect, and the invariants
+"""The effect registry: one declaration per effect, and the invariants
 that tie its parts together (cheap: no simulation)."""
 
 from __future__ import annotations

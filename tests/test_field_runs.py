@@ -19,7 +19,7 @@ from calib.files.field_runs import (
     sphere_diameter_m,
 )
 from calib.files.observations import ObservationError, load_observations
-from solvers.plan_line import read_profile_trace
+from terrain.plan_line import read_profile_trace
 
 RUNS_HEADER = ("run_id,block_id,mass_kg,release_x_m,release_y_m,release_z_m,release_vx_m_s,"
                "release_vy_m_s,release_vz_m_s,stop_x_m,stop_y_m,stop_z_m\n")

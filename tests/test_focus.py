@@ -1,4 +1,4 @@
-"""The Bayesian fit's design and refocusing (issue 17): the first design fills
+"""The Bayesian fit's design and refocusing: the first design fills
 the emulator's coordinates, and NUTS samples only the part of the box that
 the simulator's own likelihood does not rule out."""
 

@@ -1,4 +1,4 @@
-"""Hazard Monte Carlo (issue 5): exceedance step for a deterministic setting,
+"""Hazard Monte Carlo: exceedance step for a deterministic setting,
 monotone bounded curves, reach vs per-block output, 1/sqrt(N) bands, chunking
 invariance, histogram quantiles, intensity classes and matrix."""
 
@@ -345,7 +345,7 @@ def test_one_million_blocks_per_size_run_in_bounded_memory(tmp_path):
 
     path = write_calibration(tmp_path)
     r = subprocess.run([sys.executable, "-m", "calib.hazard", path, "--n-posterior", "1",
-                        "--n-blocks", "1000000", "--block-sizes", "2.0", "--no-progress",
+                        "--n-blocks", "1000000", "--block-sizes-m", "2.0", "--no-progress",
                         "--out", str(tmp_path / "out")], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     peak_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0

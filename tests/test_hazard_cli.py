@@ -17,8 +17,8 @@ from calib.hazard.__main__ import main
 
 # the static shapes of test_hazard.py's small run (2 sizes, one chunk of 400 blocks, 31
 # stations): in one pytest process the in-process runs reuse its compiled pool
-SMALL = ["--n-posterior", "3", "--n-blocks", "400", "--block-sizes", "0.5,2.0",
-         "--stations", "0:300:10", "--no-progress"]
+SMALL = ["--n-posterior", "3", "--n-blocks", "400", "--block-sizes-m", "0.5,2.0",
+         "--stations-m", "0:300:10", "--no-progress"]
 OUTPUTS = ("exceedance.csv", "hazard_table.csv", "exceedance.png", "envelopes.png",
            "summary.txt")
 
@@ -125,6 +125,11 @@ def _bad_files(tmp_path):
     (tmp_path / "post" / "crsp_posterior.csv").write_text("\n".join(text) + "\n")
     (tmp_path / "alpha").mkdir()
     cases["alpha"] = write_calibration(tmp_path / "alpha", dem=(0.0, 0.5))
+    (tmp_path / "release").mkdir()
+    cases["release"] = write_calibration(tmp_path / "release")
+    doc = json.loads((tmp_path / "release" / "calibration.json").read_text())
+    doc["release_x_m"] = 400.0  # a release the fit's profile does not reach
+    (tmp_path / "release" / "calibration.json").write_text(json.dumps(doc))
     return cases
 
 
@@ -142,10 +147,10 @@ def bad(tmp_path):
     ("post", ["--n-posterior", "3"], "crsp_posterior.csv: line 4, column Kt"),
     ("ok", ["--n-posterior", "6"], "has only 5 rows"),
     ("alpha", ["--model", "dem", "--n-posterior", "1"], "dem.alpha_law.a.map: 0 outside (0"),
-    ("ok", ["--stations", "0:400:10"], "outside the profile"),
-    ("ok", ["--stations", "a,b"], "--stations"),
-    ("ok", ["--block-sizes", "0.5,-1"], "--block-sizes: sizes must be positive"),
-    ("ok", ["--block-sizes", "0.5,x"], "--block-sizes"),
+    ("ok", ["--stations-m", "0:400:10"], "outside the profile"),
+    ("ok", ["--stations-m", "a,b"], "--stations-m"),
+    ("ok", ["--block-sizes-m", "0.5,-1"], "--block-sizes-m: sizes must be positive"),
+    ("ok", ["--block-sizes-m", "0.5,x"], "--block-sizes-m"),
     ("ok", ["--n-blocks", "0"], "--n-blocks: expected a positive count"),
     ("ok", ["--n-posterior", "-2"], "--n-posterior: expected a positive count"),
     ("ok", ["--release-rate-per-year", "0"], "--release-rate-per-year"),
@@ -155,8 +160,10 @@ def bad(tmp_path):
     ("ok", ["--road-x-m", "400"], "--road-x-m 400"),
     ("ok", ["--release-x-m", "400"], "--release-x-m 400: the release lies outside the profile"),
     ("ok", ["--release-x-m", "nan"], "--release-x-m nan: the release lies outside the profile"),
-    ("ok", ["--release-x-m", "240"],
-     "station of interest lies at or above the release at x = 240 m"),
+    ("ok", ["--release-x-m", "240", "--road-x-m", "230"],
+     "--road-x-m 230: the station of interest lies at or above the release at x = 240 m"),
+    ("release", [], "calibration.json: release_x_m 400: the release lies outside the profile "
+                    "[0, 300) m"),
     ("ok", ["--bogus"], "unrecognized arguments"),
 ])
 def test_bad_input_one_line_exit_2_nothing_written(bad, tmp_path, capsys, case, extra, needle):
@@ -171,6 +178,25 @@ def test_bad_input_one_line_exit_2_nothing_written(bad, tmp_path, capsys, case, 
     assert exc.value.code == 2
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
     assert len(err) == 1 and needle in err[0], err
+    assert not out.exists()
+
+
+def test_a_typed_release_past_the_station_names_the_flag(bad, tmp_path, capsys):
+    """``--release-x-m 250`` on the Postignano profile releases below its station of
+    interest (230 m, from the site file): the one line names the flag the user
+    typed and its value, the station and where it came from, and the profile's
+    range (it used to open with the site file, which is not at fault)."""
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exc:
+        main([bad["ok"], "--release-x-m", "250", "--n-blocks", "5", "--no-progress",
+              "--out", str(out)])
+    assert exc.value.code == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1, err
+    assert err[0].startswith("python -m calib.hazard: error: --release-x-m 250: "), err[0]
+    assert "station of interest at x = 230 m" in err[0]
+    assert "postignano_site.json: station_of_interest.x_m" in err[0]
+    assert "the profile spans [0, 300) m" in err[0]
     assert not out.exists()
 
 

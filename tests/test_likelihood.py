@@ -1,6 +1,6 @@
 """The one observation model (``calib.inference.likelihood``): ``calib.fit``'s path
 (``calib.inference.calibrate``) and ``calib.discover``'s (``calib.discovery.discrepancy``) score the
-same rows identically, and both are the model ``README.md`` documents."""
+same rows identically, and both are the model ``docs/calibration.md`` documents."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from scipy.stats import norm
 
 from calib.discovery.discrepancy import _loglik_design, size_classes
 from calib.files.observations import Observations
-from calib.inference.calibrate import _loglik_of_runouts
+from calib.inference.fit_check import loglik_of_runouts as _loglik_of_runouts
 from calib.inference.likelihood import R_MAX_M, RUNOUT_EPS, log_likelihood, observed_rows
 
 NAN = np.nan
@@ -41,7 +41,7 @@ def _runouts(n_points: int = 3, n: int = 24) -> np.ndarray:
 
 
 def _documented(obs: Observations, runouts: np.ndarray) -> np.ndarray:
-    """README.md, "Observation model", in NumPy: points (1/n) sum_j N(y; r_j, sd^2),
+    """docs/calibration.md, "Observation model", in NumPy: points (1/n) sum_j N(y; r_j, sd^2),
     intervals (1/n) sum_j [Phi((b - r_j)/h) - Phi((a - r_j)/h)], h Silverman's
     width (>= 0.5 m), over the finished blocks; each mixed with weight 1 - eps
     with the defensive uniform eps / R_MAX (eps (b - a) / R_MAX for intervals)."""
@@ -96,9 +96,9 @@ def test_a_point_row_without_a_tolerance_is_refused():
 
 def test_a_row_no_block_reaches_costs_a_bounded_amount():
     """The defensive component (Hesterberg 1995): a point row 40 m from every
-    simulated block (a 2 m tolerance) scored -202 nats without it (the Tschamut
-    short runs that pushed the rolling resistance to 36 deg, stop 29); now it
-    scores log(eps / R_MAX) = -13.8. A row the blocks explain changes by
+    simulated block (a 2 m tolerance) scored -202 nats without it (as the
+    Tschamut short runs did, pushing the rolling resistance to 36 deg); with
+    it, it scores log(eps / R_MAX) = -13.8. A row the blocks explain changes by
     log(1 - eps) at most, and an interval row by its own floor."""
     blocks = np.linspace(90.0, 110.0, 64)[None].repeat(3, 0)
     y = np.array([50.0, 100.0, 0.0])

@@ -1,6 +1,6 @@
 """The GP of the summed simulated log-likelihood (``calib.inference.loglik_emulator``)
 and the chain screening that keeps NUTS's chains where the simulator fits
-(``calib.inference.calibrate``; issue 17)."""
+(``calib.inference.calibrate``)."""
 
 from __future__ import annotations
 

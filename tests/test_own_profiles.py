@@ -18,12 +18,13 @@ import calib  # noqa: F401  (x64)
 from calib.field import main as field_main
 from calib.files.inputs import on_command_profile, own_profile
 from calib.files.observations import ObservationError, load_observations
-from calib.inference.calibrate import _check_entries, _release_slopes_deg, _row_entries
+from calib.inference.calibrate import _row_entries
+from calib.inference.fit_check import check_entries, release_slopes_deg
 from calib.model.entries import Entries
 from calib.model.forward import CrspForward, DemForward
 from calib.model.priors import CRSP_ROLLING_BOX
 from solvers.profile import load_profile
-from solvers.profile_cli import main as profile_main
+from terrain.cut import main as cut_main
 
 DATA = "data/tschamut2014"
 LINE = load_profile(f"{DATA}/profile.csv")
@@ -113,7 +114,7 @@ def test_the_check_simulates_groups_on_their_profiles():
                                 release_x_m=np.array([40.2, 40.2]),
                                 profile=np.array(["", f"{DATA}/east_spot_profile.csv"], object))
     g = Entries.from_rows(obs, 0.0, profile_of=own_profile)
-    checked, entry = _check_entries(g, np.array([0.3]))
+    checked, entry = check_entries(g, np.array([0.3]))
     # the group on the command's profile at the median release is the figure's
     # entry; the one at the same abscissa on the spot's profile is not
     assert checked.profiles == (None, EAST) and entry.tolist() == [0, 1]
@@ -122,7 +123,7 @@ def test_the_check_simulates_groups_on_their_profiles():
     with pytest.raises(ValueError, match="forward must be built on the rows' entries"):
         _row_entries(CrspForward(LINE, np.array([0.3, 0.3]), 4, jax.random.key(0)),
                      types.SimpleNamespace(n_obs=2, sizes_m=np.array([0.3])))
-    slopes = _release_slopes_deg(LINE, g.release_x_m, g.profiles)
+    slopes = release_slopes_deg(LINE, g.release_x_m, g.profiles)
     assert 36 < slopes[1] < 40 and slopes[0] > 40, slopes
 
 
@@ -179,18 +180,18 @@ def test_cut_along_one_spots_fall_line(tmp_path, capsys):
     """--fall-line-near E,N,R cuts the mean fall line of the runs released within
     R m of (E, N), and records it; no run there is one line, exit 2."""
     out = tmp_path / "spot.csv"
-    rc, _, err = run_cli(profile_main, ["cut", f"{DATA}/terrain_proxy.asc", "--fall-line",
-                                     f"{DATA}/runs.csv", "--fall-line-near", "59,257.5,10",
-                                     "--margin-m", "40", "--zones", "steep:0:100,flat:100:",
-                                     "--out", str(out)], capsys)
+    rc, _, err = run_cli(cut_main, [f"{DATA}/terrain_proxy.asc", "--fall-line",
+                                    f"{DATA}/runs.csv", "--fall-line-near", "59,257.5,10",
+                                    "--margin-m", "40", "--zones", "steep:0:100,flat:100:",
+                                    "--out", str(out)], capsys)
     assert rc == 0, err
     assert _text(out) == _text(f"{DATA}/east_spot_profile.csv")
     info = json.loads(_text(tmp_path / "spot.cut.json"))
     assert info["line"]["runs_released_near"] == {"east_m": 59.0, "north_m": 257.5,
                                                   "radius_m": 10.0}
-    rc, _, err = run_cli(profile_main, ["cut", f"{DATA}/terrain_proxy.asc", "--fall-line",
-                                     f"{DATA}/runs.csv", "--fall-line-near", "0,0,5",
-                                     "--out", str(tmp_path / "none.csv")], capsys)
+    rc, _, err = run_cli(cut_main, [f"{DATA}/terrain_proxy.asc", "--fall-line",
+                                    f"{DATA}/runs.csv", "--fall-line-near", "0,0,5",
+                                    "--out", str(tmp_path / "none.csv")], capsys)
     assert rc == 2 and "no run is released within 5 m of (0, 0)" in err
     assert not (tmp_path / "none.csv").exists()
 

@@ -1,4 +1,4 @@
-"""Every row simulated from its own release point, in every consumer (issue 17):
+"""Every row simulated from its own release point, in every consumer:
 the DEM forward model per (size, release) entry, and the discrepancy workflow
 (``calib.discover``) grouping rows by (size class, release) as ``calib.fit`` does."""
 

@@ -14,9 +14,20 @@ from calib.discovery.power_study import detection_table
 from calib.power import parse_seeds
 from solvers.cli import CliError
 
+PROFILE = "data/postignano_profile.csv"
+
 
 def _cli(*args):
     return run_module("calib.power", *args)
+
+
+def test_power_needs_a_profile(tmp_path):
+    """No site is the default slope: without --profile the command says so in one
+    line (exit 2), and its --help shows an example that names one."""
+    r = _cli("--effects", "none", "--out", str(tmp_path / "pw"))
+    assert r.returncode == 2 and r.stderr.count("\n") == 1
+    assert "required: --profile" in r.stderr
+    assert "--profile data/postignano_profile.csv" in _cli("--help").stdout
 
 
 def test_parse_seeds_lists_and_ranges():
@@ -52,8 +63,8 @@ def test_detection_table_counts_rates_and_exact_intervals():
 @pytest.mark.slow  # a whole quick power study, 23 s: run with -m slow
 def test_power_quick_run_writes_table_and_resumes(tmp_path):
     out = tmp_path / "pw"
-    args = ["--effects", "none", "--n-obs", "12", "--seeds", "5", "--quick", "--no-progress",
-            "--out", str(out)]
+    args = ["--profile", PROFILE, "--effects", "none", "--n-obs", "12", "--seeds", "5",
+            "--quick", "--no-progress", "--out", str(out)]
     r = _cli(*args)
     assert r.returncode == 0, r.stderr
     df = pd.read_csv(out / "power.csv")
@@ -80,13 +91,13 @@ def test_power_quick_run_writes_table_and_resumes(tmp_path):
     (["--strengths", "0"], "--strengths"),
     (["--n-obs", "2.5"], "--n-obs"),
     (["--seeds", "9-1"], "--seeds"),
-    (["--sd", "-1"], "--sd"),
+    (["--sd-m", "-1"], "--sd-m: expected a positive number of metres, got -1"),
     (["--profile", "nope.csv"], "nope.csv"),
     (["--n-blocks", "0"], "--n-blocks"),
 ])
 def test_power_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, needle):
     out = tmp_path / "pw"
-    r = _cli(*args, "--out", str(out), "--no-progress")
+    r = _cli("--profile", PROFILE, *args, "--out", str(out), "--no-progress")
     assert r.returncode == 2
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0] and lines[0].startswith("python -m calib.power")

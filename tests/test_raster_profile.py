@@ -1,4 +1,4 @@
-"""Profiles cut from a raster (solvers/raster.py, python -m solvers.profile cut)."""
+"""Profiles cut from a raster (terrain/raster.py, terrain/plan_line.py, python -m terrain.cut)."""
 
 import json
 import os
@@ -6,12 +6,12 @@ import sys
 
 import numpy as np
 import pytest
-from cli_run import run_cli
+from cli_run import run_cli, run_module
 
 from solvers import load_profile
-from solvers.plan_line import Polyline, mean_fall_line, read_line, read_profile_trace
-from solvers.profile import main
-from solvers.raster import (
+from terrain.cut import main
+from terrain.plan_line import Polyline, mean_fall_line, read_line, read_profile_trace
+from terrain.raster import (
     Raster,
     RasterError,
     cut_profile,
@@ -222,7 +222,7 @@ def _setup(tmp_path, nodata_at=None):
 def test_cli_writes_a_profile_that_loads(tmp_path, capsys):
     grid, line, out = _setup(tmp_path)
     os.makedirs(os.path.dirname(out))
-    rc, stdout, err = _cli(["cut", grid, "--line", line, "--step-m", "2",
+    rc, stdout, err = _cli([grid, "--line", line, "--step-m", "2",
                             "--zones", "up:0:20,down:20:", "--out", out], capsys)
     assert rc == 0, err
     prof = load_profile(out)  # finds p_materials.csv
@@ -244,7 +244,7 @@ def test_cli_writes_a_profile_that_loads(tmp_path, capsys):
 ])
 def test_cli_bad_input_exits_2_and_writes_nothing(tmp_path, capsys, case, needle):
     grid, line, out = _setup(tmp_path, nodata_at=(3, 4) if case == "nodata" else None)
-    argv = ["cut", grid, "--line", line, "--out", out, "--zones", "up:0:20,down:20:"]
+    argv = [grid, "--line", line, "--out", out, "--zones", "up:0:20,down:20:"]
     if case == "outside":
         (tmp_path / "line.csv").write_text("east_m,north_m\n105,230\n175,205\n")
     if case == "short":
@@ -259,8 +259,28 @@ def test_cli_bad_input_exits_2_and_writes_nothing(tmp_path, capsys, case, needle
         argv += ["--materials", str(tmp_path / "m.csv")]
     rc, _, err = _cli(argv, capsys)
     assert rc == 2
-    assert err.count("\n") == 1 and needle in err and err.startswith("python -m solvers.profile")
+    assert err.count("\n") == 1 and needle in err
+    assert err.startswith("python -m terrain.cut: error: ")
     assert not os.path.exists(tmp_path / "out")
+
+
+def test_old_command_name_still_cuts_and_warns_once(tmp_path):
+    """``python -m solvers.profile cut`` (the name before the terrain package) runs
+    ``python -m terrain.cut`` for one release: the same files, and one warning line
+    on stderr that names the new command."""
+    grid, line, out = _setup(tmp_path)
+    new = tmp_path / "new.csv"
+    args = [grid, "--line", line, "--step-m", "2"]
+    old = run_module("solvers.profile", "cut", *args, "--out", out)
+    assert old.returncode == 0, old.stderr
+    warning = [ln for ln in old.stderr.splitlines() if ln.strip()]
+    assert len(warning) == 1 and "deprecated" in warning[0], old.stderr
+    assert "'python -m terrain.cut'" in warning[0]
+    assert main([*args, "--out", str(new)]) == 0
+    assert _read(out) == _read(new)
+    bare = run_module("solvers.profile")
+    assert bare.returncode == 2 and bare.stderr.count("\n") == 1
+    assert "python -m terrain.cut" in bare.stderr
 
 
 # ---------------------------------------------------------------- the shipped case
@@ -300,15 +320,13 @@ def test_recutting_the_shipped_profile_reproduces_it(tmp_path, capsys):
 
 def test_non_utf8_line_file_is_one_line_exit_2(tmp_path, capsys):
     """A line CSV saved in Latin-1 is a clear error, not a traceback."""
-    from solvers.profile import main
-
     grid = tmp_path / "g.asc"
     grid.write_text("ncols 3\nnrows 3\nxllcorner 0\nyllcorner 0\ncellsize 10\n"
                     "NODATA_value -9999\n1 1 1\n1 1 1\n1 1 1\n")
     line = tmp_path / "line.csv"
     line.write_bytes("x,y\n5,5\n25,25\n# caf\xe9\n".encode("latin-1"))
     with pytest.raises(SystemExit) as e:
-        main(["cut", str(grid), "--line", str(line), "--out", str(tmp_path / "p.csv")])
+        main([str(grid), "--line", str(line), "--out", str(tmp_path / "p.csv")])
     err = capsys.readouterr().err
     assert e.value.code == 2 and "UTF-8" in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "p.csv").exists()

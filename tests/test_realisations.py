@@ -1,6 +1,6 @@
 """Realisations of the log-likelihood GP and the check that the posterior's
 intervals are not narrower than the GP's own uncertainty
-(``calib.inference.realisations``; issue 17: Tschamut intervals narrower than
+(``calib.inference.realisations``; the case: Tschamut intervals narrower than
 the spread between two fits of the same data)."""
 
 from __future__ import annotations
@@ -76,12 +76,12 @@ def test_a_gp_that_knows_the_peak_keeps_its_realisations_inside_the_interval():
 
 
 def test_the_spread_between_two_fits_is_flagged():
-    """The defect (issue 17, Tschamut all 62 runs: Kt 0.960-0.964 and
+    """The defect (Tschamut, all 62 runs: Kt 0.960-0.964 and
     0.973-0.978 from two seeds, both passing their diagnostics): two fits of
     the same sharp log-likelihood from 24-point designs that differ only in
     their random numbers. Their mean-GP 90 % intervals miss each other's
     median; each fit's realisations span beyond its interval, and the fit
-    says so (before this check, nothing said so)."""
+    says so (without this check, nothing would)."""
     fits = [_mean_gp_posterior(s) for s in (1, 2)]
     q = [np.quantile(p.samples, [0.05, 0.5, 0.95], axis=0) for _, p in fits]
     assert not all(np.all((q[i][0] <= q[1 - i][1]) & (q[1 - i][1] <= q[i][2])) for i in (0, 1))
@@ -111,7 +111,7 @@ def test_realisations_put_no_weight_outside_the_prior_box():
 
 
 def test_simulating_at_the_realisations_draws_repairs_the_spread():
-    """The repair, in ``calibrate._bayesian``'s order: while NUTS fails its
+    """The repair, in ``calib.inference.bayes_stage``'s order: while NUTS fails its
     diagnostics (chains started as the fit starts them,
     ``calib.inference.chains.chain_starts``), 8 of its draws are simulated and
     join the GP's design (at most 2 such refinements); then, while the check

@@ -1,4 +1,4 @@
-"""Field runs released from above the ground (issue 17): ``release_height_m``
+"""Field runs released from above the ground: ``release_height_m``
 from the rows to the CRSP forward model, the fit's release groups and the
 predictive check."""
 

@@ -1,4 +1,4 @@
-"""The rolling resistance as a fourth CRSP parameter (issue 17): the forward model,
+"""The rolling resistance as a fourth CRSP parameter: the forward model,
 the calibration file and the hazard run all read it by name."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Site files (issue 17: nothing site-specific in defaults): where they are found,
+"""Site files (nothing site-specific in defaults): where they are found,
 what they give, bad ones refused, and calib.hazard reporting at the site's
 station of interest or, without one, at the profile's last station."""
 

@@ -1,5 +1,5 @@
 """notebooks/04_tschamut.py executes top to bottom with quick budgets: raster ->
-profile -> observations -> calibration with a held-out check (issue 17).
+profile -> observations -> calibration with a held-out check.
 
 Slow (a quick Tschamut fit, about 2-3 minutes on 2 cores): run with -m slow."""
 

@@ -1,4 +1,4 @@
-"""The predictive check (issue 17): scores on known ensembles, per-row releases in
+"""The predictive check: scores on known ensembles, per-row releases in
 the forward model, and ``python -m calib.validate`` end to end and on bad input."""
 
 from __future__ import annotations

@@ -16,7 +16,8 @@ from calib.inference.likelihood import V_MAX_M_S, VELOCITY_EPS, velocity_log_lik
 from calib.model.forward import CrspForward
 from solvers.profile import load_profile
 
-PROFILE = load_profile("data/postignano_profile.csv")
+PROFILE_CSV = "data/postignano_profile.csv"
+PROFILE = load_profile(PROFILE_CSV)
 HEADER = "station_x_m,block_size_m,velocity_m_s,velocity_sd_m_s,source\n"
 
 
@@ -88,8 +89,8 @@ def test_crsp_simulate_gives_the_runouts_and_speeds_of_blocks_that_pass():
 def belt_with_speeds(tmp_path_factory):
     out = tmp_path_factory.mktemp("vel")
     proc = _cli("calib.synth", "--effect", "vegetation_belt", "--n-obs", "24", "--seed", "21",
-                "--velocity-stations", "110", "--n-velocity", "12", "--out",
-                str(out / "s.csv"))
+                "--profile", PROFILE_CSV, "--velocity-stations-m", "110", "--n-velocity", "12",
+                "--out", str(out / "s.csv"))
     return proc, out
 
 
@@ -106,13 +107,15 @@ def test_synth_writes_speeds_that_hide_the_effect(belt_with_speeds):
 
 
 @pytest.mark.parametrize("args, needle", [
-    (["--velocity-stations", "400"], "outside the profile"),
-    (["--velocity-stations", "x"], "--velocity-stations"),
-    (["--velocity-stations", "110", "--n-velocity", "0"], "--n-velocity"),
-    (["--velocity-stations", "110", "--model", "dem"], "CRSP only"),
+    (["--velocity-stations-m", "400"], "outside the profile"),
+    (["--velocity-stations-m", "x"], "--velocity-stations-m"),
+    (["--velocity-stations-m", "110", "--n-velocity", "0"], "--n-velocity"),
+    (["--velocity-stations-m", "110", "--model", "dem"], "CRSP only"),
+    (["--velocity-stations-m", "110", "--velocity-sd-m-s", "0"], "--velocity-sd-m-s"),
 ])
 def test_synth_bad_velocity_input_is_one_line_exit_2(tmp_path, args, needle):
-    proc = _cli("calib.synth", "--effect", "none", *args, "--out", str(tmp_path / "s.csv"))
+    proc = _cli("calib.synth", "--effect", "none", "--profile", PROFILE_CSV, *args,
+                "--out", str(tmp_path / "s.csv"))
     assert proc.returncode == 2
     assert needle in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
     assert os.listdir(tmp_path) == []

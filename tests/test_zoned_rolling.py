@@ -102,7 +102,7 @@ def test_calib_fit_fits_one_angle_per_zone_of_every_profile(tmp_path, capsys):
     """``calib.fit --rolling-resistance zones`` on the Tschamut split (quick
     budget): one angle per zone of the two profiles' shared zones, in the json,
     the posterior CSV, the bound-mass report, and read back by the predictive
-    check. Nothing here says the zoned model fits better (it did not, README)."""
+    check. Nothing here says the zoned model fits better (it did not, docs/studies.md)."""
     import json
 
     from cli_run import run_cli

@@ -5,13 +5,13 @@ Reads tracked field runs, one row per run: a release point and a stop point in
 plan (east, north, in the coordinates of the profile's raster), the block's
 mass (or its three dimensions), optionally the velocity at release; projects
 both points onto the profile's plan trace (the ``east_m,north_m`` columns that
-``python -m solvers.profile cut`` writes); and writes one observation row per
+``python -m terrain.cut`` writes); and writes one observation row per
 run in the schema of ``calib.files.observations``.
 
 Definitions (the equations are standard; which one applies is our choice):
 
 * Along-line position: the orthogonal projection onto the plan trace
-  (``solvers.plan_line.Polyline.project``); ``release_x_m`` is the release's
+  (``terrain.plan_line.Polyline.project``); ``release_x_m`` is the release's
   profile abscissa, and ``runout_m = x(stop) - x(release)``, a horizontal
   distance along the profile. The lateral offset of each point from the trace
   (m, positive to the left looking downslope) is reported per row; the 2D
@@ -322,7 +322,7 @@ def field_observations(runs: FieldRuns, profile_x_m: np.ndarray, trace, *,
     Args:
         runs: the validated runs.
         profile_x_m: (V,) profile abscissae, m.
-        trace: the profile's plan trace (``solvers.plan_line.Polyline``, V vertices).
+        trace: the profile's plan trace (``terrain.plan_line.Polyline``, V vertices).
         density_kg_m3: rho of d = (6 m / (pi rho))^(1/3).
         runout_sd_m: tolerance written to every row, m.
         max_offset_m: rows with a point farther than this from the trace are
@@ -396,7 +396,7 @@ _FORMATS = {"block_size_m": "{:.4f}", "runout_m": "{:.3f}", "runout_sd_m": "{:g}
 
 def nearest_profiles(runs: FieldRuns, traces) -> np.ndarray:
     """(R,) index of the profile each run belongs to, among profiles with plan
-    traces ``traces`` (``solvers.plan_line.Polyline``): the one whose trace
+    traces ``traces`` (``terrain.plan_line.Polyline``): the one whose trace
     passes nearest the run's RELEASE point (smallest lateral offset; the first
     on a tie). Our choice: a run follows the fall line of the spot it was let
     go from, and where it stops is what is observed, so the stop point must not

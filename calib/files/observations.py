@@ -46,7 +46,7 @@ A second, optional table holds PASSAGE VELOCITIES at stations (``load_velocities
   et al. 2018, whose blocks were filmed through a forest and an instrumented
   slope). Runouts and sizes alone cannot tell a lower tangential restitution
   from a belt of trees that brakes blocks lower down; a speed measured ABOVE the
-  belt can (``README.md``, "Vegetation belt").
+  belt can (``docs/studies.md``, "Passage speeds").
 
 What the solvers make of the rows (the block-size rule, grouping rows by
 release into simulated entries) is ``calib.model.entries``.

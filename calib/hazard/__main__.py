@@ -1,10 +1,11 @@
 """Command line: ``python -m calib.hazard results/calibration.json [options]``.
 
-Writes into ``--out`` (default ``results/hazard/``): ``exceedance.csv``,
-``hazard_table.csv``, ``exceedance.png``, ``envelopes.png`` and
-``summary.txt``, each through a temporary file and a rename, only after the
-whole run succeeded. Bad input: one line on stderr, exit status 2, nothing
-written.
+Writes into ``--out`` (default ``results/hazard/``): ``hazard.nc`` (the results
+Dataset, ``calib.files.hazard_results``: what ``python -m calib.design`` reads),
+and from it ``exceedance.csv``, ``hazard_table.csv``, ``exceedance.png``,
+``envelopes.png`` and ``summary.txt``, each through a temporary file and a
+rename, only after the whole run succeeded. Bad input: one line on stderr, exit
+status 2, nothing written.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from calib.model.dem_run import DEM_RUN
 from solvers.cli import (
     CliError,
     OneLineParser,
+    deprecated_alias,
     fail,
     parse_floats,
     parse_stations,
@@ -27,7 +29,7 @@ from solvers.cli import (
 from solvers.dem import check_run_numerics
 
 # model -> (blocks per draw and size, posterior draws); DEM defaults keep the
-# default DEM run under 10 minutes on 2 CPU cores (measured 4.3 min: see README.md)
+# default DEM run under 10 minutes on 2 CPU cores (254 s on 2026-11-21: docs/studies.md)
 DEFAULTS = {"crsp": (20000, 100), "dem": (64, 16)}
 
 
@@ -39,17 +41,20 @@ def build_parser() -> OneLineParser:
             "posterior draws x block sizes x blocks; runout exceedance curves with posterior "
             "bands, reach probability, energy / bounce-height / velocity design values, Swiss "
             "intensity classes and (with --release-rate-per-year) annual frequencies and "
-            "hazard levels. Writes exceedance.csv, hazard_table.csv, two PNG figures and "
-            "summary.txt."),
+            "hazard levels. Writes hazard.nc (every result, for python -m calib.design) and "
+            "from it exceedance.csv, hazard_table.csv, two PNG figures and summary.txt."),
         epilog="Example: python -m calib.hazard results/calibration.json --n-posterior 20 "
                "--n-blocks 5000 --release-rate-per-year 0.5 --out results/hazard/")
     p.add_argument("calibration", help="calibration.json written by python -m calib.fit")
     p.add_argument("--model", choices=("crsp", "dem"),
                    help="solver (default: crsp if calibrated, else dem)")
-    p.add_argument("--stations", help="stations 'start:stop:step' or 'x1,x2,...' in m "
+    p.add_argument("--stations-m", help="stations 'start:stop:step' or 'x1,x2,...' in m "
                    "(default: the profile's range every 5 m)")
-    p.add_argument("--block-sizes", default="0.2,0.5,1.0,2.0",
-                   help="block sizes (average diameter), m (default 0.2,0.5,1.0,2.0)")
+    deprecated_alias(p, "--stations", "--stations-m")
+    p.add_argument("--block-sizes-m", default="0.2,0.5,1.0,2.0",
+                   help="block sizes d (the diameter), m: CRSP spheres of radius d/2, DEM "
+                        "squares of side d (default 0.2,0.5,1.0,2.0)")
+    deprecated_alias(p, "--block-sizes", "--block-sizes-m")
     p.add_argument("--n-blocks", type=int, help="blocks per draw and size "
                    f"(default {DEFAULTS['crsp'][0]} CRSP, {DEFAULTS['dem'][0]} DEM)")
     p.add_argument("--n-posterior", type=int, help="posterior draws; 1 = the point "
@@ -98,12 +103,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     prog = parser.prog
     try:
-        sizes = parse_floats(args.block_sizes, "--block-sizes")
+        sizes = parse_floats(args.block_sizes_m, "--block-sizes-m")
         bad = [s for s in sizes if s <= 0]
         if bad:
-            raise CliError(f"--block-sizes: sizes must be positive, got {bad[0]:g}")
+            raise CliError(f"--block-sizes-m: sizes must be positive, got {bad[0]:g}")
         if len(set(sizes)) != len(sizes):
-            raise CliError("--block-sizes: sizes must be distinct")
+            raise CliError("--block-sizes-m: sizes must be distinct")
         for name in ("n_blocks", "n_posterior"):
             v = getattr(args, name)
             if v is not None:
@@ -152,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
         cal = load_calibration(args.calibration, args.model)
         profile = load_profile(cal.profile_csv)
         lo, hi = profile.x_range_m
-        stations = parse_stations(args.stations or f"{lo:g}:{hi:g}:5", profile.x_range_m)
+        stations = parse_stations(args.stations_m or f"{lo:g}:{hi:g}:5", profile.x_range_m)
         road_x, label = args.road_x_m, "road"
         site = load_site(cal.profile_csv)
         cal.check_density(site.rock_density_kg_m3, f"the site file {site.path}"
@@ -161,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
             road_x, label = site.station_x_m, site.station_label
             where = f"{site.path}: station_of_interest.x_m"
             if road_x is None:
-                road_x, label = max(stations), "last station"
+                road_x, label, where = max(stations), "last station", "the last station"
                 print(f"no station of interest (no --road-x-m, and no site file "
                       f"{site_path(cal.profile_csv)} giving one): the summary reports at "
                       f"the last station, x = {road_x:g} m")
@@ -170,15 +175,24 @@ def main(argv: list[str] | None = None) -> int:
         if not (math.isfinite(road_x) and lo < road_x <= hi):
             raise CliError(f"{where} {road_x:g}: the station of interest lies outside the "
                            f"profile ({lo:g}, {hi:g}] m")
-        release_x = args.release_x_m
-        if release_x is not None and not (math.isfinite(release_x) and lo <= release_x < hi):
-            raise CliError(f"--release-x-m {release_x:g}: the release lies outside the "
-                           f"profile [{lo:g}, {hi:g}) m")
+        release_x, release_where = args.release_x_m, "--release-x-m"
         if release_x is None:
             release_x = default_release_x_m(cal, profile)
+            release_where = (f"{cal.path}: release_x_m" if cal.release_x_m is not None
+                             else "the profile's first vertex")
+        if not (math.isfinite(release_x) and lo <= release_x < hi):
+            raise CliError(f"{release_where} {release_x:g}: the release lies outside the "
+                           f"profile [{lo:g}, {hi:g}) m")
+        if road_x <= release_x and args.release_x_m is not None and args.road_x_m is None:
+            # the release was typed, the station was not: the flag is what to change
+            raise CliError(f"--release-x-m {release_x:g}: the release lies at or downslope of "
+                           f"the station of interest at x = {road_x:g} m ({where}), so no block "
+                           f"can pass it; the profile spans [{lo:g}, {hi:g}) m: release above "
+                           f"x = {road_x:g} m, or give --road-x-m")
         if road_x <= release_x:
             raise CliError(f"{where} {road_x:g}: the station of interest lies at or above "
-                           f"the release at x = {release_x:g} m: no block can pass it")
+                           f"the release at x = {release_x:g} m ({release_where}): no block "
+                           "can pass it")
         stations = sorted(set(stations) | {road_x})
         n_blocks = args.n_blocks or DEFAULTS[cal.model][0]
         n_post = args.n_posterior or DEFAULTS[cal.model][1]
@@ -206,9 +220,15 @@ def main(argv: list[str] | None = None) -> int:
                         progress=bar.update)
     wall = time.perf_counter() - t0
     bar.close()
-    exc_df = exceedance_table(counts)
-    table = hazard_table(counts, profile, rate)
-    text = summary_text(counts, table, road_x, rate, label)
+    from calib.files.hazard_results import results_writer
+    from calib.hazard._results import hazard_dataset
+
+    results = hazard_dataset(counts, profile, seed=args.seed, road_x_m=road_x, road_label=label,
+                             release_rate_per_year=rate,
+                             record=_record(parser.prog, args.seed, cal, args.calibration))
+    exc_df = exceedance_table(results)
+    table = hazard_table(results)
+    text = summary_text(results, table, road_x, rate, label)
     title = (f"{cal.model.upper()}: {len(draws.values)} draw(s) ({draws.source}) x "
              f"{n_blocks} blocks per size")
 
@@ -216,6 +236,7 @@ def main(argv: list[str] | None = None) -> int:
         return lambda p: df.to_csv(p, index=False)
 
     writers = {
+        "hazard.nc": results_writer(results),
         "exceedance.csv": csv_writer(exc_df),
         "hazard_table.csv": csv_writer(table),
         "exceedance.png": lambda p: plot_exceedance(exc_df, profile, road_x, p, title, label),
@@ -232,6 +253,35 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{total:,} blocks in {wall:.1f} s ({total / wall:,.0f} blocks/s incl. compile) on "
           f"{len(jax.devices())} device(s); wrote {names} to {args.out}")
     return 0
+
+
+def _record(prog: str, seed: int, cal, path: str) -> dict:
+    """What ``hazard.nc`` says about its calibration: the provenance of the run
+    (``calib.files.provenance``), the calibration's own predictive check
+    (``adequacy`` of its model section, ``calib.inference.adequacy``) and the rock
+    density the run simulated, where the calibration file states it (key
+    ``rock_density_kg_m3``; older files fall back on the solvers' default, and
+    ``hazard.nc`` then names no density)."""
+    from calib.files.calibration_file import CalibrationFile
+    from calib.files.provenance import provenance
+    from solvers.profile import default_materials_path
+
+    doc = CalibrationFile.from_json(path)
+    section = doc.models.get(cal.model, {})
+    stated = "rock_density_kg_m3" in doc.record
+    source = doc.record.get("rock_density_source")
+    materials = default_materials_path(cal.profile_csv)
+    return {
+        "calibration": path,
+        "provenance_json": provenance(prog, seed, {
+            "calibration": path, "posterior": cal.posterior_csv, "profile": cal.profile_csv,
+            "materials": materials if os.path.isfile(materials) else None}),
+        "adequacy_json": section.get("adequacy"),
+        "rock_density_kg_m3": float(cal.rock_density_kg_m3) if stated else None,
+        "rock_density_source": (f"{path}: rock_density_kg_m3"
+                                + (f" ({source})" if isinstance(source, str) else ""))
+        if stated else None,
+    }
 
 
 if __name__ == "__main__":

@@ -1,9 +1,12 @@
 """Hazard pipeline throughput vs the bare CRSP solver:
-``python -m calib.hazard._bench [--n 16384] [--draws 2]``.
+``python -m calib.hazard._bench --profile data/postignano_profile.csv [--n 16384]
+[--draws 2]``.
 
 Both runs use the same work: 4 block sizes (0.2, 0.5, 1, 2 m) x ``n`` blocks as
-tasks of one CRSP lane pool (``--pool`` lanes), Kn 0.41, Kt 0.87, roughness 2 m, 61
-stations every 5 m on the Postignano profile.
+tasks of one CRSP lane pool (``--pool`` lanes), Kn 0.41, Kt 0.87, roughness 2 m
+(the seed paper's set, Sect. 4.1), stations every 5 m along ``--profile``
+(61 on the Postignano profile, 0 to 300 m, where the figures in README.md
+were measured).
 
 * solver: ``solvers.crsp.simulate_tasks`` returning per-block results;
 * pipeline: ``calib.hazard.run_hazard`` with ``draws`` draws of the point
@@ -30,18 +33,17 @@ from calib.files.calibration_file import draw_parameters, load_calibration
 from calib.hazard._run import run_hazard
 from calib.model.entries import crsp_radius_m
 from calib.model.forward import stack_trees
-from solvers import crsp, load_profile
+from solvers import ProfileError, crsp, load_profile
 from solvers.cli import OneLineParser
 
-PROFILE = os.path.abspath("data/postignano_profile.csv")
 SIZES_M = (0.2, 0.5, 1.0, 2.0)
 
 
-def _calibration_file(folder: str) -> str:
+def _calibration_file(folder: str, profile_csv: str) -> str:
     import json
 
     point = {"map": 0.0, "mean": 0.0, "q05": 0.0, "q95": 0.0}
-    doc = {"schema": "rockfall-calibration/1", "profile_csv": PROFILE,
+    doc = {"schema": "rockfall-calibration/1", "profile_csv": os.path.abspath(profile_csv),
            "crsp": {"Kn": dict(point, map=0.41), "Kt": dict(point, map=0.87),
                     "roughness_m": dict(point, map=2.0), "posterior_csv": None}}
     path = os.path.join(folder, "calibration.json")
@@ -51,7 +53,12 @@ def _calibration_file(folder: str) -> str:
 
 
 def main(argv=None) -> int:
-    p = OneLineParser(prog="python -m calib.hazard._bench", description=__doc__.split("\n\n")[0])
+    p = OneLineParser(prog="python -m calib.hazard._bench", description=__doc__.split("\n\n")[0],
+                      epilog="Example: python -m calib.hazard._bench "
+                             "--profile data/postignano_profile.csv --n 4096")
+    p.add_argument("--profile", required=True,
+                   help="slope profile CSV (its materials CSV next to it), e.g. "
+                        "data/postignano_profile.csv")
     p.add_argument("--n", type=int, default=16384, help="blocks per size and draw (default 16384)")
     p.add_argument("--draws", type=int, default=2, help="draws in the pipeline run (default 2)")
     p.add_argument("--pool", type=int, default=None,
@@ -59,8 +66,12 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if args.pool is None:
         args.pool = crsp.default_pool()
-    profile = load_profile(PROFILE)
-    stations = np.arange(0.0, 301.0, 5.0)
+    try:
+        profile = load_profile(args.profile)
+    except ProfileError as e:
+        p.error(str(e))
+    lo, hi = profile.x_range_m
+    stations = np.arange(lo, hi + 1e-9, 5.0)
     params = crsp.params_from_profile(profile, Kn=0.41, Kt=0.87, roughness_m=2.0)
     stack = stack_trees
     ps = stack([params] * len(SIZES_M))
@@ -83,7 +94,7 @@ def main(argv=None) -> int:
           f"load {os.getloadavg()[0]:.2f}", flush=True)
 
     with tempfile.TemporaryDirectory() as tmp:
-        cal = load_calibration(_calibration_file(tmp), "crsp")
+        cal = load_calibration(_calibration_file(tmp, args.profile), "crsp")
 
     def pipeline(n_draws, seed):
         draws = draw_parameters(cal, n_draws, seed)

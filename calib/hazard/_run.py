@@ -1,9 +1,11 @@
 """The Monte Carlo loop: posterior draws x block sizes x blocks, in chunks.
 
 ``run_hazard`` turns a ``Calibration`` and its ``Draws`` into a ``HazardCounts``:
-per-draw counts at each station (so that posterior bands can be formed) and
+per-draw counts at each station (so that posterior bands can be formed),
 histograms pooled over draws (the posterior predictive distribution of energy,
-velocity and bounce height of the blocks that reach a station).
+velocity and bounce height of the blocks that reach a station), and per draw
+the percentiles of those three with their Monte Carlo intervals and coarser
+histograms of energy and height (what a barrier design reads: ``calib.design``).
 """
 
 from __future__ import annotations
@@ -17,7 +19,16 @@ import numpy as np
 
 from calib.files.calibration_file import Calibration, CalibrationError, Draws
 from calib.hazard._sharding import run_units
-from calib.hazard._stats import BINS, hist_quantile
+from calib.hazard._stats import (
+    BINS,
+    DRAW_SUB,
+    FINE,
+    FINE_BINS,
+    PERCENTILES,
+    hist_quantile,
+    percentile_table,
+    rebin,
+)
 from calib.hazard._units import crsp_chunk, dem_chunk, draw_key
 from calib.model.alpha_law import alpha_of, check_law
 from calib.model.dem_run import DEM_RUN, DemRun
@@ -45,8 +56,18 @@ class HazardCounts:
         n_unfinished: (D, T) blocks that did not finish (still moving at the
             budget, or invalid: ``solvers.status``).
         n_left_profile: (D, T) blocks that left the profile.
-        hist: quantity -> (T, S, B) counts pooled over draws.
-        energy_p95_per_draw_kJ: (D, T, S) E p95 of each draw's passers.
+        hist: quantity -> (T, S, B) counts pooled over draws (``_stats.BINS``).
+        energy_p95_per_draw_kJ: (D, T, S) E p95 of each draw's passers, read from
+            its ``BINS`` histogram (the hazard table's band).
+        percentiles: quantity -> (value, lo, hi), each (D, T, S, P): each draw's
+            ``_stats.PERCENTILES`` of its passers and their 95 % intervals, read
+            from ``FINE_BINS`` (``_stats.percentile_table``).
+        pooled_percentiles: quantity -> (value, lo, hi), each (T, S, P): the same
+            for the passers of all draws pooled.
+        draw_hist: "energy_kJ" and "bounce_height_m" -> (D, T, S, B) per-draw counts
+            in ``_stats.DRAW_BINS``.
+        block_mass_kg: (T,) mass of the simulated block of each size, kg (the DEM:
+            the cube of side D whose energy the tables report).
     """
 
     model: str
@@ -63,6 +84,10 @@ class HazardCounts:
     n_left_profile: np.ndarray
     hist: dict
     energy_p95_per_draw_kJ: np.ndarray
+    percentiles: dict = dataclasses.field(default_factory=dict)
+    pooled_percentiles: dict = dataclasses.field(default_factory=dict)
+    draw_hist: dict = dataclasses.field(default_factory=dict)
+    block_mass_kg: np.ndarray | None = None
 
 
 def dem_alpha(cal: Calibration, values: np.ndarray, size_m: float) -> float:
@@ -143,11 +168,13 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
     acc = {k: np.zeros(shape, np.int64) for k in ("exceed", "reach", "e30", "e300")}
     n_unfinished = np.zeros((n_draws, n_sizes), np.int64)
     n_left_profile = np.zeros((n_draws, n_sizes), np.int64)
-    hist = {q: np.zeros((n_sizes, n_st, b.n), np.int64) for q, b in BINS.items()}
-    e_bins = BINS["energy_kJ"]
+    fine = {q: np.zeros((n_sizes, n_st, b.n), np.int64) for q, b in FINE_BINS.items()}
     draw_hist = {}
     draw_left = {}
     e95 = np.full(shape, np.nan)
+    pct = {q: np.full((3,) + shape + (len(PERCENTILES),), np.nan) for q in FINE_BINS}
+    kept = {q: np.zeros(shape + ((b.n - 2) // DRAW_SUB + 2,), np.int32)
+            for q, b in FINE_BINS.items() if q != "velocity_m_s"}
     st_dev = jnp.asarray(stations)
 
     def on_result(tag, out):
@@ -156,14 +183,14 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
             acc[k][d, t_sl] += getattr(out, k)
         n_unfinished[d, t_sl] += out.n_unfinished
         n_left_profile[d, t_sl] += out.n_left_profile
-        for q in hist:
-            hist[q][t_sl] += getattr(out, f"hist_{q}")
-        dh = draw_hist.setdefault(d, np.zeros((n_sizes, n_st, e_bins.n), np.int64))
-        dh[t_sl] += out.hist_energy_kJ
+        dh = draw_hist.setdefault(d, {q: np.zeros_like(f) for q, f in fine.items()})
+        for q in fine:
+            fine[q][t_sl] += getattr(out, f"hist_{q}")
+            dh[q][t_sl] += getattr(out, f"hist_{q}")
         draw_left[d] = draw_left.get(d, n_sizes * n_blocks) - int(out.n_blocks) * (
             t_sl.stop - t_sl.start)
         if draw_left[d] == 0:
-            e95[d] = hist_quantile(draw_hist.pop(d), 0.95, e_bins)
+            _draw_done(d, draw_hist.pop(d), e95, pct, kept)
         if progress is not None:
             progress(int(out.n_blocks) * (t_sl.stop - t_sl.start))
 
@@ -177,11 +204,37 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
         units = _dem_units(cal, draws, profile, entries, stations, n_blocks, seed, chunk,
                            offsets, dem_run)
     run_units(units, on_result, devices=devices)
+    pooled = {q: percentile_table(f, FINE_BINS[q]) for q, f in fine.items()}
     return HazardCounts(model=cal.model, sizes_m=sizes_m, stations_x_m=stations,
                         release_x_m=release_x, n_blocks=n_blocks, draws=draws,
                         n_unfinished=n_unfinished, n_left_profile=n_left_profile,
-                        hist=hist, energy_p95_per_draw_kJ=e95,
+                        hist={q: rebin(f, FINE) for q, f in fine.items()},
+                        energy_p95_per_draw_kJ=e95,
+                        percentiles={q: tuple(v) for q, v in pct.items()},
+                        pooled_percentiles=pooled, draw_hist=kept,
+                        block_mass_kg=_block_mass_kg(cal.model, entries),
                         **acc)
+
+
+def _draw_done(d: int, dh: dict, e95: np.ndarray, pct: dict, kept: dict) -> None:
+    """Reduce the finished draw ``d``'s fine histograms (``dh``: quantity -> (T, S, B))
+    into its rows of ``e95``, ``pct`` and ``kept`` (``HazardCounts``)."""
+    e95[d] = hist_quantile(rebin(dh["energy_kJ"], FINE), 0.95, BINS["energy_kJ"])
+    for q, counts in dh.items():
+        for j, v in enumerate(percentile_table(counts, FINE_BINS[q])):
+            pct[q][j, d] = v
+        if q in kept:
+            kept[q][d] = rebin(counts, DRAW_SUB)
+
+
+def _block_mass_kg(model: str, entries: Entries) -> np.ndarray:
+    """(T,) mass of the simulated block of each size, kg: the CRSP sphere
+    ``_crsp_units`` simulates; the DEM square's mass per metre times its side (the
+    cube whose energy ``_units`` reports)."""
+    if model == "crsp":
+        return np.array([float(crsp.make_block(float(r), density_kg_m3=entries.density_kg_m3)
+                               .mass_kg) for r in entries.crsp_radius_m])
+    return float(entries.density_kg_m3) * np.asarray(entries.dem_side_m, np.float64) ** 3
 
 
 def _crsp_units(draws, profile, entries: Entries, stations, n_blocks, seed, chunk, offsets,

@@ -1,5 +1,7 @@
-"""Hazard tables from the counts of a run: exceedance curves with posterior
-bands, per-station design values, intensity classes and annual frequencies.
+"""Hazard tables from a run's results Dataset (``calib.files.hazard_results``, built by
+``_results.hazard_dataset``): exceedance curves with posterior bands, per-station
+design values, intensity classes and annual frequencies. Every function also
+takes a ``HazardCounts`` (and the profile), turned into the Dataset first.
 
 Definitions (station x, block size D; draws d = 1..M, N blocks each):
 
@@ -45,8 +47,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from calib.files.hazard_results import optional_attr
 from calib.hazard._intensity import hazard_level, intensity_class
-from calib.hazard._run import HazardCounts
+from calib.hazard._results import as_results
 from calib.hazard._stats import BINS, hist_quantile
 from solvers.percentiles import few_blocks, few_blocks_warning
 from solvers.profile import Profile
@@ -57,20 +60,42 @@ EXCEEDANCE_COLUMNS = ["model", "block_size_m", "x_m", "p_exceed_mean", "p_exceed
                       "p_exceed_q50", "p_exceed_q95"]
 
 
-def _zone_at(profile: Profile, x_m: np.ndarray) -> list[str]:
-    xs = np.asarray(profile.x_m)
-    seg = np.clip(np.searchsorted(xs, x_m, side="right") - 1, 0, len(xs) - 2)
-    names = profile.segment_zone_names()
-    return [names[i] for i in seg]
-
-
 def _draw_quantiles(p: np.ndarray) -> np.ndarray:
     """(3, T, S) 5/50/95 % quantiles over the draw axis of (D, T, S)."""
     return np.quantile(p, [0.05, 0.5, 0.95], axis=0)
 
 
-def exceedance_table(c: HazardCounts) -> pd.DataFrame:
-    """Long-format exceedance curves, one row per block size and station."""
+class _Run:
+    """The arrays and attributes of a results Dataset the tables read, under the
+    names of ``HazardCounts``."""
+
+    def __init__(self, ds):
+        self.model = str(ds.attrs["model"])
+        self.sizes_m = ds["block_size_m"].values
+        self.stations_x_m = ds["x_m"].values
+        self.release_x_m = float(ds.attrs["release_x_m"])
+        self.n_blocks = int(ds.attrs["n_blocks_per_draw"])
+        self.n_draws = int(ds.sizes["draw"])
+        self.draws_source = str(ds.attrs["draws_source"])
+        self.exceed = ds["n_exceed"].values
+        self.reach = ds["n_reach"].values
+        self.e30 = ds["n_reach_E_gt_30kJ"].values
+        self.e300 = ds["n_reach_E_gt_300kJ"].values
+        self.n_unfinished = ds["n_unfinished"].values
+        self.n_left_profile = ds["n_left_profile"].values
+        self.hist = {q: ds[f"hist_{q}"].values for q in BINS}
+        self.energy_p95_per_draw_kJ = ds["energy_p95_binned_kJ"].values
+        self.zones = [str(z) for z in ds["zone"].values]
+
+
+def exceedance_table(results, profile: Profile | None = None) -> pd.DataFrame:
+    """Long-format exceedance curves, one row per block size and station.
+
+    Args:
+        results: the results Dataset (or a ``HazardCounts`` with its ``profile``).
+        profile: only for a ``HazardCounts``.
+    """
+    c = _Run(as_results(results, profile))
     p = c.exceed / c.n_blocks
     mean = p.mean(axis=0)
     q = _draw_quantiles(p)
@@ -87,11 +112,22 @@ def exceedance_table(c: HazardCounts) -> pd.DataFrame:
     })
 
 
-def hazard_table(c: HazardCounts, profile: Profile,
+def hazard_table(results, profile: Profile | None = None,
                  release_rate_per_year: float | None = None) -> pd.DataFrame:
     """One row per block size and station with the quantities of the module
-    docstring; column names carry units."""
-    n_draws = len(c.draws.values)
+    docstring; column names carry units.
+
+    Args:
+        results: the results Dataset (or a ``HazardCounts`` with its ``profile``).
+        profile: only for a ``HazardCounts`` (the zone of each station).
+        release_rate_per_year: blocks of each size per year (default: the
+            Dataset's ``release_rate_per_year``, if any).
+    """
+    ds = as_results(results, profile)
+    if release_rate_per_year is None:
+        release_rate_per_year = optional_attr(ds, "release_rate_per_year")
+    c = _Run(ds)
+    n_draws = c.n_draws
     downslope = c.stations_x_m > c.release_x_m            # (S,)
     p_ex = c.exceed / c.n_blocks
     reach = np.where(downslope, c.reach / c.n_blocks, np.nan)  # (D, T, S)
@@ -113,7 +149,7 @@ def hazard_table(c: HazardCounts, profile: Profile,
                 col = e95_draws[has[:, t, s], t, s]
                 if col.size:
                     e95_band[:, t, s] = np.quantile(col, [0.05, 0.95])
-    zones = _zone_at(profile, c.stations_x_m)
+    zones = c.zones
     rows = []
     for t, size in enumerate(c.sizes_m):
         unfinished = c.n_unfinished[:, t].sum() / (n_draws * c.n_blocks)
@@ -166,13 +202,14 @@ def hazard_table(c: HazardCounts, profile: Profile,
     return pd.DataFrame(rows)
 
 
-def summary_text(c: HazardCounts, table: pd.DataFrame, road_x_m: float,
+def summary_text(results, table: pd.DataFrame, road_x_m: float,
                  release_rate_per_year: float | None = None, label: str = "road") -> str:
     """Short text: probability of reaching the station of interest at ``road_x_m``
     (named ``label``: "road", or what the site file calls it) and the design
-    values there."""
-    lines = [f"hazard ({c.model}): {len(c.draws.values)} draw(s) from the "
-             f"{c.draws.source} x {len(c.sizes_m)} size(s) x {c.n_blocks} blocks "
+    values there (``results``: the results Dataset or a ``HazardCounts``)."""
+    c = _Run(as_results(results))
+    lines = [f"hazard ({c.model}): {c.n_draws} draw(s) from the "
+             f"{c.draws_source} x {len(c.sizes_m)} size(s) x {c.n_blocks} blocks "
              f"released at x = {c.release_x_m:g} m; {label} at x = {road_x_m:g} m"]
     at = table[np.isclose(table["x_m"], road_x_m)]
     for _, r in at.iterrows():

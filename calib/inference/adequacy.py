@@ -13,8 +13,8 @@ reported per fit (``calib.inference.calibrate``; ``calibration.json`` under
    than ``BOUND_FLAG`` (10 %, five times the prior's) there says the data want
    a value outside the box: either the box is too narrow or the model lacks
    something, provided the posterior reaches the bound (``bound_mass``). The
-   2 % band is the one named in the project's issue 17; the factor of five
-   and the reach condition are our own choices.
+   2 % band is the project's specification; the factor of five and the reach
+   condition are our own choices.
 
 2. **Posterior predictive coverage of the calibration rows.** Each row's
    predictive distribution is that of the OBSERVED value: the runout of a

@@ -22,7 +22,7 @@ the optimiser converges to the same point from several starts.
 
 u is unconstrained: theta = lo + (hi - lo) sigmoid(u) maps it into the prior
 box. The optimiser is optax Adam with a cosine-decayed step; all starts and
-all perturbations of one iteration go to the simulator as ONE batch.
+all perturbations of one optimiser step go to the simulator as ONE batch.
 """
 
 from __future__ import annotations

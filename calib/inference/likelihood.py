@@ -29,8 +29,9 @@ amount instead of hundreds of nats:
 
 with eps = 1e-3 and R_MAX = 1000 m (longer than the runout of a single block on
 any 2D profile this toolkit is meant for; our choice): a point row's log
-density never falls below log(1e-6 / m) = -13.8. Why (measured, Tschamut
-seed-1 split, stop 29): without it three runs that stopped after 27-36 m,
+density never falls below log(1e-6 / m) = -13.8. Why (measured 2026-11-25 on
+the Tschamut seed-1 hold-out split of notebooks/04_tschamut.py): without it
+three runs that stopped after 27-36 m,
 which few simulated blocks of their groups reached, could cost tens to
 hundreds of nats each (at phi_r 20 deg, 95 % of their groups' blocks stop
 23-47 m beyond them; a 2 m kernel gives a block 23-47 m away a log weight of
@@ -68,8 +69,8 @@ observed block is a random draw from the release conditions the solver uses;
 the tolerance is Gaussian. With few rows per size the likelihood says where
 the distribution must put mass, not its full shape.
 
-This is the one observation model of the project (``README.md``, "Observation
-model"): ``calib.fit`` (``calib.inference.calibrate``) and ``calib.discover``
+This is the one observation model of the project (``docs/calibration.md``,
+"Observation model"): ``calib.fit`` (``calib.inference.calibrate``) and ``calib.discover``
 (``calib.discovery.discrepancy``) both score runout rows with ``log_likelihood`` on the
 rows of ``observed_rows``, with v_j = 0 for simulated runouts (the kernel of a
 point row is the tolerance alone, that of an interval row the width h alone)

@@ -5,7 +5,7 @@ samples ONE density: the posterior as if the GP's mean were the simulator's
 log-likelihood. Where the GP is unsure, that posterior is narrower than what
 the simulations support: on Tschamut (all 62 runs) two fits that differed only
 in their seed gave 90 % intervals of Kt 0.960-0.964 and 0.973-0.978, which do
-not overlap (measured at stop 26). This module measures that
+not overlap (measured 2026-11-25). This module measures that
 (``realisation_weights``, ``spread_problems``) and says where to simulate to
 reduce it (``realisation_draws``: one point from each realisation's
 posterior; ``calib.inference.calibrate`` stage 1e adds them to the GP's

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from solvers.dem import check_run_numerics
+from solvers.dem import RUN_STIFFNESS_SCALE, check_run_numerics
 from solvers.profile import Profile
 
 __all__ = ["DEM_RUN", "DemRun"]
@@ -23,10 +23,11 @@ class DemRun:
 
     Attributes:
         stiffness_scale: multiplies the contact stiffnesses kn = ks = 50 GPa/m of
-            ``solvers.dem.Params`` (the paper's UDEC values). Our choice, 0.01:
-            the time step grows 10x, and the DEM's documented check
-            (``scripts/dem_reproduce.py``) found runouts unchanged within Monte
-            Carlo noise.
+            ``solvers.dem.Params`` (the paper's UDEC values). Our choice,
+            ``solvers.dem.RUN_STIFFNESS_SCALE`` (0.01, the default of
+            ``python -m solvers.dem`` too): the time step grows 10x, and the
+            DEM's documented check (``scripts/dem_reproduce.py``) found runouts
+            unchanged within Monte Carlo noise.
         max_time_s: simulated time, s, that every block gets at least; a block
             still moving then has status BUDGET and no runout
             (``calib.model.unfinished``). 150 s: the fit's value (the hazard run used
@@ -44,7 +45,7 @@ class DemRun:
     they are all >= dt_size_m.
     """
 
-    stiffness_scale: float = 0.01
+    stiffness_scale: float = RUN_STIFFNESS_SCALE
     max_time_s: float = 150.0
     dt_size_m: float = 0.2
 

@@ -26,7 +26,7 @@ strengths are assumptions of this toolkit, not published values: the boxes span
 "no effect" to "dominant effect"; strength 1 ("moderate") was chosen, before
 any workflow run, as the value that moves the median runout of the most
 affected size class by roughly 30-80 m on Postignano with the base truth
-``SYNTH_BASE`` (development log in ``data/README.md``).
+``SYNTH_BASE`` (the measured effects are in ``data/README.md``).
 
 DEM effects (the paper's: damping and fragmentation): the baseline is one
 damping coefficient for all sizes (theta = (alpha,)); ``size_dissipation`` is

@@ -35,7 +35,7 @@ any x by at most f: F(x) = (1 - f) F_fin(x) + f F_unf(x), so |F - F_fin| =
 f |F_unf - F_fin| <= f. With f = 1 % that bound is at or below the Monte Carlo
 standard error of an empirical CDF value, sqrt(F (1 - F) / n): at the median for
 n <= 2500 blocks, every block count the fits use per (point, size)
-(``calib.inference.calibrate.Budget``: 4 to 2000; ``calib.discovery.discrepancy``: 4 to 128), and at
+(``calib.inference.budget.Budget``: 4 to 2000; ``calib.discovery.discrepancy``: 4 to 128), and at
 the 5 and 95 % levels for n <= 475. Above 1 % the exclusion can move the fitted
 distribution by more than its own sampling noise, and the warning says so.
 """

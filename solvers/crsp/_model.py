@@ -462,7 +462,7 @@ def running(state: State) -> jax.Array:
 
 def step(state: State, params: Params, block: Block, key: jax.Array, profile: Profile,
          table: SegmentTable, settings: Settings) -> tuple[State, Passage]:
-    """One loop iteration (pure): the next event (a flight to the next impact,
+    """One step of the event loop (pure): the next event (a flight to the next impact,
     or a contact move), and its ``_stations.Passage`` for the caller to write
     (``_stations.write``).
 

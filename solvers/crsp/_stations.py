@@ -2,13 +2,13 @@
 
 The record and its conventions are ``solvers.stations``'. This module fills it
 without touching every station at every event, and without putting station
-work inside the event loop's step (both cost as much as the physics: issue
-15's benchmark with 61 stations):
+work inside the event loop's step (both cost as much as the physics in
+``python -m solvers.bench`` with 61 stations):
 
 * Each event leaves a ``Passage``: the few numbers that give the block's speed,
   kinetic energy and clearance at any abscissa the event crossed (the flight's
   parabola, or the closed-form rolling speed of ``_contact.speed2_after``),
-  and the abscissa where the event ended. An iteration in which the block did
+  and the abscissa where the event ended. A loop step in which the block did
   not move leaves a passage that ends at -inf (it passes nothing).
 * The event loop keeps the passages of its last few steps (a (lanes, steps)
   buffer; one step for ``simulate``) and hands them to ``write`` between

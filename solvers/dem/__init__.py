@@ -1,4 +1,4 @@
-"""Smooth-contact rigid-block DEM in JAX, in the spirit of UDEC (issues 3, 15).
+"""Smooth-contact rigid-block DEM in JAX, in the spirit of UDEC.
 
 Rigid squares (optionally pre-split into n x n bonded fragments) fall down a
 2D slope polyline; penalty contacts with Mohr-Coulomb friction (paper eqs.
@@ -35,6 +35,7 @@ from solvers.dem._integrate import (
 )
 from solvers.dem._params import (
     DAMPING_MODES,
+    RUN_STIFFNESS_SCALE,
     STATUS_NAMES,
     Block,
     Options,
@@ -50,6 +51,7 @@ from solvers.dem._params import (
 __all__ = [
     "DAMPING_MODES",
     "DEFAULT_ALPHA_LAW",
+    "RUN_STIFFNESS_SCALE",
     "STATUS_NAMES",
     "AlphaLawError",
     "Block",

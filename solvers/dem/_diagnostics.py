@@ -1,4 +1,4 @@
-"""Diagnostics of DEM states: mechanical energy and the deposit check (issue 15).
+"""Diagnostics of DEM states: mechanical energy and the deposit check.
 
 Energy (per metre of thickness, J/m) of a state at time t: kinetic
 (translation and rotation), potential m g z, and the elastic energy stored in

@@ -46,7 +46,8 @@ def _refined(profile, n_seg):
 
 def run_benchmarks(quick: bool = False, fragments_only: bool = False,
                    options: Options = Options(), fragment_scale: float = 0.01) -> dict:
-    """DEM figures of issue 3. ``quick`` shrinks batch sizes (for CI smoke runs).
+    """DEM throughput and paper-reproduction figures. ``quick`` shrinks batch
+    sizes (for CI smoke runs).
 
     Args:
         quick: smaller batches, 16 instead of 64 fragments.
@@ -105,8 +106,8 @@ def run_benchmarks(quick: bool = False, fragments_only: bool = False,
 
 def _fragment_figure(profile, keys, quick, options, fragment_scale, out):
     """One 1.8 m block in 64 (quick: 16) fragments to rest, under local damping
-    (the paper's; capped at 120 s simulated: since issue 15 its deposit on the
-    40 deg talus is held by damping and is not declared at rest) and under
+    (the paper's; capped at 120 s simulated: its deposit on the 40 deg talus is
+    held by damping, which the rest test does not declare at rest) and under
     contact dashpots (e from alpha; 400 s cap); compile timed apart."""
     for damping, cap_s, tag in (("unbalanced", 120.0, ""), ("viscous", 400.0, "_viscous")):
         _fragment_run(profile, keys, quick, options, fragment_scale, out, damping, cap_s, tag)

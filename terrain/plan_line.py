@@ -5,11 +5,11 @@ in the raster's coordinate reference system). It comes from a CSV of vertices
 or a GeoJSON LineString (``read_line``), from the mean fall line of field runs
 (``mean_fall_line``, ``read_fall_line``: the straight line from the mean
 release to the mean stop point, extended at both ends), or from the
-``east_m,north_m`` columns of a profile that ``solvers.raster.cut_profile``
+``east_m,north_m`` columns of a profile that ``terrain.raster.cut_profile``
 wrote (``read_profile_trace``). Distances along a line are horizontal,
 measured along the polyline in plan.
 
-Every problem is a ``solvers.raster.RasterError`` (the error of the cut that
+Every problem is a ``terrain.raster.RasterError`` (the error of the cut that
 uses these lines) whose message names the file and what is wrong.
 """
 
@@ -24,7 +24,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from solvers.csv_rows import cell_float, read_csv_rows
-from solvers.raster import RasterError
+from terrain.raster import RasterError
 
 __all__ = ["Polyline", "mean_fall_line", "read_fall_line", "read_line", "read_profile_trace"]
 
@@ -265,7 +265,7 @@ def read_profile_trace(path: str | os.PathLike) -> tuple[np.ndarray, Polyline]:
     """The plan trace of a profile CSV that has ``east_m,north_m`` columns.
 
     Args:
-        path: profile CSV written by ``python -m solvers.profile cut`` (or any
+        path: profile CSV written by ``python -m terrain.cut`` (or any
             profile with those columns).
 
     Returns:
@@ -283,7 +283,7 @@ def read_profile_trace(path: str | os.PathLike) -> tuple[np.ndarray, Polyline]:
     missing = [c for c in ("x_m", "east_m", "north_m") if c not in header]
     if missing:
         raise RasterError(f"{path}: line 1: missing column(s) {', '.join(missing)}: the profile "
-                          "has no plan trace (cut it with python -m solvers.profile cut)")
+                          "has no plan trace (cut it with python -m terrain.cut)")
     vals = np.array([[_cell_float(path, line, row, c) for c in ("x_m", "east_m", "north_m")]
                      for line, row in rows])
     if vals.shape[0] < 2:

@@ -1,7 +1,11 @@
-"""``python -m solvers.profile cut RASTER --line LINE.csv --out profile.csv``: a
-slope profile cut from an elevation raster (the command only: options,
-reading, writing, printing; the cut, the sampling and the zones are
-``solvers.raster``; the profile format is ``solvers.profile``).
+"""``python -m terrain.cut RASTER --line LINE.csv --out profile.csv``: a slope
+profile cut from an elevation raster (the command only: options, reading,
+writing, printing; the cut, the sampling and the zones are ``terrain.raster``,
+the lines in plan ``terrain.plan_line``; the profile format is
+``solvers.profile``).
+
+``python -m solvers.profile cut ...`` runs this command too, for one release,
+after a warning line on stderr (``solvers.profile.main``).
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ from solvers.profile import (
 
 __all__ = ["main"]
 
-PROG = "python -m solvers.profile"
+PROG = "python -m terrain.cut"
 
 _CUT_DESCRIPTION = """\
 Cut a slope profile from a digital elevation model along a line in plan.
@@ -61,14 +65,17 @@ data/README.md assumes for Postignano). Calibrate them for the cut site.
 """
 
 
-def _cut_parser(sub) -> None:
+def build_parser():
+    """The ``python -m terrain.cut`` parser."""
     import argparse
 
-    p = sub.add_parser(
-        "cut", prog=f"{PROG} cut", help="cut a profile from a raster along a line",
-        description=_CUT_DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter,
+    from solvers.cli import OneLineParser
+
+    p = OneLineParser(
+        prog=PROG, description=_CUT_DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="Example (the shipped Tschamut profile, data/README.md):\n"
-               "  python -m solvers.profile cut data/tschamut2014/terrain_proxy.asc \\\n"
+               "  python -m terrain.cut data/tschamut2014/terrain_proxy.asc \\\n"
                "    --fall-line data/tschamut2014/runs.csv --margin-m 40 \\\n"
                "    --zones steep:0:100,flat:100: --out data/tschamut2014/profile.csv")
     p.add_argument("raster", help="elevation raster: ESRI ASCII grid (.asc) or GeoTIFF "
@@ -101,16 +108,7 @@ def _cut_parser(sub) -> None:
     p.add_argument("--out", required=True, help="profile CSV to write")
     p.add_argument("--materials-out", default=None,
                    help="materials CSV to write (default <OUT stem>_materials.csv)")
-
-
-def build_parser():
-    """The ``python -m solvers.profile`` parser (subcommand ``cut``)."""
-    from solvers.cli import OneLineParser
-
-    parser = OneLineParser(prog=PROG, description="Slope profile tools.")
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
-    _cut_parser(sub)
-    return parser
+    return p
 
 
 def _columns(text: str, option: str) -> tuple[str, str]:
@@ -138,13 +136,54 @@ def _near(text: str | None) -> tuple[float, float, float] | None:
     return e, n, r
 
 
+def _line(args):
+    """The line in plan the cut follows, and its record for the ``.cut.json``."""
+    from solvers.cli import CliError
+    from terrain import plan_line
+
+    if args.line and args.fall_line_near:
+        raise CliError("--fall-line-near: only with --fall-line")
+    if args.line:
+        line = plan_line.read_line(args.line)
+        line_info = {"kind": "geojson" if not args.line.endswith(".csv") else "csv",
+                     "source": args.line}
+    else:
+        release_cols = _columns(args.release_cols, "--release-cols")
+        stop_cols = _columns(args.stop_cols, "--stop-cols")
+        near = _near(args.fall_line_near)
+        line = plan_line.read_fall_line(args.fall_line, args.margin_m, release_cols, stop_cols,
+                                        near=near)
+        line_info = {"kind": "mean fall line of field runs (mean release point to mean "
+                             "stop point, extended by margin_m at both ends)",
+                     "source": args.fall_line, "margin_m": args.margin_m,
+                     "release_columns": list(release_cols), "stop_columns": list(stop_cols)}
+        if near is not None:
+            line_info["runs_released_near"] = {"east_m": near[0], "north_m": near[1],
+                                               "radius_m": near[2]}
+    return line, line_info
+
+
+def _summary(args, cut, line, used, materials_out: str, sidecar: str) -> None:
+    """What the cut printed: vertices, heights, each zone's extent and mean slope."""
+    x, z = cut.x_m, cut.z_m
+    print(f"cut {x.shape[0]} vertices every {args.step_m:g} m along {line.length_m:.2f} m of "
+          f"line ({line.source}); z {z.min():.2f} to {z.max():.2f} m")
+    seg_zone = np.array(cut.zone)
+    for name in used:
+        k = np.flatnonzero(seg_zone == name)
+        x0, x1 = x[k[0]], x[k[-1] + 1]
+        drop = z[k[0]] - z[k[-1] + 1]
+        print(f"  zone {name}: x {x0:.2f} to {x1:.2f} m, {k.size} segments, mean slope "
+              f"{math.degrees(math.atan2(drop, x1 - x0)):.1f} deg")
+    print(f"wrote {args.out}, {materials_out}, {sidecar}")
+
+
 def _run_cut(args, argv: list[str]) -> int:
     import json
     import shlex
 
-    from solvers import plan_line
-    from solvers import raster as rs
     from solvers.cli import CliError, text_writer, write_all_atomic
+    from terrain import raster as rs
 
     if not args.out.endswith(".csv"):
         raise CliError(f"--out {args.out}: expected a .csv file name")
@@ -152,25 +191,7 @@ def _run_cut(args, argv: list[str]) -> int:
     sidecar = args.out[:-4] + ".cut.json"
     try:
         grid = rs.read_raster(args.raster)
-        if args.line and args.fall_line_near:
-            raise CliError("--fall-line-near: only with --fall-line")
-        if args.line:
-            line = plan_line.read_line(args.line)
-            line_info = {"kind": "geojson" if not args.line.endswith(".csv") else "csv",
-                         "source": args.line}
-        else:
-            release_cols = _columns(args.release_cols, "--release-cols")
-            stop_cols = _columns(args.stop_cols, "--stop-cols")
-            near = _near(args.fall_line_near)
-            line = plan_line.read_fall_line(args.fall_line, args.margin_m, release_cols, stop_cols,
-                                            near=near)
-            line_info = {"kind": "mean fall line of field runs (mean release point to mean "
-                                 "stop point, extended by margin_m at both ends)",
-                         "source": args.fall_line, "margin_m": args.margin_m,
-                         "release_columns": list(release_cols), "stop_columns": list(stop_cols)}
-            if near is not None:
-                line_info["runs_released_near"] = {"east_m": near[0], "north_m": near[1],
-                                                   "radius_m": near[2]}
+        line, line_info = _line(args)
         zones = rs.parse_zones(args.zones)
         cut = rs.cut_profile(grid, line, args.step_m, zones)
         used = list(dict.fromkeys(cut.zone))
@@ -184,7 +205,7 @@ def _run_cut(args, argv: list[str]) -> int:
             materials_source = args.materials
         else:
             materials = {z: dict(rs.DEFAULT_MATERIALS) for z in used}
-            materials_source = ("ASSUMPTION: placeholder values of solvers.raster."
+            materials_source = ("ASSUMPTION: placeholder values of terrain.raster."
                                 "DEFAULT_MATERIALS (the Postignano paper's Kn, Kt, roughness "
                                 "and phi; rolling friction as data/README.md assumes for "
                                 "Postignano), not measurements of this site")
@@ -198,7 +219,7 @@ def _run_cut(args, argv: list[str]) -> int:
     mat_lines += [z + "," + ",".join(f"{materials[z][c]:g}" for c in MATERIAL_COLUMNS)
                   for z in used]
     info = {
-        "what": "slope profile cut from a raster by python -m solvers.profile cut",
+        "what": "slope profile cut from a raster by python -m terrain.cut",
         "command": shlex.join(PROG.split() + argv),
         "argv": argv,
         "raster": args.raster,
@@ -209,7 +230,7 @@ def _run_cut(args, argv: list[str]) -> int:
                  "north_m": [round(float(v), 4) for v in line.north_m],
                  "length_m": round(line.length_m, 4)},
         "step_m": args.step_m,
-        "sampling": "bilinear between cell centres (solvers.raster)",
+        "sampling": "bilinear between cell centres (terrain.raster)",
         "zones": [{"name": z.name, "start_m": z.start_m, "end_m": z.end_m} for z in zones],
         "materials": materials_source,
         "columns": {
@@ -228,26 +249,22 @@ def _run_cut(args, argv: list[str]) -> int:
         })
     except OSError as e:
         raise CliError(f"cannot write {args.out}: {e.strerror or e}; nothing written") from None
-    x, z = cut.x_m, cut.z_m
-    print(f"cut {x.shape[0]} vertices every {args.step_m:g} m along {line.length_m:.2f} m of "
-          f"line ({line.source}); z {z.min():.2f} to {z.max():.2f} m")
-    seg_zone = np.array(cut.zone)
-    for name in used:
-        k = np.flatnonzero(seg_zone == name)
-        x0, x1 = x[k[0]], x[k[-1] + 1]
-        drop = z[k[0]] - z[k[-1] + 1]
-        print(f"  zone {name}: x {x0:.2f} to {x1:.2f} m, {k.size} segments, mean slope "
-              f"{math.degrees(math.atan2(drop, x1 - x0)):.1f} deg")
-    print(f"wrote {args.out}, {materials_out}, {sidecar}")
+    _summary(args, cut, line, used, materials_out, sidecar)
     return 0
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m solvers.profile cut ...``; bad input: one line on stderr, exit 2."""
+    """``python -m terrain.cut ...``; bad input: one line on stderr, exit 2."""
     import sys
 
     from solvers.cli import run_guarded
 
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
-    return run_guarded(f"{PROG} {args.command}", _run_cut, args, argv)
+    return run_guarded(PROG, _run_cut, args, argv)
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(main())

@@ -1,10 +1,10 @@
 """Ground elevations from a raster, and a slope profile cut along a line in plan.
 
 A digital elevation model (DEM raster) is read into a ``Raster``; a ``Polyline``
-in the raster's horizontal coordinates (``solvers.plan_line``) says where to cut; ``cut_profile``
-samples the ground along it and returns the vertices of a profile in the format
-of ``solvers.profile`` (``x_m,z_m,zone``) plus the plan position of each vertex
-(``east_m,north_m``, in the raster's coordinate reference system).
+in the raster's horizontal coordinates (``terrain.plan_line``) says where to cut;
+``cut_profile`` samples the ground along it and returns the vertices of a profile
+in the format of ``solvers.profile`` (``x_m,z_m,zone``) plus the plan position
+of each vertex (``east_m,north_m``, in the raster's coordinate reference system).
 
 Rasters:
 
@@ -58,7 +58,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:  # the line's module imports this one (RasterError)
-    from solvers.plan_line import Polyline
+    from terrain.plan_line import Polyline
 
 __all__ = [
     "DEFAULT_MATERIALS",
@@ -183,7 +183,7 @@ def _area_text(r: Raster) -> str:
     return f"(cell centres span east {w:g} to {e:g} m, north {s:g} to {n:g} m)"
 
 
-def read_ascii_grid(path: str | os.PathLike) -> Raster:
+def read_ascii_grid(path: str | os.PathLike) -> Raster:  # long: one check per header key
     """Read an ESRI ASCII grid (format in the module docstring).
 
     Args:

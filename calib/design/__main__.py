@@ -1,0 +1,211 @@
+"""Command line: ``python -m calib.design HAZARD.nc --barrier-x-m X [options]``.
+
+Reads a hazard results file (``python -m calib.hazard`` writes ``hazard.nc``) and
+a kit catalogue, and writes into ``--out`` the design sheet of a flexible
+barrier at X after UNI 11211-4 as practised in Italy (Peila & Ronco 2009):
+``design.md``, ``design.json``, ``design_profile.png``,
+``design_distributions.png``, ``design_exceedance.png`` (and with ``--scan-x-m``
+``design_scan.csv``, ``design_scan.png``), all at once through temporary files
+(``solvers.cli.write_outputs``). Bad input: one line naming the file, row and
+column or the option, exit status 2, nothing written.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+import numpy as np
+
+from calib.design._factors import DEFAULTS, GAMMA_E, free_board_m
+from calib.design._kits import CATEGORIES, KitError, load_kits
+from solvers.cli import CliError, DefaultsHelpFormatter, OneLineParser, run_guarded
+
+PROG = "python -m calib.design"
+
+
+def build_parser() -> OneLineParser:
+    p = OneLineParser(
+        prog=PROG, formatter_class=DefaultsHelpFormatter,
+        description=(
+            "Design a flexible rockfall barrier from a hazard run after UNI 11211-4 (Peila & "
+            "Ronco 2009): v_d = v_p gamma_Tr gamma_Dp, h_d = h_p gamma_Tr gamma_Dp (h: "
+            "height of the block's top), m_d = Vol rho gamma_VolF gamma_gamma, E_sd = 1/2 "
+            "m_d v_d^2; checks E_sd <= E_kit/gamma_E, nominal height >= h_d + free board, "
+            "residual-height category and elongation against each kit, and picks the "
+            "smallest kit that passes. Also: posterior bands, Monte Carlo errors, "
+            "probabilities without partial factors, impacts per year, the calibration's "
+            "own predictive check. Writes design.md, design.json and figures."),
+        epilog="Example: python -m calib.design results/hazard/hazard.nc --barrier-x-m 100 "
+               "--kits data/barrier_kits.csv --out results/design/")
+    p.add_argument("hazard", help="hazard.nc written by python -m calib.hazard")
+    p.add_argument("--barrier-x-m", type=float, help="barrier position, a station of the "
+                   "hazard run, m (default with --scan-x-m: the scanned position whose "
+                   "smallest passing kit has the least MEL)")
+    p.add_argument("--scan-x-m", help="scan positions 'start:stop:step' or 'x1,x2', m: the "
+                   "design at each (stations of the hazard run)")
+    p.add_argument("--kits", default="data/barrier_kits.csv",
+                   help="kit catalogue CSV (the shipped one holds GENERIC energy classes)")
+    p.add_argument("--kit", help="check this kit of the catalogue instead of choosing the "
+                   "smallest that passes")
+    p.add_argument("--protected-distance-m", type=float, help="distance from the barrier to "
+                   "the protected object, m (default: the horizontal distance to the hazard "
+                   "run's station of interest)")
+    p.add_argument("--block-size-m", type=float, help="design block size class D (a block "
+                   "size of the hazard run), m (default: its largest)")
+    p.add_argument("--block-size-percentile", type=float, help="design block size: this "
+                   "percentile of the run's block sizes (one of them)")
+    p.add_argument("--design-volume-m3", type=float, help="design block volume from the "
+                   "site's block survey, m^3 (default: sphere of diameter D; DEM: D^2 x "
+                   "--dem-thickness-m); speeds and heights stay those of size D")
+    p.add_argument("--density-kg-m3", type=float, help="rock density, kg/m^3 (default: the "
+                   "hazard file's rock_density_kg_m3, else 2350 with a warning)")
+    p.add_argument("--dem-thickness-m", type=float, help="DEM runs: block thickness across "
+                   "the slope, m, that turns energies per metre of width into energies per "
+                   "block (required for a DEM run)")
+    p.add_argument("--percentile", type=float, choices=(95.0, 99.0), default=95.0,
+                   help="characteristic percentile: 95 (UNI 11211-4) or 99 (ONR 24810)")
+    p.add_argument("--energy-level", choices=("MEL", "SEL"), default="MEL",
+                   help="kit energy the check uses")
+    p.add_argument("--gamma-tr", type=float, default=DEFAULTS.gamma_Tr,
+                   help="gamma_Tr, reliability of the trajectory simulation: 1.02 "
+                        "back-analysed on site, 1.10 from the literature")
+    p.add_argument("--gamma-dp", type=float, default=DEFAULTS.gamma_Dp,
+                   help="gamma_Dp, quality of the topographic survey: 1.02 high, 1.10 low")
+    p.add_argument("--gamma-volf", type=float, default=DEFAULTS.gamma_VolF,
+                   help="gamma_VolF, precision of the block survey: 1.02 high, 1.10 low")
+    p.add_argument("--gamma-gamma", type=float, default=DEFAULTS.gamma_gamma,
+                   help="gamma_gamma, unit weight of the rock (>= 1.0)")
+    p.add_argument("--gamma-e", type=float, help=f"gamma_E (default {GAMMA_E['MEL']:g} "
+                   f"against the MEL, {GAMMA_E['SEL']:g} against the SEL: recalled, unverified)")
+    p.add_argument("--free-board-m", type=float, help="free board above h_d, m (default and "
+                   "least: max(0.5, D/2))")
+    p.add_argument("--min-residual-category", choices=CATEGORIES, default="A",
+                   help="worst residual-height category accepted")
+    p.add_argument("--inspection-interval-yr", type=float, default=1.0,
+                   help="years between barrier inspections (P of more than one SEL-level "
+                        "impact in between)")
+    p.add_argument("--with-barrier", help="hazard.nc of a run with the barrier element: "
+                   "its exceedance is shown beside the run without it")
+    p.add_argument("--out", default="results/design/", help="output folder")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return run_guarded(PROG, _main, args)
+
+
+def _main(args) -> int:
+    from calib.design._design import design_record, scan_rows
+    from calib.design._inputs import design_block, factors_from_args, scan_positions
+    from calib.design._residual import check_compatible
+    from calib.files.hazard_results import HazardResultsError, read_hazard_results
+
+    try:
+        ds = read_hazard_results(args.hazard)
+        with_barrier = (None if args.with_barrier is None
+                        else read_hazard_results(args.with_barrier))
+        if with_barrier is not None:
+            check_compatible(ds, with_barrier, f"--with-barrier {args.with_barrier}")
+    except HazardResultsError as exc:
+        raise CliError(str(exc)) from None
+    try:
+        kits = load_kits(args.kits)
+    except KitError as exc:
+        raise CliError(str(exc)) from None
+    if args.kit is not None and args.kit not in {k.name for k in kits}:
+        raise CliError(f"--kit {args.kit}: not in {args.kits} (kits: "
+                       f"{', '.join(k.name for k in kits)})")
+    factors, warnings = factors_from_args(args)
+    for name in ("protected_distance_m", "inspection_interval_yr"):
+        v = getattr(args, name)
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise CliError(f"--{name.replace('_', '-')} {v:g}: expected a positive number")
+    if args.barrier_x_m is None and args.scan_x_m is None:
+        raise CliError("give --barrier-x-m or --scan-x-m")
+    block, more = design_block(ds, args.hazard, size_m=args.block_size_m,
+                               size_percentile=args.block_size_percentile,
+                               volume_m3=args.design_volume_m3,
+                               density_kg_m3=args.density_kg_m3, thickness_m=args.dem_thickness_m)
+    warnings += more
+    try:
+        board = free_board_m(block.size_m, args.free_board_m)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    scan = scan_positions(ds, args.hazard, args.scan_x_m) if args.scan_x_m else []
+    options = dict(kits=kits, factors=factors, free_board=board, args=args)
+    rows = scan_rows(ds, block, scan, options) if scan else None
+    x = args.barrier_x_m
+    if x is None:
+        x = _best(rows)
+    record = design_record(ds, x, block, options, with_barrier)
+    record["scan"] = rows
+    record["warnings"] = warnings + record["warnings"]
+    _write(ds, record, with_barrier, args)
+    return 0
+
+
+def _best(rows: list[dict]) -> float:
+    """The scanned position whose smallest passing kit has the least MEL (then the
+    least E_sd); where no kit passes anywhere, the one of least E_sd."""
+    ok = [r for r in rows if r["kit"] is not None]
+    pool = ok or [r for r in rows if np.isfinite(r["E_sd_kJ"])]
+    if not pool:
+        raise CliError("--scan-x-m: no simulated block passes any scanned position")
+    return min(pool, key=lambda r: (r.get("kit_mel_kJ") or 0.0, r["E_sd_kJ"]))["x_m"]
+
+
+def _write(ds, record: dict, with_barrier, args) -> None:
+    import pandas as pd
+
+    from calib.design._figures import (
+        distributions_figure,
+        exceedance_figure,
+        profile_figure,
+        scan_figure,
+    )
+    from calib.design._report import design_json, design_markdown
+    from calib.design._residual import residual_exceedance
+    from solvers.cli import write_outputs
+
+    table = residual_exceedance(ds, with_barrier)
+    figs = {"design_profile.png": profile_figure(ds, record),
+            "design_distributions.png": distributions_figure(ds, record),
+            "design_exceedance.png": exceedance_figure(table, record)}
+    files = {"design.md": design_markdown(record), "design.json": design_json(record)}
+    if record["scan"]:
+        figs["design_scan.png"] = scan_figure(record["scan"], record["kits"],
+                                              record["energy_level"])
+        files["design_scan.csv"] = pd.DataFrame(record["scan"]).to_csv(index=False)
+    try:
+        written = write_outputs(args.out, files, figs)
+    except OSError as exc:
+        raise CliError(f"cannot write to {args.out}: {exc.strerror or exc}") from None
+    finally:
+        import matplotlib.pyplot as plt
+
+        for f in figs.values():
+            plt.close(f)
+    _print(record, written, args.out)
+
+
+def _print(r: dict, written: list[str], out: str) -> None:
+    import os
+
+    check = r.get("calibration_check")
+    if check is not None and not check.get("ok"):
+        print(f"!!! THE CALIBRATION FAILED ITS OWN PREDICTIVE CHECK: {check.get('message')}",
+              file=sys.stderr)
+    for w in r["warnings"]:
+        print(w, file=sys.stderr)
+    d, kit = r["design"], r.get("kit_checked")
+    print(f"barrier at x = {r['barrier_x_m']:g} m, D = {r['design_block']['size_m']:g} m, "
+          f"p{r['percentile']:g}: v_d = {d['v_d_m_s']:.3g} m/s, E_sd = {d['E_sd_kJ']:.4g} kJ "
+          f"(total {d['E_total_kJ']:.4g} kJ), h_d + f = {d['design_height_m']:.3g} m; "
+          + (f"{r['kit_chosen_by']}: {kit['kit']}" if kit else "no kit of the catalogue passes"))
+    print(f"wrote {', '.join(os.path.basename(w) for w in written)} to {out}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

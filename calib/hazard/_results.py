@@ -1,0 +1,95 @@
+"""A run's ``HazardCounts`` as the hazard results Dataset (``calib.files.hazard_results``),
+the one object the tables, the figures, ``hazard.nc`` and ``calib.design`` read."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calib.files.hazard_results import hazard_results
+from calib.hazard._run import HazardCounts
+from calib.hazard._stats import BINS, DRAW_BINS, PERCENTILES
+from solvers.profile import Profile
+
+__all__ = ["ENERGY_BASIS", "HEIGHT_CONVENTION", "as_results", "hazard_dataset"]
+
+ENERGY_BASIS = {
+    "crsp": "kJ per block: the CRSP sphere of diameter D (block_mass_kg)",
+    "dem": "kJ per block taken as a cube of side D: the 2D DEM's energy per metre of width "
+           "times D (calib.hazard._units; an assumption, the 2D runs have no thickness)",
+}
+HEIGHT_CONVENTION = ("bounce_height_m is the clearance: the vertical height of the block's "
+                     "lowest point above the ground at the station (solvers.stations); the "
+                     "block's top is D higher")
+
+
+def _zone_at(profile: Profile, x_m: np.ndarray) -> list[str]:
+    xs = np.asarray(profile.x_m)
+    seg = np.clip(np.searchsorted(xs, x_m, side="right") - 1, 0, len(xs) - 2)
+    names = profile.segment_zone_names()
+    return [names[i] for i in seg]
+
+
+def hazard_dataset(c: HazardCounts, profile: Profile | None = None, *, seed: int | None = None,
+                   road_x_m: float | None = None, road_label: str | None = None,
+                   release_rate_per_year: float | None = None, record: dict | None = None):
+    """The results Dataset of a run.
+
+    Args:
+        c: the run's counts (``run_hazard``).
+        profile: the profile it ran on (zones of the stations, the vertices);
+            None: zones "" and no vertices.
+        seed: the run's seed.
+        road_x_m, road_label: the station of interest and its name.
+        release_rate_per_year: blocks of each size released per year, or None.
+        record: more attributes: ``calibration`` (path), ``provenance_json``
+            (``calib.files.provenance.provenance``), ``adequacy_json``,
+            ``rock_density_kg_m3``, ...; dicts are stored as JSON text.
+
+    Returns:
+        ``xarray.Dataset`` of schema ``calib.files.hazard_results.SCHEMA``.
+    """
+    data = {
+        "n_exceed": c.exceed, "n_reach": c.reach, "n_reach_E_gt_30kJ": c.e30,
+        "n_reach_E_gt_300kJ": c.e300, "n_unfinished": c.n_unfinished,
+        "n_left_profile": c.n_left_profile, "energy_p95_binned_kJ": c.energy_p95_per_draw_kJ,
+        "block_mass_kg": c.block_mass_kg, "parameter_value": c.draws.values,
+        "posterior_row": np.asarray(c.draws.rows, np.int64),
+        "zone": np.asarray(_zone_at(profile, c.stations_x_m) if profile is not None
+                           else [""] * len(c.stations_x_m), dtype=object),
+        "profile_x_m": np.asarray([] if profile is None else profile.x_m, np.float64),
+        "profile_z_m": np.asarray([] if profile is None else profile.z_m, np.float64),
+    }
+    bins = {}
+    for q, b in BINS.items():
+        data[f"hist_{q}"] = c.hist[q]
+        bins[f"hist_{q}"] = b
+        value, lo, hi = c.percentiles[q]
+        data[f"{q}_pct"], data[f"{q}_pct_lo"], data[f"{q}_pct_hi"] = value, lo, hi
+        value, lo, hi = c.pooled_percentiles[q]
+        data[f"{q}_pct_pooled"], data[f"{q}_pct_pooled_lo"], data[f"{q}_pct_pooled_hi"] = (
+            value, lo, hi)
+    for q, counts in c.draw_hist.items():
+        data[f"draw_hist_{q}"] = counts
+        bins[f"draw_hist_{q}"] = DRAW_BINS[q]
+    coords = {"draw": np.arange(len(c.draws.values)), "block_size_m": c.sizes_m,
+              "x_m": c.stations_x_m, "percentile": np.asarray(PERCENTILES),
+              "parameter": np.asarray(c.draws.names, dtype=object),
+              "vertex": np.arange(len(data["profile_x_m"]))}
+    attrs = {"model": c.model, "n_blocks_per_draw": int(c.n_blocks),
+             "release_x_m": float(c.release_x_m), "seed": -1 if seed is None else int(seed),
+             "draws_source": c.draws.source, "energy_basis": ENERGY_BASIS[c.model],
+             "height_convention": HEIGHT_CONVENTION,
+             "percentile_interval": "distribution-free 95 % interval of order statistics "
+                                    "(calib.hazard._stats.percentile_interval)",
+             "provenance_json": {}, "road_x_m": road_x_m, "road_label": road_label,
+             "release_rate_per_year": release_rate_per_year}
+    attrs.update(record or {})
+    return hazard_results(data, coords, attrs, bins)
+
+
+def as_results(results, profile: Profile | None = None):
+    """``results`` as a results Dataset: a Dataset as it is, a ``HazardCounts``
+    through ``hazard_dataset`` (with ``profile``, for the stations' zones)."""
+    if isinstance(results, HazardCounts):
+        return hazard_dataset(results, profile)
+    return results

@@ -1,0 +1,148 @@
+"""The fit's check of itself: each row against the blocks of its entry.
+
+* ``loglik_of_runouts``: simulated runouts -> pointwise log-likelihood of the
+  rows (``calib.inference.likelihood``), jitted.
+* ``fit_quality``: per row, the simulated 5/50/95 % runouts, its PIT and
+  log-likelihood at the point estimate (re-simulated with fresh blocks).
+* ``check_entries``: what the check simulates (the figure's sizes at the rows'
+  median release, and every entry of the rows that is not one of them).
+* ``predictive_adequacy``: ``calib.inference.adequacy`` of a fit: posterior
+  mass near the prior bounds, the posterior predictive coverage of the rows,
+  blocks that stall at their release (``release_slopes_deg``, re-exported from
+  ``calib.model.forward``) and rows that do (with CRSP's rolling resistance at
+  the release, ``release_rolling_deg``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy.special import ndtr
+
+from calib.files.observations import Observations
+from calib.inference.adequacy import adequacy_record
+from calib.inference.bayes import Posterior
+from calib.inference.likelihood import log_likelihood, observed_rows
+from calib.inference.predictive_check import pool_draws
+from calib.model.entries import Entries
+from calib.model.forward import CrspForward, release_rolling_deg, release_slopes_deg
+from solvers.percentiles import few_blocks
+
+__all__ = ["check_entries", "fit_quality", "loglik_of_runouts", "predictive_adequacy",
+           "release_slopes_deg"]
+
+
+def loglik_of_runouts(obs: Observations, index=None):
+    """runouts (T, S, n) -> pointwise log-likelihood (T, n_obs) (jitted); row i
+    reads simulated entry ``index[i]`` (default ``obs.size_index``)."""
+    y, sd, lo, hi, is_int = observed_rows(obs)
+    idx = jnp.asarray(obs.size_index if index is None else index)
+
+    @jax.jit
+    def f(runouts):
+        return jax.vmap(lambda r: log_likelihood(r[idx], y, sd, lo, hi, is_int))(runouts)
+
+    return f
+
+
+def fit_quality(obs: Observations, runouts: np.ndarray, index=None) -> list[dict]:
+    """Per-observation fit: simulated 5/50/95 % runouts, PIT and log-likelihood.
+
+    Args:
+        runouts: (S, n) runouts per simulated entry, m; NaN for an unfinished
+            block (left out).
+        index: (n_obs,) entry of each row (default ``obs.size_index``: one entry
+            per distinct size, ``obs.sizes_m``).
+
+    PIT = P(R + e <= y), e ~ N(0, sd^2), for a point (the predictive CDF of the
+    OBSERVED value, tolerance included) (about uniform on [0, 1] if the model is right;
+    below 0.05 or above 0.95 means the observation lies outside the simulated
+    90 % band) and P(a <= R <= b) for an interval; all over the finished blocks
+    (``sim_n_finished`` of them). With none, the simulated values are None;
+    ``sim_few_blocks`` is True where 1 to 19 blocks finished, too few for the
+    5/95 % values (``solvers.percentiles.few_blocks``).
+    """
+    index = obs.size_index if index is None else np.asarray(index)
+    ll = np.asarray(loglik_of_runouts(obs, index)(jnp.asarray(runouts)[None]))[0]
+    out = []
+    for i in range(obs.n_obs):
+        r = runouts[index[i]]
+        r = r[np.isfinite(r)]
+        some = r.size > 0
+        q05, q50, q95 = (map(float, np.quantile(r, [0.05, 0.5, 0.95])) if some
+                         else (None,) * 3)
+        row = {"row": i + 1, "block_size_m": float(obs.block_size_m[i]),
+               "sim_q05_m": q05, "sim_median_m": q50, "sim_q95_m": q95,
+               "sim_n_finished": int(r.size), "sim_few_blocks": bool(some and few_blocks(r.size)),
+               "loglik": float(ll[i]) if np.isfinite(ll[i]) else None}
+        if obs.is_interval[i]:
+            a, b = obs.runout_min_m[i], obs.runout_max_m[i]
+            row.update(observed_min_m=float(a), observed_max_m=float(b),
+                       p_in_interval=float(np.mean((r >= a) & (r <= b))) if some else None)
+        else:
+            y, sd = obs.runout_m[i], obs.runout_sd_m[i]
+            pit = float(np.mean(ndtr((y - r) / sd))) if some else None
+            row.update(observed_m=float(y), observed_sd_m=float(obs.runout_sd_m[i]), pit=pit,
+                       in_90_band=bool(some and 0.05 <= pit <= 0.95))
+        out.append(row)
+    return out
+
+
+def check_entries(entries: Entries, sizes_m: np.ndarray) -> tuple[Entries, np.ndarray]:
+    """What the check simulates: first the figure's sizes ``sizes_m`` at the
+    median of the rows' releases, on the command's profile, with the solver's
+    release speed and height, then every entry of the rows that is not one of
+    these.
+
+    Returns:
+        the check's entries (E,), and the check entry of each of ``entries`` (G,).
+    """
+    median = float(np.median(entries.release_x_m[entries.index]))
+    figure = Entries.at_sizes(sizes_m, median, density_kg_m3=entries.density_kg_m3)
+    at = np.empty(entries.n, int)
+    own = []
+    for g in range(entries.n):
+        if (entries.release_x_m[g] == median and np.isnan(entries.release_speed_m_s[g])
+                and np.isnan(entries.release_height_m[g]) and entries.profiles[g] is None):
+            at[g] = int(np.searchsorted(sizes_m, entries.sizes_m[g]))
+        else:
+            at[g] = len(sizes_m) + len(own)
+            own.append(g)
+    return (figure.concat(entries.take(own)) if own else figure), at
+
+
+def predictive_adequacy(forward, obs: Observations, posterior: Posterior | None, check: np.ndarray,
+              budget, key: jax.Array, tally, index, better: dict | None = None,
+              estimate=None) -> dict:
+    """``calib.inference.adequacy`` of one fit: posterior predictive runouts at
+    ``n_predictive_draws`` draws spread evenly over the chains' output, with
+    ``n_blocks_predictive`` fresh blocks per draw and size; without a posterior,
+    the check's runouts at the point estimate (plug-in). CRSP: with the rolling
+    resistance angle at each release of every draw (or of ``estimate``), for
+    the rows that stall at their release (``adequacy_record``)."""
+    release = forward.entries.release_x_m
+    slopes_deg = release_slopes_deg(forward.profile, release, forward.entries.profiles)
+
+    def rolling(theta):
+        if not isinstance(forward, CrspForward) or theta is None:
+            return None
+        return release_rolling_deg(forward.box.names, theta, forward.profile, forward.entries)
+
+    if posterior is None:
+        return adequacy_record(None, forward.box, obs, check,
+                               f"plug-in at the point estimate, {check.shape[-1]} blocks "
+                               "per size (no posterior)", index, release, slopes_deg, better,
+                               rolling(None if estimate is None else np.atleast_2d(estimate)))
+    n = posterior.samples.shape[0]
+    pick = np.linspace(0, n - 1, min(budget.n_predictive_draws, n)).round().astype(int)
+    draws = posterior.samples[pick]
+    pred = dataclasses.replace(forward, n_blocks=budget.n_blocks_predictive, key=key)
+    runs = pred.runouts(draws)  # (T, S, n)
+    tally("predictive", runs, draws)
+    return adequacy_record(posterior.samples, forward.box, obs, pool_draws(runs),
+                           f"posterior predictive, {len(pick)} draws x "
+                           f"{budget.n_blocks_predictive} blocks per size", index, release,
+                           slopes_deg, better, rolling(draws))
