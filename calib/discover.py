@@ -181,7 +181,8 @@ def _run(args) -> int:
     with warnings.catch_warnings():  # reported in the summary and discovery.json
         warnings.simplefilter("ignore", UnfinishedBlocksWarning)
         d = discover(cands, obs, profile, jax.random.key(args.seed), budget, bar, velocities,
-                     args.release_tolerance_m)
+                     args.release_tolerance_m, (inputs.site.release_height_sd_m,
+                                                inputs.site.release_speed_sd_m_s))
     bar.close()
     named_fit = d.fits[d.named_effect]
     result = {
@@ -191,6 +192,8 @@ def _run(args) -> int:
         "seed": args.seed, "quick": bool(args.quick), "n_observations": obs.n_obs,
         "rolling_resistance": args.rolling_resistance if args.model == "crsp" else None,
         "release_groups": _release_record(d.entries, obs.n_obs, args.release_tolerance_m),
+        "release_height_sd_m": inputs.site.release_height_sd_m,
+        "release_speed_sd_m_s": inputs.site.release_speed_sd_m_s,
         "velocities_csv": args.velocities,
         "n_velocity_observations": 0 if velocities is None else velocities.n_obs,
         "velocity_stations_m": ([] if velocities is None

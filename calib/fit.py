@@ -182,6 +182,11 @@ def _print_entries(inputs, entries, tol_m: float) -> None:
     if known.any():
         print(f"each group released at its rows' mean tracked speed (largest "
               f"release-speed shift {np.abs(gspeed - speed)[known].max():.2f} m/s)")
+    site = inputs.site
+    if site.release_height_sd_m or site.release_speed_sd_m_s:
+        print(f"CRSP draws each block's release height and speed about its group's, sd "
+              f"{site.release_height_sd_m:g} m and {site.release_speed_sd_m_s:g} m/s (the site "
+              f"file {site.path}); the DEM releases at the means")
     high = np.isfinite(height)
     if high.any():
         print(f"each group released at its rows' mean height above the ground, "

@@ -109,7 +109,7 @@ class DemEffectForward:
         blocks = [make_block(float(L), alpha=a, n_fragments=N_FRAGMENTS, release_x_m=float(x0),
                              release_speed_m_s=float(v), release_height_m=float(h))
                   for L, x0, v, h in zip(sides, e.release_x_m, e.release_speed_m_s,
-                                         e.release_height_m, strict=True)]
+                                         e.dem_release_height_m(), strict=True)]
         options = self.run.options(params, sides, n_fragments=N_FRAGMENTS, adaptive=False)
         lanes = [b for b in blocks for _ in range(self.n_blocks)]
         keys = jax.vmap(lambda j: jax.random.fold_in(self.key, j))(

@@ -559,8 +559,8 @@ class Discovery:
 
 
 def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: Budget,
-             progress=None, velocities=None, release_tolerance_m: float | None = None
-             ) -> Discovery:
+             progress=None, velocities=None, release_tolerance_m: float | None = None,
+             release_errors: tuple[float, float] = (0.0, 0.0)) -> Discovery:
     """Run the whole workflow on observations ``obs`` (see module docstring).
 
     ``candidates[0]`` must be the baseline (effect ``none``). ``velocities``
@@ -577,7 +577,9 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
     are each row's release plus its runout. Velocity rows are simulated from the
     median of the rows' releases. Otherwise every block starts at the
     profile's first vertex. Both solvers release each group at its rows' mean
-    speed and height where the rows give them. Rows on their own
+    speed and height where the rows give them; CRSP draws each block's height
+    and speed about them with the sds ``release_errors`` (m, m/s: the site's,
+    ``calib.files.site``; ``Entries.with_release_errors``). Rows on their own
     profiles (``Observations.profile``) are simulated on them; their stop
     positions enter the residual tests as abscissae of the command's profile
     (our choice: it assumes lines cut alike, e.g. the mean fall lines of
@@ -600,7 +602,8 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
         class_sizes, row_class = size_classes(obs.block_size_m)
         vel_class = None
         fold = folds(row_class, budget.k_folds, seed=0)
-    entries = _entries(obs, profile, class_sizes, row_class, vel_class, release_tolerance_m)
+    entries = _entries(obs, profile, class_sizes, row_class, vel_class, release_tolerance_m,
+                       release_errors)
     row_release = None
     if entries is not None:
         row_release = entries.release_x_m[entries.index[:n_run]]
@@ -655,17 +658,20 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
                      base.gap, fits[named].gap, timings, entries)
 
 
-def _entries(obs, profile, class_sizes, row_class, vel_class, tol_m) -> Entries | None:
+def _entries(obs, profile, class_sizes, row_class, vel_class, tol_m,
+             release_errors=(0.0, 0.0)) -> Entries | None:
     """The simulated (size class, release) groups of ``discover``, None where every
     block starts at the profile's first vertex (no ``release_x_m`` in the rows,
     or ``tol_m`` None). Runout rows first in ``index``, then the velocity rows
     (``vel_class``), whose groups are their size classes at the median of the
-    runout rows' releases, released at the solver's default speed and height."""
+    runout rows' releases, released at the solver's default speed and height.
+    The rows' tracked heights and speeds carry the sds ``release_errors``."""
     rel = np.asarray(obs.release_x_m, float)
     if tol_m is None or not (np.any(np.isfinite(rel)) or any(obs.profile)):
         return None
     binned = dataclasses.replace(obs, block_size_m=np.asarray(class_sizes)[row_class])
-    g = Entries.from_rows(binned, float(profile.x_m[0]), tol_m, profile_of=own_profile)
+    g = Entries.from_rows(binned, float(profile.x_m[0]), tol_m, profile_of=own_profile
+                          ).with_release_errors(*release_errors)
     if vel_class is None:
         return g
     median = float(np.median(g.release_x_m[g.index]))

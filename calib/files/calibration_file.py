@@ -17,6 +17,11 @@ the notebooks), never by re-parsing the JSON with its own names. Schema
   ``a,b`` or ``alpha``; may be null);
 * ``block_size_mapping``: a block of average diameter D is a CRSP sphere of
   radius D/2 and a DEM square of side D.
+* ``release_height_sd_m``, ``release_speed_sd_m_s`` (with their
+  ``*_source`` texts): the errors of the tracked release heights and speeds
+  with which the CRSP fit drew its blocks' releases (the site's,
+  ``calib.files.site``; absent in older files: 0); ``calib.validate``
+  draws the held-out rows' releases with the same.
 
 ``posterior_csv`` is relative to the folder of the json file; ``profile_csv``
 is relative to the working directory (as ``calib.fit`` writes it, run from the
@@ -91,6 +96,10 @@ class Calibration(NamedTuple):
         rock_density_kg_m3: the rock density the fit simulated its blocks at
             (key ``rock_density_kg_m3``; older files: the solvers' default,
             ``solvers.material.ROCK_DENSITY_KG_M3``, which they ran with).
+        release_height_sd_m, release_speed_sd_m_s: the errors (sds) of the
+            tracked release heights and speeds the fit drew its blocks' releases
+            with (keys of the same names, the site's, ``calib.files.site``;
+            older files: 0, the tracked values taken as exact, as they ran).
     """
 
     path: str
@@ -107,6 +116,8 @@ class Calibration(NamedTuple):
     own_releases: bool = True
     release_heights: bool = False
     rock_density_kg_m3: float = ROCK_DENSITY_KG_M3
+    release_height_sd_m: float = 0.0
+    release_speed_sd_m_s: float = 0.0
 
     def check_density(self, density_kg_m3: float, where: str) -> None:
         """Refuse to simulate this calibration's blocks at another rock density
@@ -311,7 +322,9 @@ def _model_from_doc(path: str, doc: dict, model: str | None) -> Calibration:
                        else None, own_releases=model == "crsp" or "dem" in _grouped(doc),
                        release_heights=(model == "crsp" and _with_heights(doc))
                        or model in _grouped(doc, "speed_and_height_models"),
-                       rock_density_kg_m3=rho)
+                       rock_density_kg_m3=rho,
+                       **{k: _number(path, k, doc.get(k, 0.0), 0.0, math.inf, True)
+                          for k in ("release_height_sd_m", "release_speed_sd_m_s")})
 
 
 def _with_heights(doc: dict) -> bool:
@@ -580,6 +593,10 @@ def fit_document(header: dict, inputs, entries, fits: dict, grouped: bool,
            "versions": header["versions"], "inputs": header["inputs"],
            "rock_density_kg_m3": entries.density_kg_m3,
            "rock_density_source": inputs.site.density_source,
+           "release_height_sd_m": inputs.site.release_height_sd_m,
+           "release_height_source": inputs.site.release_height_source or None,
+           "release_speed_sd_m_s": inputs.site.release_speed_sd_m_s,
+           "release_speed_source": inputs.site.release_speed_source or None,
            "block_size_mapping": BLOCK_SIZE_MAPPING,
            "likelihood": "point: (1/n) sum_j N(y; r_j, sd^2 + v_j); interval: (1/n) sum_j "
                          "[Phi((b-r_j)/w_j) - Phi((a-r_j)/w_j)] (calib/inference/likelihood.py)",
