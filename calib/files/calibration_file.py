@@ -76,7 +76,8 @@ class Calibration(NamedTuple):
         path: the json file.
         model: "crsp" or "dem".
         profile_csv: resolved path of the slope profile.
-        names: parameter names (CRSP: Kn, Kt, roughness_m; DEM: a, b or alpha).
+        names: parameter names (CRSP: Kn, Kt, roughness_m[, rolling angle(s)], then
+            the columns of ``effects``; DEM: a, b or alpha).
         point: (P,) the point estimate (``map``) of each parameter.
         posterior: (R, P) posterior sample, or None (gradient-only fit).
         posterior_csv: its resolved path, or None.
@@ -526,7 +527,8 @@ def model_section(name: str, fit, forward, law_form: str | None = None) -> dict:
     ``forward``) as ``calib.fit`` writes it: parameters with map/mean/q05/q95
     (DEM: under ``alpha_law``, with the DEM numerics under ``run``), prior,
     gradient and Bayes records with their diagnostics, fit quality, adequacy,
-    unfinished blocks, budgets and timings; ``posterior_csv`` and
+    unfinished blocks, budgets and timings; CRSP: ``effects``, the effects
+    ``forward`` switches on (their columns are among the parameters); ``posterior_csv`` and
     ``posterior_netcdf`` name the files written next to it."""
     post = fit.posterior
     sec = {"parameters": list(fit.names), "estimate_source": fit.estimate_source,
