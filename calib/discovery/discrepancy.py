@@ -1,5 +1,6 @@
 """The discrepancy workflow: fit the baseline, locate where it fails, fit each
-candidate effect, name the one that clearly predicts better, show the gap shrink.
+candidate effect, name the one that clearly predicts better, show the gap
+shrink; then add it to the baseline and search again.
 
 1. Every candidate (the baseline ``none`` and each effect of ``calib.model.effects``)
    is fitted the same way: a Bayesian fit by adaptive importance sampling over
@@ -31,15 +32,40 @@ candidate effect, name the one that clearly predicts better, show the gap shrink
    with fresh blocks) gives quantile residuals, tested against block size and
    stop position (``calib.discovery.residuals``): WHERE it fails, with p-values.
 3. The candidates are compared by their K-fold held-out log predictive density
-   (``calib.discovery.scores``); an effect is named only when its gain over the baseline
-   exceeds ``ELPD_MIN`` = 4 and ``Z_MIN`` = 2 standard errors, else ``none``.
+   (``calib.discovery.scores``); the best is named only when its gain over the
+   baseline exceeds ``ELPD_MIN`` = 4 nats and z standard errors, else ``none``:
+   z = ``Z_MIN`` = 2 at the first step (its false-positive rate over the whole
+   candidate set measured on null data, ``docs/studies.md``), raised
+   Bonferroni-style for the m candidates a later step compares
+   (``calib.discovery.scores.naming_z``: 2.53 for four).
    Each effect's row of the table also gives ``effective_rows``, the number of
    rows that effectively carry its gain (the 2-se bar is a bar on it, see
    ``calib.discovery.scores.effective_rows``), and ``carrying_rows``, the indices of the
    rows that carry 90 % of it (runout rows in file order, then speed rows).
 4. The gap metric (``GAP_METRIC``) is computed for every candidate from its own
-   posterior predictive; gap_before is the baseline's, gap_after the named
+   posterior predictive; gap_before is the baseline's, gap_after the final
    model's (re-fitted on all rows, which its design already is).
+5. Discovery keeps going (``discover``'s ``combine``): once an effect is named,
+   the model with it is the new baseline, and steps 1 and 3 run again with
+   each remaining candidate added to it (baseline + named + candidate against
+   baseline + named, whose fit is reused; its posterior seeds the warm
+   stage). Stopping rule: a step that names none, no candidate left, or the
+   step limit. Multiple testing: within a step the bar is Bonferroni's over the
+   m candidates compared (3.), i.e. each step tests "no remaining candidate
+   gains" at the one-sided level ALPHA = Phi(-2) = 2.3 % whatever the
+   dependence of the candidates' gains; across steps nothing more is spent,
+   because a step runs only after the one before rejected: once every real
+   effect is in the model, the next step is the first whose candidates all
+   lack a gain, and it names one with probability at most ALPHA, after which
+   the loop stops or has already erred (the fixed-sequence argument: Westfall
+   & Krishen 2001, "Optimally weighted, fixed sequence and gatekeeper multiple
+   testing procedures", J. Statist. Plann. Inference 99, 25-40). Our choice
+   over splitting a family-wise level across the steps (ALPHA / K each), which
+   would make later steps needlessly blind. Two caveats: the sequence of
+   hypotheses depends on what earlier steps named (an early wrong effect can
+   change the later ones), and the level rests on the normal approximation of
+   the score difference, which is optimistic with few rows (Sivula et al.
+   2022); the levels are nominal.
 
 Unfinished blocks (NaN runouts and speeds from the forward models,
 ``calib.model.unfinished``) are left out of the likelihood, the predictive and the
@@ -70,6 +96,7 @@ from calib.discovery.scores import (
     elpd_difference,
     folds,
     naming_threshold,
+    naming_z,
 )
 from calib.files.inputs import own_profile
 from calib.inference.importance import KHAT_MAX, ess, psis_weights, weighted_quantile
@@ -82,6 +109,8 @@ from calib.model.warp import unit_coordinates
 
 __all__ = [
     "GAP_METRIC",
+    "MULTIPLE_TESTING",
+    "STOPPING_RULE",
     "Budget",
     "Candidate",
     "CandidateFit",
@@ -90,6 +119,7 @@ __all__ = [
     "fit_candidate",
     "gap",
     "loglik_noise_sd",
+    "model_label",
     "preset_budget",
     "size_classes",
 ]
@@ -543,7 +573,24 @@ def _predictive(cand, fw, theta, w, simulated, key, budget, rng, tallies):
 
 @dataclasses.dataclass
 class Discovery:
-    """Outcome of the workflow (``discover``)."""
+    """Outcome of the workflow (``discover``).
+
+    Attributes:
+        named_effect: the effect named at the first step, against the plain
+            baseline ("none": none).
+        fits: every fitted model by its label (``model_label``: "none", an
+            effect, or the effects of each step joined by "+").
+        table: the first step's ranked table (``steps[0]["candidates"]``).
+        where_before: where the plain baseline disagrees (``residuals.locate``);
+            where_after: the same for the final model (None: nothing named).
+        class_sizes_m, row_class: the size classes and each row's class.
+        gap_before: the plain baseline's gap; gap_after: the final model's.
+        timings_s: seconds per fitted model.
+        entries: the simulated (size class, release) groups, or None.
+        steps: one record per step (``_step_record``): its baseline, the
+            candidates compared, the naming bar, what it named and the gap.
+        named_effects: the effects named, in order (the final model's effects).
+    """
 
     named_effect: str
     fits: dict[str, CandidateFit]
@@ -556,17 +603,55 @@ class Discovery:
     gap_after: float
     timings_s: dict
     entries: Entries | None = None
+    steps: list[dict] = dataclasses.field(default_factory=list)
+    named_effects: tuple[str, ...] = ()
+
+    @property
+    def final_model(self) -> str:
+        """The label of the model discovery ends with (``model_label``)."""
+        return model_label(self.named_effects)
+
+
+def model_label(effects) -> str:
+    """A model's label: "none" (the baseline) or its effects joined by "+" in the
+    order they were named (``calib.model.effects.model_label`` for CRSP's)."""
+    return "+".join(effects) or "none"
+
+
+STOPPING_RULE = ("after an effect is named, the model with it becomes the baseline and the "
+                 "remaining candidates are fitted on top of it; discovery stops at the first "
+                 "step that names none, when no candidate is left, or after --max-steps steps")
+MULTIPLE_TESTING = ("step 1 names the best candidate only if its gain exceeds max(4 nats, "
+                    "2 se), the bar whose false-positive rate over the whole candidate set "
+                    "was measured on null data (docs/studies.md); each later step raises "
+                    "it to z_m se with z_m = Phi^-1(1 - 0.023 / m) over the m candidates it "
+                    "compares (Bonferroni at the one-sided level of the 2-se bar, 0.023; "
+                    "z = 2.28, 2.43, 2.53 for m = 2-4); a step runs only after the one "
+                    "before named an effect (a fixed-sequence procedure)")
 
 
 def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: Budget,
              progress=None, velocities=None, release_tolerance_m: float | None = None,
-             release_errors: tuple[float, float] = (0.0, 0.0)) -> Discovery:
+             release_errors: tuple[float, float] = (0.0, 0.0),
+             combine: Callable[[tuple[str, ...]], Candidate] | None = None,
+             max_steps: int | None = None) -> Discovery:
     """Run the whole workflow on observations ``obs`` (see module docstring).
 
     ``candidates[0]`` must be the baseline (effect ``none``). ``velocities``
     (optional, ``calib.files.observations.Velocities``): passage speeds at stations,
     scored with the runouts by every candidate (forward models with
     ``simulate``, i.e. CRSP); the gap metric and the residuals stay on runouts.
+
+    Steps: the first step compares the candidates with the baseline. With
+    ``combine`` (effects -> the ``Candidate`` of the baseline with those
+    effects added in that order, e.g. ``calib.discovery.candidates.crsp_model``)
+    discovery keeps going: a named effect joins the baseline, and the next step
+    compares baseline + named + each remaining candidate with baseline +
+    named (whose fit is reused), until a step names none, no candidate is
+    left, or ``max_steps`` steps ran (None: no limit but those). Without
+    ``combine`` (candidates that cannot be combined, the DEM's) there is one
+    step. Stopping rule and multiple-testing control: ``STOPPING_RULE``,
+    ``MULTIPLE_TESTING`` (module docstring, step 5).
 
     Releases: where the rows give ``release_x_m`` (and ``release_tolerance_m``
     is not None), every row is simulated from its own point, as ``calib.fit``
@@ -587,6 +672,8 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
     """
     if candidates[0].effect != "none":
         raise ValueError("the first candidate must be the baseline (effect 'none')")
+    if max_steps is not None and max_steps < 1:
+        raise ValueError(f"max_steps: expected at least 1, got {max_steps}")
     n_run = obs.n_obs
     vel = None
     if velocities is not None and velocities.n_obs:
@@ -614,48 +701,100 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
         vel = VelocityRows(velocities.stations_m, velocities.station_index, vel_class,
                            velocities.velocity_m_s, velocities.velocity_sd_m_s)
     fits, timings = {}, {}
-    warm = None
-    for i, cand in enumerate(candidates):
-        fits[cand.effect] = fit_candidate(cand, obs, class_sizes, row_class,
-                                          jax.random.fold_in(key, i), budget, fold, progress,
-                                          warm=warm, velocities=vel, entries=entries)
-        timings[cand.effect] = fits[cand.effect].seconds
-        if i == 0 and cand.design is None:  # the baseline's posterior seeds the effects
-            b = fits["none"]
-            zb = unit_coordinates(cand.box)[0](b.theta)
-            warm = _gaussian_fit(zb, b.weights)
+
+    def fit(cand, label, k, warm):
+        fits[label] = fit_candidate(cand, obs, class_sizes, row_class, k, budget, fold,
+                                    progress, warm=warm, velocities=vel, entries=entries)
+        timings[label] = fits[label].seconds
+
+    # step 1 keeps the keys it always had (candidate i: fold_in(key, i))
+    fit(candidates[0], "none", jax.random.fold_in(key, 0), None)
+    base_cand, named = candidates[0], ()
+    remaining = {c.effect: c for c in candidates[1:]}
+    steps = []
+    while True:  # step 1 always (a baseline alone gets its table), later ones while named
+        step = len(steps) + 1
+        step_key = key if step == 1 else jax.random.fold_in(key, 1000 + step)
+        base = fits[model_label(named)]
+        warm = None  # the step's baseline posterior seeds its candidates (not for grids)
+        if base_cand.design is None:
+            warm = _gaussian_fit(unit_coordinates(base_cand.box)[0](base.theta), base.weights)
+        cands = {e: c if step == 1 else combine(named + (e,)) for e, c in remaining.items()}
+        for i, (e, c) in enumerate(cands.items(), start=1):
+            fit(c, model_label(named + (e,)), jax.random.fold_in(step_key, i), warm)
+        steps.append(_step_record(step, named, {e: fits[model_label(named + (e,))]
+                                                for e in cands}, base, n_run, vel))
+        new = steps[-1]["named"]
+        if new == "none" or combine is None or (max_steps is not None and step >= max_steps):
+            break
+        named, base_cand = named + (new,), cands[new]
+        del remaining[new]
+        if not remaining:
+            break
+    if steps[-1]["named"] != "none" and steps[-1]["named"] not in named:
+        named = named + (steps[-1]["named"],)  # the last step's, when the loop stopped on it
     base = fits["none"]
+    final = fits[model_label(named)]
     rng = np.random.default_rng(0)
     row_entry = None if entries is None else entries.index
     where_before = locate(obs, row_class, class_sizes, base.samples, profile, rng, row_release,
                           row_entry)
+    where_after = None if not named else locate(
+        obs, row_class, class_sizes, final.samples, profile, np.random.default_rng(0),
+        row_release, row_entry)
+    return Discovery(steps[0]["named"], fits, steps[0]["candidates"], where_before, where_after,
+                     class_sizes, row_class, base.gap, final.gap, timings, entries, steps, named)
+
+
+def _step_record(step: int, named: tuple[str, ...], cand_fits: dict, base: CandidateFit,
+                 n_run: int, vel) -> dict:
+    """One step of ``discover``: its candidates scored against its baseline (the
+    model with the effects ``named``) and its verdict.
+
+    Keys: ``step``, ``baseline`` (label) and ``baseline_effects``;
+    ``candidates``, the ranked table (row ``effect`` "none": the step's
+    baseline; others the effect added, ``model`` the label of the model fitted;
+    ``delta_vs_none``/``se_delta``: gain over the step's baseline);
+    ``n_compared`` (m), ``z`` (``naming_z(m)``), ``threshold_nats`` (the best
+    candidate's bar, ``naming_threshold``); ``named`` ("none" or the effect),
+    ``gain_nats``, ``se_nats`` (the best candidate's), ``gap_before``,
+    ``gap_after`` (the step's baseline, and the model after the step)."""
     table = []
-    for eff, f in fits.items():
+    for eff, f in {"none": base, **cand_fits}.items():
         gains = f.elpd - base.elpd  # per row
         d, se = (0.0, 0.0) if eff == "none" else elpd_difference(f.elpd, base.elpd)
-        table.append({"effect": eff, "score": float(f.elpd.sum()), "delta_vs_none": d,
+        table.append({"effect": eff, "model": model_label(named + (() if eff == "none"
+                                                                   else (eff,))),
+                      "score": float(f.elpd.sum()), "delta_vs_none": d,
                       "se_delta": se, "gap": f.gap, "n_params": len(f.names),
                       "ess": f.ess, "loglik_noise_sd_nats": f.loglik_noise_sd_nats,
                       "khat": f.khat, "khat_by_fold": [float(k) for k in f.khat_folds],
                       "psis_flagged_folds": [int(j) for j in
                                              np.flatnonzero(f.khat_folds > KHAT_MAX)]})
-        if eff != "none":  # how many rows carry the gain (the 2-se rule is a bar on it)
+        if eff != "none":  # how many rows carry the gain (the se rule is a bar on it)
             table[-1]["effective_rows"] = effective_rows(gains)
             table[-1]["carrying_rows"] = [int(i) for i in carrying_rows(gains)]
         if vel is not None:  # the part of the gain that the speeds carry
             table[-1]["delta_velocity_rows"] = float(gains[n_run:].sum())
     table.sort(key=lambda r: -r["score"])
-    named = "none"
+    m = len(cand_fits)
+    # step 1 keeps the 2-se bar whose false-positive rate over the whole candidate
+    # set was measured on null data (docs/studies.md); later steps, which no null
+    # study covers, raise it Bonferroni-style over the candidates they compare
+    m_bar = 1 if step == 1 else m
     best = best_effect(table)
-    if best is not None and best["delta_vs_none"] > naming_threshold(best["se_delta"]):
-        named = best["effect"]
+    threshold = naming_threshold(None if best is None else best["se_delta"], m_bar)
+    new = best["effect"] if best is not None and best["delta_vs_none"] > threshold else "none"
     for r in table:
-        r["clear_gain"] = r["effect"] == named and named != "none"
-    where_after = None if named == "none" else locate(
-        obs, row_class, class_sizes, fits[named].samples, profile, np.random.default_rng(0),
-        row_release, row_entry)
-    return Discovery(named, fits, table, where_before, where_after, class_sizes, row_class,
-                     base.gap, fits[named].gap, timings, entries)
+        r["clear_gain"] = r["effect"] == new and new != "none"
+    return {"step": step, "baseline": model_label(named), "baseline_effects": list(named),
+            "n_compared": m, "z": naming_z(m_bar), "threshold_nats": threshold, "named": new,
+            "best": None if best is None else best["effect"],
+            "gain_nats": None if best is None else best["delta_vs_none"],
+            "se_nats": None if best is None else best["se_delta"],
+            "gap_before": base.gap,
+            "gap_after": cand_fits[new].gap if new != "none" else base.gap,
+            "candidates": table}
 
 
 def _entries(obs, profile, class_sizes, row_class, vel_class, tol_m,

@@ -299,7 +299,9 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
     """The posterior predictive runouts of held-out rows, each from its own
     release (``calib.model.entries.Entries.from_rows``) at ``n_posterior`` draws of
     the calibration ``cal`` (``calib.files.calibration_file``), its blocks at the
-    calibration's rock density and release errors (``heldout_entries``).
+    calibration's rock density and release errors (``heldout_entries``), with the
+    effects it was fitted with (``Calibration.effects``: each draw's effect
+    columns switch them on in the solver, as in the fit).
 
     Returns:
         (pooled (G, n_posterior * n_blocks) runouts per (size, release) group,
@@ -334,7 +336,10 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
     if cal.model == "crsp":
         from calib.model.priors import crsp_box
 
-        fw = CrspForward(profile, entries, n_blocks or 100, key, box=crsp_box(draws.names))
+        # the fitted model: the baseline's box, the effects' columns after it
+        # (calib.model.effects), mapped onto the solver as the fit mapped them
+        fw = CrspForward(profile, entries, n_blocks or 100, key, box=crsp_box(cal.base_names),
+                         effect=cal.effects or "none")
     else:
         from calib.model.dem_run import DEM_RUN, DemRun
 

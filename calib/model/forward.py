@@ -233,7 +233,9 @@ class CrspForward:
             what ``dataclasses.replace`` passes back, so the columns are never
             added twice).
         effect: a candidate effect of ``calib.model.effects`` switched on ("none": plain
-            CRSP); its parameters follow the baseline's in theta.
+            CRSP), or a tuple of them switched on together (``effects.effect_names``:
+            each has its own solver fields, so any distinct ones combine); their
+            parameters follow the baseline's in theta, effect after effect.
         stations_x_m: abscissae (m) at which ``simulate`` records passage speeds.
         settings: CRSP solver settings (event budget, search window).
     """
@@ -245,7 +247,7 @@ class CrspForward:
     pool: int = dataclasses.field(default_factory=crsp.default_pool)
     task_chunk: int = 96
     box: Box = CRSP_BOX
-    effect: str = "none"
+    effect: str | tuple[str, ...] = "none"
     stations_x_m: tuple[float, ...] = ()
     settings: crsp.Settings = crsp.Settings()
 
