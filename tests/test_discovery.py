@@ -568,7 +568,8 @@ def test_discovery_keeps_going_until_it_names_both_hidden_effects_then_stops():
     second, on top of it, the other, and the third (the decoy on top of both)
     names none, and discovery stops; the first step's bar is the 2-se one, each
     later step's Bonferroni's over its candidates (z 2.00, 2.28, 2.00), and the
-    gap shrinks at each naming. The one-step workflow (max_steps=1, or no ``combine``) names one effect only."""
+    gap shrinks at each naming. The one-step workflow (max_steps=1, or no
+    ``combine``) names one effect only."""
     from calib.discovery.discrepancy import discover
     from calib.discovery.scores import naming_z
 
