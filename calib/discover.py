@@ -209,11 +209,11 @@ def _run(args) -> int:
         MULTIPLE_TESTING,
         STOPPING_RULE,
         discover,
-        preset_budget,
     )
     from calib.discovery.scores import ELPD_MIN, Z_MIN
     from calib.files.inputs import InputError, load_inputs
     from calib.files.provenance import versions
+    from calib.inference.budget import discovery_budget
     from calib.model.unfinished import UnfinishedBlocksWarning
     from calib.plots import discovery_figures as figs
 
@@ -230,7 +230,7 @@ def _run(args) -> int:
     if args.max_steps is not None and args.max_steps < 1:
         raise CliError(f"--max-steps: expected at least 1, got {args.max_steps}")
     try:
-        budget = preset_budget(args.model, args.quick, args.n_blocks)
+        budget = discovery_budget(args.model, args.quick, args.n_blocks)
     except ValueError as e:
         raise CliError(f"--n-blocks: {e}") from None
     bar = Progress(not args.no_progress, args.model.upper())

@@ -181,8 +181,8 @@ def _where(args) -> dict:
 
 
 def _run(args) -> int:
-    from calib.discovery.discrepancy import PRESETS, preset_budget
     from calib.discovery.power_study import one_run
+    from calib.inference.budget import DISCOVERY_PRESETS, discovery_budget
     from calib.synth import speed_design
     from solvers.dispatch import ClusterUnreachable, RunFailed, Task, run_tasks
     from solvers.profile import load_profile
@@ -196,10 +196,10 @@ def _run(args) -> int:
         raise CliError(f"{args.profile}: {e}") from None
     budget_name = "crsp-quick" if args.quick else "crsp"
     try:
-        budget = preset_budget("crsp", args.quick, args.n_blocks)
+        budget = discovery_budget("crsp", args.quick, args.n_blocks)
     except ValueError as e:
         raise CliError(f"--n-blocks: {e}") from None
-    if budget.n_blocks != PRESETS[budget_name].n_blocks:
+    if budget.n_blocks != DISCOVERY_PRESETS[budget_name].n_blocks:
         budget_name += f"-b{budget.n_blocks}"
     speeds, speed_tag = speed_design(args, profile), ""
     if speeds is not None:

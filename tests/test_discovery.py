@@ -433,7 +433,8 @@ class _Line:
 
 def test_a_fold_with_a_large_khat_reaches_the_discovery_record():
     from calib.discovery.discovery_warnings import psis_warnings
-    from calib.discovery.discrepancy import Budget, Candidate, discover
+    from calib.discovery.discrepancy import Candidate, discover
+    from calib.inference.budget import DiscoveryBudget as Budget
     from calib.model.priors import Box
     from solvers.cli import json_ready as _clean
 
@@ -535,7 +536,7 @@ class _Hidden:
 
 
 def _hidden_budget():
-    from calib.discovery.discrepancy import Budget
+    from calib.inference.budget import DiscoveryBudget as Budget
 
     return Budget(n_sobol=64, n_warm=32, n_refine=(32, 32, 32), n_blocks=32, n_draws=8,
                   n_blocks_check=32, k_folds=5, noise_reps=0)
@@ -626,9 +627,9 @@ def test_discover_command_reports_each_step_and_the_refit_command(tmp_path, caps
 
     cands = [_hidden_model(())] + [_hidden_model((e,)) for e in ("slope", "kink", "noise")]
     monkeypatch.setattr(cmd, "_candidates", lambda *a: (cands, _hidden_model))
-    import calib.discovery.discrepancy as disc
+    import calib.inference.budget as budgets
 
-    monkeypatch.setattr(disc, "preset_budget", lambda *a: HIDDEN_BUDGET)
+    monkeypatch.setattr(budgets, "discovery_budget", lambda *a: HIDDEN_BUDGET)
     data = _hidden_rows(tmp_path / "hidden.csv")
     out = tmp_path / "d"
     rc, text, err = run_cli(cmd.main, [str(data), "--profile", "data/postignano_profile.csv",

@@ -99,6 +99,7 @@ from calib.discovery.scores import (
     naming_z,
 )
 from calib.files.inputs import own_profile
+from calib.inference.budget import DiscoveryBudget
 from calib.inference.importance import KHAT_MAX, ess, psis_weights, weighted_quantile
 from calib.inference.likelihood import log_likelihood, observed_rows, velocity_log_likelihood
 from calib.inference.predictive_check import pool_draws
@@ -111,7 +112,6 @@ __all__ = [
     "GAP_METRIC",
     "MULTIPLE_TESTING",
     "STOPPING_RULE",
-    "Budget",
     "Candidate",
     "CandidateFit",
     "Discovery",
@@ -120,69 +120,12 @@ __all__ = [
     "gap",
     "loglik_noise_sd",
     "model_label",
-    "preset_budget",
     "size_classes",
 ]
 
 GAP_METRIC = ("mean CRPS (m) of the observed runouts under the model's posterior predictive "
               "(simulated runout + the row's measurement noise), averaged over the rows of "
               "each size class, then over the size classes")
-
-
-@dataclasses.dataclass(frozen=True)
-class Budget:
-    """Simulation budget of one candidate fit.
-
-    Attributes:
-        n_sobol: points of the Sobol stage.
-        n_warm: points of the warm stage (effects only).
-        n_refine: points of each adaptive stage.
-        n_blocks: blocks per (design point, size class), common random numbers.
-        n_draws: posterior draws re-simulated for the predictive (fresh blocks).
-        n_blocks_check: blocks per (draw, size class) of that predictive.
-        k_folds: folds of the held-out score (leave-one-out below this many rows).
-        noise_reps: independent block sets at the best design point that measure
-            the Monte Carlo sd of the summed log-likelihood (``loglik_noise_sd``);
-            below 2 it is skipped, as it is for forward models without
-            ``replicates`` (the DEM's).
-    """
-
-    n_sobol: int = 128
-    n_warm: int = 128
-    n_refine: tuple[int, ...] = (64, 64, 64, 64)
-    n_blocks: int = 128
-    n_draws: int = 16
-    n_blocks_check: int = 128
-    k_folds: int = 5
-    noise_reps: int = 8
-
-    @property
-    def n_design(self) -> int:
-        return self.n_sobol + self.n_warm + sum(self.n_refine)
-
-
-PRESETS = {
-    "crsp": Budget(),
-    "crsp-quick": Budget(n_sobol=32, n_warm=32, n_refine=(32, 32), n_blocks=32, n_draws=8,
-                         n_blocks_check=64),
-    "dem": Budget(n_sobol=0, n_warm=0, n_refine=(), n_blocks=8, n_draws=8, n_blocks_check=0,
-                  noise_reps=0),
-    "dem-quick": Budget(n_sobol=0, n_warm=0, n_refine=(), n_blocks=4, n_draws=8,
-                        n_blocks_check=0, noise_reps=0),
-}
-
-
-def preset_budget(model: str, quick: bool = False, n_blocks: int | None = None) -> Budget:
-    """The preset budget of ``model`` ("crsp" or "dem"; ``PRESETS``), with
-    ``n_blocks`` blocks per (design point, size class) if given (at least 2: the
-    kernel width needs a spread). Candidates with their own ``n_blocks`` (the
-    DEM's fragmentation) keep it."""
-    budget = PRESETS[model + ("-quick" if quick else "")]
-    if n_blocks is None:
-        return budget
-    if n_blocks < 2:
-        raise ValueError(f"expected an integer of at least 2, got {n_blocks}")
-    return dataclasses.replace(budget, n_blocks=n_blocks)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -389,7 +332,7 @@ def _crps_finished(samples: np.ndarray, y: float) -> float:
 
 
 def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array,
-                  budget: Budget, fold: np.ndarray, progress=None,
+                  budget: DiscoveryBudget, fold: np.ndarray, progress=None,
                   warm: tuple[np.ndarray, np.ndarray] | None = None,
                   velocities: VelocityRows | None = None,
                   entries: Entries | None = None) -> CandidateFit:
@@ -630,7 +573,7 @@ MULTIPLE_TESTING = ("step 1 names the best candidate only if its gain exceeds ma
                     "before named an effect (a fixed-sequence procedure)")
 
 
-def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: Budget,
+def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: DiscoveryBudget,
              progress=None, velocities=None, release_tolerance_m: float | None = None,
              release_errors: tuple[float, float] = (0.0, 0.0),
              combine: Callable[[tuple[str, ...]], Candidate] | None = None,
