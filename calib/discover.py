@@ -197,6 +197,7 @@ def _fit_section(f) -> dict:
 
 
 def _run(args) -> int:
+    from calib.discovery.candidate_fit import GAP_METRIC
     from calib.discovery.discovery_warnings import (
         concentration_warnings,
         ess_warnings,
@@ -205,7 +206,6 @@ def _run(args) -> int:
         psis_warnings,
     )
     from calib.discovery.discrepancy import (
-        GAP_METRIC,
         MULTIPLE_TESTING,
         STOPPING_RULE,
         discover,

@@ -13,8 +13,9 @@ import pytest
 from cli_run import run_cli, run_module
 from scipy import stats
 
+from calib.discovery.candidate_fit import _proposal
 from calib.discovery.discovery_warnings import gap_warnings, noise_warnings, psis_warnings
-from calib.discovery.discrepancy import _proposal, size_classes
+from calib.discovery.discrepancy import size_classes
 from calib.discovery.residuals import locate
 from calib.discovery.scores import (
     Z_MIN,
@@ -224,7 +225,7 @@ def test_discover_names_a_strong_hidden_effect_and_shrinks_the_gap(discover_run)
 
 
 def test_loglik_noise_sd_is_the_spread_of_the_summed_rows():
-    from calib.discovery.discrepancy import loglik_noise_sd
+    from calib.discovery.candidate_fit import loglik_noise_sd
 
     reps = np.array([[-1.0, -2.0, -3.0], [-2.0, -2.0, -3.0], [-1.0, -1.0, -1.0]])
     assert loglik_noise_sd(reps) == pytest.approx(np.std([-6.0, -7.0, -3.0], ddof=1))
@@ -432,8 +433,9 @@ class _Line:
 
 
 def test_a_fold_with_a_large_khat_reaches_the_discovery_record():
+    from calib.discovery.candidate_fit import Candidate
     from calib.discovery.discovery_warnings import psis_warnings
-    from calib.discovery.discrepancy import Candidate, discover
+    from calib.discovery.discrepancy import discover
     from calib.inference.budget import DiscoveryBudget as Budget
     from calib.model.priors import Box
     from solvers.cli import json_ready as _clean
@@ -486,7 +488,7 @@ def test_proposals_in_warped_coordinates_weight_back_to_the_uniform_prior():
     weighted median of S would be about 0.2 m instead of 2 m."""
     from scipy.stats import qmc
 
-    from calib.discovery.discrepancy import _mixture_log_q
+    from calib.discovery.candidate_fit import _mixture_log_q
     from calib.model.priors import CRSP_ROLLING_BOX as box
     from calib.model.warp import unit_coordinates
 
@@ -546,7 +548,8 @@ HIDDEN_BUDGET = _hidden_budget()
 
 
 def _hidden_model(effects):
-    from calib.discovery.discrepancy import Candidate, model_label
+    from calib.discovery.candidate_fit import Candidate
+    from calib.discovery.discrepancy import model_label
     from calib.model.priors import Box
 
     lo, hi = zip(*[(0.5, 2.0)] + [_Hidden.BOX[e] for e in effects], strict=True)

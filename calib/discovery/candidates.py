@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import functools
 
-from calib.discovery.discrepancy import Candidate
+from calib.discovery.candidate_fit import Candidate
 from calib.model.effects import CRSP_EFFECTS, effect_names, full_box, model_label
 from calib.model.forward import CrspForward
 from calib.model.priors import CRSP_BOX, Box, has_rolling

@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from calib.discovery.discrepancy import Candidate
+from calib.discovery.candidate_fit import Candidate
 from calib.model.alpha_law import alpha_of
 from calib.model.dem_run import DEM_RUN, DemRun
 from calib.model.effects import DEM_EFFECTS, EFFECTS, effect_box
