@@ -210,31 +210,8 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
     if max_steps is not None and max_steps < 1:
         raise ValueError(f"max_steps: expected at least 1, got {max_steps}")
     n_run = obs.n_obs
-    vel = None
-    if velocities is not None and velocities.n_obs:
-        class_sizes, all_class = size_classes(np.concatenate([obs.block_size_m,
-                                                              velocities.block_size_m]))
-        row_class = all_class[:n_run]
-        vel_class = all_class[n_run:]
-        # velocity rows are their own fold strata (after the runout rows' strata,
-        # so the runout rows keep the folds they have without velocities)
-        fold = folds(np.concatenate([all_class[:n_run], all_class[n_run:] + class_sizes.size]),
-                     budget.k_folds, seed=0)
-    else:
-        class_sizes, row_class = size_classes(obs.block_size_m)
-        vel_class = None
-        fold = folds(row_class, budget.k_folds, seed=0)
-    entries = _entries(obs, profile, class_sizes, row_class, vel_class, release_tolerance_m,
-                       release_errors)
-    row_release = None
-    if entries is not None:
-        row_release = entries.release_x_m[entries.index[:n_run]]
-        if vel_class is not None:  # the velocity rows' entries follow the runout rows'
-            vel_class = entries.index[n_run:]
-        entries = dataclasses.replace(entries, index=entries.index[:n_run])
-    if vel_class is not None:
-        vel = VelocityRows(velocities.stations_m, velocities.station_index, vel_class,
-                           velocities.velocity_m_s, velocities.velocity_sd_m_s)
+    class_sizes, row_class, fold, entries, vel, row_release = _rows(
+        obs, profile, budget, velocities, release_tolerance_m, release_errors)
     fits, timings = {}, {}
 
     def fit(cand, label, k, warm):
@@ -279,6 +256,39 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
         row_release, row_entry)
     return Discovery(steps[0]["named"], fits, steps[0]["candidates"], where_before, where_after,
                      class_sizes, row_class, base.gap, final.gap, timings, entries, steps, named)
+
+
+def _rows(obs, profile, budget: DiscoveryBudget, velocities, release_tolerance_m,
+          release_errors):
+    """The rows as the candidates see them: size classes, folds, the simulated
+    entries (``_entries``), the passage-velocity rows, and each runout row's release."""
+    n_run = obs.n_obs
+    vel = None
+    if velocities is not None and velocities.n_obs:
+        class_sizes, all_class = size_classes(np.concatenate([obs.block_size_m,
+                                                              velocities.block_size_m]))
+        row_class = all_class[:n_run]
+        vel_class = all_class[n_run:]
+        # velocity rows are their own fold strata (after the runout rows' strata,
+        # so the runout rows keep the folds they have without velocities)
+        fold = folds(np.concatenate([all_class[:n_run], all_class[n_run:] + class_sizes.size]),
+                     budget.k_folds, seed=0)
+    else:
+        class_sizes, row_class = size_classes(obs.block_size_m)
+        vel_class = None
+        fold = folds(row_class, budget.k_folds, seed=0)
+    entries = _entries(obs, profile, class_sizes, row_class, vel_class, release_tolerance_m,
+                       release_errors)
+    row_release = None
+    if entries is not None:
+        row_release = entries.release_x_m[entries.index[:n_run]]
+        if vel_class is not None:  # the velocity rows' entries follow the runout rows'
+            vel_class = entries.index[n_run:]
+        entries = dataclasses.replace(entries, index=entries.index[:n_run])
+    if vel_class is not None:
+        vel = VelocityRows(velocities.stations_m, velocities.station_index, vel_class,
+                           velocities.velocity_m_s, velocities.velocity_sd_m_s)
+    return class_sizes, row_class, fold, entries, vel, row_release
 
 
 def _step_record(step: int, named: tuple[str, ...], cand_fits: dict, base: CandidateFit,
