@@ -1,13 +1,21 @@
 """``python -m calib.discover DATA.csv``: find where the model disagrees with the data,
-name the missing effect, add it and show the gap shrink.
+name the missing effects one at a time, add them and show the gap shrink.
 
 Fits the baseline model and each candidate effect (``calib.model.effects``: for CRSP
 size_dissipation, fragmentation, rolling_resistance, vegetation_belt; for the
 DEM size_dissipation and fragmentation), locates the baseline's disagreement
 (quantile residuals against block size and stop position), compares the
-candidates by held-out log predictive density and names an effect only when
-its gain over the baseline exceeds 4 nats and 2 standard errors (else
-``none``). The workflow and its sources: ``calib/discovery/discrepancy.py``.
+candidates by held-out log predictive density and names the best only when
+its gain over the baseline exceeds 4 nats and z standard errors, z = 2 at the
+first step (its false-positive rate measured on null data) and raised
+Bonferroni-style for the m candidates a later step compares (2.53 for four;
+else ``none``). CRSP then keeps going: the model with the named effect is the new
+baseline, each remaining candidate is added to it and compared again, until a
+step names none, no candidate is left or ``--max-steps`` steps ran (the
+stopping rule and the multiple-testing control: ``STOPPING_RULE`` and
+``MULTIPLE_TESTING`` of ``calib/discovery/discrepancy.py``, which has the
+workflow and its sources). The summary ends with the ``python -m calib.fit``
+command that calibrates the final model (``--effect`` per named effect).
 ``--velocities FILE`` adds passage speeds at stations
 (``calib.files.observations.load_velocities``), scored with the runouts by every
 candidate (CRSP only): runouts alone cannot tell a forest belt from a lower
@@ -15,7 +23,12 @@ tangential restitution, a speed measured above the belt can.
 
 Writes into ``--out`` (atomically; nothing on error):
 
-* ``discovery.json``: named_effect, candidates [{effect, score, gap, ...,
+* ``discovery.json``: named_effect (the first step's), named_effects (every
+  step's, in order), final_model, steps [{step, baseline, baseline_effects,
+  n_compared, z, threshold_nats, named, best, gain_nats, se_nats, gap_before,
+  gap_after, candidates}], stopping_rule, multiple_testing, refit_command (the
+  calib.fit command of the final model; null where calib.fit cannot fit it),
+  candidates (the first step's) [{effect, model, score, gap, ...,
   khat, khat_by_fold, psis_flagged_folds}], gap_metric, gap_before, gap_after,
   where (the baseline's disagreement), each candidate's fit (with its
   unfinished blocks, ``calib.model.unfinished``, and the Pareto k-hats of its
@@ -27,8 +40,10 @@ Writes into ``--out`` (atomically; nothing on error):
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
+import shlex
 import sys
 import time
 import warnings
@@ -49,10 +64,14 @@ DEM_DEFAULT = ("none", "size_dissipation")
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(
         prog=PROG, description=__doc__.split("\n\n")[0] + " Writes discovery.json "
-        "(named_effect, candidates with score and gap, gap_before, gap_after, where the "
-        "baseline fails) and residuals.png, candidates.png, before_after.png; prints a "
-        "summary. An effect is named only when its held-out score gain over the baseline "
-        "exceeds 4 nats and 2 standard errors; otherwise 'none'.",
+        "(named_effect, named_effects, steps, candidates with score and gap, gap_before, "
+        "gap_after, where the baseline fails, refit_command) and residuals.png, "
+        "candidates.png, before_after.png; prints a summary ending with the calib.fit "
+        "command of the final model. At each step the best candidate is named only when "
+        "its held-out score gain over the step's baseline exceeds 4 nats and z standard "
+        "errors: z = 2 at the first step, raised Bonferroni-style at later steps for the m "
+        "candidates compared (2.28, 2.43, 2.53 for 2, 3, 4); otherwise 'none', and "
+        "discovery stops.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="Examples:\n  python -m calib.synth --effect fragmentation --seed 3 --out "
                "synth.csv\n  python -m calib.discover synth.csv --out results/discovery/\n"
@@ -97,11 +116,18 @@ def build_parser() -> argparse.ArgumentParser:
                         "share one simulated release (their mean); 0 "
                         "simulates every distinct release (slower). Rows without "
                         "release_x_m start at the profile's first vertex (default 1.0 m)")
+    p.add_argument("--max-steps", type=int, default=None, metavar="K",
+                   help="crsp: at most K steps (default: until a step names none or no "
+                        "candidate is left, i.e. at most the number of candidates); 1 = the "
+                        "single comparison with the plain baseline. dem: always 1 step (its "
+                        "candidates are separate laws and cannot be combined)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     return p
 
 
 def _candidates(model: str, effects_arg: str | None, profile, rolling: str = "profile"):
+    """The candidates of ``--effects``, and the function that adds effects to
+    the baseline for the later steps (None for the DEM: one step)."""
     from calib.model.effects import CRSP_EFFECTS, DEM_EFFECTS
 
     allowed = CRSP_EFFECTS if model == "crsp" else DEM_EFFECTS
@@ -114,7 +140,7 @@ def _candidates(model: str, effects_arg: str | None, profile, rolling: str = "pr
             raise CliError(f"--effects: {', '.join(bad) or '(empty)'}: expected effects of the "
                            f"{model} model among {', '.join(a for a in allowed if a != 'none')}")
     if model == "crsp":
-        from calib.discovery.candidates import crsp_candidates
+        from calib.discovery.candidates import crsp_candidates, crsp_model
         from calib.model.priors import CRSP_BOX, CRSP_ROLLING_BOX
 
         if rolling == "fit":
@@ -125,13 +151,35 @@ def _candidates(model: str, effects_arg: str | None, profile, rolling: str = "pr
             base = CRSP_ROLLING_BOX
         else:
             base = CRSP_BOX
-        return crsp_candidates(profile, chosen, base)
+        return (crsp_candidates(profile, chosen, base),
+                functools.partial(crsp_model, profile, base=base))
     if rolling == "fit":
         raise CliError("--rolling-resistance fit: the rolling resistance is a CRSP "
                        "parameter; the DEM candidates have none")
     from calib.discovery.dem_candidates import dem_candidates
 
-    return dem_candidates(profile, chosen)
+    return dem_candidates(profile, chosen), None
+
+
+def refit_command(args, named: tuple[str, ...]) -> str | None:
+    """The ``python -m calib.fit`` command that calibrates the model discovery
+    ended with (the baseline plus the ``named`` effects) on the same data,
+    profile, release grouping and, for CRSP, rolling-resistance baseline; None
+    where calib.fit cannot fit it (the DEM's bonded fragments)."""
+    cmd = ["python", "-m", "calib.fit", args.data]
+    if args.profile:
+        cmd += ["--profile", args.profile]
+    if args.model == "crsp":
+        cmd += ["--model", "crsp", "--rolling-resistance", args.rolling_resistance]
+        for e in named:
+            cmd += ["--effect", e]
+    elif "fragmentation" in named:
+        return None
+    else:  # the DEM's size dependence is its power law
+        cmd += ["--model", "dem", "--alpha-law",
+                "power" if "size_dissipation" in named else "constant"]
+    cmd += ["--release-tolerance-m", f"{args.release_tolerance_m:g}"]
+    return shlex.join(cmd)
 
 
 def _fit_section(f) -> dict:
@@ -149,6 +197,7 @@ def _fit_section(f) -> dict:
 
 
 def _run(args) -> int:
+    from calib.discovery.candidate_fit import GAP_METRIC
     from calib.discovery.discovery_warnings import (
         concentration_warnings,
         ess_warnings,
@@ -156,10 +205,15 @@ def _run(args) -> int:
         noise_warnings,
         psis_warnings,
     )
-    from calib.discovery.discrepancy import GAP_METRIC, discover, preset_budget
+    from calib.discovery.discrepancy import (
+        MULTIPLE_TESTING,
+        STOPPING_RULE,
+        discover,
+    )
     from calib.discovery.scores import ELPD_MIN, Z_MIN
     from calib.files.inputs import InputError, load_inputs
     from calib.files.provenance import versions
+    from calib.inference.budget import discovery_budget
     from calib.model.unfinished import UnfinishedBlocksWarning
     from calib.plots import discovery_figures as figs
 
@@ -172,18 +226,22 @@ def _run(args) -> int:
     velocities = _load_velocities(args.velocities, args.model, profile)
     if not args.release_tolerance_m >= 0:
         raise CliError(f"--release-tolerance-m must be >= 0, got {args.release_tolerance_m:g}")
-    cands = _candidates(args.model, args.effects, profile, args.rolling_resistance)
+    cands, combine = _candidates(args.model, args.effects, profile, args.rolling_resistance)
+    if args.max_steps is not None and args.max_steps < 1:
+        raise CliError(f"--max-steps: expected at least 1, got {args.max_steps}")
     try:
-        budget = preset_budget(args.model, args.quick, args.n_blocks)
+        budget = discovery_budget(args.model, args.quick, args.n_blocks)
     except ValueError as e:
         raise CliError(f"--n-blocks: {e}") from None
     bar = Progress(not args.no_progress, args.model.upper())
     with warnings.catch_warnings():  # reported in the summary and discovery.json
         warnings.simplefilter("ignore", UnfinishedBlocksWarning)
         d = discover(cands, obs, profile, jax.random.key(args.seed), budget, bar, velocities,
-                     args.release_tolerance_m)
+                     args.release_tolerance_m, (inputs.site.release_height_sd_m,
+                                                inputs.site.release_speed_sd_m_s),
+                     combine=combine, max_steps=args.max_steps)
     bar.close()
-    named_fit = d.fits[d.named_effect]
+    final_fit = d.fits[d.final_model]
     result = {
         "schema": "rockfall-discovery/1",
         "command": " ".join([PROG] + sys.argv[1:]),
@@ -191,14 +249,26 @@ def _run(args) -> int:
         "seed": args.seed, "quick": bool(args.quick), "n_observations": obs.n_obs,
         "rolling_resistance": args.rolling_resistance if args.model == "crsp" else None,
         "release_groups": _release_record(d.entries, obs.n_obs, args.release_tolerance_m),
+        "release_height_sd_m": inputs.site.release_height_sd_m,
+        "release_speed_sd_m_s": inputs.site.release_speed_sd_m_s,
         "velocities_csv": args.velocities,
         "n_velocity_observations": 0 if velocities is None else velocities.n_obs,
         "velocity_stations_m": ([] if velocities is None
                                 else [float(x) for x in velocities.stations_m]),
         "named_effect": d.named_effect,
-        "decision_rule": f"name the candidate with the largest held-out score gain over the "
-                         f"baseline if the gain exceeds {ELPD_MIN:g} nats and {Z_MIN:g} "
-                         f"standard errors; otherwise 'none'",
+        "named_effects": list(d.named_effects),
+        "final_model": d.final_model,
+        "refit_command": refit_command(args, d.named_effects),
+        "decision_rule": f"at each step, name the candidate with the largest held-out score "
+                         f"gain over the step's baseline if the gain exceeds {ELPD_MIN:g} nats "
+                         f"and z standard errors (z = {Z_MIN:g} at step 1; later steps raised "
+                         f"Bonferroni-style for the m candidates compared: steps[].z); "
+                         f"otherwise 'none'",
+        "stopping_rule": STOPPING_RULE if combine is not None else
+        "one step: the DEM's candidates cannot be combined",
+        "multiple_testing": MULTIPLE_TESTING,
+        "max_steps": args.max_steps,
+        "steps": d.steps,
         "score": f"{budget.k_folds}-fold (leave-one-out below {budget.k_folds} rows) held-out "
                  f"log predictive density, summed over rows (higher is better)",
         "candidates": d.table,
@@ -214,14 +284,22 @@ def _run(args) -> int:
         "timings_s": {**d.timings_s, "total_s": time.perf_counter() - t0},
         "versions": versions(),
     }
+    speed_sizes = None if velocities is None else velocities.block_size_m
+    later = []  # a later step's warnings: its own candidates, prefixed with the step
+    for s in d.steps[1:]:
+        ws = (psis_warnings([r for r in s["candidates"] if r["effect"] != "none"])
+              + noise_warnings(s["candidates"], budget.n_blocks, s["n_compared"])
+              + concentration_warnings(s["candidates"], obs.block_size_m, speed_sizes,
+                                       s["n_compared"]))
+        later += [f"step {s['step']}: {w}" for w in ws]
     result["warnings"] = (ess_warnings({e: (f.ess, int(f.theta.shape[0]))
                                         for e, f in d.fits.items()})
                           + psis_warnings(d.table)
-                          + noise_warnings(d.table, budget.n_blocks)
-                          + gap_warnings(d.named_effect, d.gap_before, d.gap_after)
-                          + concentration_warnings(d.table, obs.block_size_m,
-                                                   None if velocities is None
-                                                   else velocities.block_size_m)
+                          + noise_warnings(d.table, budget.n_blocks, d.steps[0]["n_compared"])
+                          + gap_warnings(d.final_model, d.gap_before, d.gap_after)
+                          + concentration_warnings(d.table, obs.block_size_m, speed_sizes,
+                                                   d.steps[0]["n_compared"])
+                          + later
                           + [f.unfinished["warning"] for f in d.fits.values()
                              if f.unfinished and f.unfinished["warning"]])
     base = d.fits["none"]
@@ -232,7 +310,7 @@ def _run(args) -> int:
         "candidates.png": figs.candidates(d.table, d.named_effect, ELPD_MIN),
         "before_after.png": figs.before_after(
             obs, d.class_sizes_m, d.row_class, base.class_samples,
-            None if d.named_effect == "none" else named_fit.class_samples, d.named_effect,
+            None if not d.named_effects else final_fit.class_samples, d.final_model,
             (d.gap_before, d.gap_after)),
     }
     text = json.dumps(json_ready(result), indent=1, allow_nan=False) + "\n"
@@ -294,35 +372,68 @@ def _print_summary(r: dict, out: str) -> None:
     if r["n_velocity_observations"]:
         print(f"  (and {r['n_velocity_observations']} passage speeds at "
               f"{', '.join(f'{x:g}' for x in r['velocity_stations_m'])} m, scored with them)")
-    print(f"\n{'candidate':20} {'score':>9} {'gain':>8} {'± se':>6} {'gap m':>7} "
-          f"{'sim sd':>7} {'k-hat':>7}")
-    noise = [c.get("loglik_noise_sd_nats") for c in r["candidates"]]
-    noise = ["-" if v is None or not np.isfinite(v) else f"{v:.1f}" for v in noise]
-    for c, sim in zip(r["candidates"], noise):
-        se = "-" if c["effect"] == "none" or c["se_delta"] is None else f"{c['se_delta']:.1f}"
-        print(f"{c['effect']:20} {c['score']:9.1f} {c['delta_vs_none']:+8.1f} {se:>6} "
-              f"{c['gap']:7.2f} {sim:>7} {_worst_fold(c):>7}")
-    if set(noise) != {"-"}:
-        print("(sim sd: Monte Carlo sd of the summed log-likelihood, nats, over independent "
-              "block sets)")
-    print("(k-hat: the largest Pareto k-hat of the folds' importance weights; ! marks one "
-          "above 0.7, an unreliable held-out score)")
-    if r["n_velocity_observations"]:
-        parts = ", ".join(f"{c['effect']} {c['delta_velocity_rows']:+.1f}"
-                          for c in r["candidates"] if c["effect"] != "none")
-        print(f"(of the gains, from the passage speeds: {parts})")
+    for st in r["steps"]:
+        _print_step(st, r["n_velocity_observations"], len(r["steps"]) > 1)
     print(f"\nnamed effect: {r['named_effect']}")
-    if r["named_effect"] != "none":
-        f = r["fits"][r["named_effect"]]
+    if len(r["steps"]) > 1 or r["named_effects"]:
+        print(f"named effects, in order: {', '.join(r['named_effects']) or 'none'} "
+              f"(final model: {r['final_model']})")
+    if r["named_effects"]:
+        f = r["fits"][r["final_model"]]
         est = ", ".join(f"{n} {f['estimate'][n]:.3g} [{f['q05'][n]:.3g}, {f['q95'][n]:.3g}]"
                         for n in f["parameters"])
-        print(f"fit with it (mean [90 %]): {est}")
+        print(f"fit with {'it' if len(r['named_effects']) == 1 else 'them'} "
+              f"(mean [90 %]): {est}")
+    print(f"stopping rule: {r['stopping_rule']}")
+    print(f"multiple testing: {r['multiple_testing']}")
     for w in r["warnings"]:
         print(f"warning: {w}")
     print(f"gap (mean CRPS per size class): before {r['gap_before']:.2f} m, after "
           f"{r['gap_after']:.2f} m (x{r['gap_after'] / r['gap_before']:.2f})")
+    if r["refit_command"]:
+        print(f"calibrate the final model: {r['refit_command']}"
+              + (" (calib.fit fits the runouts; it does not use the passage speeds)"
+                 if r["n_velocity_observations"] else ""))
+    else:
+        print("calib.fit cannot fit the final model (the DEM's bonded fragments are a "
+              "discovery candidate only)")
     print(f"total {r['timings_s']['total_s']:.0f} s; wrote {os.path.join(out, 'discovery.json')} "
           f"and figures in {out}/")
+
+
+def _print_step(st: dict, n_velocity: int, several: bool) -> None:
+    """One step's table of candidates and its verdict."""
+    if several:
+        print(f"\nstep {st['step']}: against {st['baseline']} ({st['n_compared']} candidate"
+              f"{'s' if st['n_compared'] > 1 else ''}; named if the gain exceeds 4 nats and "
+              f"{st['z']:.2f} se)")
+    print(f"{'' if several else chr(10)}{'candidate':20} {'score':>9} {'gain':>8} {'± se':>6} "
+          f"{'gap m':>7} {'sim sd':>7} {'k-hat':>7}")
+    rows = st["candidates"]
+    noise = [c.get("loglik_noise_sd_nats") for c in rows]
+    noise = ["-" if v is None or not np.isfinite(v) else f"{v:.1f}" for v in noise]
+    for c, sim in zip(rows, noise):
+        se = "-" if c["effect"] == "none" or c["se_delta"] is None else f"{c['se_delta']:.1f}"
+        name = c["effect"] if st["step"] == 1 or c["effect"] != "none" else "(baseline)"
+        print(f"{name:20} {c['score']:9.1f} {c['delta_vs_none']:+8.1f} {se:>6} "
+              f"{c['gap']:7.2f} {sim:>7} {_worst_fold(c):>7}")
+    if st["step"] == 1:
+        if set(noise) != {"-"}:
+            print("(sim sd: Monte Carlo sd of the summed log-likelihood, nats, over "
+                  "independent block sets)")
+        print("(k-hat: the largest Pareto k-hat of the folds' importance weights; ! marks one "
+              "above 0.7, an unreliable held-out score)")
+    if n_velocity:
+        parts = ", ".join(f"{c['effect']} {c['delta_velocity_rows']:+.1f}"
+                          for c in rows if c["effect"] != "none")
+        print(f"(of the gains, from the passage speeds: {parts})")
+    if several:
+        se = "-" if st["se_nats"] is None else f"{st['se_nats']:.1f}"
+        gain = "" if st["gain_nats"] is None else (
+            f": {st['best']} gains {st['gain_nats']:+.1f} ± {se} nats against a bar of "
+            f"{st['threshold_nats']:.1f}")
+        print(f"step {st['step']} names {st['named']}{gain}; gap {st['gap_before']:.2f} -> "
+              f"{st['gap_after']:.2f} m")
 
 
 def _worst_fold(c: dict) -> str:

@@ -45,8 +45,10 @@ def build_parser() -> argparse.ArgumentParser:
             "shape (sphere|cylinder|disc from the dimensions), mass_kg,\nrelease_offset_m, "
             "stop_offset_m (signed distance from the line, + to the left looking "
             "downslope),\nbeyond_max_offset, release_height_m (height of the block's lowest "
-            "point above the\nprofile's ground at release, from the release z; empty without "
-            "it), and with several\n--profile a last column profile (the run's profile, "
+            "point above the\nprofile's ground at release, from the release z, as measured: "
+            "negative where the\nrelease lies below the profile's ground, the ground's error "
+            "that the site's\nrelease_height_sd_m describes; empty without it), and with "
+            "several\n--profile a last column profile (the run's profile, "
             "relative to OUT's folder).\nrunout_m = x(stop) - x(release) along the run's "
             "profile.\n\n"
             "block_size_m is the volume-equivalent sphere diameter d = (6 m / (pi rho))^(1/3); "
@@ -170,15 +172,15 @@ def _run(args) -> int:
           f"{sizes.min():.3f} to {sizes.max():.3f} m ({len(rows) - n_box} from mass at "
           f"{args.density_kg_m3:g} kg/m^3, {n_box} from dimensions); largest lateral offset "
           f"{offsets[k]:.1f} m (run {rows[k]['run_id']})")
-    clear = np.array([r["release_clearance_m"] for r in rows])
+    clear = np.array([r["release_height_m"] for r in rows])
     known = np.isfinite(clear)
     if known.any():
         n_below = int((clear[known] < 0).sum())
         below = ("none lies below its profile's ground" if not n_below else
                  f"{n_below} releases lie below the profile's ground (by up to "
-                 f"{-clear[known].min():.2f} m) and are released on it (0 m)")
+                 f"{-clear[known].min():.2f} m), recorded as measured (negative)")
         print(f"release_height_m (block's lowest point above the profile's ground at release) "
-              f"for {int(known.sum())} runs: {max(clear[known].min(), 0.0):.2f} to "
+              f"for {int(known.sum())} runs: {clear[known].min():.2f} to "
               f"{clear[known].max():.2f} m; {below}")
     flagged = [r for r in rows if r["beyond_max_offset"]]
     if flagged:

@@ -18,6 +18,12 @@ temporary name and renamed, so a failure leaves no half-written file):
   ``read_inference_data``);
 * ``runout_vs_size.png``, ``alpha_law.png``, ``crsp_pairs.png``, ``dem_pairs.png``.
 
+``--effect NAME`` (CRSP, repeatable) adds candidate effects of
+``calib.model.effects`` (the ones ``python -m calib.discover`` compares) to
+the model: their parameters are fitted with the baseline's over their prior
+boxes, by the same stages and checks, and written like the baseline's
+(``crsp.effects`` names them; ``calib.files.calibration_file``).
+
 The likelihood (``calib.inference.likelihood``): each observed row is one draw from the
 simulated runout distribution of blocks of its size, seen with a Gaussian
 tolerance (points) or known to lie in an interval.
@@ -36,6 +42,7 @@ import jax
 import numpy as np
 
 from calib.files.provenance import provenance, versions
+from calib.model.effects import CRSP_EFFECTS
 from solvers.cli import (
     CliError,
     OneLineParser,
@@ -74,6 +81,16 @@ def build_parser() -> argparse.ArgumentParser:
                         "fit one angle per material zone of the profile(s), "
                         "rolling_friction_deg[<zone>], same prior; 'profile': keep the "
                         "profile's per-zone rolling_friction_deg and S from 0.25 m")
+    p.add_argument("--effect", action="append", default=[], metavar="NAME",
+                   choices=[e for e in CRSP_EFFECTS if e != "none"],
+                   help="CRSP only: switch on a candidate effect of calib.discover ("
+                        + ", ".join(e for e in CRSP_EFFECTS if e != "none") + "; physics "
+                        "in solvers/crsp/_effects.py, prior boxes in calib/model/effects.py) "
+                        "and fit its parameters with the baseline's; repeat it to combine "
+                        "effects (any distinct ones run together; rolling_resistance only with "
+                        "--rolling-resistance profile, the other modes fit that angle "
+                        "already). calibration.json records them (crsp.effects), and "
+                        "calib.validate and calib.hazard simulate them. Default: none")
     p.add_argument("--alpha-law", choices=["power", "constant"], default="power",
                    help="DEM damping law: power alpha = a L^-b (default) or constant alpha")
     p.add_argument("--out", default="results", help="output folder (default: results/)")
@@ -102,6 +119,7 @@ def _run(args) -> int:
     from calib.plots import figures
 
     t_start = time.perf_counter()
+    _check_effects(args)
     inputs, data_csv, files = _inputs(args)
     entries = inputs.entries(args.release_tolerance_m)
     grouped = inputs.own_releases
@@ -161,6 +179,26 @@ def _inputs(args):
     return inputs, data_csv, files
 
 
+def _check_effects(args) -> None:
+    """Refuse, in one line, ``--effect`` with a model or baseline it cannot join."""
+    if not args.effect:
+        return
+    from calib.model.effects import effect_names
+
+    if args.model != "crsp":
+        raise CliError(f"--effect {args.effect[0]}: effects are fitted with --model crsp only "
+                       "(the DEM's size-dependent damping is --alpha-law power; its bonded "
+                       "fragments are a calib.discover candidate only)")
+    try:
+        names = effect_names(args.effect)
+        if "rolling_resistance" in names and args.rolling_resistance != "profile":
+            raise ValueError(f"--rolling-resistance {args.rolling_resistance} fits the rolling "
+                             "resistance angle already (the two are one parameter); use "
+                             "--rolling-resistance profile with it")
+    except ValueError as e:
+        raise CliError(f"--effect: {e}") from None
+
+
 def _print_entries(inputs, entries, tol_m: float) -> None:
     """Say how the rows' own releases were grouped into simulated entries."""
     obs, x0 = inputs.obs, float(inputs.profile.x_m[0])
@@ -182,6 +220,11 @@ def _print_entries(inputs, entries, tol_m: float) -> None:
     if known.any():
         print(f"each group released at its rows' mean tracked speed (largest "
               f"release-speed shift {np.abs(gspeed - speed)[known].max():.2f} m/s)")
+    site = inputs.site
+    if site.release_height_sd_m or site.release_speed_sd_m_s:
+        print(f"CRSP draws each block's release height and speed about its group's, sd "
+              f"{site.release_height_sd_m:g} m and {site.release_speed_sd_m_s:g} m/s (the site "
+              f"file {site.path}); the DEM releases at the means")
     high = np.isfinite(height)
     if high.any():
         print(f"each group released at its rows' mean height above the ground, "
@@ -207,7 +250,8 @@ def _fit_model(model: str, args, inputs, entries, methods, key):
                 z for pr in (profile, *entries.profiles) if pr is not None
                 for z in pr.zone_names))
         forward = CrspForward(profile, entries, budget.n_blocks_design,
-                              jax.random.fold_in(key, 1), box=box)
+                              jax.random.fold_in(key, 1), box=box,
+                              effect=tuple(args.effect) or "none")  # columns after box's
         extra = np.geomspace(0.2, 2.0, 6)  # the check's sizes for the runout-vs-size figure
     else:
         forward = DemForward(profile, entries, budget.n_blocks_design,
@@ -295,6 +339,10 @@ def _print_summary(result: dict, models, out: str) -> None:
 def _print_parameters(result: dict, models) -> None:
     # the name column as wide as the longest name (rolling_friction_deg[<zone>])
     w = max([12] + [len(n) for m in models for n in result[m]["parameters"]])
+    effects = result.get("crsp", {}).get("effects") if "crsp" in models else None
+    if effects:
+        print(f"CRSP effects: {', '.join(effects)} (their parameters follow the baseline's; "
+              "calibration.json: crsp.effects)")
     print(f"{'model':5} {'parameter':{w}} {'estimate':>9} {'mean':>8} {'90% interval':>19}")
     for model in models:
         sec = result[model]

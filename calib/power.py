@@ -16,6 +16,16 @@ Every finished run is written at once to ``OUT/runs/`` (one JSON file each);
 a re-run with the same ``--out`` skips the runs already there, so a long study
 can be stopped and resumed. The summary (``power.csv``, ``power.json``) is
 written atomically at the end.
+
+The runs are independent (each a pure function of its effect, strength, rows
+and seeds: ``calib.discovery.power_study.one_run``), so they are dispatched
+(``solvers.dispatch``): by default to a local Dask cluster of ``--workers``
+processes, one per core; to a Dask scheduler elsewhere with ``--scheduler
+tcp://host:port``; in this process with ``--serial`` or one worker. Every way
+gives the same records. Dask distributed rather than Ray: pure-Python wheels,
+a local cluster of processes by default and a remote scheduler with the same
+code, and futures with ``as_completed`` are all a few dozen independent runs
+need (``solvers.dispatch`` says more, and how the workers share the cores).
 """
 
 from __future__ import annotations
@@ -27,7 +37,14 @@ import sys
 
 import numpy as np
 
-from solvers.cli import CliError, OneLineParser, deprecated_alias, parse_floats, run_guarded
+from solvers.cli import (
+    CliError,
+    OneLineParser,
+    deprecated_alias,
+    parse_floats,
+    run_guarded,
+    write_text_atomic,
+)
 
 __all__ = ["main", "parse_seeds"]
 
@@ -46,7 +63,9 @@ def build_parser() -> argparse.ArgumentParser:
                "2 cores at the default budget):\n"
                "  python -m calib.power --profile data/postignano_profile.csv \\\n"
                "      --effects vegetation_belt --strengths 1,2 --n-obs 60,180 \\\n"
-               "      --seeds 3001-3005 --out results/power/")
+               "      --seeds 3001-3005 --out results/power/\n"
+               "The same study on a Dask cluster (docs/distributed.md): add "
+               "--scheduler tcp://HOST:8786")
     p.add_argument("--effects", default="fragmentation,vegetation_belt",
                    help="comma-separated effects to hide in the data, 'none' for null data "
                         "(default fragmentation,vegetation_belt)")
@@ -71,7 +90,19 @@ def build_parser() -> argparse.ArgumentParser:
     add_speed_options(p, "also make passage speeds at these abscissae, m, and score them "
                          "(as calib.synth --velocity-stations-m and calib.discover "
                          "--velocities)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="processes of the local Dask cluster that runs the study, one thread "
+                        "and an equal share of the cores each (default: the number of cores "
+                        "this process may use, 1 on an accelerator; 1 runs in this process)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run on the Dask cluster whose scheduler is at ADDRESS "
+                        "(tcp://host:port), started with 'dask scheduler' and 'dask worker' "
+                        "where this project is installed (docs/distributed.md); default: a "
+                        "local cluster")
+    p.add_argument("--serial", action="store_true",
+                   help="run one run after the other in this process (same results)")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bar: one line per finished run")
     return p
 
 
@@ -94,20 +125,27 @@ def parse_seeds(text: str) -> list[int]:
 
 
 def _write_json_atomic(path: str, obj) -> None:
-    from solvers.cli import json_ready, write_text_atomic
+    from solvers.cli import json_ready
 
     write_text_atomic(path, json.dumps(json_ready(obj), indent=1, allow_nan=False) + "\n")
 
 
-def _run(args) -> int:
-    import pandas as pd
+def _error_path(run_path: str) -> str:
+    """Where a failed run's traceback goes, beside where its record would."""
+    return os.path.splitext(run_path)[0] + ".error.txt"
 
-    from calib.discovery.discrepancy import PRESETS, preset_budget
-    from calib.discovery.power_study import detection_table, one_run
+
+def _save_run(path: str, rec: dict) -> None:
+    """A finished run's record; the traceback of an earlier failed try goes."""
+    _write_json_atomic(path, rec)
+    if os.path.exists(_error_path(path)):
+        os.remove(_error_path(path))
+
+
+def _grid(args) -> list[tuple]:
+    """The checked (effect, strength, rows, seed) of every run (null data: one
+    strength, as strength does not apply)."""
     from calib.model.effects import EFFECT_NAMES
-    from calib.synth import speed_design
-    from solvers.cli import write_csv_atomic
-    from solvers.profile import load_profile
 
     effects = [e.strip() for e in args.effects.split(",") if e.strip()]
     bad = [e for e in effects if e not in EFFECT_NAMES]
@@ -120,8 +158,36 @@ def _run(args) -> int:
     n_list = parse_floats(args.n_obs, "--n-obs")
     if any(n < 1 or n != int(n) for n in n_list):
         raise CliError(f"--n-obs: expected whole numbers of at least 1, got {args.n_obs!r}")
-    n_list = [int(n) for n in n_list]
     seeds = parse_seeds(args.seeds)
+    grid = [(e, s if e != "none" else 1.0, int(n), k) for e in effects
+            for s in (strengths if e != "none" else [1.0]) for n in n_list for k in seeds]
+    return list(dict.fromkeys(grid))
+
+
+def _where(args) -> dict:
+    """``solvers.dispatch.run_tasks``'s scheduler, workers and serial from the options."""
+    from solvers.dispatch import local_workers
+
+    if args.scheduler is not None:
+        if args.serial or args.workers is not None:
+            raise CliError("--scheduler: the cluster has its own workers; give it without "
+                           "--workers and --serial")
+        if not args.scheduler.strip():
+            raise CliError("--scheduler: expected an address such as tcp://host:8786")
+    if args.workers is not None and args.workers < 1:
+        raise CliError(f"--workers: expected a whole number of at least 1, got {args.workers}")
+    return {"scheduler": args.scheduler, "serial": args.serial,
+            "workers": args.workers or local_workers()}
+
+
+def _run(args) -> int:
+    from calib.discovery.power_study import one_run
+    from calib.inference.budget import DISCOVERY_PRESETS, discovery_budget
+    from calib.synth import speed_design
+    from solvers.dispatch import ClusterUnreachable, RunFailed, Task, run_tasks
+    from solvers.profile import load_profile
+
+    grid, where = _grid(args), _where(args)
     if not (np.isfinite(args.sd_m) and args.sd_m > 0):
         raise CliError(f"--sd-m: expected a positive number of metres, got {args.sd_m:g}")
     try:
@@ -130,43 +196,48 @@ def _run(args) -> int:
         raise CliError(f"{args.profile}: {e}") from None
     budget_name = "crsp-quick" if args.quick else "crsp"
     try:
-        budget = preset_budget("crsp", args.quick, args.n_blocks)
+        budget = discovery_budget("crsp", args.quick, args.n_blocks)
     except ValueError as e:
         raise CliError(f"--n-blocks: {e}") from None
-    if budget.n_blocks != PRESETS[budget_name].n_blocks:
+    if budget.n_blocks != DISCOVERY_PRESETS[budget_name].n_blocks:
         budget_name += f"-b{budget.n_blocks}"
     speeds, speed_tag = speed_design(args, profile), ""
     if speeds is not None:
         speed_tag = (f"_v{speeds[1]}at{'+'.join(f'{x:g}' for x in speeds[0])}"
                      f"sd{args.velocity_sd_m_s:g}")
-    grid = [(e, s if e != "none" else 1.0, n, k) for e in effects
-            for s in (strengths if e != "none" else [1.0]) for n in n_list for k in seeds]
-    grid = list(dict.fromkeys(grid))  # null data: strength does not apply
     runs_dir = os.path.join(args.out, "runs")
-    bar = None
-    if not args.no_progress:
-        from tqdm import tqdm
+    tasks = [Task(name=f"{e} strength {s:g} n {n} seed {k}",
+                  path=os.path.join(runs_dir, f"{e}_s{s:g}_n{n}_seed{k}_fit{args.seed}_"
+                                              f"{budget_name}_sd{args.sd_m:g}{speed_tag}.json"),
+                  fn=one_run, args=(profile, e, s, n, k, args.sd_m, args.seed, budget, speeds,
+                                    budget_name))
+             for e, s, n, k in grid]
+    try:
+        runs = run_tasks(tasks, _save_run, **where, progress=not args.no_progress,
+                         label="power study: runs", describe=lambda r: f"named {r['named']}")
+    except RunFailed as e:
+        for task, _, text in e.failures:
+            write_text_atomic(_error_path(task.path), f"run {task.name}\n{text}")
+        sys.stderr.write(f"{PROG}: error: {e}; traceback in "
+                         f"{_error_path(e.failures[0][0].path)}; the finished runs are saved "
+                         f"and a re-run resumes from them\n")
+        return 1
+    except ClusterUnreachable as e:
+        raise CliError(f"--scheduler: {e}") from None
+    except KeyboardInterrupt:
+        raise CliError(f"interrupted; the finished runs are saved in {runs_dir} and a re-run "
+                       f"resumes from them") from None
+    _summarise(args, runs, budget_name, speeds)
+    return 0
 
-        bar = tqdm(total=len(grid), desc="power study: runs", file=sys.stderr)
-    runs = []
-    for e, s, n, k in grid:
-        path = os.path.join(runs_dir, f"{e}_s{s:g}_n{n}_seed{k}_fit{args.seed}_{budget_name}"
-                                      f"_sd{args.sd_m:g}{speed_tag}.json")
-        if os.path.exists(path):
-            with open(path) as f:
-                rec = json.load(f)
-        else:
-            rec = one_run(profile, e, s, n, k, args.sd_m, args.seed, budget, speeds)
-            rec["budget"] = budget_name
-            _write_json_atomic(path, rec)
-        runs.append(rec)
-        if bar is not None:
-            bar.update(1)
-            bar.set_postfix_str(f"{e} s{s:g} n{n} seed {k}: {rec['named']}")
-        else:
-            print(f"{e} strength {s:g} n {n} seed {k}: named {rec['named']}", flush=True)
-    if bar is not None:
-        bar.close()
+
+def _summarise(args, runs: list[dict], budget_name: str, speeds) -> None:
+    """Write power.csv and power.json and print the detection table."""
+    import pandas as pd
+
+    from calib.discovery.power_study import detection_table
+    from solvers.cli import write_csv_atomic
+
     table = detection_table(runs)
     flat = pd.DataFrame([{**{k: v for k, v in c.items() if k not in ("named", "seeds")},
                           "named": "; ".join(f"{k} {v}" for k, v in c["named"].items())}
@@ -193,7 +264,6 @@ def _run(args) -> int:
               + ", ".join(f"{k} {v}" for k, v in c["named"].items()))
     print("(sim sd: median Monte Carlo sd of the baseline's summed log-likelihood, nats)")
     print(f"wrote {os.path.join(args.out, 'power.csv')} and power.json")
-    return 0
 
 
 def main(argv=None) -> int:

@@ -14,7 +14,13 @@ Outputs (in ``--out``, all written together or not at all):
   both baselines; ``few_blocks`` where the quantiles rest on fewer than 20
   finished blocks, also named in a warning line);
 * ``validation.json``: the averages, skill scores, settings and provenance
-  (command line, seed, SHA-256 of every input, package versions);
+  (command line, seed, SHA-256 of every input, package versions), the
+  release errors the blocks were drawn with (the calibration's
+  ``release_height_sd_m``, ``release_speed_sd_m_s``) and ``stalled_rows``:
+  rows of which at least half the predictive runouts end within 5 m of the
+  release though the observed runout exceeds 20 m, with the slope below the
+  release and the fraction of draws whose rolling-resistance angle exceeds
+  it (``calib.inference.predictive_check.stalled_rows``), also printed;
 * ``pit_histogram.png`` and ``intervals.png``.
 """
 
@@ -96,7 +102,13 @@ def run_validation(args) -> dict:
     """Run the check of ``args`` (parsed options) and write its outputs; returns
     the summary written to validation.json."""
     from calib.files.provenance import provenance
-    from calib.inference.predictive_check import predictive_runouts, score_rows
+    from calib.inference.predictive_check import (
+        heldout_entries,
+        predictive_runouts,
+        score_rows,
+        stalled_rows,
+    )
+    from calib.model.forward import release_rolling_deg, release_slopes_deg
     from calib.plots.figures import validation_figures
     from solvers.cli import write_outputs
 
@@ -110,9 +122,17 @@ def run_validation(args) -> dict:
         check = score_rows(heldout, pooled, index, calib_obs, seed=args.seed)
     except ValueError as e:
         raise CliError(f"{data}: {e}") from None
+    # rows that stall at their release, and why (the slope against phi_r)
+    entries = heldout_entries(cal, heldout, profile)
+    stalls = stalled_rows(heldout, pooled, index, entries.release_x_m,
+                          release_slopes_deg(profile, entries.release_x_m, entries.profiles),
+                          release_rolling_deg(draws.names, draws.values, profile, entries)
+                          if cal.model == "crsp" else None)
     summary = {"schema": "rockfall-validation/1", "model": cal.model,
                "draws": draws.source, "n_draws": int(draws.values.shape[0]),
                "n_blocks_per_draw_and_group": int(n_blocks), **check.summary,
+               "release_height_sd_m": cal.release_height_sd_m,
+               "release_speed_sd_m_s": cal.release_speed_sd_m_s, "stalled_rows": stalls,
                "provenance": provenance(PROG, args.seed, {
                    "calibration": args.calibration, "heldout": args.heldout,
                    "calibration_data": data, "profile": cal.profile_csv})}
@@ -124,6 +144,8 @@ def run_validation(args) -> dict:
 
 
 def print_summary(s: dict, out: str) -> None:
+    from calib.inference.predictive_check import stall_message
+
     def f(v, fmt="{:.1f}"):
         return "-" if v is None else fmt.format(v)
 
@@ -131,6 +153,10 @@ def print_summary(s: dict, out: str) -> None:
           f"{s['n_blocks_per_draw_and_group']} blocks per row group) on {s['n_scored']} "
           f"held-out point rows" + (f" (+{s['n_interval_rows']} interval rows, coverage only)"
                                     if s["n_interval_rows"] else ""))
+    if s.get("release_height_sd_m") or s.get("release_speed_sd_m_s"):
+        print(f"  release errors       each block's release height and speed drawn about the "
+              f"rows' (sd {s['release_height_sd_m']:g} m, {s['release_speed_sd_m_s']:g} m/s, "
+              "the calibration's)")
     print(f"  mean CRPS            {f(s['mean_crps_m'], '{:.2f}')} m")
     print(f"  climatology CRPS     {f(s['mean_crps_climatology_m'], '{:.2f}')} m (all "
           f"calibration rows), {f(s['mean_crps_climatology_size_m'], '{:.2f}')} m (per size)")
@@ -149,6 +175,9 @@ def print_summary(s: dict, out: str) -> None:
     if s["n_without_prediction"]:
         print(f"!!! {s['n_without_prediction']} held-out rows have no finished simulated block "
               "and no score", file=sys.stderr)
+    stall = stall_message(s["stalled_rows"]) if "stalled_rows" in s else None
+    if stall:
+        print(f"!!! {stall}", file=sys.stderr)
     if s["skill_vs_climatology"] is not None and s["skill_vs_climatology"] < 0:
         print("!!! the calibration predicts these rows WORSE than quoting the observed runout "
               "distribution", file=sys.stderr)

@@ -50,10 +50,11 @@ from calib.hazard import (  # noqa: E402
     exceedance_table,
     hazard_table,
     load_calibration,
+    plot_envelopes,
+    plot_exceedance,
     run_hazard,
     summary_text,
 )
-from calib.hazard._figures import plot_envelopes, plot_exceedance  # noqa: E402
 from solvers import load_profile  # noqa: E402
 
 SMALL = os.environ.get("HAZARD_NOTEBOOK_SMALL") == "1"

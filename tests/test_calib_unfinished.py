@@ -101,9 +101,9 @@ def test_discrepancy_fit_counts_unfinished_blocks_and_warns(budget_case):
     """The discovery workflow's fit of one candidate on 2 m rows: unfinished blocks
     are counted in the design and the predictive, one warning, and every design
     point keeps a finite likelihood and the gap a finite value (finished blocks)."""
-    from calib.discovery.discrepancy import Budget as FitBudget
-    from calib.discovery.discrepancy import Candidate, fit_candidate
+    from calib.discovery.candidate_fit import Candidate, fit_candidate
     from calib.discovery.scores import folds
+    from calib.inference.budget import DiscoveryBudget as FitBudget
     from calib.model.priors import CRSP_BOX
 
     profile = budget_case[0]

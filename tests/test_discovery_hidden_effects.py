@@ -33,8 +33,9 @@ import numpy as np
 import pytest
 
 from calib.discovery.candidates import crsp_candidates
-from calib.discovery.discrepancy import PRESETS, discover
+from calib.discovery.discrepancy import discover
 from calib.discovery.synthetic import synthesize_effect
+from calib.inference.budget import DISCOVERY_PRESETS as PRESETS
 from calib.model.effects import EFFECT_NAMES
 from solvers.profile import load_profile
 

@@ -120,8 +120,9 @@ def test_cli_writes_observations_that_load_and_warns_about_offsets(tmp_path, cap
 def test_release_height_is_the_lowest_point_above_the_profile_ground(tmp_path, capsys):
     """h = z_release - d / 2 - ground(x_release): r1 (the 0.4 m cube) released
     with its centre 0.6 m above the ground at east 10 m (ground 97 m) is 0.4 m
-    high; r2, below the ground, is released on it (0 m, counted); a runs file
-    without the z column gives no heights."""
+    high; r2, below the ground, is recorded as measured (-1.165 m, counted: the
+    profile's error, which the solver draws around); a runs file without the z
+    column gives no heights."""
     prof = _profile(tmp_path)
     runs, blocks = _runs(tmp_path, "r1,1,,10,3,97.6,0.3,0.4,0,90,-4,0",
                          "r2,2,50,20,-25,93,,,,130,2,0", "r3,2,50,20,0,,,,,130,2,0")
@@ -129,9 +130,10 @@ def test_release_height_is_the_lowest_point_above_the_profile_ground(tmp_path, c
     rc, stdout, err = _cli([runs, "--blocks", blocks, "--profile", prof, "--out", out], capsys)
     assert rc == 0, err
     obs = load_observations(out)
-    np.testing.assert_allclose(obs.release_height_m, [0.4, 0.0, np.nan], atol=1e-9)
-    assert "for 2 runs: 0.00 to 0.40 m; 1 releases lie below the profile's ground (by up " \
-           "to 1.17 m)" in stdout
+    assert obs.release_height_m[1] == pytest.approx(-1.165, abs=1e-3)
+    np.testing.assert_allclose(obs.release_height_m[[0, 2]], [0.4, np.nan], atol=1e-9)
+    assert "for 2 runs: -1.17 to 0.40 m; 1 releases lie below the profile's ground (by up " \
+           "to 1.17 m), recorded as measured (negative)" in stdout
     # the column named off, or absent: no heights
     rc, stdout, err = _cli([runs, "--blocks", blocks, "--profile", prof, "--out", out,
                             "--release-z-col", ""], capsys)
@@ -191,9 +193,11 @@ def test_observation_loader_reads_the_optional_field_columns(tmp_path):
     p.write_text("block_size_m,runout_m,runout_sd_m,release_speed_m_s\n0.3,50,2,-1\n")
     with pytest.raises(ObservationError, match="column 'release_speed_m_s'"):
         load_observations(p)
+    # a height below the profile's ground is kept as measured (the raster's error)
     p.write_text("block_size_m,runout_m,runout_sd_m,release_height_m\n0.3,50,2,\n0.3,50,2,-0.1\n")
-    with pytest.raises(ObservationError, match="line 3, column 'release_height_m': expected a "
-                       "height >= 0"):
+    np.testing.assert_array_equal(load_observations(p).release_height_m, [np.nan, -0.1])
+    p.write_text("block_size_m,runout_m,runout_sd_m,release_height_m\n0.3,50,2,\n0.3,50,2,inf\n")
+    with pytest.raises(ObservationError, match="line 3, column 'release_height_m'"):
         load_observations(p)
 
 

@@ -258,21 +258,40 @@ def test_command_refuses_bad_fragment_options_in_one_line(tmp_path, capsys, argv
     assert not (tmp_path / "out").exists()
 
 
-def test_fitted_fragmentation_is_read_from_the_draws(tmp_path):
-    """A calibration whose parameters include the fragmentation effect's column runs
-    its fitted E_f, not a what-if (the draws stand in for such a calibration)."""
+def _fitted(tmp_path, log10_energy):
+    """A CRSP calibration that fitted the fragmentation effect (``crsp.effects``, its
+    column ``log10_frag_energy_kJ``), written as calib.fit writes it."""
+    path = write_calibration(tmp_path, crsp=(BASE["Kn"], BASE["Kt"], BASE["roughness_m"],
+                                             log10_energy),
+                             crsp_names=("Kn", "Kt", "roughness_m", "log10_frag_energy_kJ"),
+                             name="fitted.json")
+    with open(path) as fh:
+        doc = json.load(fh)
+    doc["crsp"]["effects"] = ["fragmentation"]
+    with open(path, "w") as fh:
+        json.dump(doc, fh)
+    return path
+
+
+def test_fitted_fragmentation_runs_each_draws_break_energy(tmp_path):
+    """--fragmentation crsp on a calibration that fitted the effect runs its fitted
+    E_f (here 10^2.4771 = 300 kJ): not a what-if, and the counts of the what-if at
+    300 kJ; a radius ratio other than the solver's makes it a what-if."""
     import argparse
 
-    from calib.files.calibration_file import Draws
-
-    cal = load_calibration(write_calibration(tmp_path), "crsp")
-    names = cal.names + ("log10_frag_energy_kJ",)
-    draws = Draws(np.array([[0.4, 0.96, 0.4, 2.5]]), names, np.array([-1]), "point estimate")
+    path = _fitted(tmp_path, math.log10(E_BREAK_KJ))
+    cal = load_calibration(path, "crsp")
+    draws = draw_parameters(cal, 1, 0)
     args = argparse.Namespace(fragmentation="crsp", frag_energy_kJ=None, frag_radius_ratio=None,
                               fragments=None)
     spec = fr.fragmentation_from_args(args, cal, draws, PROFILE)
     assert spec.energy_kJ is None and not spec.what_if and spec.n_per_break == 8
-    assert "fitted" in spec.description and f"{10 ** 2.5:.4g} kJ" in spec.description
+    assert "WHAT-IF" not in spec.description and "fitted" in spec.description
+    fitted = _hazard(path, N_CHUNK, spec)
+    what_if = _hazard(_calibration(tmp_path), N_CHUNK, _spec())
+    np.testing.assert_array_equal(fitted.exceed, what_if.exceed)
+    for k, v in fitted.fragments.counts.items():
+        np.testing.assert_array_equal(v, what_if.fragments.counts[k], err_msg=k)
     args.frag_radius_ratio = 0.25
     spec = fr.fragmentation_from_args(args, cal, draws, PROFILE)
     assert spec.what_if and spec.n_per_break == 64

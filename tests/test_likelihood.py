@@ -9,7 +9,8 @@ import pytest
 from scipy.special import logsumexp, ndtr
 from scipy.stats import norm
 
-from calib.discovery.discrepancy import _loglik_design, size_classes
+from calib.discovery.candidate_fit import _loglik_design
+from calib.discovery.discrepancy import size_classes
 from calib.files.observations import Observations
 from calib.inference.fit_check import loglik_of_runouts as _loglik_of_runouts
 from calib.inference.likelihood import R_MAX_M, RUNOUT_EPS, log_likelihood, observed_rows

@@ -13,8 +13,10 @@ import numpy as np
 import pytest
 
 import calib  # noqa: F401  (x64)
-from calib.discovery.discrepancy import Budget, Candidate, discover
+from calib.discovery.candidate_fit import Candidate
+from calib.discovery.discrepancy import discover
 from calib.files.observations import Observations
+from calib.inference.budget import DiscoveryBudget as Budget
 from calib.model.entries import Entries
 from calib.model.forward import DemForward, as_entries
 from calib.model.priors import Box

@@ -1,14 +1,18 @@
 """``python -m calib.power``: the detection-rate table, seed parsing, resuming,
-and bad input (one line, exit 2, nothing written)."""
+runs dispatched to a local cluster of processes (``solvers.dispatch``: the
+serial run's records, resuming, a failed run named in one line), and bad input
+(one line, exit 2, nothing written)."""
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
 
+import numpy as np
 import pandas as pd
 import pytest
-from cli_run import run_module
+from cli_run import run_cli, run_module
 
 from calib.discovery.power_study import detection_table
 from calib.power import parse_seeds
@@ -94,6 +98,9 @@ def test_power_quick_run_writes_table_and_resumes(tmp_path):
     (["--sd-m", "-1"], "--sd-m: expected a positive number of metres, got -1"),
     (["--profile", "nope.csv"], "nope.csv"),
     (["--n-blocks", "0"], "--n-blocks"),
+    (["--workers", "0"], "--workers: expected a whole number of at least 1, got 0"),
+    (["--scheduler", "nowhere"], "--scheduler: no Dask scheduler answers at 'nowhere'"),
+    (["--scheduler", "tcp://127.0.0.1:8786", "--serial"], "--scheduler: the cluster has"),
 ])
 def test_power_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, needle):
     out = tmp_path / "pw"
@@ -102,3 +109,97 @@ def test_power_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, need
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0] and lines[0].startswith("python -m calib.power")
     assert not out.exists()
+
+
+# ------------------------------------------------ runs dispatched to worker processes
+
+def _stand_in_run(profile, effect, strength, n_obs, seed, sd_m, fit_seed, budget, speeds=None,
+                  budget_name=None) -> dict:
+    """``one_run`` in miniature: what it names comes from its own seed only; it
+    also says which process made it, with how many cores and BLAS threads."""
+    if seed == 13:
+        raise ValueError(f"no data for seed {seed}")
+    x = float(np.random.default_rng(seed).normal())
+    return {"effect": effect, "strength": strength, "n_obs": n_obs, "seed": seed,
+            "named": effect if x > 0 else "none", "gains": {effect: [x, 1.0]},
+            "budget": budget_name, "pid": os.getpid(), "cores": len(os.sched_getaffinity(0)),
+            "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS")}
+
+
+def _without(recs, *keys):
+    return [{k: v for k, v in r.items() if k not in keys} for r in recs]
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getaffinity"), reason="needs CPU affinity (Linux)")
+def test_two_local_workers_give_the_serial_records_resume_and_name_a_failed_run(
+        tmp_path, monkeypatch, capsys):
+    """On a LocalCluster of two processes the runs give the serial study's
+    records; a run already on disk (a killed study's) is not redone; a failing
+    run is named in one line (exit 1, its traceback in a file) after every
+    other run is saved, and a re-run finds those. Each worker has its share of
+    the cores (affinity and BLAS threads set before the run). The runs are a
+    stand-in for ``one_run`` that costs nothing."""
+    from calib.discovery import power_study
+    from calib.power import main
+
+    monkeypatch.setattr(power_study, "one_run", _stand_in_run)
+    serial, cluster = tmp_path / "serial", tmp_path / "cluster"
+    args = ["--profile", PROFILE, "--effects", "fragmentation", "--n-obs", "12", "--quick",
+            "--no-progress"]
+    rc, _, err = run_cli(main, args + ["--seeds", "1-5", "--serial", "--out", str(serial)],
+                         capsys)
+    assert rc == 0, err
+    want = json.loads((serial / "power.json").read_text())["runs"]
+    assert {r["pid"] for r in want} == {os.getpid()}
+    (first,) = [f for f in os.listdir(serial / "runs") if "_seed1_" in f]
+    (cluster / "runs").mkdir(parents=True)
+    shutil.copy2(serial / "runs" / first, cluster / "runs" / first)  # finished earlier
+    rc, _, err = run_cli(main, args + ["--seeds", "1,2,3,4,5,13", "--workers", "2",
+                                       "--out", str(cluster)], capsys)
+    assert rc == 1 and err.count("\n") == 1, err
+    assert err.startswith("python -m calib.power: error: run fragmentation strength 1 n 12 "
+                          "seed 13 failed: ValueError: no data for seed 13; traceback in ")
+    (trace,) = [f for f in os.listdir(cluster / "runs") if f.endswith(".error.txt")]
+    assert "_seed13_" in trace and "ValueError" in (cluster / "runs" / trace).read_text()
+    assert not (cluster / "power.csv").exists()
+    rc, _, err = run_cli(main, args + ["--seeds", "1-5", "--workers", "2", "--out",
+                                       str(cluster)], capsys)
+    assert rc == 0, err
+    got = json.loads((cluster / "power.json").read_text())["runs"]
+    keys = ("pid", "cores", "blas_threads")
+    assert _without(got, *keys) == _without(want, *keys)
+    assert got[0] == want[0]  # the run found on disk, not redone
+    share = max(1, len(os.sched_getaffinity(0)) // 2)
+    assert all(r["pid"] != os.getpid() and r["cores"] == share
+               and r["blas_threads"] == str(share) for r in got[1:])
+
+
+@pytest.mark.slow  # a quick study serially, then on two worker processes
+def test_power_on_two_local_workers_matches_the_serial_study_and_resumes(tmp_path, monkeypatch):
+    """The same study, run serially and on a LocalCluster of two processes that
+    finds one run finished (a killed study): the same records (all but their
+    run time) and the same table; the finished run is not redone. Each
+    worker's first run is the first of its process, so a run that depended on
+    what ran before it in the process would differ from the serial one.
+
+    The compiled programs are shared through JAX's persistent compilation
+    cache (it changes no result) so that the workers do not compile again."""
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path / "xla"))
+    monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+    args = ["--profile", PROFILE, "--effects", "none", "--n-obs", "12", "--seeds", "5-7",
+            "--quick", "--n-blocks", "4", "--no-progress"]
+    serial, cluster = tmp_path / "serial", tmp_path / "cluster"
+    r = _cli(*args, "--serial", "--out", str(serial))
+    assert r.returncode == 0, r.stderr
+    (first,) = [f for f in os.listdir(serial / "runs") if "_seed5_" in f]
+    (cluster / "runs").mkdir(parents=True)
+    shutil.copy2(serial / "runs" / first, cluster / "runs" / first)
+    mtime = os.path.getmtime(cluster / "runs" / first)
+    r = _cli(*args, "--workers", "2", "--out", str(cluster))
+    assert r.returncode == 0, r.stderr
+    assert os.path.getmtime(cluster / "runs" / first) == mtime
+    a, b = (json.loads((d / "power.json").read_text()) for d in (serial, cluster))
+    assert _without(a["runs"], "seconds") == _without(b["runs"], "seconds")
+    assert a["cells"] == b["cells"]
+    pd.testing.assert_frame_equal(pd.read_csv(serial / "power.csv"),
+                                  pd.read_csv(cluster / "power.csv"))

@@ -153,8 +153,9 @@ def test_discover_bad_velocities_is_one_line_exit_2(tmp_path, extra, body, needl
 
 def test_discover_refuses_speeds_for_a_model_that_cannot_record_them():
     from calib.discovery.dem_candidates import dem_candidates
-    from calib.discovery.discrepancy import PRESETS, discover
+    from calib.discovery.discrepancy import discover
     from calib.files.observations import Observations, Velocities
+    from calib.inference.budget import DISCOVERY_PRESETS as PRESETS
 
     obs = Observations.points(np.array([0.5, 2.0]), np.array([120.0, 200.0]), 10.0)
     vel = Velocities(np.array([110.0]), np.array([1.0]), np.array([20.0]), np.array([1.0]),

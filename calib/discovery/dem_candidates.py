@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from calib.discovery.discrepancy import Candidate
+from calib.discovery.candidate_fit import Candidate
 from calib.model.alpha_law import alpha_of
 from calib.model.dem_run import DEM_RUN, DemRun
 from calib.model.effects import DEM_EFFECTS, EFFECTS, effect_box
@@ -109,7 +109,7 @@ class DemEffectForward:
         blocks = [make_block(float(L), alpha=a, n_fragments=N_FRAGMENTS, release_x_m=float(x0),
                              release_speed_m_s=float(v), release_height_m=float(h))
                   for L, x0, v, h in zip(sides, e.release_x_m, e.release_speed_m_s,
-                                         e.release_height_m, strict=True)]
+                                         e.dem_release_height_m(), strict=True)]
         options = self.run.options(params, sides, n_fragments=N_FRAGMENTS, adaptive=False)
         lanes = [b for b in blocks for _ in range(self.n_blocks)]
         keys = jax.vmap(lambda j: jax.random.fold_in(self.key, j))(

@@ -77,13 +77,14 @@ def gap_warnings(named: str, gap_before_m: float, gap_after_m: float) -> list[st
             "better predicted runouts: do not take it as found"]
 
 
-def noise_warnings(candidates: list[dict], n_blocks: int) -> list[str]:
+def noise_warnings(candidates: list[dict], n_blocks: int, n_compared: int = 1) -> list[str]:
     """A warning when simulation noise could flip the verdict.
 
     ``candidates``: rows of the ranked table (``effect``, ``delta_vs_none``,
     ``se_delta``, ``loglik_noise_sd_nats``; nan or None: not measured). The rule
     looks at the effect with the largest gain g and names it when g exceeds
-    T = max(ELPD_MIN, Z_MIN se). The candidates are fitted with different
+    T = max(ELPD_MIN, z se), z = ``naming_z(n_compared)`` for the
+    ``n_compared`` candidates of the step. The candidates are fitted with different
     blocks, so g carries simulation noise of about s = sqrt(s_effect^2 +
     s_none^2), from their summed log-likelihood sds (an approximation: the
     score is a held-out average over the posterior, not the likelihood at one
@@ -99,7 +100,7 @@ def noise_warnings(candidates: list[dict], n_blocks: int) -> list[str]:
     if any(v is None or not np.isfinite(v) for v in sds):
         return []
     noise = float(np.hypot(*sds))
-    gain, threshold = best["delta_vs_none"], naming_threshold(best["se_delta"])
+    gain, threshold = best["delta_vs_none"], naming_threshold(best["se_delta"], n_compared)
     if abs(gain - threshold) >= 2 * noise:
         return []
     return [f"the verdict may change with other simulated blocks: {best['effect']} gains "
@@ -110,7 +111,8 @@ def noise_warnings(candidates: list[dict], n_blocks: int) -> list[str]:
 
 
 def concentration_warnings(candidates: list[dict], runout_sizes_m: np.ndarray,
-                           speed_sizes_m: np.ndarray | None = None) -> list[str]:
+                           speed_sizes_m: np.ndarray | None = None,
+                           n_compared: int = 1) -> list[str]:
     """A warning when the best effect gains more than ``ELPD_MIN`` but is not
     named because few rows carry its gain.
 
@@ -121,16 +123,24 @@ def concentration_warnings(candidates: list[dict], runout_sizes_m: np.ndarray,
     approximation behind the se is least trustworthy there: Sivula, Magnusson,
     Matamoros & Vehtari, arXiv:2008.10296). The warning names the sizes of the
     rows that carry the gain: more observations of those sizes settle it, and
-    one or two aberrant rows could also be the cause.
+    one or two aberrant rows could also be the cause. ``n_compared``: the
+    candidates of the step, which set the bar (``naming_z``).
     """
-    from calib.discovery.scores import ELPD_MIN, Z_MIN, best_effect, naming_threshold, rows_needed
+    from calib.discovery.scores import (
+        ELPD_MIN,
+        best_effect,
+        naming_threshold,
+        naming_z,
+        rows_needed,
+    )
 
     best = best_effect(candidates)
     if best is None or "effective_rows" not in best:
         return []
     gain = best["delta_vs_none"]
-    if not gain > ELPD_MIN or gain > naming_threshold(best["se_delta"]):
+    if not gain > ELPD_MIN or gain > naming_threshold(best["se_delta"], n_compared):
         return []
+    z = naming_z(n_compared)
     runs = np.asarray(runout_sizes_m, float)
     speeds = np.zeros(0) if speed_sizes_m is None else np.asarray(speed_sizes_m, float)
     n = runs.size + speeds.size
@@ -145,6 +155,6 @@ def concentration_warnings(candidates: list[dict], runout_sizes_m: np.ndarray,
     return [f"{best['effect']} gains {gain:+.1f} nats ({gain / best['se_delta']:.2f} se) but is "
             f"not named: {rows.size} of the {n} rows carry 90 % of the gain "
             f"({'; '.join(parts)}), {best['effective_rows']:.1f} effective rows, and the "
-            f"{Z_MIN:g}-se bar needs more than {rows_needed(n):.1f}. More observations of "
+            f"{z:.3g}-se bar needs more than {rows_needed(n, z):.1f}. More observations of "
             f"blocks of those sizes would show whether the effect is real; one or two aberrant "
             f"rows could also give such a gain."]

@@ -15,12 +15,19 @@ __all__ = ["detection_table", "one_run"]
 
 
 def one_run(profile, effect, strength, n_obs, seed, sd_m, fit_seed, budget,
-             speeds=None) -> dict:
+            speeds=None, budget_name=None) -> dict:
     """One run of the study: synthetic data with ``effect`` at ``strength``
     (``n_obs`` rows, measurement sd ``sd_m``, data seed ``seed``; ``speeds``:
     None or (stations_m, n_rows, sd_m_s) passage speeds too), the discrepancy
     workflow on it with ``fit_seed`` and ``budget``; the run's record (what was
-    named, gains and their se, diagnostics, warnings, time)."""
+    named, gains and their se, diagnostics, warnings, time; ``budget_name``
+    recorded as "budget" if given).
+
+    A pure function of its arguments, so that runs can go to any process in any
+    order (``solvers.dispatch``): the data's keys come from ``seed``
+    (``synthesize_effect``, ``synthesize_velocities``), the fits' from
+    ``fit_seed``; no state is shared between runs. Only "seconds" differs
+    between two calls."""
     import warnings
 
     import jax
@@ -58,7 +65,8 @@ def one_run(profile, effect, strength, n_obs, seed, sd_m, fit_seed, budget,
             "psis_flagged_folds": {r["effect"]: r["psis_flagged_folds"] for r in d.table},
             "warnings": [f.unfinished["warning"] for f in d.fits.values()
                          if f.unfinished and f.unfinished["warning"]],
-            "seconds": time.perf_counter() - t0}
+            "seconds": time.perf_counter() - t0,
+            **({} if budget_name is None else {"budget": budget_name})}
 
 
 def detection_table(runs: list[dict], effects=None) -> list[dict]:

@@ -22,8 +22,21 @@ difference of two models is ``sum_i (elpd_i^A - elpd_i^B)`` with standard error
 ``sqrt(n var_i(elpd_i^A - elpd_i^B))``; Sivula et al. call differences below
 about 4 small. The discrepancy workflow names an effect only when its gain over
 the baseline exceeds both 4 and twice its standard error (``ELPD_MIN``,
-``Z_MIN``), fixed before any workflow run. The 2-se bar depends only on how
-many rows carry the gain (``effective_rows``; ``rows_needed``), not on its size.
+``Z_MIN``), fixed before any workflow run, the 2 raised when several
+candidates are compared (below). A z-se bar depends only on how many rows
+carry the gain (``effective_rows``; ``rows_needed``), not on its size.
+
+Several candidates at once (``naming_z``): the rule looks at the best of the m
+candidates compared against one baseline, so the chance that one of m effects
+without any real gain clears a z-se bar by chance is up to m times that of
+one. The bar is raised Bonferroni-style: z_m = Phi^-1(1 - ALPHA / m) with
+ALPHA = Phi(-Z_MIN) = 2.3 %, the one-sided level of the 2-se bar for one
+candidate (z = 2.00 for one candidate, 2.28 for two, 2.43 for three, 2.53 for
+four). Bonferroni's inequality holds whatever the dependence between the
+candidates' gains, which share the baseline's scores and are strongly
+dependent (Bonferroni bound; Holm 1979, Scand. J. Statist. 6, 65-70, whose
+first step it is); the level is nominal, as the normal approximation behind
+the se is (Sivula et al. 2022).
 
 CRPS (Gneiting & Raftery 2007, "Strictly proper scoring rules, prediction, and
 estimation", JASA 102, 359-378, eq. 21): for a predictive ensemble X_1..X_m and
@@ -35,10 +48,12 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.special import logsumexp
+from scipy.stats import norm
 
 from calib.inference.importance import psis_weights
 
 __all__ = [
+    "ALPHA",
     "ELPD_MIN",
     "Z_MIN",
     "best_effect",
@@ -49,11 +64,13 @@ __all__ = [
     "elpd_difference",
     "folds",
     "naming_threshold",
+    "naming_z",
     "rows_needed",
 ]
 
 ELPD_MIN = 4.0
 Z_MIN = 2.0
+ALPHA = float(norm.sf(Z_MIN))  # one-sided level of the Z_MIN bar for one candidate
 
 
 def crps_ensemble(samples: np.ndarray, y: float) -> float:
@@ -161,12 +178,22 @@ def carrying_rows(diff: np.ndarray, share: float = 0.9) -> np.ndarray:
     return order[:min(k, d.size)]
 
 
-def naming_threshold(se_delta: float | None) -> float:
-    """The gain (nats) an effect must exceed to be named: max(``ELPD_MIN``,
-    ``Z_MIN`` se), or ``ELPD_MIN`` when the se is unknown (None or not finite)."""
+def naming_z(n_compared: int = 1) -> float:
+    """The se multiple of the naming bar when the best of ``n_compared``
+    candidates is named: ``Z_MIN`` for one, else Phi^-1(1 - ALPHA / n_compared)
+    (Bonferroni; module docstring)."""
+    if n_compared <= 1:
+        return Z_MIN
+    return float(norm.isf(ALPHA / n_compared))
+
+
+def naming_threshold(se_delta: float | None, n_compared: int = 1) -> float:
+    """The gain (nats) an effect must exceed to be named, the best of
+    ``n_compared`` candidates: max(``ELPD_MIN``, ``naming_z(n_compared)`` se), or
+    ``ELPD_MIN`` when the se is unknown (None or not finite)."""
     if se_delta is None or not np.isfinite(se_delta):
         return ELPD_MIN
-    return max(ELPD_MIN, Z_MIN * se_delta)
+    return max(ELPD_MIN, naming_z(n_compared) * se_delta)
 
 
 def best_effect(table: list[dict]) -> dict | None:

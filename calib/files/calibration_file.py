@@ -11,12 +11,25 @@ the notebooks), never by re-parsing the JSON with its own names. Schema
   and ``posterior_csv`` (columns ``Kn,Kt,roughness_m[,rolling_friction_deg]``, or one
   ``rolling_friction_deg[<zone>]`` per zone;
   null after a gradient-only fit);
+* ``crsp.effects``: the candidate effects of ``calib.model.effects`` the fit
+  switched on (``python -m calib.fit --effect``; [] or absent: none); their
+  parameters (e.g. ``gamma``, ``belt_start_m``, ``belt_loss``) follow the
+  baseline's in ``parameters``, as keys with ``map``/``mean``/``q05``/``q95``
+  and as posterior CSV columns, and every consumer simulates them
+  (``calib.model.effects.draw_overrides``). A file naming an effect the solver
+  cannot run (unknown, twice, or ``rolling_resistance`` beside a fitted
+  rolling angle) is refused;
 * ``dem``: ``alpha_law`` (``form`` "power" with ``a``, ``b``: alpha = a L^-b, L
   the square side in m; or ``form`` "constant" with ``alpha``; every model runs
   it clipped to [0, 0.95], ``calib.model.alpha_law``) and ``posterior_csv`` (columns
   ``a,b`` or ``alpha``; may be null);
 * ``block_size_mapping``: a block of average diameter D is a CRSP sphere of
   radius D/2 and a DEM square of side D.
+* ``release_height_sd_m``, ``release_speed_sd_m_s`` (with their
+  ``*_source`` texts): the errors of the tracked release heights and speeds
+  with which the CRSP fit drew its blocks' releases (the site's,
+  ``calib.files.site``; absent in older files: 0); ``calib.validate``
+  draws the held-out rows' releases with the same.
 
 ``posterior_csv`` is relative to the folder of the json file; ``profile_csv``
 is relative to the working directory (as ``calib.fit`` writes it, run from the
@@ -38,6 +51,7 @@ from typing import NamedTuple
 import numpy as np
 
 from calib.model.alpha_law import FORMS, PARAMETER_RANGES
+from calib.model.effects import EFFECTS, check_combination, effect_columns, effect_names
 from calib.model.priors import base_name, rolling_zone
 from solvers.dem import check_run_numerics
 from solvers.material import ROCK_DENSITY_KG_M3
@@ -67,7 +81,8 @@ class Calibration(NamedTuple):
         path: the json file.
         model: "crsp" or "dem".
         profile_csv: resolved path of the slope profile.
-        names: parameter names (CRSP: Kn, Kt, roughness_m; DEM: a, b or alpha).
+        names: parameter names (CRSP: Kn, Kt, roughness_m[, rolling angle(s)], then
+            the columns of ``effects``; DEM: a, b or alpha).
         point: (P,) the point estimate (``map``) of each parameter.
         posterior: (R, P) posterior sample, or None (gradient-only fit).
         posterior_csv: its resolved path, or None.
@@ -91,6 +106,13 @@ class Calibration(NamedTuple):
         rock_density_kg_m3: the rock density the fit simulated its blocks at
             (key ``rock_density_kg_m3``; older files: the solvers' default,
             ``solvers.material.ROCK_DENSITY_KG_M3``, which they ran with).
+        release_height_sd_m, release_speed_sd_m_s: the errors (sds) of the
+            tracked release heights and speeds the fit drew its blocks' releases
+            with (keys of the same names, the site's, ``calib.files.site``;
+            older files: 0, the tracked values taken as exact, as they ran).
+        effects: CRSP: the effects the fit switched on (key ``crsp.effects``;
+            ``calib.model.effects``), whose columns are the last of ``names``
+            (``effect_columns``); () without any, and for the DEM.
     """
 
     path: str
@@ -107,6 +129,14 @@ class Calibration(NamedTuple):
     own_releases: bool = True
     release_heights: bool = False
     rock_density_kg_m3: float = ROCK_DENSITY_KG_M3
+    release_height_sd_m: float = 0.0
+    release_speed_sd_m_s: float = 0.0
+    effects: tuple[str, ...] = ()
+
+    @property
+    def base_names(self) -> tuple[str, ...]:
+        """``names`` without the effects' columns (the baseline's parameters)."""
+        return self.names[:len(self.names) - len(effect_columns(self.effects))]
 
     def check_density(self, density_kg_m3: float, where: str) -> None:
         """Refuse to simulate this calibration's blocks at another rock density
@@ -272,10 +302,17 @@ def _model_from_doc(path: str, doc: dict, model: str | None) -> Calibration:
     json_dir = os.path.dirname(os.path.abspath(path))
     profile_csv = _resolve(path, doc.get("profile_csv"), json_dir, "profile_csv", True)
     sec = _section(path, doc, model)
+    effects = _effects(path, sec, model)
     if model == "crsp":
         names = ("Kn", "Kt", "roughness_m") + tuple(
             k for k in sec if rolling_zone(k) is not None)  # one, or one per zone
         ranges = {n: _CRSP_RANGES[base_name(n)] for n in names}
+        try:
+            check_combination(effects, names)
+        except ValueError as e:
+            raise CalibrationError(f"{path}: key 'crsp.effects': {e}") from None
+        ranges.update({c: v for e in effects for c, v in EFFECTS[e].valid.items()})
+        names += effect_columns(effects)
         point = [_summary_value(path, sec, "crsp", n, ranges[n]) for n in names]
         form = ""
     else:
@@ -311,7 +348,27 @@ def _model_from_doc(path: str, doc: dict, model: str | None) -> Calibration:
                        else None, own_releases=model == "crsp" or "dem" in _grouped(doc),
                        release_heights=(model == "crsp" and _with_heights(doc))
                        or model in _grouped(doc, "speed_and_height_models"),
-                       rock_density_kg_m3=rho)
+                       rock_density_kg_m3=rho, effects=effects,
+                       **{k: _number(path, k, doc.get(k, 0.0), 0.0, math.inf, True)
+                          for k in ("release_height_sd_m", "release_speed_sd_m_s")})
+
+
+def _effects(path: str, sec: dict, model: str) -> tuple[str, ...]:
+    """The effects a model section names (key ``<model>.effects``), checked: known
+    CRSP effects, each once; the DEM runs none."""
+    raw = sec.get("effects")
+    if raw is None:
+        return ()
+    where = f"{path}: key '{model}.effects'"
+    if not isinstance(raw, list) or not all(isinstance(e, str) for e in raw):
+        raise CalibrationError(f"{where}: expected a list of effect names, got {raw!r}")
+    if model == "dem" and [e for e in raw if e != "none"]:
+        raise CalibrationError(f"{where}: the DEM runs no effect from a calibration file "
+                               f"(calib.fit fits effects for CRSP only), got {', '.join(raw)}")
+    try:
+        return effect_names(raw)
+    except ValueError as e:
+        raise CalibrationError(f"{where}: {e}") from None
 
 
 def _with_heights(doc: dict) -> bool:
@@ -483,7 +540,8 @@ def model_section(name: str, fit, forward, law_form: str | None = None) -> dict:
     ``forward``) as ``calib.fit`` writes it: parameters with map/mean/q05/q95
     (DEM: under ``alpha_law``, with the DEM numerics under ``run``), prior,
     gradient and Bayes records with their diagnostics, fit quality, adequacy,
-    unfinished blocks, budgets and timings; ``posterior_csv`` and
+    unfinished blocks, budgets and timings; CRSP: ``effects``, the effects
+    ``forward`` switches on (their columns are among the parameters); ``posterior_csv`` and
     ``posterior_netcdf`` name the files written next to it."""
     post = fit.posterior
     sec = {"parameters": list(fit.names), "estimate_source": fit.estimate_source,
@@ -517,6 +575,7 @@ def model_section(name: str, fit, forward, law_form: str | None = None) -> dict:
     else:
         sec["posterior_csv"] = sec["posterior_netcdf"] = None
     if law_form is None:
+        sec["effects"] = list(effect_names(getattr(forward, "effect", "none")))
         sec.update(stats)
     else:
         sec["run"] = dataclasses.asdict(forward.run)  # the DEM numerics (calib.model.dem_run)
@@ -580,6 +639,10 @@ def fit_document(header: dict, inputs, entries, fits: dict, grouped: bool,
            "versions": header["versions"], "inputs": header["inputs"],
            "rock_density_kg_m3": entries.density_kg_m3,
            "rock_density_source": inputs.site.density_source,
+           "release_height_sd_m": inputs.site.release_height_sd_m,
+           "release_height_source": inputs.site.release_height_source or None,
+           "release_speed_sd_m_s": inputs.site.release_speed_sd_m_s,
+           "release_speed_source": inputs.site.release_speed_source or None,
            "block_size_mapping": BLOCK_SIZE_MAPPING,
            "likelihood": "point: (1/n) sum_j N(y; r_j, sd^2 + v_j); interval: (1/n) sum_j "
                          "[Phi((b-r_j)/w_j) - Phi((a-r_j)/w_j)] (calib/inference/likelihood.py)",

@@ -38,11 +38,17 @@ Definitions (the equations are standard; which one applies is our choice):
   its heights: h = z_release - d / 2 - ground(x_release), the height of the
   block's lowest point above the profile's ground under the projected release.
   OUR OWN CHOICES: the tracked point is the block's centre (a sensor inside the
-  block, as in the Tschamut campaign's LPS), d is ``block_size_m``, and a
-  release that lies below the profile's ground (h < 0: the 2D profile does not
-  represent the ground there, e.g. a release off the line) is released on the
-  ground (h = 0, counted in the command's summary). The CRSP fit starts such a
-  block in flight at that height (``calib.model.forward.CrspForward``).
+  block, as in the Tschamut campaign's LPS) and d is ``block_size_m``. h is
+  recorded AS MEASURED, negative values included: a release that lies below
+  the profile's ground (h < 0, counted in the command's summary) says that the
+  profile's ground there, a raster's (and a 2D line's, for a release off the
+  line), lies above the true ground, not that the rock started inside it. The
+  CRSP runs (``calib.model.forward.CrspForward``, ``solvers.crsp.init``) start
+  each block at a height drawn from N(h, sd^2) truncated to >= 0, sd the
+  site's ``release_height_sd_m`` (``calib.files.site``; a negative h is then a
+  release from the error's tail above the ground); with sd 0 a negative h is
+  clipped, a release on the ground. The DEM releases on the ground where h < 0
+  (``calib.model.entries``).
 
 Defaults that are ASSUMPTIONS (state them with the data they make):
 
@@ -360,7 +366,6 @@ def field_observations(runs: FieldRuns, profile_x_m: np.ndarray, trace, *,
     if profile_z_m is not None:
         ground = np.interp(r_x, np.asarray(profile_x_m, float), np.asarray(profile_z_m, float))
         clearance = runs.release_z_m - 0.5 * d - ground
-    height = np.maximum(clearance, 0.0)  # NaN stays NaN
     rows = []
     for i in range(runs.n_runs):
         size = runs.size_m[i]
@@ -374,12 +379,11 @@ def field_observations(runs: FieldRuns, profile_x_m: np.ndarray, trace, *,
             "run_id": runs.run_id[i], "block_id": runs.block_id[i],
             "release_x_m": float(r_x[i]),
             "release_speed_m_s": float(runs.release_speed_m_s[i]),
-            "release_height_m": float(height[i]),
+            "release_height_m": float(clearance[i]),
             "shape": "" if np.isnan(size).any() else crsp_shape(size),
             "mass_kg": float(runs.mass_kg[i]),
             "release_offset_m": float(r_off[i]), "stop_offset_m": float(s_off[i]),
             "beyond_max_offset": flag,
-            "release_clearance_m": float(clearance[i]),  # not written: h before h >= 0
         })
     return rows
 

@@ -133,15 +133,18 @@ class Inputs:
         site's rock density: with ``tol_m`` (m) and rows that give their own
         releases, one entry per (profile, size, release) group within
         ``tol_m`` (``Entries.from_rows``, rows without a release at the
-        profile's first vertex); else one entry per size at the data set's
-        one release (``Entries.one_per_size``)."""
+        profile's first vertex), with the site's release errors on the rows'
+        tracked heights and speeds (``Entries.with_release_errors``,
+        ``calib.files.site``); else one entry per size at the data set's one
+        release (``Entries.one_per_size``, the solvers' default release)."""
         from calib.model.entries import Entries
 
         rho = self.site.rock_density_kg_m3
         if tol_m is None or not self.own_releases:
             return Entries.one_per_size(self.obs, self.release_x_m, density_kg_m3=rho)
         return Entries.from_rows(self.obs, float(self.profile.x_m[0]), tol_m,
-                                 profile_of=own_profile, density_kg_m3=rho)
+                                 profile_of=own_profile, density_kg_m3=rho).with_release_errors(
+            self.site.release_height_sd_m, self.site.release_speed_sd_m_s)
 
 
 def load_inputs(data: str, profile_arg: str | None, out: str) -> Inputs:

@@ -16,9 +16,13 @@ NaN or empty text, and files without them behave exactly as before):
 * ``release_x_m``: abscissa of the release point on the profile, m (NOT the
   east coordinate that a runs file may call by the same name);
 * ``release_speed_m_s``: speed at release, m/s (>= 0), where tracked;
-* ``release_height_m``: height (m, >= 0) of the block's lowest point above
-  the profile's ground at release, where known (a block dropped or thrown
-  from a hand, a bucket or a cliff edge); empty: released on the ground;
+* ``release_height_m``: height (m) of the block's lowest point above the
+  profile's ground at release, where known (a block dropped or thrown from a
+  hand, a bucket or a cliff edge), as measured: negative where a tracked
+  release lies below the ground of a profile cut from a raster (the raster's
+  error, not the rock's: CRSP draws the block's height from the error's
+  distribution above the ground, ``solvers.crsp.init``; without an error,
+  on the ground); empty: released on the ground;
 * ``run_id``: the run's identifier in its source;
 * ``shape``: CRSP shape class ``sphere``, ``cylinder`` or ``disc`` (empty:
   unknown), from the block's dimensions (rule in ``calib.files.field_runs``);
@@ -285,10 +289,10 @@ def _field_columns(df: pd.DataFrame, path: str):
                                f"expected a speed >= 0 m/s, got "
                                f"{df['release_speed_m_s'][bad[0]]!r}")
     height = _number(df, "release_height_m", path)
-    bad = np.flatnonzero(~(np.isnan(height) | (np.isfinite(height) & (height >= 0))))
+    bad = np.flatnonzero(~(np.isnan(height) | np.isfinite(height)))
     if bad.size:
         raise ObservationError(f"{path}: line {bad[0] + 2}, column 'release_height_m': "
-                               f"expected a height >= 0 m above the ground, got "
+                               f"expected a finite height above the ground, m, got "
                                f"{df['release_height_m'][bad[0]]!r}")
     text = {}
     for col in ("run_id", "shape", "profile"):

@@ -15,6 +15,8 @@ comes from)::
 
     {"name": "Postignano (central Italy)",
      "rock_density_kg_m3": 2350, "rock_density_source": "...",
+     "release_height_sd_m": 0.6, "release_height_source": "...",
+     "release_speed_sd_m_s": 0.3, "release_speed_source": "...",
      "station_of_interest": {"x_m": 230.0, "label": "road", "source": "..."},
      "alpha_reference": {"label": "paper, Table 1", "L_m": [0.2, 0.9, 1.8],
                          "alpha": [0.90, 0.43, 0.30], "source": "..."}}
@@ -24,6 +26,16 @@ the site's blocks (the fit, the predictive check, the discrepancy workflow,
 the hazard run) builds its blocks with it, so that a simulated block weighs
 what the rock weighed, and ``calibration.json`` records it; without it the
 solvers' default ``solvers.material.ROCK_DENSITY_KG_M3`` (2350 kg/m^3).
+``release_height_sd_m`` and ``release_speed_sd_m_s`` are the errors (sds, >= 0)
+of the site's tracked release heights and speeds: the height of a tracked
+release above a profile cut from a raster carries the raster's vertical error
+(measured for Tschamut by ``scripts/raster_height_error.py``), the tracked
+speed the tracker's. Every CRSP simulation of rows with a tracked release
+(the fit, the predictive check, the discrepancy workflow) then draws each
+block's release height and speed from truncated normals about the rows'
+values (``solvers.crsp.init``); ``calibration.json`` records the sds. Each
+needs its ``*_source`` text (where the number comes from). Without them: 0,
+the tracked values taken as exact.
 ``station_of_interest`` is where ``calib.hazard`` reports the reach probability
 and design values (``--road-x-m`` overrides it); ``alpha_reference`` is drawn
 on the DEM damping-law figure and reported next to the fitted alpha(L). A
@@ -62,6 +74,11 @@ class Site:
             default where the site file gives none).
         density_source: where the density comes from (the site file's
             ``rock_density_source``, or "default").
+        release_height_sd_m: sd of a tracked release height's error, m (0:
+            exact; module docstring).
+        release_height_source: where it comes from ("" where 0 by default).
+        release_speed_sd_m_s: sd of a tracked release speed's error, m/s.
+        release_speed_source: where it comes from.
     """
 
     name: str = ""
@@ -72,6 +89,10 @@ class Site:
     path: str | None = None
     rock_density_kg_m3: float = ROCK_DENSITY_KG_M3
     density_source: str = "default (solvers.material.ROCK_DENSITY_KG_M3)"
+    release_height_sd_m: float = 0.0
+    release_height_source: str = ""
+    release_speed_sd_m_s: float = 0.0
+    release_speed_source: str = ""
 
 
 def site_path(profile_path: str) -> str:
@@ -137,4 +158,23 @@ def load_site(profile_path: str) -> Site:
         rho_source = doc.get("rock_density_source", path)
         if not isinstance(rho_source, str):
             raise SiteError(f"{path}: key 'rock_density_source': expected text")
-    return Site(name, x, label, ref, ref_label, path, rho, rho_source)
+    errors = [_release_error(path, doc, key, src) for key, src in (
+        ("release_height_sd_m", "release_height_source"),
+        ("release_speed_sd_m_s", "release_speed_source"))]
+    return Site(name, x, label, ref, ref_label, path, rho, rho_source,
+                *errors[0], *errors[1])
+
+
+def _release_error(path: str, doc: dict, key: str, source_key: str) -> tuple[float, str]:
+    """(sd, source) of a release error: the key's value >= 0 with its source text
+    (required with it), or (0, "")."""
+    if key not in doc:
+        if source_key in doc:
+            raise SiteError(f"{path}: key {source_key!r}: given without {key!r}")
+        return 0.0, ""
+    sd = _number(path, key, doc[key], 0.0, 100.0)
+    source = doc.get(source_key)
+    if not isinstance(source, str) or not source.strip():
+        raise SiteError(f"{path}: key {source_key!r}: expected text saying where {key} "
+                        "comes from")
+    return sd, source

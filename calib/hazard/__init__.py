@@ -27,6 +27,7 @@ from calib.files.calibration_file import (
     draw_parameters,
     load_calibration,
 )
+from calib.hazard._figures import plot_envelopes, plot_exceedance
 from calib.hazard._intensity import (
     ENERGY_THRESHOLDS_KJ,
     hazard_level,
@@ -64,6 +65,8 @@ __all__ = [
     "hist_quantile",
     "intensity_class",
     "load_calibration",
+    "plot_envelopes",
+    "plot_exceedance",
     "probability_class",
     "run_hazard",
     "summary_text",

@@ -280,8 +280,8 @@ def _crsp_fragmentation(args, cal, draws, profile) -> Fragmentation:
     fitted = column in draws.names
     if e is None and not fitted:
         raise CliError(f"--fragmentation crsp: {cal.path} has no fitted fragmentation effect "
-                       f"(no {column} among its crsp parameters; a fit with the effect lists "
-                       "it in crsp.effects): give --frag-energy-kJ E for a what-if")
+                       f"(crsp.effects does not list it: python -m calib.fit --effect "
+                       "fragmentation fits it); give --frag-energy-kJ E for a what-if")
     what_if = e is not None or args.frag_radius_ratio is not None and rho != rho0
     if e is None:
         col = np.asarray(draws.values)[:, list(draws.names).index(column)]

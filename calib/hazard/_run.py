@@ -32,8 +32,9 @@ from calib.hazard._stats import (
 from calib.hazard._units import crsp_chunk, dem_chunk, draw_key
 from calib.model.alpha_law import alpha_of, check_law
 from calib.model.dem_run import DEM_RUN, DemRun
+from calib.model.effects import draw_overrides
 from calib.model.entries import Entries, dem_side_m
-from calib.model.forward import named_overrides, stack_trees
+from calib.model.forward import stack_trees
 from solvers import crsp, dem
 from solvers.profile import Profile
 
@@ -205,7 +206,7 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
     entries = Entries.at_sizes(sizes_m, release_x, density_kg_m3=cal.rock_density_kg_m3)
     if cal.model == "crsp":
         units = _crsp_units(draws, profile, entries, st_dev, n_blocks, seed, chunk, offsets,
-                            pool, settings)
+                            pool, settings, cal.effects)
     else:
         check_dem_draws(cal, draws, sizes_m)
         units = _dem_units(cal, draws, profile, entries, stations, n_blocks, seed, chunk,
@@ -249,7 +250,7 @@ def _block_mass_kg(model: str, entries: Entries) -> np.ndarray:
 
 
 def _crsp_units(draws, profile, entries: Entries, stations, n_blocks, seed, chunk, offsets,
-                pool, settings):
+                pool, settings, effects=()):
     n_sizes, release_x = entries.n, float(entries.release_x_m[0])
     blocks = stack_trees([crsp.make_block(float(r), density_kg_m3=entries.density_kg_m3)
                           for r in entries.crsp_radius_m])
@@ -257,8 +258,9 @@ def _crsp_units(draws, profile, entries: Entries, stations, n_blocks, seed, chun
     fn = functools.partial(crsp_chunk, n_chunk=chunk, pool=min(pool, n_sizes * chunk),
                            settings=settings)
     for d, values in enumerate(draws.values):
+        # the fitted model: the baseline's parameters and the effects' (Calibration.effects)
         p = crsp.params_from_profile(profile, release_x_m=release_x,
-                                     **named_overrides(draws.names, values, profile))
+                                     **draw_overrides(effects, draws.names, values, profile))
         params = stack_trees([p] * n_sizes)
         key = draw_key(seed, d)
         for off in offsets:

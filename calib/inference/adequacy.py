@@ -61,6 +61,17 @@ reported per fit (``calib.inference.calibrate``; ``calibration.json`` under
    gradient fit starts once from that best design point too
    (``calib.inference.calibrate``).
 
+5. **Rows that stall at their release.** Per calibration row, whether at
+   least half of its predictive runouts end within 5 m of the release while
+   the row's observed runout exceeds 20 m, with why: the slope below the
+   release against the rolling-resistance angle of the draws (the fraction
+   of draws with phi_r above the slope). A safety net, the rule and its
+   thresholds shared with ``calib.validate``
+   (``calib.inference.predictive_check.stalled_rows``): a release that sits
+   a tracked block on ground flatter than phi_r, e.g. a tracked release that
+   a raster put below its ground and that is taken as exact (no
+   ``release_height_sd_m``), stalls every simulated block.
+
 Without a posterior (gradient-only fits) the predictive distribution is that
 of the point estimate (plug-in), and the record says so.
 """
@@ -71,7 +82,12 @@ import numpy as np
 from scipy.stats import binomtest, chi2
 
 from calib.files.observations import Observations
-from calib.inference.predictive_check import in_band, observed_ensemble
+from calib.inference.predictive_check import (
+    in_band,
+    observed_ensemble,
+    stall_message,
+    stalled_rows,
+)
 from calib.model.priors import Box
 
 __all__ = ["BETTER_NATS_PER_ROW", "BOUND_BAND", "BOUND_FLAG", "COVERAGE_ALPHA", "LEVELS",
@@ -274,8 +290,9 @@ def _better_problem(better: dict | None) -> str | None:
 
 def adequacy_record(samples: np.ndarray | None, box: Box, obs: Observations,
                     runouts: np.ndarray, source: str, index=None, release_x_m=None,
-                    release_slope_deg=None, better: dict | None = None) -> dict:
-    """Both checks and one message (None when nothing is flagged).
+                    release_slope_deg=None, better: dict | None = None,
+                    release_rolling_deg=None) -> dict:
+    """The checks and one message (None when nothing is flagged).
 
     Args:
         samples: (n_draws, d) posterior draws, or None (no bound check).
@@ -288,10 +305,15 @@ def adequacy_record(samples: np.ndarray | None, box: Box, obs: Observations,
         release_x_m, release_slope_deg: (S,) each entry's release and the slope
             below it, for the stall report (``stalled_releases``; optional).
         better: the ``better_design_point`` record, or None (no design).
+        release_rolling_deg: (S, T) the rolling-resistance angle at each
+            entry's release in each draw (CRSP; None: unknown), for the rows
+            that stall at their release (check 5, ``stalled_rows``).
     """
     bounds = None if samples is None else bound_mass(samples, box)
     cov = predictive_coverage(obs, runouts, index=index)
     stalls = stalled_releases(obs, runouts, index, release_x_m, release_slope_deg)
+    stalled = stalled_rows(obs, runouts, index, release_x_m, release_slope_deg,
+                           release_rolling_deg)
     problems = []
     for name, b in (bounds or {}).items():
         if b["flagged"]:
@@ -306,7 +328,7 @@ def adequacy_record(samples: np.ndarray | None, box: Box, obs: Observations,
             problems.append(f"only {c['n_covered']} of {c['n_rows']} calibration rows lie "
                             f"inside their {float(p):.0%} predictive band (one-sided binomial "
                             f"p = {c['p_value']:.2g})")
-    for extra in (_stall_problem(stalls), _better_problem(better)):
+    for extra in (_stall_problem(stalls), stall_message(stalled), _better_problem(better)):
         if extra:
             problems.append(extra)
     message = None
@@ -315,6 +337,7 @@ def adequacy_record(samples: np.ndarray | None, box: Box, obs: Observations,
                    + ". Widen the prior, add the missing physics or check the data before "
                    "using this calibration")
     return {"bound_band_fraction": BOUND_BAND, "bound_flag_fraction": BOUND_FLAG,
-            "bounds": bounds, "coverage": cov, "stalls": stalls, "predictive": source,
+            "bounds": bounds, "coverage": cov, "stalls": stalls, "stalled_rows": stalled,
+            "predictive": source,
             "better_design_point": better, "ok": not problems,
             "problems": problems, "message": message}

@@ -1,16 +1,22 @@
-"""Stage sizes of a calibration (``Budget``) and the presets per model.
+"""Simulation budgets: how much every stage of the toolkit's fits simulates.
+
+One module for every budget, with its presets:
+
+* ``Budget`` and ``presets(model, quick)``: the stages of a calibration
+  (``calib.inference.calibrate``), the default of ``python -m calib.fit`` and
+  its ``--quick`` budget (tests, a first look);
+* ``DiscoveryBudget`` and ``discovery_budget(model, quick, n_blocks)``: the
+  candidate fits of the discrepancy workflow (``calib.discovery.discrepancy``,
+  ``python -m calib.discover`` and ``calib.power``).
 
 Blocks are per parameter point and simulated entry (``calib.model.entries``).
-``presets(model, quick)`` gives the default budget of ``python -m calib.fit``
-and its ``--quick`` budget (tests, a first look). The discrepancy workflow's
-own stage sizes are ``calib.discovery.discrepancy.Budget``.
 """
 
 from __future__ import annotations
 
 import dataclasses
 
-__all__ = ["Budget", "presets"]
+__all__ = ["DISCOVERY_PRESETS", "Budget", "DiscoveryBudget", "discovery_budget", "presets"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,3 +66,61 @@ def presets(model: str, quick: bool) -> Budget:
                       grad_steps=8, grad_k=1, n_blocks_grad=8, n_check=16,
                       n_predictive_draws=4, n_blocks_predictive=4)
     raise ValueError(f"unknown model {model!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class DiscoveryBudget:
+    """Simulation budget of one candidate fit of the discrepancy workflow
+    (``calib.discovery.discrepancy``).
+
+    Attributes:
+        n_sobol: points of the Sobol stage.
+        n_warm: points of the warm stage (effects only).
+        n_refine: points of each adaptive stage.
+        n_blocks: blocks per (design point, size class), common random numbers.
+        n_draws: posterior draws re-simulated for the predictive (fresh blocks).
+        n_blocks_check: blocks per (draw, size class) of that predictive.
+        k_folds: folds of the held-out score (leave-one-out below this many rows).
+        noise_reps: independent block sets at the best design point that measure
+            the Monte Carlo sd of the summed log-likelihood (``loglik_noise_sd``);
+            below 2 it is skipped, as it is for forward models without
+            ``replicates`` (the DEM's).
+    """
+
+    n_sobol: int = 128
+    n_warm: int = 128
+    n_refine: tuple[int, ...] = (64, 64, 64, 64)
+    n_blocks: int = 128
+    n_draws: int = 16
+    n_blocks_check: int = 128
+    k_folds: int = 5
+    noise_reps: int = 8
+
+    @property
+    def n_design(self) -> int:
+        return self.n_sobol + self.n_warm + sum(self.n_refine)
+
+
+DISCOVERY_PRESETS = {
+    "crsp": DiscoveryBudget(),
+    "crsp-quick": DiscoveryBudget(n_sobol=32, n_warm=32, n_refine=(32, 32), n_blocks=32,
+                                  n_draws=8, n_blocks_check=64),
+    "dem": DiscoveryBudget(n_sobol=0, n_warm=0, n_refine=(), n_blocks=8, n_draws=8,
+                           n_blocks_check=0, noise_reps=0),
+    "dem-quick": DiscoveryBudget(n_sobol=0, n_warm=0, n_refine=(), n_blocks=4, n_draws=8,
+                                 n_blocks_check=0, noise_reps=0),
+}
+
+
+def discovery_budget(model: str, quick: bool = False,
+                     n_blocks: int | None = None) -> DiscoveryBudget:
+    """The preset budget of ``model`` ("crsp" or "dem"; ``DISCOVERY_PRESETS``), with
+    ``n_blocks`` blocks per (design point, size class) if given (at least 2: the
+    kernel width needs a spread). Candidates with their own ``n_blocks`` (the
+    DEM's fragmentation) keep it."""
+    budget = DISCOVERY_PRESETS[model + ("-quick" if quick else "")]
+    if n_blocks is None:
+        return budget
+    if n_blocks < 2:
+        raise ValueError(f"expected an integer of at least 2, got {n_blocks}")
+    return dataclasses.replace(budget, n_blocks=n_blocks)

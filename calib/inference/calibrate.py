@@ -204,7 +204,8 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     timings["check_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     adequacy = predictive_adequacy(forward, obs, posterior, at_rows, budget,
-                                   jax.random.fold_in(k_check, 1), tally, index, better)
+                                   jax.random.fold_in(k_check, 1), tally, index, better,
+                                   estimate)
     timings["adequacy_s"] = time.perf_counter() - t0
     record = unfinished_record(tallies, f"{type(forward).__name__} calibration")
     warn_unfinished(record)

@@ -8,7 +8,9 @@
   median release, and every entry of the rows that is not one of them).
 * ``predictive_adequacy``: ``calib.inference.adequacy`` of a fit: posterior
   mass near the prior bounds, the posterior predictive coverage of the rows,
-  blocks that stall at their release (``release_slopes_deg``).
+  blocks that stall at their release (``release_slopes_deg``, re-exported from
+  ``calib.model.forward``) and rows that do (with CRSP's rolling resistance at
+  the release, ``release_rolling_deg``).
 """
 
 from __future__ import annotations
@@ -26,8 +28,8 @@ from calib.inference.bayes import Posterior
 from calib.inference.likelihood import log_likelihood, observed_rows
 from calib.inference.predictive_check import pool_draws
 from calib.model.entries import Entries
+from calib.model.forward import CrspForward, release_rolling_deg, release_slopes_deg
 from solvers.percentiles import few_blocks
-from solvers.profile import segment_index
 
 __all__ = ["check_entries", "fit_quality", "loglik_of_runouts", "predictive_adequacy",
            "release_slopes_deg"]
@@ -112,34 +114,28 @@ def check_entries(entries: Entries, sizes_m: np.ndarray) -> tuple[Entries, np.nd
     return (figure.concat(entries.take(own)) if own else figure), at
 
 
-def release_slopes_deg(profile, release_x_m, profiles=None) -> np.ndarray:
-    """The slope just below each release abscissa on its profile (``profiles``:
-    the entry's own, None for ``profile``), that of the segment the release
-    lies on (the lower one at a vertex), deg, > 0 downhill."""
-    rel = np.atleast_1d(np.asarray(release_x_m, float))
-    own = profiles or (None,) * rel.shape[0]
-    out = np.empty(rel.shape[0])
-    for i, (x0, p) in enumerate(zip(rel, own, strict=True)):
-        p = profile if p is None else p
-        x, z = np.asarray(p.x_m, float), np.asarray(p.z_m, float)
-        seg = int(segment_index(p, jnp.asarray(x0, jnp.float64)))
-        out[i] = np.degrees(np.arctan2(z[seg] - z[seg + 1], x[seg + 1] - x[seg]))
-    return out
-
-
 def predictive_adequacy(forward, obs: Observations, posterior: Posterior | None, check: np.ndarray,
-              budget, key: jax.Array, tally, index, better: dict | None = None
-              ) -> dict:
+              budget, key: jax.Array, tally, index, better: dict | None = None,
+              estimate=None) -> dict:
     """``calib.inference.adequacy`` of one fit: posterior predictive runouts at
     ``n_predictive_draws`` draws spread evenly over the chains' output, with
     ``n_blocks_predictive`` fresh blocks per draw and size; without a posterior,
-    the check's runouts at the point estimate (plug-in)."""
+    the check's runouts at the point estimate (plug-in). CRSP: with the rolling
+    resistance angle at each release of every draw (or of ``estimate``), for
+    the rows that stall at their release (``adequacy_record``)."""
     release = forward.entries.release_x_m
     slopes_deg = release_slopes_deg(forward.profile, release, forward.entries.profiles)
+
+    def rolling(theta):
+        if not isinstance(forward, CrspForward) or theta is None:
+            return None
+        return release_rolling_deg(forward.box.names, theta, forward.profile, forward.entries)
+
     if posterior is None:
         return adequacy_record(None, forward.box, obs, check,
                                f"plug-in at the point estimate, {check.shape[-1]} blocks "
-                               "per size (no posterior)", index, release, slopes_deg, better)
+                               "per size (no posterior)", index, release, slopes_deg, better,
+                               rolling(None if estimate is None else np.atleast_2d(estimate)))
     n = posterior.samples.shape[0]
     pick = np.linspace(0, n - 1, min(budget.n_predictive_draws, n)).round().astype(int)
     draws = posterior.samples[pick]
@@ -149,4 +145,4 @@ def predictive_adequacy(forward, obs: Observations, posterior: Posterior | None,
     return adequacy_record(posterior.samples, forward.box, obs, pool_draws(runs),
                            f"posterior predictive, {len(pick)} draws x "
                            f"{budget.n_blocks_predictive} blocks per size", index, release,
-                           slopes_deg, better)
+                           slopes_deg, better, rolling(draws))

@@ -33,6 +33,18 @@ A row whose ensemble holds 1 to 19 finished blocks (``n_predictive``) has
 Interval rows (runout seen to lie in [a, b]) have no CRPS here; they are
 reported with their coverage only (an interval is inside a band when it
 overlaps it) and left out of the averages of the scores.
+
+Rows that stall at their release (``stalled_rows``; a safety net, shared with
+the fit's adequacy check, ``calib.inference.adequacy``): a row is flagged
+when at least ``STALL_MASS`` (half) of its predictive runouts end within
+``STALL_NEAR_M`` (5 m) of the release while its observed runout exceeds
+``STALL_OBSERVED_M`` (20 m). The record says why, where it can: the slope
+just below the release against CRSP's rolling-resistance angle phi_r of the
+draws (the fraction of draws with phi_r above the slope, where a block on
+the ground that starts slowly cannot get going, ``solvers.crsp._contact``).
+Thresholds our own choice: 5 m is a few block sizes and well below any
+runout a tracked run calls a run; 20 m is the shortest runout that is
+clearly one.
 """
 
 from __future__ import annotations
@@ -46,10 +58,14 @@ import scoringrules as sr
 from calib.files.observations import Observations
 from solvers.percentiles import few_blocks
 
-__all__ = ["MIN_ROWS_PER_SIZE", "PredictiveCheck", "in_band", "observed_ensemble",
-           "pool_draws", "predictive_runouts", "score_rows"]
+__all__ = ["MIN_ROWS_PER_SIZE", "STALL_MASS", "STALL_NEAR_M", "STALL_OBSERVED_M",
+           "PredictiveCheck", "heldout_entries", "in_band", "observed_ensemble", "pool_draws",
+           "predictive_runouts", "score_rows", "stall_message", "stalled_rows"]
 
 MIN_ROWS_PER_SIZE = 3  # fewest calibration rows of one size for a per-size baseline
+STALL_NEAR_M = 5.0  # a predictive runout within this distance of the release stalled, m
+STALL_OBSERVED_M = 20.0  # ... flagged where the observed runout exceeds this, m
+STALL_MASS = 0.5  # ... and at least this fraction of the predictive stalled
 
 
 def pool_draws(runouts: np.ndarray) -> np.ndarray:
@@ -182,12 +198,110 @@ def score_rows(obs: Observations, predictive: np.ndarray, group_index: np.ndarra
     return PredictiveCheck(rows, summary)
 
 
+def stalled_rows(obs: Observations, runouts: np.ndarray, index=None, release_x_m=None,
+                 release_slope_deg=None, rolling_deg=None) -> dict:
+    """Rows whose predictive distribution stalls at the release though the
+    observed block ran on (module docstring).
+
+    Args:
+        obs: the rows.
+        runouts: (S, n) predictive runouts per entry, pooled over the draws, m;
+            NaN for unfinished blocks.
+        index: (n_obs,) entry of each row (default ``obs.size_index``).
+        release_x_m, release_slope_deg: (S,) each entry's release abscissa, m,
+            and the slope just below it, deg (optional, for the record).
+        rolling_deg: (S, T) CRSP's rolling-resistance angle at each entry's
+            release in each of the T draws, deg
+            (``calib.model.forward.release_rolling_deg``), or None (DEM, or
+            unknown).
+
+    Returns:
+        {"near_m", "observed_beyond_m", "mass", "rows": [per flagged row: row
+        (1-based), run_id, entry, release_x_m, release_slope_deg,
+        fraction_within (of the finished predictive runouts), n_predictive,
+        observed_m (an interval row's lower bound), rolling_deg_median and
+        rolling_above_slope (the fraction of draws with phi_r above the
+        slope; None where unknown)]}.
+    """
+    index = obs.size_index if index is None else np.asarray(index)
+    observed = np.where(obs.is_interval, obs.runout_min_m, obs.runout_m)
+    run_id = getattr(obs, "run_id", None)
+    flagged = []
+    for i in range(obs.n_obs):
+        e = int(index[i])
+        r = np.asarray(runouts[e], float)
+        r = r[np.isfinite(r)]
+        if not r.size or not observed[i] > STALL_OBSERVED_M:
+            continue
+        within = float(np.mean(np.abs(r) < STALL_NEAR_M))
+        if within < STALL_MASS:
+            continue
+        slope = None if release_slope_deg is None else float(release_slope_deg[e])
+        phi = None if rolling_deg is None else np.asarray(rolling_deg[e], float)
+        flagged.append({
+            "row": i + 1, "run_id": (str(run_id[i]) or None) if run_id is not None else None,
+            "entry": e, "release_x_m": None if release_x_m is None else float(release_x_m[e]),
+            "release_slope_deg": slope, "fraction_within": within, "n_predictive": int(r.size),
+            "observed_m": float(observed[i]),
+            "rolling_deg_median": None if phi is None else float(np.median(phi)),
+            "rolling_above_slope": (None if phi is None or slope is None
+                                    else float(np.mean(phi > slope)))})
+    return {"near_m": STALL_NEAR_M, "observed_beyond_m": STALL_OBSERVED_M,
+            "mass": STALL_MASS, "rows": flagged}
+
+
+def stall_message(stalls: dict) -> str | None:
+    """One sentence on the rows of ``stalled_rows`` and why they stall (None: none)."""
+    rows = stalls["rows"]
+    if not rows:
+        return None
+
+    def one(x):
+        name = f"row {x['row']}" + (f" (run {x['run_id']})" if x["run_id"] else "")
+        why = ""
+        if x["release_slope_deg"] is not None:
+            why = f"; slope below its release {x['release_slope_deg']:.0f} deg"
+            if x["rolling_above_slope"] is not None:
+                why += (f", phi_r above it in {x['rolling_above_slope']:.0%} of the draws "
+                        f"(median {x['rolling_deg_median']:.1f} deg)")
+        return (f"{name}: {x['fraction_within']:.0%} of its predictive runouts end within "
+                f"{stalls['near_m']:g} m of the release, observed {x['observed_m']:.1f} m"
+                + why)
+
+    more = f"; and {len(rows) - 4} more rows" if len(rows) > 4 else ""
+    return (f"{len(rows)} rows stall at their release in the simulation though the blocks ran "
+            f"more than {stalls['observed_beyond_m']:g} m (" + "; ".join(map(one, rows[:4]))
+            + more + "): where the rolling resistance angle exceeds the slope, a block released "
+            "slowly on the ground cannot start; check the release (a release_height_m below "
+            "the profile's ground, the site's release_height_sd_m)")
+
+
+def heldout_entries(cal, heldout: Observations, profile):
+    """The simulated entries of held-out rows (``Entries.from_rows``), each
+    from its own release by the fit's rules, at the calibration's rock density
+    and release errors (``cal.release_height_sd_m``, ``release_speed_sd_m_s``)."""
+    from calib.files.inputs import own_profile
+    from calib.model.entries import Entries
+
+    start = float(profile.x_m[0])
+    common = start if cal.release_x_m is None else float(cal.release_x_m)
+    # the fit's rules: rows without release_x_m start at the profile's first vertex
+    # (calib.fit's release groups); a DEM fit of an older file ran every block at
+    # the calibration's one release
+    default = start if cal.own_releases else common
+    return Entries.from_rows(heldout, default, profile_of=own_profile,
+                             density_kg_m3=cal.rock_density_kg_m3).with_release_errors(
+        cal.release_height_sd_m, cal.release_speed_sd_m_s)
+
+
 def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
                        n_blocks: int | None, seed: int):
     """The posterior predictive runouts of held-out rows, each from its own
     release (``calib.model.entries.Entries.from_rows``) at ``n_posterior`` draws of
     the calibration ``cal`` (``calib.files.calibration_file``), its blocks at the
-    calibration's rock density.
+    calibration's rock density and release errors (``heldout_entries``), with the
+    effects it was fitted with (``Calibration.effects``: each draw's effect
+    columns switch them on in the solver, as in the fit).
 
     Returns:
         (pooled (G, n_posterior * n_blocks) runouts per (size, release) group,
@@ -201,18 +315,10 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
     import jax
 
     from calib.files.calibration_file import draw_parameters
-    from calib.files.inputs import own_profile
-    from calib.model.entries import Entries
     from calib.model.forward import CrspForward, DemForward
 
-    start = float(profile.x_m[0])
-    common = start if cal.release_x_m is None else float(cal.release_x_m)
-    # the fit's rules: rows without release_x_m start at the profile's first vertex
-    # (calib.fit's release groups); a DEM fit of an older file ran every block at
-    # the calibration's one release
-    default = start if cal.own_releases else common
-    entries = Entries.from_rows(heldout, default, profile_of=own_profile,
-                                density_kg_m3=cal.rock_density_kg_m3)
+    common = float(profile.x_m[0]) if cal.release_x_m is None else float(cal.release_x_m)
+    entries = heldout_entries(cal, heldout, profile)
     releases, index = entries.release_x_m, entries.index
     for g, x0 in enumerate(releases):
         p, name = ((profile, cal.profile_csv) if entries.profiles[g] is None
@@ -230,7 +336,10 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
     if cal.model == "crsp":
         from calib.model.priors import crsp_box
 
-        fw = CrspForward(profile, entries, n_blocks or 100, key, box=crsp_box(draws.names))
+        # the fitted model: the baseline's box, the effects' columns after it
+        # (calib.model.effects), mapped onto the solver as the fit mapped them
+        fw = CrspForward(profile, entries, n_blocks or 100, key, box=crsp_box(cal.base_names),
+                         effect=cal.effects or "none")
     else:
         from calib.model.dem_run import DEM_RUN, DemRun
 

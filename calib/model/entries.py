@@ -19,7 +19,14 @@ Block-size rule (one place, used by every solver run):
   d = 0.2 and 1.8 m within 10 % (our choice).
 
 Release state: a NaN release speed or height keeps the solver's own default
-(CRSP: 1 m/s on the ground; DEM: ``solvers.dem.Params``' release rule). The
+(CRSP: 1 m/s on the ground; DEM: ``solvers.dem.Params``' release rule). A
+tracked release height is kept as measured, negative values included (a
+release that a raster puts below its ground, ``calib.files.field_runs``), with
+the sds of its error and of the tracked speed's (``release_height_sd_m``,
+``release_speed_sd_m_s``: the site's, ``calib.files.site``; 0: exact): CRSP
+draws each block's height and speed from truncated normals about them
+(``solvers.crsp.init``); the DEM takes the mean height, on the ground where it
+is negative (``solvers.dem``'s release does not draw). The
 density is one per site (``calib.files.site``), the solvers' default
 ``solvers.material.ROCK_DENSITY_KG_M3`` where the site says nothing.
 """
@@ -74,6 +81,10 @@ class Entries:
         index: (n_obs,) the entry of each observed row, or None where the
             entries were not made from rows.
         density_kg_m3: rock density rho of every block, kg/m^3.
+        release_height_sd_m: (E,) sd of the release height's error, m (0:
+            exact, and where the entry has no height).
+        release_speed_sd_m_s: (E,) sd of the release speed's error, m/s (0:
+            exact, and where the entry has no speed).
     """
 
     sizes_m: np.ndarray
@@ -84,6 +95,8 @@ class Entries:
     profile_csv: np.ndarray
     index: np.ndarray | None = None
     density_kg_m3: float = ROCK_DENSITY_KG_M3
+    release_height_sd_m: np.ndarray | float = 0.0
+    release_speed_sd_m_s: np.ndarray | float = 0.0
 
     def __post_init__(self):
         n = np.asarray(self.sizes_m).shape[0]
@@ -103,6 +116,11 @@ class Entries:
         object.__setattr__(self, "density_kg_m3", check_density(self.density_kg_m3))
         if np.any(~np.isfinite(self.release_x_m)):
             raise ValueError("release_x_m: every entry needs a finite release abscissa")
+        for name in ("release_height_sd_m", "release_speed_sd_m_s"):
+            sd = _column(getattr(self, name), n)
+            if np.any(~(np.isfinite(sd) & (sd >= 0))):
+                raise ValueError(f"{name}: expected finite sds >= 0, got {sd}")
+            object.__setattr__(self, name, sd)
 
     @classmethod
     def at_sizes(cls, sizes_m, release_x_m: float, *, density_kg_m3: float = ROCK_DENSITY_KG_M3,
@@ -138,9 +156,14 @@ class Entries:
         releases. Rows without a height match only each other. A row without
         ``release_x_m`` (NaN) is released at ``default_release_x_m``. An
         entry's release speed and height are the means of its rows'
-        ``release_speed_m_s`` and ``release_height_m`` where given. Our
-        choice: the tolerance trades simulation cost (one simulated sample per
-        entry) against the release error of a row, at most ``tol_m``.
+        ``release_speed_m_s`` and ``release_height_m`` where given: of the
+        heights as measured, negative ones included (the mean of the rows'
+        measurements, each the true height plus an error of one sd; a group
+        that mixes heights below and above a raster's ground is released at
+        their mean, not at the mean of the clipped heights). Our choice: the
+        tolerance trades simulation cost (one simulated sample per entry)
+        against the release error of a row, at most ``tol_m``. The entries
+        carry no release errors (sds 0): ``with_release_errors`` adds them.
 
         Args:
             obs: the rows (``calib.files.observations.Observations``).
@@ -210,7 +233,8 @@ class Entries:
         idx = np.atleast_1d(np.asarray(idx, int))
         return Entries(self.sizes_m[idx], self.release_x_m[idx], self.release_speed_m_s[idx],
                        self.release_height_m[idx], tuple(self.profiles[i] for i in idx),
-                       self.profile_csv[idx], None, self.density_kg_m3)
+                       self.profile_csv[idx], None, self.density_kg_m3,
+                       self.release_height_sd_m[idx], self.release_speed_sd_m_s[idx])
 
     def concat(self, other: Entries) -> Entries:
         """These entries followed by ``other``'s (same density; no row index)."""
@@ -222,21 +246,45 @@ class Entries:
                        cat([self.release_speed_m_s, other.release_speed_m_s]),
                        cat([self.release_height_m, other.release_height_m]),
                        self.profiles + other.profiles,
-                       cat([self.profile_csv, other.profile_csv]), None, self.density_kg_m3)
+                       cat([self.profile_csv, other.profile_csv]), None, self.density_kg_m3,
+                       cat([self.release_height_sd_m, other.release_height_sd_m]),
+                       cat([self.release_speed_sd_m_s, other.release_speed_sd_m_s]))
 
     def with_release_state(self, release_speed_m_s=None, release_height_m=None) -> Entries:
         """The same entries at other release speeds and heights (None: NaN)."""
         return dataclasses.replace(self, release_speed_m_s=release_speed_m_s,
                                    release_height_m=release_height_m)
 
+    def with_release_errors(self, height_sd_m: float = 0.0,
+                            speed_sd_m_s: float = 0.0) -> Entries:
+        """The same entries with release errors: sd ``height_sd_m`` (m) on every
+        given release height, ``speed_sd_m_s`` (m/s) on every given release
+        speed (a site's, ``calib.files.site``); 0 where the entry has none (a
+        solver's default release is not a measurement)."""
+        return dataclasses.replace(
+            self,
+            release_height_sd_m=np.where(np.isfinite(self.release_height_m),
+                                         float(height_sd_m), 0.0),
+            release_speed_sd_m_s=np.where(np.isfinite(self.release_speed_m_s),
+                                          float(speed_sd_m_s), 0.0))
+
+    def dem_release_height_m(self) -> np.ndarray:
+        """(E,) the DEM's release heights: the mean, on the ground (0) where it
+        is negative, NaN where none is given. The DEM does not draw the release
+        height (module docstring)."""
+        return np.where(np.isnan(self.release_height_m), np.nan,
+                        np.maximum(self.release_height_m, 0.0))
+
     def same_as(self, other: Entries) -> bool:
-        """Same sizes, releases, release states, profiles and density."""
+        """Same sizes, releases, release states and errors, profiles and density."""
         return (self.n == other.n and np.array_equal(self.sizes_m, other.sizes_m)
                 and np.array_equal(self.release_x_m, other.release_x_m)
                 and np.array_equal(self.release_speed_m_s, other.release_speed_m_s,
                                    equal_nan=True)
                 and np.array_equal(self.release_height_m, other.release_height_m,
                                    equal_nan=True)
+                and np.array_equal(self.release_height_sd_m, other.release_height_sd_m)
+                and np.array_equal(self.release_speed_sd_m_s, other.release_speed_sd_m_s)
                 and all(a is b for a, b in zip(self.profiles, other.profiles, strict=True))
                 and self.density_kg_m3 == other.density_kg_m3)
 
@@ -266,10 +314,12 @@ class Entries:
                   else np.zeros(self.n, int))
         return [{"block_size_m": float(d), "release_x_m": float(x),
                  "release_speed_m_s": num(v), "release_height_m": num(h),
+                 "release_speed_sd_m_s": float(sv), "release_height_sd_m": float(sh),
                  "profile_csv": pf or command_profile_csv, "n_rows": int(k)}
-                for d, x, v, h, pf, k in zip(self.sizes_m, self.release_x_m,
-                                             self.release_speed_m_s, self.release_height_m,
-                                             self.profile_csv, counts, strict=True)]
+                for d, x, v, h, sv, sh, pf, k in zip(
+                    self.sizes_m, self.release_x_m, self.release_speed_m_s,
+                    self.release_height_m, self.release_speed_sd_m_s, self.release_height_sd_m,
+                    self.profile_csv, counts, strict=True)]
 
 
 def _greedy_groups(rows: np.ndarray, rel: np.ndarray, height: np.ndarray, tol_m: float):

@@ -43,10 +43,11 @@ from calib.model.priors import CRSP_BOX, DEM_BOXES, Box, rolling_zone, zoned_nam
 from calib.model.unfinished import mask_unfinished
 from calib.model.warp import unwarp, warp, warped_box
 from solvers.parallel import default_workers, map_ordered
-from solvers.profile import Profile
+from solvers.profile import Profile, segment_index
 
 __all__ = ["CrspForward", "DemForward", "as_entries", "dem_lanes", "gather_entries",
-           "named_overrides", "rolling_columns", "split_by_profile", "stack_trees"]
+           "named_overrides", "release_rolling_deg", "release_slopes_deg", "rolling_columns",
+           "split_by_profile", "stack_trees"]
 
 
 @functools.partial(jax.jit, static_argnames=("rolling_cols",))
@@ -98,6 +99,45 @@ def named_overrides(names, values, profile: Profile) -> dict:
     cols = rolling_columns(names, profile)
     if cols:
         out["rolling_friction_deg"] = np.asarray([values[c] for c in cols])
+    return out
+
+
+def _release_segments(profile: Profile, release_x_m, profiles=None) -> list:
+    """[(the entry's profile, index of the segment its release lies on (the
+    lower one at a vertex))] per release abscissa (``profiles``: each entry's
+    own profile, None for ``profile``)."""
+    rel = np.atleast_1d(np.asarray(release_x_m, float))
+    own = profiles or (None,) * rel.shape[0]
+    return [(profile if p is None else p,
+             int(segment_index(profile if p is None else p, jnp.asarray(x0, jnp.float64))))
+            for x0, p in zip(rel, own, strict=True)]
+
+
+def release_slopes_deg(profile: Profile, release_x_m, profiles=None) -> np.ndarray:
+    """(S,) the slope just below each release abscissa on its profile
+    (``profiles``: the entry's own, None for ``profile``), that of the segment
+    the release lies on (the lower one at a vertex), deg, > 0 downhill."""
+    out = []
+    for p, seg in _release_segments(profile, release_x_m, profiles):
+        x, z = np.asarray(p.x_m, float), np.asarray(p.z_m, float)
+        out.append(np.degrees(np.arctan2(z[seg] - z[seg + 1], x[seg + 1] - x[seg])))
+    return np.asarray(out, float)
+
+
+def release_rolling_deg(names, theta, profile: Profile, entries: Entries) -> np.ndarray:
+    """(S, T) CRSP's rolling-resistance angle phi_r at each entry's release
+    (the zone of the segment it lies on, ``release_slopes_deg``) for each of T
+    parameter sets ``theta`` (T, p) with columns ``names``: the set's column
+    for that zone (``rolling_columns``), or the profile's material value where
+    no column fits it. A block at rest there starts rolling only where phi_r
+    lies below the slope (``solvers.crsp._contact``)."""
+    theta = np.atleast_2d(np.asarray(theta, float))
+    out = np.empty((entries.n, theta.shape[0]))
+    for i, (p, seg) in enumerate(_release_segments(profile, entries.release_x_m,
+                                                   entries.profiles)):
+        zone = int(p.zone_id[seg])
+        cols = rolling_columns(names, p)
+        out[i] = theta[:, cols[zone]] if cols else float(p.rolling_friction_deg[zone])
     return out
 
 
@@ -168,7 +208,12 @@ class CrspForward:
             on the ground it then rolls along the slope at speed times
             cos(slope)), the direction of a tracked release being seldom known
             (our choice); a release height starts the block in flight at that
-            height (``solvers.crsp.init``). An entry on a profile of its own
+            height (``solvers.crsp.init``). The entries' release errors
+            (``Entries.release_height_sd_m``, ``release_speed_sd_m_s``) become
+            each task's ``Params`` of the same names: every block draws its own
+            height and speed (``solvers.crsp.init``: truncated normals; a
+            negative height is a release from the error's tail above the
+            ground, or on the ground with sd 0). An entry on a profile of its own
             runs as its own forward with the same theta, key and settings, so
             its runouts do not depend on the other entries.
         n_blocks: blocks per (theta, size).
@@ -188,7 +233,9 @@ class CrspForward:
             what ``dataclasses.replace`` passes back, so the columns are never
             added twice).
         effect: a candidate effect of ``calib.model.effects`` switched on ("none": plain
-            CRSP); its parameters follow the baseline's in theta.
+            CRSP), or a tuple of them switched on together (``effects.effect_names``:
+            each has its own solver fields, so any distinct ones combine); their
+            parameters follow the baseline's in theta, effect after effect.
         stations_x_m: abscissae (m) at which ``simulate`` records passage speeds.
         settings: CRSP solver settings (event budget, search window).
     """
@@ -200,7 +247,7 @@ class CrspForward:
     pool: int = dataclasses.field(default_factory=crsp.default_pool)
     task_chunk: int = 96
     box: Box = CRSP_BOX
-    effect: str = "none"
+    effect: str | tuple[str, ...] = "none"
     stations_x_m: tuple[float, ...] = ()
     settings: crsp.Settings = crsp.Settings()
 
@@ -272,14 +319,16 @@ class CrspForward:
             return self._simulate_parts(theta)
         e = self.entries
         rep = np.repeat(theta, n_s, axis=0)  # task = (t, s)
-        radius, release, speed, height = (np.tile(v, n_t) for v in (
-            e.crsp_radius_m, e.release_x_m, e.release_speed_m_s, e.release_height_m))
+        radius, release, speed, height, height_sd, speed_sd = (np.tile(v, n_t) for v in (
+            e.crsp_radius_m, e.release_x_m, e.release_speed_m_s, e.release_height_m,
+            e.release_height_sd_m, e.release_speed_sd_m_s))
         n_tasks = rep.shape[0]
         chunk = max(1, -(-self.task_chunk // default_workers()))
         pad = (-n_tasks) % chunk
         rep = np.concatenate([rep, np.repeat(rep[-1:], pad, axis=0)])
-        radius, release, speed, height = (np.concatenate([v, np.repeat(v[-1:], pad)])
-                                          for v in (radius, release, speed, height))
+        radius, release, speed, height, height_sd, speed_sd = (
+            np.concatenate([v, np.repeat(v[-1:], pad)])
+            for v in (radius, release, speed, height, height_sd, speed_sd))
         stations = jnp.asarray(np.asarray(self.stations_x_m, float).reshape(-1), jnp.float64)
 
         def one_chunk(c0: int):
@@ -292,7 +341,9 @@ class CrspForward:
                     jnp.float64),
                 release_height_m=jnp.asarray(np.where(
                     np.isfinite(h), h, np.broadcast_to(params.release_height_m, h.shape)),
-                    jnp.float64))
+                    jnp.float64),
+                release_height_sd_m=jnp.asarray(height_sd[c0:c0 + chunk], jnp.float64),
+                release_speed_sd_m_s=jnp.asarray(speed_sd[c0:c0 + chunk], jnp.float64))
             blocks = stack_trees([crsp.make_block(float(r), density_kg_m3=e.density_kg_m3)
                                   for r in radius[c0:c0 + chunk]])
             res = crsp.simulate_tasks(params, blocks, self.key, self.profile, stations,
@@ -390,7 +441,11 @@ class DemForward:
             block sizes, as in ``CrspForward``. A NaN release speed or height
             keeps the DEM's release rule (``solvers.dem.Params``: 1 cm above the
             ground, speed uniform in 0-1 m/s); the DEM still offsets each block
-            up to 0.5 m downslope and turns it at random. The density sets the
+            up to 0.5 m downslope and turns it at random. The DEM does NOT draw
+            the release height and speed from the entries' errors (their sds
+            are ignored): it releases at the mean height, on the ground where
+            that is negative (``Entries.dem_release_height_m``), and the mean
+            speed. The density sets the
             mass per metre of width, with which the contact and damping
             forces scale.
         n_blocks: blocks per (alpha, size); few, the DEM is expensive.
@@ -456,7 +511,7 @@ class DemForward:
         proto = [make_block(float(L), alpha=0.5, release_x_m=float(x),
                             release_speed_m_s=float(v), release_height_m=float(h))
                  for L, x, v, h in zip(e.dem_side_m, e.release_x_m, e.release_speed_m_s,
-                                       e.release_height_m, strict=True)]
+                                       e.dem_release_height_m(), strict=True)]
         lanes, keys = [], []
         for t in range(n_t):
             for s in range(n_s):

@@ -41,9 +41,10 @@ length over the block radius). A block still moving at the bound is flagged
 reverse-differentiated (calibration uses common-random-number objectives; see
 ``calib``).
 
-Randomness: ``key`` is split into a release key (release jitter) and an event
-key; the i-th CRSP impact (not the i-th event) draws its roughness from a
-counter-based hash of the event key's words and i (``solvers._rng``). Events
+Randomness: ``key`` is split into a release key (release jitter, height and
+speed; ``init``) and an event key; the i-th CRSP impact (not the i-th event)
+draws its roughness from a counter-based hash of the event key's words and i
+(``solvers._rng``). Events
 that draw nothing (window hops of a long flight, segment ends while rolling,
 touch-downs) do not consume draws, so inserting collinear vertices into a
 profile leaves every block's impact sequence, and so its result, unchanged
@@ -89,6 +90,7 @@ from solvers.status import (
     STOPPED,
     STOPPED_BY_BARRIER,
 )
+from solvers.truncated_normal import nonnegative_normal
 
 __all__ = [
     "BUDGET",
@@ -287,19 +289,42 @@ def init(params: Params, block: Block, key: jax.Array, profile: Profile,
          settings: Settings = Settings()) -> State:
     """Initial state at the release point (``key``: release key).
 
+    Release abscissa ``x0 = release_x_m + U spread_m``, U uniform from ``key``.
+    Release height and speed are uncertain inputs: with their sds
+    (``Params.release_height_sd_m``, ``release_speed_sd_m_s``) positive, the
+    block's height above the ground is a draw of N(release_height_m, sd^2)
+    truncated to >= 0, and its speed one of N(|v|, sd^2) truncated to >= 0
+    in the direction of (release_vx_m_s, release_vz_m_s) (horizontal, +x,
+    where that velocity is 0), by the inverse CDF
+    (``solvers.truncated_normal``), from two uniforms of ``fold_in(key, 1)``
+    (so U, and every result with both sds 0, are those of a point release).
+    A NEGATIVE release height (a tracked release below a raster's ground) is
+    then a release from the error's tail above the ground; with sd 0 it is
+    clipped: on the ground. No block starts below the ground.
+
     The block starts in flight, or in ground contact when it is released on the
     ground (height 0) with a velocity that does not leave the slope (normal
     component below the rolling threshold)."""
     u = jax.random.uniform(key, dtype=jnp.float64)
     x0 = params.release_x_m + u * params.release_x_spread_m
     x0 = jnp.clip(x0, profile.x_m[0], profile.x_m[-1])
-    z0 = ground_z(profile, x0) + params.release_height_m
+    u_h, u_v = jax.random.uniform(jax.random.fold_in(key, 1), (2,), dtype=jnp.float64)
+    h0 = nonnegative_normal(u_h, params.release_height_m, params.release_height_sd_m)
+    z0 = ground_z(profile, x0) + h0
     zero = jnp.zeros((), jnp.float64)
     seg = segment_index(profile, x0)
     *_, beta = _segment_geometry(profile, seg)
     vx0, vz0 = zero + params.release_vx_m_s, zero + params.release_vz_m_s
+    # the drawn speed along the given velocity's direction (+x where it is 0)
+    v0 = jnp.hypot(vx0, vz0)
+    moving = v0 > 0.0
+    safe_v0 = jnp.where(moving, v0, 1.0)
+    v1 = nonnegative_normal(u_v, v0, params.release_speed_sd_m_s)
+    drawn = params.release_speed_sd_m_s > 0.0
+    vx0 = jnp.where(drawn, v1 * jnp.where(moving, vx0 / safe_v0, 1.0), vx0)
+    vz0 = jnp.where(drawn, v1 * jnp.where(moving, vz0 / safe_v0, 0.0), vz0)
     # released on the ground without leaving it: start rolling along the segment
-    on_ground = (params.release_height_m <= 0.0) & (
+    on_ground = (h0 <= 0.0) & (
         -vx0 * jnp.sin(beta) + vz0 * jnp.cos(beta) < params.rolling_threshold_m_s)
     u0 = vx0 * jnp.cos(beta) + vz0 * jnp.sin(beta)
     return State(

@@ -85,8 +85,17 @@ class Params(NamedTuple):
         release_x_m: release abscissa, m.
         release_x_spread_m: release abscissa drawn uniformly in
             ``[release_x_m, release_x_m + spread]``, m.
-        release_height_m: height of the release point above the ground, m.
+        release_height_m: height of the release point above the ground, m; may
+            be negative (a tracked release below a raster's ground, see
+            ``release_height_sd_m``).
         release_vx_m_s, release_vz_m_s: initial velocity, m/s.
+        release_height_sd_m: sd of the release height's error, m: each block
+            starts at a height drawn from N(release_height_m, sd^2) truncated
+            to >= 0 (``_model.init``; 0: the point release, clipped to the
+            ground).
+        release_speed_sd_m_s: sd of the release speed's error, m/s: each block
+            starts at a speed drawn from N(|v|, sd^2) truncated to >= 0, in the
+            direction of (vx, vz) (0: the given velocity).
         restitution_size_exponent: gamma of the size-dependent restitution
             ``K (2 r / 1 m)^gamma`` (0: off). See ``_effects``.
         frag_energy_kJ: normal impact energy above which the block breaks, kJ
@@ -116,6 +125,8 @@ class Params(NamedTuple):
     release_height_m: jax.Array
     release_vx_m_s: jax.Array
     release_vz_m_s: jax.Array
+    release_height_sd_m: jax.Array
+    release_speed_sd_m_s: jax.Array
     restitution_size_exponent: jax.Array
     frag_energy_kJ: jax.Array
     frag_radius_ratio: jax.Array
@@ -135,7 +146,8 @@ def params_from_profile(profile: Profile, **overrides) -> Params:
     Zone arrays (Kn, Kt, roughness_m, rolling_friction_deg) accept a scalar that
     applies to every zone. Defaults: rolling threshold 0.5 m/s (a rebound of
     about 1.3 cm), release at the profile's first vertex, on the ground, with
-    1 m/s horizontal velocity (the block is pushed over the crest). The optional
+    1 m/s horizontal velocity (the block is pushed over the crest), release
+    height and speed known exactly (their sds 0). The optional
     effects of ``_effects`` are off (fragment size and speed ratios 0.5 and 0.7,
     assumptions, matter only once ``frag_energy_kJ`` is finite). There is no
     barrier (``barrier_x_m`` +inf); given an abscissa only, the barrier is
@@ -152,6 +164,7 @@ def params_from_profile(profile: Profile, **overrides) -> Params:
         rolling_threshold_m_s=0.5, release_x_m=float(profile.x_m[0]),
         release_x_spread_m=0.0, release_height_m=0.0, release_vx_m_s=1.0,
         release_vz_m_s=0.0, restitution_size_exponent=0.0, frag_energy_kJ=float("inf"),
+        release_height_sd_m=0.0, release_speed_sd_m_s=0.0,
         frag_radius_ratio=0.5, frag_speed_ratio=0.7, rolling_resistance=0.0,
         belt_start_m=0.0, belt_end_m=0.0, belt_loss=0.0, barrier_x_m=float("inf"),
         barrier_height_m=float("inf"), barrier_capacity_kJ=float("inf"),

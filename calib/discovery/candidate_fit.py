@@ -1,0 +1,442 @@
+"""One candidate of the discrepancy workflow, fitted and scored.
+
+Every candidate (the baseline ``none`` and each effect of ``calib.model.effects``)
+is fitted the same way: a Bayesian fit by adaptive importance sampling over
+a simulated design. Every stage draws in the prior box's warped coordinates
+(``calib.model.warp``: log S, log(1 - Kt), tan(phi_r), scaled to the unit
+cube; ``calib.model.warp.unit_coordinates``), and each draw's density
+carries the change of variables back to the uniform prior in theta. Stage 0 is a scrambled Sobol
+design, one half uniform in theta, the other uniform in the warped cube
+(a defensive pair: the first covers a posterior the warp would thin out).
+For an effect, a warm stage follows: the baseline's parameters drawn from a
+Gaussian fitted to the baseline's posterior, the effect's uniformly over
+their box. Each later stage draws points from a Gaussian fitted to the
+weighted points so far (covariance inflated x4 plus (0.05)^2 in unit
+coordinates, truncated to the box). All stages are one deterministic-mixture proposal
+(Owen & Zhou 2000, "Safe and effective importance sampling", JASA 95,
+135-143), so the self-normalised weights ``w_k ~ L(theta_k) p(theta_k) /
+q_mix(theta_k)`` target the posterior under the uniform prior. Every set of
+weights (each stage's fit, the posterior, each fold's training weights of
+step 3) is Pareto-smoothed (``calib.inference.importance.psis_weights``); its k-hat
+is reported per candidate (``khat``) and per fold (``khat_by_fold``), and a
+fold above ``calib.inference.importance.KHAT_MAX`` = 0.7 is flagged
+(``psis_flagged_folds``): its held-out scores are unreliable. Runouts are
+simulated with common random numbers (``calib.model.forward``), and the
+likelihood is ``calib.inference.likelihood``'s, the one ``calib.fit`` uses (points:
+the tolerance as kernel; intervals: the Silverman width). Optional passage
+speeds at stations (``calib.files.observations.Velocities``) add rows scored by
+``calib.inference.likelihood.velocity_log_likelihood`` from the same simulations.
+The workflow that compares the candidates and names one is
+``calib.discovery.discrepancy``; the budgets are ``calib.inference.budget``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy.special import logsumexp
+from scipy.stats import qmc
+
+from calib.discovery.residuals import point_view
+from calib.discovery.scores import crps_ensemble, cv_elpd
+from calib.inference.budget import DiscoveryBudget
+from calib.inference.importance import ess, psis_weights, weighted_quantile
+from calib.inference.likelihood import log_likelihood, observed_rows, velocity_log_likelihood
+from calib.inference.predictive_check import pool_draws
+from calib.model.entries import Entries
+from calib.model.priors import Box
+from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
+from calib.model.warp import unit_coordinates
+
+__all__ = ["GAP_METRIC", "Candidate", "CandidateFit", "VelocityRows", "class_samples",
+           "fit_candidate", "gap", "gaussian_fit", "loglik_noise_sd"]
+
+GAP_METRIC = ("mean CRPS (m) of the observed runouts under the model's posterior predictive "
+              "(simulated runout + the row's measurement noise), averaged over the rows of "
+              "each size class, then over the size classes")
+
+
+@dataclasses.dataclass(frozen=True)
+class Candidate:
+    """A model to fit: its effect name, prior box and forward-model factory.
+
+    ``forward(entries, n_blocks, key)`` returns an object whose ``runouts(theta)``
+    maps (T, p) parameters to (T, S, n_blocks) runouts (``calib.model.forward``)
+    of the S simulated ``calib.model.entries.Entries`` (block size, release,
+    profile, density: a size class, or a (size class, release) group where the
+    rows give their own releases);
+    with passage velocities it gets ``stations_x_m=`` and the object's
+    ``simulate(theta)`` must also give the speeds there (``CrspForward``).
+    ``design`` (optional) replaces the adaptive design by a fixed one: a
+    callable ``design() -> (N, p)`` (the DEM's grids). ``n_blocks`` (optional)
+    overrides the budget's blocks per (design point, size) for this candidate.
+    """
+
+    effect: str
+    box: Box
+    forward: Callable
+    design: Callable | None = None
+    n_blocks: int | None = None
+
+
+@dataclasses.dataclass
+class CandidateFit:
+    """A fitted candidate.
+
+    Attributes:
+        effect, names: the effect and its parameter names.
+        theta: (N, p) design points; log_q: (N,) proposal / prior density.
+        loglik: (N, n_rows) pointwise log-likelihood at the design points: the
+            runout rows, then the passage-velocity rows (if any).
+        weights: (N,) posterior weights (all rows), Pareto-smoothed.
+        ess: effective sample size of the weights.
+        elpd: (n_rows,) held-out log predictive density of each row (same order).
+        khat: Pareto k-hat of the posterior weights; khat_folds: (K,) that of
+            each fold's training weights (``calib.discovery.scores.cv_elpd``); NaN where
+            not estimated (``calib.inference.importance``).
+        estimate, q05, q95: weighted posterior mean and 90 % interval per parameter;
+            best: the design point of highest weight.
+        samples: (E, M) posterior-predictive runouts per simulated entry (a size
+            class, or a (size class, release) group; fresh blocks).
+        class_samples: (C, M') the same pooled per size class: each row of the
+            class contributes its entry's samples (for figures).
+        gap_by_class: (C,) mean CRPS per class, m; gap: their mean, m.
+        loglik_noise_sd_nats: Monte Carlo sd of the summed log-likelihood at
+            ``best`` over ``noise_reps`` independent block sets of the fit's size
+            (nan if not measured); see ``loglik_noise_sd``.
+        seconds: wall time of the fit.
+        unfinished: counts of unfinished blocks per stage (design, predictive,
+            noise) and the warning text (``calib.model.unfinished.unfinished_record``).
+    """
+
+    effect: str
+    names: tuple[str, ...]
+    theta: np.ndarray
+    log_q: np.ndarray
+    loglik: np.ndarray
+    weights: np.ndarray
+    ess: float
+    elpd: np.ndarray
+    estimate: np.ndarray
+    q05: np.ndarray
+    q95: np.ndarray
+    best: np.ndarray
+    samples: np.ndarray
+    gap_by_class: np.ndarray
+    gap: float
+    loglik_noise_sd_nats: float
+    seconds: float
+    unfinished: dict | None = None
+    khat: float = float("nan")
+    khat_folds: np.ndarray | None = None
+    class_samples: np.ndarray | None = None
+
+
+@jax.jit
+def _loglik_design(runs, row_class, y, sd, lo, hi, is_interval):
+    """(N, n_obs) log-likelihood of every row at every design point: the
+    observation model of ``calib.fit`` (``calib.inference.likelihood``, no extra variance)."""
+    return jax.vmap(lambda r: log_likelihood(r[row_class], y, sd, lo, hi, is_interval))(runs)
+
+
+@dataclasses.dataclass(frozen=True)
+class VelocityRows:
+    """Passage-velocity rows prepared for the fits (``calib.files.observations.Velocities``).
+
+    Attributes:
+        stations_m: (K,) distinct station abscissae, m.
+        station: (n_v,) station index of each row; size_class: (n_v,) its size class.
+        v_m_s, sd_m_s: (n_v,) observed speed and tolerance, m/s.
+    """
+
+    stations_m: np.ndarray
+    station: np.ndarray
+    size_class: np.ndarray
+    v_m_s: np.ndarray
+    sd_m_s: np.ndarray
+
+    @property
+    def n_obs(self) -> int:
+        return int(self.v_m_s.shape[0])
+
+
+@jax.jit
+def _vel_loglik_design(speeds, size_class, station, v, sd):
+    """(N, n_v) log-likelihood of every velocity row at every design point,
+    from speeds (N, C, K, n)."""
+    return jax.vmap(lambda u: velocity_log_likelihood(u[size_class, station], v, sd))(speeds)
+
+
+def gaussian_fit(z, w, inflate=2.0, floor=0.05):
+    """Mean and inflated covariance of unit-cube points with normalised weights w."""
+    mean = w @ z
+    cov = (z - mean).T @ ((z - mean) * w[:, None])
+    return mean, inflate**2 * cov + floor**2 * np.eye(z.shape[1])
+
+
+def _proposal(mean, cov, rng, n, dim):
+    """n draws in the unit cube [0, 1]^dim: the first ``len(mean)`` coordinates from
+    N(mean, cov) truncated to the cube, the others uniform. Returns (draws,
+    log-density function relative to the uniform prior)."""
+    k = mean.size
+    chol = np.linalg.cholesky(cov)
+    draws = np.empty((0, k))
+    tried = accepted = 0
+    while draws.shape[0] < n and tried < 1000 * n:
+        pool = mean + rng.standard_normal((20 * n, k)) @ chol.T
+        inside = np.all((pool >= 0) & (pool <= 1), axis=1)
+        tried += pool.shape[0]
+        accepted += int(inside.sum())
+        draws = np.concatenate([draws, pool[inside]])
+    p_in = max(accepted, 1) / tried
+    if draws.shape[0] < n:  # the Gaussian lies almost wholly outside: pad from the prior
+        draws = np.concatenate([draws, rng.uniform(size=(n - draws.shape[0], k))])
+    draws = np.concatenate([draws[:n], rng.uniform(size=(n, dim - k))], axis=1)
+    inv = np.linalg.inv(cov)
+    logdet = np.linalg.slogdet(cov)[1]
+
+    def logpdf(x):
+        d = x[:, :k] - mean
+        return (-0.5 * np.einsum("ij,jk,ik->i", d, inv, d) - 0.5 * logdet
+                - 0.5 * k * np.log(2 * np.pi) - np.log(p_in))
+
+    return draws, logpdf
+
+
+def gap(samples: np.ndarray, obs, row_class: np.ndarray, rng: np.random.Generator,
+        row_entry: np.ndarray | None = None):
+    """The gap metric (``GAP_METRIC``): (per-class mean CRPS (C,), their mean), m,
+    over the finished blocks (NaN samples left out; a class with none: NaN).
+
+    ``samples``: (E, M) predictive runouts per entry; row i is scored against
+    ``samples[row_entry[i]]`` (default: entries are the size classes, ``row_class``).
+    C is E without ``row_entry``, else ``row_class.max() + 1``."""
+    entry = row_class if row_entry is None else row_entry
+    y, sd = point_view(obs)
+    per_row = np.array([_crps_finished(samples[entry[i]] + sd[i] * rng.standard_normal(
+        samples.shape[1]), y[i]) for i in range(obs.n_obs)])
+    classes = np.unique(row_class)
+    by_class = np.full(samples.shape[0] if row_entry is None else int(row_class.max()) + 1,
+                       np.nan)
+    for c in classes:
+        by_class[c] = per_row[row_class == c].mean()
+    return by_class, float(np.nanmean(by_class))
+
+
+def class_samples(samples: np.ndarray, row_entry: np.ndarray, row_class: np.ndarray,
+                  n_classes: int) -> np.ndarray:
+    """(C, M') predictive runouts per size class from (E, M) per entry: each row
+    of a class contributes its entry's M samples (the class's mixture over its
+    rows' releases); M' = M times the largest class's row count, NaN-padded."""
+    per = [np.concatenate([samples[row_entry[i]] for i in np.flatnonzero(row_class == c)])
+           if np.any(row_class == c) else np.full(samples.shape[1], np.nan)
+           for c in range(n_classes)]
+    width = max(p.size for p in per)
+    return np.stack([np.pad(p, (0, width - p.size), constant_values=np.nan) for p in per])
+
+
+def _crps_finished(samples: np.ndarray, y: float) -> float:
+    x = samples[np.isfinite(samples)]
+    return crps_ensemble(x, y) if x.size else float("nan")
+
+
+def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array,
+                  budget: DiscoveryBudget, fold: np.ndarray, progress=None,
+                  warm: tuple[np.ndarray, np.ndarray] | None = None,
+                  velocities: VelocityRows | None = None,
+                  entries: Entries | None = None) -> CandidateFit:
+    """Fit one candidate by adaptive importance sampling; score it (see module doc).
+
+    ``warm``: (mean, cov) in unit coordinates of the first parameters (the
+    baseline's posterior), used for the warm stage. ``velocities``: passage-
+    velocity rows scored with the runout rows (``fold`` then covers both; their
+    ``size_class`` indexes the entries). ``entries``: what the forward model
+    simulates, (size, release) groups with the entry of each runout row
+    (``index``); None: one entry per size class ``class_sizes_m``, released at
+    the profile's first vertex (``calib.model.forward.as_entries``).
+    """
+    t0 = time.perf_counter()
+    box = cand.box
+    dim = box.dim
+    rng = np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel()[-1])
+    vel = velocities if velocities is not None and velocities.n_obs else None
+    st_kw = {} if vel is None else {"stations_x_m": tuple(map(float, vel.stations_m))}
+    if entries is None:
+        simulated, row_entry = np.asarray(class_sizes_m, float), row_class
+    else:
+        simulated, row_entry = entries, entries.index
+    entry_sizes = np.asarray(getattr(simulated, "sizes_m", simulated), float)
+    try:
+        fw = cand.forward(simulated, cand.n_blocks or budget.n_blocks,
+                          jax.random.fold_in(key, 1), **st_kw)
+    except TypeError:
+        if vel is None:
+            raise
+        raise ValueError(f"candidate {cand.effect!r}: its forward model cannot record "
+                         f"passage speeds (CRSP candidates can)") from None
+    tallies = {"design": UnfinishedTally(tuple(map(float, entry_sizes)))}
+    loglik = _row_loglik(obs, row_entry, vel)
+    z, ll, log_q, to_theta = _design(cand, fw, loglik, budget, rng, warm, vel, tallies,
+                                     progress)
+    w, khat = psis_weights(ll.sum(axis=1) - log_q)
+    theta = to_theta(z)
+    est = w @ theta
+    q05 = np.array([weighted_quantile(theta[:, j], w, 0.05) for j in range(dim)])
+    q95 = np.array([weighted_quantile(theta[:, j], w, 0.95) for j in range(dim)])
+    elpd, khat_folds = cv_elpd(ll, log_q, fold)
+    samples = _predictive(cand, fw, theta, w, simulated, key, budget, rng, tallies)
+    if entries is None:
+        gap_c, gap_m = gap(samples, obs, row_class, rng)
+        per_class = samples
+    else:
+        gap_c, gap_m = gap(samples, obs, row_class, rng, row_entry)
+        per_class = class_samples(samples, row_entry, row_class, len(class_sizes_m))
+    best = theta[np.argmax(w)]
+    noise = float("nan")
+    if budget.noise_reps > 1 and hasattr(fw, "replicate_sims"):
+        reps = fw.replicate_sims(best, budget.noise_reps, jax.random.fold_in(key, 3))
+        tallies["noise"] = UnfinishedTally(tuple(map(float, entry_sizes)))
+        tallies["noise"].add(reps[0], np.broadcast_to(best, (budget.noise_reps, dim)),
+                             box.names)
+        noise = loglik_noise_sd(loglik(*reps))
+    record = unfinished_record(tallies, f"candidate {cand.effect!r}")
+    warn_unfinished(record)
+    return CandidateFit(cand.effect, box.names, theta, log_q, ll, w, ess(w),
+                        elpd, est, q05, q95, best, samples, gap_c, gap_m, noise,
+                        time.perf_counter() - t0, record, khat, khat_folds, per_class)
+
+
+def _row_loglik(obs, row_entry, vel: VelocityRows | None):
+    """(runouts (N, E, n), speeds) -> (N, n_rows) pointwise log-likelihood: the
+    runout rows (each reads its entry), then the passage-velocity rows."""
+    y, sd, lo, hi, is_int = observed_rows(obs)
+    rc = jnp.asarray(row_entry)
+    vel_arrays = None if vel is None else tuple(
+        jnp.asarray(a) for a in (vel.size_class, vel.station, vel.v_m_s, vel.sd_m_s))
+
+    def loglik(runs, speeds):
+        ll = np.asarray(_loglik_design(jnp.asarray(runs), rc, y, sd, lo, hi, is_int))
+        if vel is None:
+            return ll
+        lv = _vel_loglik_design(jnp.asarray(speeds), *vel_arrays)
+        return np.concatenate([ll, np.asarray(lv)], axis=1)
+
+    return loglik
+
+
+def _design(cand: Candidate, fw, loglik, budget: DiscoveryBudget, rng, warm, vel, tallies,
+            progress):
+    """The simulated design of one candidate (module docstring): a fixed grid, or
+    the Sobol pair, the warm stage and the adaptive stages, one deterministic
+    mixture. Returns (z (N, p) unit coordinates, loglik (N, n_rows), log_q (N,)
+    the mixture's log density relative to the prior, z -> theta)."""
+    box, dim = cand.box, cand.box.dim
+
+    def simulate(z):
+        theta = to_theta(z)
+        runs, speeds = fw.simulate(theta) if vel else (fw.runouts(theta), None)
+        tallies["design"].add(runs, theta, box.names)
+        return loglik(runs, speeds)
+
+    if cand.design is None:  # proposals in the warped unit cube (calib.model.warp)
+        to_z, to_theta, log_jac = unit_coordinates(box)
+    else:  # a fixed design (grids): uniform over the box itself
+        def to_theta(z):
+            return box.from_unit(z)
+
+    if cand.design is not None:
+        z = box.to_unit(np.atleast_2d(cand.design()))
+        parts = []
+        for i in range(0, z.shape[0], 8):  # in pieces, for the progress bar
+            parts.append(simulate(z[i:i + 8]))
+            if progress:
+                progress(cand.effect, min(i + 8, z.shape[0]), z.shape[0])
+        return z, np.concatenate(parts), np.zeros(z.shape[0]), to_theta
+    total = budget.n_design - (budget.n_warm if warm is None else 0)
+    # stage 0, a defensive pair: one half uniform in theta, one half uniform in
+    # the warped coordinates (density -log_jac and 0 relative to the latter)
+    sob = qmc.Sobol(dim, scramble=True, seed=rng).random(budget.n_sobol)
+    n_theta = budget.n_sobol // 2
+    z = np.concatenate([to_z(box.from_unit(sob[:n_theta])), sob[n_theta:]])
+    ll = simulate(z)
+    if progress:
+        progress(cand.effect, budget.n_sobol, total)
+    logpdfs = [lambda z: -log_jac(z), lambda z: np.zeros(z.shape[0])]
+    counts = [n_theta, budget.n_sobol - n_theta]
+    stages = ([("warm", budget.n_warm)] if warm is not None and budget.n_warm else []) + \
+        [("refine", n) for n in budget.n_refine]
+    for kind, n_new in stages:
+        log_q = _mixture_log_q(z, counts, logpdfs) + log_jac(z)
+        if kind == "warm":
+            new, logpdf = _proposal(warm[0], warm[1], rng, n_new, dim)
+        else:
+            mean, cov = gaussian_fit(z, psis_weights(ll.sum(axis=1) - log_q)[0])
+            new, logpdf = _proposal(mean, cov, rng, n_new, dim)
+        logpdfs.append(logpdf)
+        counts.append(n_new)
+        z = np.concatenate([z, new])
+        ll = np.concatenate([ll, simulate(new)])
+        if progress:
+            progress(cand.effect, sum(counts), total)
+    return z, ll, _mixture_log_q(z, counts, logpdfs) + log_jac(z), to_theta
+
+
+def loglik_noise_sd(loglik_reps: np.ndarray) -> float:
+    """Monte Carlo sd (nats) of the summed log-likelihood, from (R, n_obs)
+    pointwise values at one theta under R independent block sets.
+
+    The likelihood is a simulation estimate (``calib.inference.likelihood``), so its
+    logarithm carries noise that grows with the number of rows and falls
+    roughly as 1 / sqrt(n_blocks) (measured on 180 rows of null data at the
+    baseline's best point: 3.4 nats with 128 blocks, 1.7 with 512). With R = 8
+    the sd itself is uncertain by about 1 / sqrt(2 (R - 1)) = 27 %.
+
+    How large is too large, by analogy with pseudo-marginal MCMC (Doucet, Pitt,
+    Deligiannidis & Kohn 2015, "Efficient implementation of Markov chain Monte
+    Carlo when using an unbiased likelihood estimator", Biometrika 102,
+    295-313): there the cost-optimal sd of the log-likelihood estimator is
+    about 1.0-1.7 nats. Importance weights carrying independent log-normal noise
+    of sd s lose a factor exp(s^2) of their ESS (E[w^2] / E[w]^2 = exp(s^2) for
+    log-normal w). Within one fit the design points share their blocks (common
+    random numbers), so what moves the weights is the noise of log-likelihood
+    DIFFERENCES, small between close points and up to sqrt(2) times this sd
+    between distant ones; the CRN surface is also rough (jumps of several nats between neighbouring
+    roughness values were measured at 180 rows). Candidates are fitted with
+    different block sets, so their score gains carry noise of this order that
+    the data se of the gain does not include.
+    """
+    total = np.asarray(loglik_reps, float).sum(axis=1)
+    return float(np.std(total, ddof=1))
+
+
+def _mixture_log_q(z, counts, logpdfs):
+    """log of the deterministic-mixture density at z, relative to the uniform
+    on the unit cube: component k drew counts[k] points with log-density
+    logpdfs[k] (relative to the same uniform)."""
+    terms = [np.log(n) + f(z) for n, f in zip(counts, logpdfs, strict=True) if n]
+    return logsumexp(np.stack(terms), axis=0) - np.log(sum(counts))
+
+
+def _predictive(cand, fw, theta, w, simulated, key, budget, rng, tallies):
+    """(E, M) posterior-predictive runouts per entry: ``n_draws`` systematic-
+    resampled posterior draws, each simulated with fresh blocks (a key the fit
+    never used; their unfinished blocks are counted in ``tallies["predictive"]``).
+    With ``n_blocks_check`` = 0 the design's own simulations are resampled."""
+    m = budget.n_draws
+    u = (rng.uniform() + np.arange(m)) / m
+    idx = np.minimum(np.searchsorted(np.cumsum(w), u), len(w) - 1)
+    if budget.n_blocks_check > 0:
+        fresh = cand.forward(simulated, budget.n_blocks_check, jax.random.fold_in(key, 2))
+        runs = fresh.runouts(theta[idx])  # (M, E, n)
+        tallies["predictive"] = UnfinishedTally(tuple(map(float, fresh.sizes_m)))
+        tallies["predictive"].add(runs, theta[idx], cand.box.names)
+    else:
+        runs = fw.runouts(theta[idx])
+    return pool_draws(runs)
+
+
