@@ -121,6 +121,10 @@ def _main(args) -> int:
                        f"{', '.join(k.name for k in kits)})")
     factors, warnings = factors_from_args(args)
     warnings += pairing
+    if barrier_of(ds) is not None:
+        warnings.append(f"warning: {args.hazard} is a run with a barrier at x = "
+                        f"{barrier_of(ds)[0]:g} m: its blocks downslope of it are those that "
+                        "passed that barrier")
     for name in ("protected_distance_m", "inspection_interval_yr"):
         v = getattr(args, name)
         if v is not None and not (math.isfinite(v) and v > 0):

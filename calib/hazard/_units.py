@@ -132,15 +132,14 @@ def seeded_chunk(params, seeds: SeedArrays, density_kg_m3, key, profile, station
     """
     idx = (offset + jnp.arange(n_chunk)).astype(jnp.uint32)
     keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(idx)
-    volume, x, h, v = jax.vmap(lambda k: sample_release(seeds, kinds, k))(keys)
-    radius = 0.5 * jnp.cbrt(6.0 * volume / jnp.pi)  # d / 2 (release.diameter_m)
+    volume, diameter, x, h, v = jax.vmap(lambda k: sample_release(seeds, kinds, k))(keys)
     tasks = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (n_chunk,) + a.shape), params)
     tasks = tasks._replace(
         release_x_m=x, release_x_spread_m=jnp.zeros(n_chunk),
         release_height_m=jnp.where(jnp.isnan(h), params.release_height_m, h),
         release_vx_m_s=jnp.where(jnp.isnan(v), params.release_vx_m_s, v))
     sphere = make_block(1.0).inertia_ratio  # I / (m r^2) of a sphere
-    blocks = Block(radius_m=radius, mass_kg=density_kg_m3 * volume,
+    blocks = Block(radius_m=0.5 * diameter, mass_kg=density_kg_m3 * volume,
                    inertia_ratio=jnp.broadcast_to(sphere, (n_chunk,)))
     res = simulate_tasks(tasks, blocks, key, profile, stations_x_m, n_per_task=1, pool=pool,
                          settings=settings, offset=offset,

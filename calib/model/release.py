@@ -406,7 +406,8 @@ class SeedArrays(NamedTuple):
     """What ``sample_release`` draws from, for the blocks of one class (a pytree).
 
     Attributes:
-        law_values: the law's ``values`` (fixed sizes: the size's volume), m^3.
+        law_values: the law's ``values`` (a fixed size: its volume, m^3, and its
+            diameter, m).
         p_lo, p_hi: the class's probability range.
         zone_x_m: the zone's abscissae, m.
         zone_cum: cumulative weights of the points (points zones), else zeros.
@@ -444,9 +445,11 @@ class Seeder:
                     ) -> Seeder:
         """Blocks of the given sizes d (m), one class each, released by ``zone`` and
         ``state``."""
-        classes = tuple(VolumeClass(0.0, 1.0, float(volume_m3(d)), float(volume_m3(d)),
-                                    float(volume_m3(d)), float(d), f"D = {d:g} m")
-                        for d in sizes_m)
+        # the sphere's volume as solvers.crsp.make_block computes it, 4/3 pi r^3: the
+        # block weighs, to the bit, what a run without release conditions simulates
+        vols = [4.0 / 3.0 * math.pi * (0.5 * float(d)) ** 3 for d in sizes_m]
+        classes = tuple(VolumeClass(0.0, 1.0, v, v, v, float(d), f"D = {d:g} m")
+                        for d, v in zip(sizes_m, vols, strict=True))
         return cls(None, classes, zone, state)
 
     @property
@@ -462,7 +465,7 @@ class Seeder:
     def arrays(self, t: int) -> SeedArrays:
         """The ``SeedArrays`` of class ``t``."""
         c = self.classes[t]
-        values = [c.volume_m3] if self.law is None else list(self.law.values)
+        values = [c.volume_m3, c.size_m] if self.law is None else list(self.law.values)
         cum = (np.cumsum(self.zone.weights) if self.zone.kind == "points"
                else np.zeros(len(self.zone.x_m)))
         s = self.state
@@ -517,14 +520,17 @@ def sample_release(seeds: SeedArrays, kinds: tuple[str, str], key: jax.Array):
             fold_in(key, ``SEED_STREAM``).
 
     Returns:
-        (volume V, m^3; abscissa x, m; height h, m; speed v, m/s), h and v NaN
-        where the state keeps the solver's default.
+        (volume V, m^3; diameter d, m; abscissa x, m; height h, m; speed v, m/s), h
+        and v NaN where the state keeps the solver's default. d = (6 V / pi)^(1/3),
+        except for a fixed size, whose d is the size itself (so that its sphere is
+        the one a run of fixed sizes simulates, to the last bit).
     """
     law_kind, zone_kind = kinds
     k_u, k_z = jax.random.split(jax.random.fold_in(key, SEED_STREAM))
     u = jax.random.uniform(k_u, (2,), dtype=jnp.float64) + _HALF_STEP
     z = jax.random.normal(k_z, (2,), dtype=jnp.float64)
     volume = _draw(law_kind, seeds, u[0])
+    d = seeds.law_values[1] if law_kind == "fixed" else jnp.cbrt(6.0 * volume / jnp.pi)
     zx = seeds.zone_x_m
     if zone_kind == "uniform":
         x = zx[0] + u[1] * (zx[1] - zx[0])
@@ -536,4 +542,4 @@ def sample_release(seeds: SeedArrays, kinds: tuple[str, str], key: jax.Array):
     h = jnp.maximum(seeds.height_m[0] + seeds.height_m[1] * z[0], 0.0)
     v = jnp.maximum(seeds.speed_m_s[0] + seeds.speed_m_s[1] * z[1], 0.0)
     # NaN mean: jnp.maximum(NaN, 0) is NaN, kept as "the solver's default"
-    return volume, x, h, v
+    return volume, d, x, h, v
