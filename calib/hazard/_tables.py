@@ -301,6 +301,9 @@ def summary_text(results, table: pd.DataFrame, road_x_m: float,
                      f"solver's budget, or invalid), not counted as runouts")
         line += _extrapolation(r, c.classes, rng)
         lines.append(line)
+    if c.classes and rng is None:
+        lines.append("  the block sizes the calibration was fitted on are not known (no "
+                     "release_groups in it, its data_csv not found): extrapolation not checked")
     if c.design_block is not None:
         b = c.design_block
         lines.append(f"  design block of a {b['return_period_yr']:g}-year return period at "
@@ -348,7 +351,7 @@ def _extrapolation(r, classes: bool, rng) -> str:
         frac = r.extrapolated_fraction
         if not (np.isfinite(frac) and frac > 0):
             return ""
-        return (f"; {100 * frac:.2g} % of the class's blocks lie outside the sizes the "
+        return (f"; {100 * frac:.3g} % of the class's blocks lie outside the sizes the "
                 f"calibration was fitted on ({lo:g}-{hi:g} m): extrapolation")
     if lo * (1 - 1e-9) <= r.block_size_m <= hi * (1 + 1e-9):
         return ""
