@@ -407,3 +407,18 @@ def test_bad_release_options_one_line_exit_2_nothing_written(cal_path, tmp_path,
     assert rc == 2, err
     assert message in err and len(err.strip().splitlines()) == 1, err
     assert "Traceback" not in err and not os.path.exists(out)
+
+
+def test_design_on_an_extrapolated_class_warns(class_run, tmp_path, capsys):
+    """calib.design on a run over classes: the largest class by default, named by its
+    representative size, and a warning where its blocks reach beyond the fitted sizes."""
+    from calib.design.__main__ import main as design
+
+    out, _ = class_run
+    rc, stdout, err = run_cli(design, [str(out / "hazard.nc"), "--barrier-x-m", "100",
+                                       "--kits", os.path.abspath("data/barrier_kits.csv"),
+                                       "--out", str(tmp_path / "design")], capsys)
+    assert rc == 0, err
+    top = volume_classes(parse_volume_law(LOGNORMAL))[-1]
+    assert f"D = {top.size_m:g} m" in stdout
+    assert "of the blocks of the design class" in err and "extrapolation" in err

@@ -136,6 +136,12 @@ def _main(args) -> int:
                                volume_m3=args.design_volume_m3,
                                density_kg_m3=args.density_kg_m3, thickness_m=args.dem_thickness_m)
     warnings += more
+    if "extrapolated_fraction" in ds:  # a run over volume classes
+        frac = float(ds["extrapolated_fraction"].sel(block_size_m=block.size_m))
+        if frac > 0:
+            warnings.append(f"warning: {100 * frac:.3g} % of the blocks of the design class "
+                            f"(D = {block.size_m:g} m) lie outside the block sizes the "
+                            "calibration was fitted on: extrapolation")
     try:
         board = free_board_m(block.size_m, args.free_board_m)
     except ValueError as exc:

@@ -15,6 +15,7 @@ import math
 import os
 import sys
 import time
+from typing import NamedTuple
 
 from calib.model.dem_run import DEM_RUN
 from solvers.cli import (
@@ -389,14 +390,16 @@ def _zone(text: str, profile):
     return zone
 
 
-class _Conditions:
+class _Conditions(NamedTuple):
     """What the release and barrier options make of a run: ``seeder`` (None: every
     block at one release, the solver's state), ``barrier`` (or None), ``fitted``
     (the calibration's fitted block sizes and their source, or None), ``record``
     (more hazard.nc attributes: the design block of a return period)."""
 
-    def __init__(self, seeder, barrier, fitted, record):
-        self.seeder, self.barrier, self.fitted, self.record = seeder, barrier, fitted, record
+    seeder: object
+    barrier: object
+    fitted: tuple | None
+    record: dict
 
 
 def _conditions(args, cal, profile, sizes, release_x: float, zone) -> _Conditions:
