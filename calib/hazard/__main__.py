@@ -127,15 +127,17 @@ def _release_options(p: OneLineParser) -> None:
                    "'x1:w1,x2:w2,...' (points with weights), m (default: --release-x-m)")
     g.add_argument("--release-height-m", type=float, help="release height above the ground, "
                    "m (default: on the ground, the solver's)")
-    g.add_argument("--release-height-sd-m", type=float, default=0.0,
-                   help="standard deviation of the release height, m; each block's height "
-                        "normal, clipped at 0 (default 0: neither the site file nor the "
-                        "calibration records one)")
+    g.add_argument("--release-height-sd-m", type=float, default=None,
+                   help="standard deviation of the release height's error, m; each block's "
+                        "height a normal truncated to >= 0 (default, with "
+                        "--release-height-m: the calibration's release_height_sd_m, the "
+                        "site's tracked-height error; else 0)")
     g.add_argument("--release-speed-m-s", type=float, help="horizontal release speed, m/s "
                    "(default: 1 m/s, the solver's)")
-    g.add_argument("--release-speed-sd-m-s", type=float, default=0.0,
-                   help="standard deviation of the release speed, m/s; normal, clipped at "
-                        "0 (default 0)")
+    g.add_argument("--release-speed-sd-m-s", type=float, default=None,
+                   help="standard deviation of the release speed's error, m/s; a normal "
+                        "truncated to >= 0 (default, with --release-speed-m-s: the "
+                        "calibration's release_speed_sd_m_s; else 0)")
 
 
 def _barrier_options(p: OneLineParser) -> None:
@@ -357,7 +359,7 @@ def _check_conditions(args) -> None:
         for name, v in ((f"--release-{opt}-{unit}", mean), (f"--release-{opt}-sd-{unit}", sd)):
             if v is not None and not (math.isfinite(v) and v >= 0):
                 raise CliError(f"{name} {v:g}: expected a number >= 0")
-        if sd > 0 and mean is None:
+        if (sd or 0.0) > 0 and mean is None:
             raise CliError(f"--release-{opt}-sd-{unit}: needs --release-{opt}-{unit} (the "
                            "mean)")
     if args.barrier_x_m is None:
@@ -435,10 +437,15 @@ def _conditions(args, cal, profile, sizes, release_x: float, zone) -> _Condition
         raise CliError(str(exc)) from None
     record = {}
     nan = math.nan
-    state = ReleaseState(nan if args.release_height_m is None else args.release_height_m,
-                         args.release_height_sd_m,
-                         nan if args.release_speed_m_s is None else args.release_speed_m_s,
-                         args.release_speed_sd_m_s)
+    # the errors of a given release height or speed: the option, else the
+    # calibration's (the site's tracked-release errors its fit drew with)
+    h_sd, v_sd = (given if given is not None else (fitted if mean is not None else 0.0)
+                  for given, fitted, mean in (
+                      (args.release_height_sd_m, cal.release_height_sd_m, args.release_height_m),
+                      (args.release_speed_sd_m_s, cal.release_speed_sd_m_s,
+                       args.release_speed_m_s)))
+    state = ReleaseState(nan if args.release_height_m is None else args.release_height_m, h_sd,
+                         nan if args.release_speed_m_s is None else args.release_speed_m_s, v_sd)
     seeder = None
     if law is not None or zone is not None or any(
             v is not None for v in (args.release_height_m, args.release_speed_m_s)):

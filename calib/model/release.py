@@ -49,7 +49,8 @@ distribution, its ``probability``, scales its annual frequencies.
 Release zone (``ReleaseZone``): one abscissa; uniform on [A, B]; or points x_k
 with weights w_k (block at x_k with probability w_k / sum w).
 Release height and speed (``ReleaseState``): mean and standard deviation, each
-block's value normal and clipped at 0 (our choice: a block starts on or above
+block's value a normal truncated to >= 0, the solver's own release-error rule
+(``solvers.truncated_normal``; our choice: a block starts on or above
 the ground, never moving upslope); the speed is the block's horizontal release
 velocity, as the fit takes a tracked release speed (``calib.model.forward``).
 NaN mean: the solver's default (on the ground, 1 m/s horizontal).
@@ -76,6 +77,7 @@ from scipy.special import ndtr
 from scipy.special import ndtri as np_ndtri
 
 from calib.files.field_runs import sphere_diameter_m
+from solvers.truncated_normal import nonnegative_normal
 
 __all__ = ["DEFAULT_CLASS_QUANTILES", "SEED_STREAM", "ReleaseState", "ReleaseZone",
            "SeedArrays", "Seeder", "VolumeClass", "VolumeLaw", "diameter_m",
@@ -398,7 +400,8 @@ class ReleaseState:
 
         return {"height_m": num(self.height_m), "height_sd_m": self.height_sd_m,
                 "speed_m_s": num(self.speed_m_s), "speed_sd_m_s": self.speed_sd_m_s,
-                "rule": "normal, clipped at 0; speed = horizontal release velocity; "
+                "rule": "normal truncated to >= 0 (solvers.truncated_normal); "
+                        "speed = horizontal release velocity; "
                         "null: the solver's default (on the ground, 1 m/s)"}
 
 
@@ -528,7 +531,7 @@ def sample_release(seeds: SeedArrays, kinds: tuple[str, str], key: jax.Array):
     law_kind, zone_kind = kinds
     k_u, k_z = jax.random.split(jax.random.fold_in(key, SEED_STREAM))
     u = jax.random.uniform(k_u, (2,), dtype=jnp.float64) + _HALF_STEP
-    z = jax.random.normal(k_z, (2,), dtype=jnp.float64)
+    z = jax.random.uniform(k_z, (2,), dtype=jnp.float64)
     volume = _draw(law_kind, seeds, u[0])
     d = seeds.law_values[1] if law_kind == "fixed" else jnp.cbrt(6.0 * volume / jnp.pi)
     zx = seeds.zone_x_m
@@ -539,7 +542,8 @@ def sample_release(seeds: SeedArrays, kinds: tuple[str, str], key: jax.Array):
                            zx.shape[0] - 1)]
     else:
         x = zx[0]
-    h = jnp.maximum(seeds.height_m[0] + seeds.height_m[1] * z[0], 0.0)
-    v = jnp.maximum(seeds.speed_m_s[0] + seeds.speed_m_s[1] * z[1], 0.0)
-    # NaN mean: jnp.maximum(NaN, 0) is NaN, kept as "the solver's default"
+    # the solver's own release-error rule (solvers.truncated_normal): a normal
+    # truncated to >= 0; a NaN mean stays NaN, kept as "the solver's default"
+    h = nonnegative_normal(z[0], seeds.height_m[0], seeds.height_m[1])
+    v = nonnegative_normal(z[1], seeds.speed_m_s[0], seeds.speed_m_s[1])
     return volume, d, x, h, v
