@@ -21,6 +21,8 @@ import time
 
 import numpy as np
 
+from solvers.jsonable import json_ready  # noqa: F401  (the commands' JSON kit)
+
 __all__ = [
     "CliError",
     "DefaultsHelpFormatter",
@@ -261,22 +263,6 @@ def write_outputs(out: str, files: dict, figs: dict | None = None,
                  for name, fig in (figs or {}).items()})
     todo.update({os.path.join(out, name): w for name, w in (writers or {}).items()})
     return write_all_atomic(todo)
-
-
-def json_ready(v):
-    """A copy of ``v`` that ``json.dumps(..., allow_nan=False)`` accepts: NumPy
-    scalars become Python ones, non-finite floats None, tuples lists."""
-    if isinstance(v, dict):
-        return {k: json_ready(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [json_ready(x) for x in v]
-    if isinstance(v, (np.bool_, bool)):
-        return bool(v)
-    if isinstance(v, (np.integer, int)):
-        return int(v)
-    if isinstance(v, (np.floating, float)):
-        return float(v) if np.isfinite(v) else None
-    return v
 
 
 def text_writer(text: str):

@@ -19,7 +19,13 @@ import numpy as np
 
 from calib.design._factors import DEFAULTS, GAMMA_E, free_board_m
 from calib.design._kits import CATEGORIES, KitError, load_kits
-from solvers.cli import CliError, DefaultsHelpFormatter, OneLineParser, run_guarded
+from solvers.cli import (
+    CliError,
+    DefaultsHelpFormatter,
+    OneLineParser,
+    parse_stations,
+    run_guarded,
+)
 
 PROG = "python -m calib.design"
 
@@ -95,12 +101,27 @@ def build_parser() -> OneLineParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return run_guarded(PROG, _main, args)
+    return run_guarded(PROG, _checked, args)
+
+
+def _checked(args) -> int:
+    """``_main``, the design library's refusals turned into the command's one line."""
+    from calib.design._inputs import DesignError
+
+    try:
+        return _main(args)
+    except DesignError as exc:
+        raise CliError(str(exc)) from None
 
 
 def _main(args) -> int:
     from calib.design._design import design_record, scan_rows
-    from calib.design._inputs import design_block, factors_from_args, scan_positions
+    from calib.design._inputs import (
+        design_block,
+        factors_from_args,
+        profile_range,
+        scan_positions,
+    )
     from calib.design._residual import barrier_of, check_compatible
     from calib.files.hazard_results import HazardResultsError, read_hazard_results
 
@@ -146,7 +167,9 @@ def _main(args) -> int:
         board = free_board_m(block.size_m, args.free_board_m)
     except ValueError as exc:
         raise CliError(str(exc)) from None
-    scan = scan_positions(ds, args.hazard, args.scan_x_m) if args.scan_x_m else []
+    scan = (scan_positions(ds, args.hazard, parse_stations(args.scan_x_m, profile_range(ds),
+                                                           "--scan-x-m"))
+            if args.scan_x_m else [])
     options = dict(kits=kits, factors=factors, free_board=board, args=args)
     rows = scan_rows(ds, block, scan, options) if scan else None
     x = args.barrier_x_m

@@ -11,12 +11,11 @@ import math
 
 from calib.design._checks import check_kits, impacts, kit_probabilities, smallest_passing
 from calib.design._factors import REFERENCES, SOURCES
-from calib.design._inputs import as_dict, check_barrier
+from calib.design._inputs import DesignError, as_dict, check_barrier
 from calib.design._report import LIMITS, SCHEMA
 from calib.design._values import design_values
 from calib.files.hazard_results import json_attr, optional_attr
 from calib.files.provenance import file_sha256, provenance
-from solvers.cli import CliError
 
 __all__ = ["design_record", "scan_rows"]
 
@@ -26,7 +25,7 @@ def _distance(ds, x_m: float, requested: float | None) -> tuple[float, str]:
         return float(requested), "--protected-distance-m"
     road = optional_attr(ds, "road_x_m")
     if road is None:
-        raise CliError("--protected-distance-m: needed, the hazard file names no station of "
+        raise DesignError("--protected-distance-m: needed, the hazard file names no station of "
                        "interest to measure it to")
     label = optional_attr(ds, "road_label") or "station of interest"
     return float(road) - x_m, f"horizontal distance to the {label} at x = {road:g} m"
@@ -100,12 +99,12 @@ def design_record(ds, x_m: float, block, options: dict, with_barrier=None) -> di
     """The record of the design at ``x_m`` (what ``design.json`` holds).
 
     Raises:
-        CliError: bad barrier position, or no simulated block passes it.
+        DesignError: bad barrier position, or no simulated block passes it.
     """
     args, factors = options["args"], options["factors"]
     dv, rows, kit_row, chosen_by = _design(ds, x_m, block, options)
     if dv.n_passers == 0:
-        raise CliError(f"--barrier-x-m {x_m:g}: no simulated block of D = {block.size_m:g} m "
+        raise DesignError(f"--barrier-x-m {x_m:g}: no simulated block of D = {block.size_m:g} m "
                        f"passes it in {args.hazard}: no basis for a design there (choose a "
                        "position upslope, or a larger run)")
     distance, distance_src = _distance(ds, x_m, args.protected_distance_m)

@@ -44,7 +44,7 @@ from calib.hazard._run import (
     dem_alpha,
     run_hazard,
 )
-from calib.hazard._stats import BINS, Bins, hist_quantile
+from calib.hazard._stats import BINS, Bins, hist_exceedance, hist_quantile
 from calib.hazard._tables import exceedance_table, hazard_table, summary_text
 from calib.model.dem_run import DemRun
 
@@ -66,6 +66,7 @@ __all__ = [
     "exceedance_table",
     "hazard_level",
     "hazard_table",
+    "hist_exceedance",
     "hist_quantile",
     "intensity_class",
     "load_calibration",

@@ -8,7 +8,7 @@ import numpy as np
 from calib.files.hazard_results import hazard_results
 from calib.hazard._run import HazardCounts
 from calib.hazard._stats import BINS, DRAW_BINS, PERCENTILES
-from solvers.cli import json_ready
+from solvers.jsonable import json_ready
 from solvers.profile import Profile
 
 __all__ = ["ENERGY_BASIS", "HEIGHT_CONVENTION", "as_results", "hazard_dataset"]
