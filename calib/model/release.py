@@ -4,7 +4,7 @@ and how ONE block's release is drawn from its key.
 
 Block size. A block of volume V is simulated as the volume-equivalent sphere of
 diameter d = (6 V / pi)^(1/3) (the toolkit's block-size rule,
-``calib.model.entries``; ``calib.files.field_runs.sphere_diameter_m`` makes the
+``calib.model.entries``; ``calib.model.entries.sphere_diameter_m`` makes the
 same sphere from a mass) and mass rho V, rho the site's rock density.
 
 Volume laws (``VolumeLaw``; F the cumulative distribution, Q = F^-1):
@@ -76,7 +76,7 @@ from jax.scipy.special import ndtri
 from scipy.special import ndtr
 from scipy.special import ndtri as np_ndtri
 
-from calib.files.field_runs import sphere_diameter_m
+from calib.model.entries import sphere_diameter_m
 from solvers.truncated_normal import nonnegative_normal
 
 __all__ = ["DEFAULT_CLASS_QUANTILES", "SEED_STREAM", "ReleaseState", "ReleaseZone",
@@ -95,7 +95,7 @@ _LAWS = {"lognormal": ("median_m3", "sigma"), "powerlaw": ("vmin_m3", "vmax_m3",
 
 def diameter_m(volume_m3):
     """Volume-equivalent sphere diameter d = (6 V / pi)^(1/3), m (a volume is the mass
-    of a block of unit density: ``calib.files.field_runs.sphere_diameter_m``)."""
+    of a block of unit density: ``calib.model.entries.sphere_diameter_m``)."""
     return sphere_diameter_m(volume_m3, 1.0)
 
 
