@@ -297,7 +297,11 @@ def _block_mass_kg(model: str, entries: Entries) -> np.ndarray:
 
 
 def _crsp_units(draws, profile, entries: Entries, stations, n_blocks, seed, chunk, offsets,
-                pool, settings, extra, effects=()):
+                pool, settings, extra=None, effects=()):
+    """Per draw, the chunks of ``_units.crsp_chunk`` for every size at once;
+    ``extra``: more solver parameters (a barrier's), ``effects``: the fitted
+    model's effects (``Calibration.effects``)."""
+    extra = {} if extra is None else extra
     n_sizes, release_x = entries.n, float(entries.release_x_m[0])
     blocks = stack_trees([crsp.make_block(float(r), density_kg_m3=entries.density_kg_m3)
                           for r in entries.crsp_radius_m])
