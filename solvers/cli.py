@@ -257,12 +257,22 @@ def write_outputs(out: str, files: dict, figs: dict | None = None,
 
     Returns:
         The final paths.
+
+    The figures are closed afterwards, written or not: a command run in-process
+    (tests, notebooks) must not keep every figure it drew open.
     """
     todo = {os.path.join(out, name): text_writer(text) for name, text in files.items()}
     todo.update({os.path.join(out, name): functools.partial(fig.savefig, dpi=120)
                  for name, fig in (figs or {}).items()})
     todo.update({os.path.join(out, name): w for name, w in (writers or {}).items()})
-    return write_all_atomic(todo)
+    try:
+        return write_all_atomic(todo)
+    finally:
+        if figs:
+            import matplotlib.pyplot as plt
+
+            for fig in figs.values():
+                plt.close(fig)
 
 
 def text_writer(text: str):
