@@ -21,6 +21,8 @@ import time
 
 import numpy as np
 
+from solvers.jsonable import json_ready  # noqa: F401  (the commands' JSON kit)
+
 __all__ = [
     "CliError",
     "DefaultsHelpFormatter",
@@ -255,28 +257,22 @@ def write_outputs(out: str, files: dict, figs: dict | None = None,
 
     Returns:
         The final paths.
+
+    The figures are closed afterwards, written or not: a command run in-process
+    (tests, notebooks) must not keep every figure it drew open.
     """
     todo = {os.path.join(out, name): text_writer(text) for name, text in files.items()}
     todo.update({os.path.join(out, name): functools.partial(fig.savefig, dpi=120)
                  for name, fig in (figs or {}).items()})
     todo.update({os.path.join(out, name): w for name, w in (writers or {}).items()})
-    return write_all_atomic(todo)
+    try:
+        return write_all_atomic(todo)
+    finally:
+        if figs:
+            import matplotlib.pyplot as plt
 
-
-def json_ready(v):
-    """A copy of ``v`` that ``json.dumps(..., allow_nan=False)`` accepts: NumPy
-    scalars become Python ones, non-finite floats None, tuples lists."""
-    if isinstance(v, dict):
-        return {k: json_ready(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [json_ready(x) for x in v]
-    if isinstance(v, (np.bool_, bool)):
-        return bool(v)
-    if isinstance(v, (np.integer, int)):
-        return int(v)
-    if isinstance(v, (np.floating, float)):
-        return float(v) if np.isfinite(v) else None
-    return v
+            for fig in figs.values():
+                plt.close(fig)
 
 
 def text_writer(text: str):

@@ -53,9 +53,13 @@ def _stations(site):
     return np.array([xb, xb + 1e-6, *site["downslope_m"]])
 
 
-def _params(prof, name: str, barrier_x_m=INF, height_m=INF, capacity_kJ=INF):
-    return crsp.params_from_profile(prof, barrier_x_m=barrier_x_m, barrier_height_m=height_m,
-                                    barrier_capacity_kJ=capacity_kJ, **SITES[name]["params"])
+def _params(prof, name: str, **barrier):
+    """The site's parameters with a barrier (``barrier_x_m``, ``height_m``,
+    ``capacity_kJ``), or none."""
+    names = dict(barrier_x_m="barrier_x_m", height_m="barrier_height_m",
+                 capacity_kJ="barrier_capacity_kJ")
+    return crsp.params_from_profile(prof, **{names[k]: v for k, v in barrier.items()},
+                                    **SITES[name]["params"])
 
 
 @functools.cache
@@ -87,12 +91,16 @@ def _identical(a, b, rows=slice(None)):
 
 @pytest.mark.parametrize("name", SITES)
 def test_a_barrier_that_catches_nothing_changes_nothing(name):
-    """Height 0, a barrier beyond the profile's end or behind the release: every
-    runout, status, event count and station record is bit-identical to the run
-    without a barrier (the barrier acts only through blocks that hit its net)."""
+    """Height 0, a barrier at +inf, beyond the profile's end or behind the
+    release: every runout, status, event count and station record is
+    bit-identical to the run without a barrier (the barrier acts only through
+    blocks that hit its net)."""
     site = SITES[name]
     base = _run(name)
-    assert not base.barrier.reached.any() and np.isnan(base.barrier.energy_kJ).all()
+    assert base.barrier is None  # no barrier: no record
+    absent = _run(name, barrier_x_m=INF)
+    _identical(base, absent)
+    assert not absent.barrier.reached.any() and np.isnan(absent.barrier.energy_kJ).all()
     zero = _barrier(name, height_m=0.0)
     _identical(base, zero)
     assert zero.barrier.reached.mean() > 0.9  # it was crossed, and recorded
@@ -319,7 +327,7 @@ def test_barriers_vary_per_task_in_one_compiled_pool():
     name = "postignano"
     site = SITES[name]
     prof = load_profile(site["path"])
-    cases = [dict(), dict(barrier_x_m=100.0, height_m=2.0, capacity_kJ=200.0),
+    cases = [dict(barrier_x_m=INF), dict(barrier_x_m=100.0, height_m=2.0, capacity_kJ=200.0),
              dict(barrier_x_m=80.0)]
     sets = [_params(prof, name, **c) for c in cases]
     stack = lambda xs: jax.tree_util.tree_map(lambda *a: jnp.stack(a), *xs)  # noqa: E731
@@ -354,4 +362,31 @@ def test_every_status_consumer_counts_a_block_stopped_by_the_barrier_as_finished
                                          ("barrier_x_m", float("nan"))])
 def test_a_negative_or_nan_barrier_parameter_is_refused_by_name(field, value):
     with pytest.raises(ValueError, match=field):
-        crsp.params_from_profile(_flat(), **{field: value})
+        crsp.params_from_profile(_flat(), **{"barrier_x_m": 10.0, field: value})
+    with pytest.raises(ValueError, match="without barrier_x_m"):
+        crsp.params_from_profile(_flat(), barrier_height_m=3.0)
+
+
+def test_a_run_without_a_barrier_compiles_none_of_its_code():
+    """No barrier (the default): the parameters carry None and the event step's
+    compiled program has none of the barrier's work, which a barrier at +inf
+    (same results) adds: fewer operations in XLA's cost analysis."""
+    from solvers._rng import key_words
+    from solvers.crsp._model import init, segment_table, step
+
+    prof = load_profile(SITES["postignano"]["path"])
+    block = crsp.make_block(0.5)
+    keys = jax.random.split(jax.random.key(0), 8)
+
+    def flops(params):
+        def lanes(p, b, ks):
+            table = segment_table(prof, p, b)
+            s = jax.vmap(lambda k: init(p, b, k, prof))(ks)
+            return jax.vmap(lambda s, w: step(s, p, b, w, prof, table, crsp.Settings()))(
+                s, jax.vmap(key_words)(ks))
+        cost = jax.jit(lanes).lower(params, block, keys).compile().cost_analysis()
+        return (cost[0] if isinstance(cost, list) else cost)["flops"]
+
+    none = crsp.params_from_profile(prof)
+    assert none.barrier_x_m is None and none.barrier_height_m is None
+    assert flops(none) < flops(crsp.params_from_profile(prof, barrier_x_m=INF))

@@ -249,30 +249,58 @@ def test_failed_calibration_check_is_loud(tmp_path, capsys):
     assert "!!! THE CALIBRATION FAILED" in cap.err
 
 
+BARRIER = {"barrier_x_m": 100.0, "barrier_height_m": 3.0, "barrier_capacity_kJ": 500.0}
+
+
 def test_residual_exceedance_of_a_run_with_the_barrier(hazard, tmp_path, capsys):
-    """The run with the barrier's exceedance beside the run without it (the blocks
-    it stops no longer pass 100 m and beyond); a run on other stations is refused
-    before anything is computed."""
+    """The run with the barrier's exceedance and reach beside the run without it (the
+    blocks it stops no longer pass 100 m and beyond), with their bands over draws; a
+    run on other stations, a "with" run without a barrier, a "without" run with one
+    and a barrier elsewhere than the design's are refused before anything is
+    computed."""
     from calib.design import residual_exceedance
     from calib.design._design import _residual
 
     path, ds = hazard
     fewer = {k: v for k, v in _samples().items() if k[2] == 1}  # stopped by the barrier
     with_barrier = synthetic_results(fewer, sizes_m=SIZES, stations_x_m=STATIONS,
-                                     n_blocks=N_BLOCKS)
+                                     n_blocks=N_BLOCKS, attrs=dict(BARRIER))
     t = residual_exceedance(ds, with_barrier)
     at = t[(t.block_size_m == 2.0) & (t.x_m == 100.0)].iloc[0]
     assert at.p_exceed_mean == pytest.approx((N_BLOCKS - 100) / N_BLOCKS)
-    assert at.p_exceed_mean_with_barrier == 0.0
+    assert at.reach_prob_mean == pytest.approx((N_BLOCKS - 100) / N_BLOCKS)
+    assert at.p_exceed_mean_with_barrier == 0.0 and at.reach_prob_q95_with_barrier == 0.0
+    before = t[(t.block_size_m == 2.0) & (t.x_m == 50.0)].iloc[0]
+    assert before.reach_prob_mean_with_barrier == before.reach_prob_mean > 0
     assert np.isnan(residual_exceedance(ds).p_exceed_mean_with_barrier).all()
-    assert "with the barrier" in _residual(ds, with_barrier)["text"]
+    road = synthetic_results(_samples(), sizes_m=SIZES, stations_x_m=STATIONS,
+                             n_blocks=N_BLOCKS, attrs={"road_x_m": 150.0})
+    text = _residual(road, with_barrier)["text"]
+    assert "with the barrier" in text and "P(reach)" in text and "capacity 500 kJ" in text
     other = synthetic_results(_samples(), sizes_m=SIZES, stations_x_m=STATIONS[:-1],
-                              n_blocks=N_BLOCKS)
+                              n_blocks=N_BLOCKS, attrs=dict(BARRIER))
     write_hazard_results(other, str(tmp_path / "other.nc"))
-    with pytest.raises(SystemExit) as e:
-        main([path, "--barrier-x-m", "100", "--kits", KITS, "--out", str(tmp_path / "x"),
-              "--with-barrier", str(tmp_path / "other.nc")])
-    assert e.value.code == 2 and "other.nc: its x_m differ" in capsys.readouterr().err
+    write_hazard_results(synthetic_results(fewer, sizes_m=SIZES, stations_x_m=STATIONS,
+                                           n_blocks=N_BLOCKS), str(tmp_path / "none.nc"))
+    write_hazard_results(synthetic_results(fewer, sizes_m=SIZES, stations_x_m=STATIONS,
+                                           n_blocks=N_BLOCKS,
+                                           attrs=dict(BARRIER, barrier_x_m=150.0)),
+                         str(tmp_path / "at150.nc"))
+    write_hazard_results(with_barrier, str(tmp_path / "with.nc"))
+    for name, message in (("other.nc", "other.nc: its x_m differ"),
+                          ("none.nc", "none.nc: not a run with a barrier"),
+                          ("at150.nc", "its barrier stands at x = 150 m, the design at x = "
+                                       "100 m")):
+        with pytest.raises(SystemExit) as e:
+            main([path, "--barrier-x-m", "100", "--kits", KITS, "--out", str(tmp_path / "x"),
+                  "--with-barrier", str(tmp_path / name)])
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and message in err and len(err.strip().splitlines()) == 1
+        assert not (tmp_path / "x").exists()
+    with pytest.raises(SystemExit) as e:  # the "without" run has a barrier
+        main([str(tmp_path / "with.nc"), "--barrier-x-m", "100", "--kits", KITS, "--out",
+              str(tmp_path / "x"), "--with-barrier", str(tmp_path / "with.nc")])
+    assert e.value.code == 2 and "has a barrier too" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
 
 

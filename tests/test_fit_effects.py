@@ -81,6 +81,9 @@ def test_one_draw_maps_onto_the_solver_as_the_fit_maps_its_thetas():
     for f in crsp.Params._fields:
         if f.startswith("release"):
             continue  # set per entry by the forward, per size by the hazard run
+        if getattr(one, f) is None:  # an element off in both (no barrier)
+            assert getattr(fit, f) is None, f
+            continue
         np.testing.assert_allclose(np.asarray(getattr(fit, f))[0], np.asarray(getattr(one, f)),
                                    rtol=1e-12, err_msg=f)
     with pytest.raises(ValueError, match="do not end with the columns"):

@@ -19,9 +19,9 @@ from calib.field import main as field_main
 from calib.files.inputs import on_command_profile, own_profile
 from calib.files.observations import ObservationError, load_observations
 from calib.inference.calibrate import _row_entries
-from calib.inference.fit_check import check_entries, release_slopes_deg
+from calib.inference.fit_check import check_entries
 from calib.model.entries import Entries
-from calib.model.forward import CrspForward, DemForward
+from calib.model.forward import CrspForward, DemForward, release_slopes_deg
 from calib.model.priors import CRSP_ROLLING_BOX
 from solvers.profile import load_profile
 from terrain.cut import main as cut_main

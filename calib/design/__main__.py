@@ -19,7 +19,13 @@ import numpy as np
 
 from calib.design._factors import DEFAULTS, GAMMA_E, free_board_m
 from calib.design._kits import CATEGORIES, KitError, load_kits
-from solvers.cli import CliError, DefaultsHelpFormatter, OneLineParser, run_guarded
+from solvers.cli import (
+    CliError,
+    DefaultsHelpFormatter,
+    OneLineParser,
+    parse_stations,
+    run_guarded,
+)
 
 PROG = "python -m calib.design"
 
@@ -85,29 +91,46 @@ def build_parser() -> OneLineParser:
     p.add_argument("--inspection-interval-yr", type=float, default=1.0,
                    help="years between barrier inspections (P of more than one SEL-level "
                         "impact in between)")
-    p.add_argument("--with-barrier", help="hazard.nc of a run with the barrier element: "
-                   "its exceedance is shown beside the run without it")
+    p.add_argument("--with-barrier", help="hazard.nc of a run with the barrier at the design "
+                   "position (python -m calib.hazard --barrier-x-m X --barrier-height-m H "
+                   "--barrier-capacity-kJ E, same seed and draws): its exceedance and reach at "
+                   "the station of interest, with bands, beside the run without it")
     p.add_argument("--out", default="results/design/", help="output folder")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return run_guarded(PROG, _main, args)
+    return run_guarded(PROG, _checked, args)
+
+
+def _checked(args) -> int:
+    """``_main``, the design library's refusals turned into the command's one line."""
+    from calib.design._inputs import DesignError
+
+    try:
+        return _main(args)
+    except DesignError as exc:
+        raise CliError(str(exc)) from None
 
 
 def _main(args) -> int:
     from calib.design._design import design_record, scan_rows
-    from calib.design._inputs import design_block, factors_from_args, scan_positions
-    from calib.design._residual import check_compatible
+    from calib.design._inputs import (
+        design_block,
+        factors_from_args,
+        profile_range,
+        scan_positions,
+    )
+    from calib.design._residual import barrier_of, check_compatible
     from calib.files.hazard_results import HazardResultsError, read_hazard_results
 
     try:
         ds = read_hazard_results(args.hazard)
         with_barrier = (None if args.with_barrier is None
                         else read_hazard_results(args.with_barrier))
-        if with_barrier is not None:
-            check_compatible(ds, with_barrier, f"--with-barrier {args.with_barrier}")
+        pairing = ([] if with_barrier is None else
+                   check_compatible(ds, with_barrier, f"--with-barrier {args.with_barrier}"))
     except HazardResultsError as exc:
         raise CliError(str(exc)) from None
     try:
@@ -118,6 +141,11 @@ def _main(args) -> int:
         raise CliError(f"--kit {args.kit}: not in {args.kits} (kits: "
                        f"{', '.join(k.name for k in kits)})")
     factors, warnings = factors_from_args(args)
+    warnings += pairing
+    if barrier_of(ds) is not None:
+        warnings.append(f"warning: {args.hazard} is a run with a barrier at x = "
+                        f"{barrier_of(ds)[0]:g} m: its blocks downslope of it are those that "
+                        "passed that barrier")
     for name in ("protected_distance_m", "inspection_interval_yr"):
         v = getattr(args, name)
         if v is not None and not (math.isfinite(v) and v > 0):
@@ -129,16 +157,29 @@ def _main(args) -> int:
                                volume_m3=args.design_volume_m3,
                                density_kg_m3=args.density_kg_m3, thickness_m=args.dem_thickness_m)
     warnings += more
+    if "extrapolated_fraction" in ds:  # a run over volume classes
+        frac = float(ds["extrapolated_fraction"].sel(block_size_m=block.size_m))
+        if frac > 0:
+            warnings.append(f"warning: {100 * frac:.3g} % of the blocks of the design class "
+                            f"(D = {block.size_m:g} m) lie outside the block sizes the "
+                            "calibration was fitted on: extrapolation")
     try:
         board = free_board_m(block.size_m, args.free_board_m)
     except ValueError as exc:
         raise CliError(str(exc)) from None
-    scan = scan_positions(ds, args.hazard, args.scan_x_m) if args.scan_x_m else []
+    scan = (scan_positions(ds, args.hazard, parse_stations(args.scan_x_m, profile_range(ds),
+                                                           "--scan-x-m"))
+            if args.scan_x_m else [])
     options = dict(kits=kits, factors=factors, free_board=board, args=args)
     rows = scan_rows(ds, block, scan, options) if scan else None
     x = args.barrier_x_m
     if x is None:
         x = _best(rows)
+    if with_barrier is not None and not math.isclose(barrier_of(with_barrier)[0], x,
+                                                     rel_tol=0.0, abs_tol=1e-6):
+        raise CliError(f"--with-barrier {args.with_barrier}: its barrier stands at x = "
+                       f"{barrier_of(with_barrier)[0]:g} m, the design at x = {x:g} m: rerun "
+                       "python -m calib.hazard with --barrier-x-m there, or design there")
     record = design_record(ds, x, block, options, with_barrier)
     record["scan"] = rows
     record["warnings"] = warnings + record["warnings"]

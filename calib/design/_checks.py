@@ -27,7 +27,7 @@ import numpy as np
 from calib.design._factors import min_protected_distance_m
 from calib.design._kits import CATEGORIES, Kit
 from calib.design._values import DesignValues, band, station_index
-from calib.hazard._stats import Bins, hist_exceedance
+from calib.hazard import Bins, hist_exceedance
 
 __all__ = ["check_kits", "impacts", "kit_probabilities", "smallest_passing"]
 

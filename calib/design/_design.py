@@ -7,14 +7,15 @@ sheet."""
 
 from __future__ import annotations
 
+import math
+
 from calib.design._checks import check_kits, impacts, kit_probabilities, smallest_passing
 from calib.design._factors import REFERENCES, SOURCES
-from calib.design._inputs import as_dict, check_barrier
+from calib.design._inputs import DesignError, as_dict, check_barrier
 from calib.design._report import LIMITS, SCHEMA
 from calib.design._values import design_values
 from calib.files.hazard_results import json_attr, optional_attr
 from calib.files.provenance import file_sha256, provenance
-from solvers.cli import CliError
 
 __all__ = ["design_record", "scan_rows"]
 
@@ -24,7 +25,7 @@ def _distance(ds, x_m: float, requested: float | None) -> tuple[float, str]:
         return float(requested), "--protected-distance-m"
     road = optional_attr(ds, "road_x_m")
     if road is None:
-        raise CliError("--protected-distance-m: needed, the hazard file names no station of "
+        raise DesignError("--protected-distance-m: needed, the hazard file names no station of "
                        "interest to measure it to")
     label = optional_attr(ds, "road_label") or "station of interest"
     return float(road) - x_m, f"horizontal distance to the {label} at x = {road:g} m"
@@ -63,29 +64,47 @@ def scan_rows(ds, block, positions: list[float], options: dict) -> list[dict]:
 
 
 def _residual(ds, with_barrier) -> dict | None:
+    """The residual hazard at the station of interest: for each size, P(runout beyond
+    it) and P(reach it) with their 5-95 % bands over draws, without and with the
+    barrier (``_residual.residual_exceedance``), and the barrier's description."""
     road = optional_attr(ds, "road_x_m")
     if with_barrier is None or road is None:
         return None
-    from calib.design._residual import residual_exceedance
+    from calib.design._residual import barrier_of, residual_exceedance
 
     t = residual_exceedance(ds, with_barrier)
     at = t[(t.x_m - road).abs() < 1e-6]
-    parts = [f"D = {r.block_size_m:g} m: {r.p_exceed_mean:.3g} without, "
-             f"{r.p_exceed_mean_with_barrier:.3g} with the barrier" for r in at.itertuples()]
-    return {"road_x_m": road, "rows": at.to_dict(orient="records"),
-            "text": f"P(runout beyond x = {road:g} m): " + "; ".join(parts) + "."}
+    label = optional_attr(ds, "road_label") or "station of interest"
+
+    def banded(r, name, end=""):
+        m, lo, hi = (getattr(r, f"{name}_{k}{end}") for k in ("mean", "q05", "q95"))
+        return f"{m:.3g} [{lo:.3g}-{hi:.3g}]"
+
+    x, h, e = barrier_of(with_barrier)
+    lim = {"m": h, "kJ": e}
+    what = ", ".join(f"{'height' if u == 'm' else 'capacity'} "
+                     f"{'unlimited' if not math.isfinite(v) else f'{v:g} {u}'}"
+                     for u, v in lim.items())
+    parts = [f"D = {r.block_size_m:g} m: P(runout beyond) {banded(r, 'p_exceed')} without, "
+             f"{banded(r, 'p_exceed', '_with_barrier')} with the barrier; P(reach) "
+             f"{banded(r, 'reach_prob')} without, {banded(r, 'reach_prob', '_with_barrier')} "
+             "with it" for r in at.itertuples()]
+    return {"road_x_m": road, "barrier": {"x_m": x, "height_m": h, "capacity_kJ": e},
+            "rows": at.to_dict(orient="records"),
+            "text": f"Barrier at x = {x:g} m ({what}); at the {label}, x = {road:g} m "
+                    "(mean [5-95 % over draws]): " + "; ".join(parts) + "."}
 
 
 def design_record(ds, x_m: float, block, options: dict, with_barrier=None) -> dict:
     """The record of the design at ``x_m`` (what ``design.json`` holds).
 
     Raises:
-        CliError: bad barrier position, or no simulated block passes it.
+        DesignError: bad barrier position, or no simulated block passes it.
     """
     args, factors = options["args"], options["factors"]
     dv, rows, kit_row, chosen_by = _design(ds, x_m, block, options)
     if dv.n_passers == 0:
-        raise CliError(f"--barrier-x-m {x_m:g}: no simulated block of D = {block.size_m:g} m "
+        raise DesignError(f"--barrier-x-m {x_m:g}: no simulated block of D = {block.size_m:g} m "
                        f"passes it in {args.hazard}: no basis for a design there (choose a "
                        "position upslope, or a larger run)")
     distance, distance_src = _distance(ds, x_m, args.protected_distance_m)

@@ -1,6 +1,7 @@
 """The checked inputs of one design command: barrier positions, the design block,
-its density and the partial factors. Every refusal is a ``CliError`` whose one line
-names the file or the option at fault."""
+its density and the partial factors. Every refusal is a ``DesignError`` (the
+command turns it into one line) whose text names the file or the option at
+fault."""
 
 from __future__ import annotations
 
@@ -12,7 +13,6 @@ import numpy as np
 from calib.design._factors import GAMMA_E, Factors
 from calib.design._values import DesignBlock, station_index
 from calib.files.hazard_results import optional_attr
-from solvers.cli import CliError, parse_stations
 
 __all__ = ["DEFAULT_DENSITY_KG_M3", "as_dict", "check_barrier", "design_block",
            "factors_from_args", "profile_range", "scan_positions"]
@@ -20,6 +20,10 @@ __all__ = ["DEFAULT_DENSITY_KG_M3", "as_dict", "check_barrier", "design_block",
 # the toolkit's rock density where nothing says otherwise: the seed paper, Sect. 4.1
 DEFAULT_DENSITY_KG_M3 = 2350.0
 
+
+
+class DesignError(ValueError):
+    """Bad design input; the message names the option or file, and what was expected."""
 
 def profile_range(ds) -> tuple[float, float]:
     """(first, last) abscissa of the run's profile (its stations where the file has
@@ -34,7 +38,7 @@ def check_barrier(ds, path: str, x_m: float, what: str = "--barrier-x-m") -> int
     """The station index of a barrier at ``x_m``.
 
     Raises:
-        CliError: outside the profile, at or above the release, at or below the
+        DesignError: outside the profile, at or above the release, at or below the
             station of interest, not a station of the run.
     """
     lo, hi = profile_range(ds)
@@ -42,26 +46,27 @@ def check_barrier(ds, path: str, x_m: float, what: str = "--barrier-x-m") -> int
     road = optional_attr(ds, "road_x_m")
     label = optional_attr(ds, "road_label") or "station of interest"
     if not (math.isfinite(x_m) and lo <= x_m <= hi):
-        raise CliError(f"{what} {x_m:g}: outside the profile [{lo:g}, {hi:g}] m of {path}")
+        raise DesignError(f"{what} {x_m:g}: outside the profile [{lo:g}, {hi:g}] m of {path}")
     if x_m <= release:
-        raise CliError(f"{what} {x_m:g}: at or above the release at x = {release:g} m "
+        raise DesignError(f"{what} {x_m:g}: at or above the release at x = {release:g} m "
                        f"({path}, attribute release_x_m): no block passes it")
     if road is not None and x_m >= road:
-        raise CliError(f"{what} {x_m:g}: at or below the {label} at x = {road:g} m "
+        raise DesignError(f"{what} {x_m:g}: at or below the {label} at x = {road:g} m "
                        f"({path}, attribute road_x_m) it is to protect")
     s = station_index(ds, x_m)
     if s is None:
         xs = ds["x_m"].values
         near = xs[np.argsort(np.abs(xs - x_m))[:2]]
-        raise CliError(f"{what} {x_m:g}: not a station of {path} (nearest: "
+        raise DesignError(f"{what} {x_m:g}: not a station of {path} (nearest: "
                        f"{', '.join(f'{v:g}' for v in sorted(near))} m); rerun python -m "
                        "calib.hazard with --stations including it")
     return s
 
 
-def scan_positions(ds, path: str, text: str) -> list[float]:
-    """The stations of ``--scan-x-m A:B:STEP`` (each one checked as a barrier)."""
-    xs = parse_stations(text, profile_range(ds), "--scan-x-m")
+def scan_positions(ds, path: str, xs) -> list[float]:
+    """The scanned stations ``xs`` (``--scan-x-m A:B:STEP`` parsed), each one
+    checked as a barrier position."""
+    xs = list(xs)
     for x in xs:
         check_barrier(ds, path, x, "--scan-x-m: position")
     return xs
@@ -71,17 +76,17 @@ def _size(ds, path: str, size_m: float | None, percentile: float | None) -> floa
     sizes = np.sort(ds["block_size_m"].values)
     listed = ", ".join(f"{s:g}" for s in sizes)
     if size_m is not None and percentile is not None:
-        raise CliError("--block-size-m and --block-size-percentile: give one of them")
+        raise DesignError("--block-size-m and --block-size-percentile: give one of them")
     if percentile is not None:
         if not (math.isfinite(percentile) and 0 < percentile <= 100):
-            raise CliError(f"--block-size-percentile {percentile:g}: expected a percentile "
+            raise DesignError(f"--block-size-percentile {percentile:g}: expected a percentile "
                            "in (0, 100]")
         return float(np.percentile(sizes, percentile, method="inverted_cdf"))
     if size_m is None:
         return float(sizes[-1])
     hit = np.flatnonzero(np.isclose(sizes, size_m, rtol=0.0, atol=1e-9))
     if not hit.size:
-        raise CliError(f"--block-size-m {size_m:g}: not a block size of {path} ({listed} m)")
+        raise DesignError(f"--block-size-m {size_m:g}: not a block size of {path} ({listed} m)")
     return float(sizes[hit[0]])
 
 
@@ -103,13 +108,13 @@ def design_block(ds, path: str, *, size_m=None, size_percentile=None, volume_m3=
     for name, v in (("--design-volume-m3", volume_m3), ("--density-kg-m3", density_kg_m3),
                     ("--dem-thickness-m", thickness_m)):
         if v is not None and not (math.isfinite(v) and v > 0):
-            raise CliError(f"{name} {v:g}: expected a positive number")
+            raise DesignError(f"{name} {v:g}: expected a positive number")
     if model == "dem" and thickness_m is None:
-        raise CliError(f"{path}: a DEM run's energies are per metre of slope width (here "
+        raise DesignError(f"{path}: a DEM run's energies are per metre of slope width (here "
                        "taken per cube of side D); give --dem-thickness-m to convert them to "
                        "a block of that thickness")
     if model != "dem" and thickness_m is not None:
-        raise CliError(f"--dem-thickness-m: {path} is a {model.upper()} run, not a DEM one")
+        raise DesignError(f"--dem-thickness-m: {path} is a {model.upper()} run, not a DEM one")
     if volume_m3 is not None:
         vol, vol_src = float(volume_m3), "--design-volume-m3"
     elif model == "dem":
@@ -149,7 +154,7 @@ def factors_from_args(args) -> tuple[Factors, list[str]]:
     try:
         f.check({k: v.split()[0] for k, v in opts.items()})
     except ValueError as exc:
-        raise CliError(str(exc)) from None
+        raise DesignError(str(exc)) from None
     warnings = [f"warning: {opts[n]} is below 1: it lowers the design value"
                 for n in f.below_one()]
     return f, warnings

@@ -8,7 +8,7 @@ import json
 import math
 
 from calib.design._factors import REFERENCES, SOURCES
-from solvers.cli import json_ready
+from solvers.jsonable import json_ready
 
 __all__ = ["LIMITS", "SCHEMA", "design_json", "design_markdown"]
 

@@ -57,7 +57,8 @@ from solvers.dem import check_run_numerics
 from solvers.material import ROCK_DENSITY_KG_M3
 
 __all__ = ["ALPHA_AT_L", "SCHEMA", "Calibration", "CalibrationError", "CalibrationFile", "Draws",
-           "dem_alpha_section", "draw_parameters", "fit_document", "load_calibration",
+           "dem_alpha_section", "draw_parameters", "fit_document", "fitted_block_sizes_m",
+           "load_calibration",
            "model_section", "posterior_csv_text", "summary_stats"]
 
 SCHEMA = "rockfall-calibration/1"
@@ -369,6 +370,32 @@ def _effects(path: str, sec: dict, model: str) -> tuple[str, ...]:
         return effect_names(raw)
     except ValueError as e:
         raise CalibrationError(f"{where}: {e}") from None
+
+
+def fitted_block_sizes_m(cal: Calibration) -> tuple[np.ndarray, str] | None:
+    """The block sizes d (m) of the rows a calibration was fitted on, and where they
+    were read: the file's ``release_groups.groups[*].block_size_m``, else the column
+    ``block_size_m`` of its ``data_csv``; None where neither is readable (a hazard
+    run then cannot say which of its sizes are extrapolation)."""
+    doc = _read_doc(cal.path)
+    groups = doc.get("release_groups")
+    rows = groups.get("groups") if isinstance(groups, dict) else None
+    if isinstance(rows, list):
+        sizes = [g.get("block_size_m") for g in rows if isinstance(g, dict)]
+        sizes = [float(v) for v in sizes if isinstance(v, int | float)
+                 and not isinstance(v, bool) and math.isfinite(v) and v > 0]
+        if sizes:
+            return np.asarray(sizes), f"{cal.path}: release_groups.groups[*].block_size_m"
+    if cal.data_csv is None or not os.path.isfile(cal.data_csv):
+        return None
+    try:
+        with open(cal.data_csv, newline="", encoding="utf-8") as fh:
+            sizes = [float(r["block_size_m"]) for r in csv.DictReader(fh)
+                     if (r.get("block_size_m") or "").strip()]
+    except (KeyError, ValueError, OSError, UnicodeDecodeError):
+        return None
+    sizes = [v for v in sizes if math.isfinite(v) and v > 0]
+    return (np.asarray(sizes), f"{cal.data_csv}: column block_size_m") if sizes else None
 
 
 def _with_heights(doc: dict) -> bool:

@@ -76,6 +76,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from calib.model.entries import sphere_diameter_m
 from solvers.csv_rows import cell_float, read_csv_rows
 
 __all__ = [
@@ -160,16 +161,6 @@ class FieldRuns:
     @property
     def n_runs(self) -> int:
         return len(self.run_id)
-
-
-def sphere_diameter_m(mass_kg, density_kg_m3: float) -> np.ndarray:
-    """Volume-equivalent sphere diameter d = (6 m / (pi rho))^(1/3), m.
-
-    Args:
-        mass_kg: any shape, kg.
-        density_kg_m3: rock density rho, kg/m^3.
-    """
-    return np.cbrt(6.0 * np.asarray(mass_kg, float) / (math.pi * density_kg_m3))
 
 
 def box_diameter_m(size_m) -> np.ndarray:

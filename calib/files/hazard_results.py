@@ -20,9 +20,14 @@ percentiles of those three at every station with their 95 % Monte Carlo
 intervals (``calib.hazard._stats.percentile_interval``) and the same pooled over
 draws, per-draw histograms of energy and clearance (50 bins per decade), the
 simulated block masses, the drawn parameter values, the zone of each station
-and the profile. Attributes: how the run was made (``model``,
+and the profile; a run over volume classes adds the classes (``OPTIONAL_VARIABLES``:
+volume range, representative volume, probability, share of extrapolated sizes).
+Attributes: how the run was made (``model``,
 ``n_blocks_per_draw``, ``release_x_m``, ``seed``, ``draws_source``, optional
-``release_rate_per_year``, ``road_x_m``, ``road_label``, ``rock_density_kg_m3``),
+``release_rate_per_year``, ``road_x_m``, ``road_label``, ``rock_density_kg_m3``;
+runs with release conditions: ``release_json``, ``fitted_block_size_min_m`` /
+``_max_m`` / ``fitted_block_sizes_source``, ``design_block_json``; runs with a
+barrier: ``barrier_x_m``, ``barrier_height_m``, ``barrier_capacity_kJ``),
 what its numbers mean (``energy_basis``, ``height_convention``), and where it
 came from (``provenance_json``: command, seed, SHA-256 of the inputs, package
 versions, ``calib.files.provenance``; ``adequacy_json``: the calibration's own
@@ -38,8 +43,9 @@ import os
 
 import numpy as np
 
-__all__ = ["SCHEMA", "VARIABLES", "HazardResultsError", "hazard_results", "json_attr",
-           "optional_attr", "read_hazard_results", "results_writer", "write_hazard_results"]
+__all__ = ["OPTIONAL_VARIABLES", "SCHEMA", "VARIABLES", "HazardResultsError", "hazard_results",
+           "json_attr", "optional_attr", "read_hazard_results", "results_writer",
+           "write_hazard_results"]
 
 SCHEMA = "rockfall-hazard-results/1"
 
@@ -88,6 +94,25 @@ for _q in ("energy_kJ", "bounce_height_m"):
     VARIABLES[f"draw_hist_{_q}"] = (_DTS + (f"{_q}_draw_bin",), "1",
                                     f"each draw's passers per bin: {_QNAME[_q]}")
 
+# variables of runs that have them, absent from the others (a run over volume
+# classes, ``calib.model.release``: its ``block_size_m`` are the classes'
+# representative sizes)
+_T = ("block_size_m",)
+OPTIONAL_VARIABLES: dict[str, tuple[tuple[str, ...], str, str]] = {
+    "class_label": (_T, "", "volume range of the volume class"),
+    "class_volume_min_m3": (_T, "m3", "smallest block volume of the class"),
+    "class_volume_max_m3": (_T, "m3", "largest block volume of the class (inf: unbounded "
+                                      "law)"),
+    "class_volume_m3": (_T, "m3", "representative volume: the law's median within the "
+                                  "class (block_size_m is its sphere's diameter)"),
+    "class_probability": (_T, "1", "the class's probability under the volume law, its share "
+                                   "of the released blocks (each class is simulated with "
+                                   "n_blocks_per_draw blocks)"),
+    "extrapolated_fraction": (_T, "1", "fraction of the class's blocks (by the law) whose "
+                                       "size lies outside the sizes the calibration was "
+                                       "fitted on; NaN: not known"),
+}
+
 # attributes every file has
 _REQUIRED_ATTRS = ("schema", "model", "n_blocks_per_draw", "release_x_m", "seed",
                    "draws_source", "energy_basis", "height_convention", "provenance_json")
@@ -128,7 +153,8 @@ def hazard_results(data: dict, coords: dict, attrs: dict, bins: dict):
     for name, b in bins.items():
         cs[VARIABLES[name][0][-1]] = _bin_coord(b)
     ds = xr.Dataset(coords=cs)
-    for name, (dims, units, meaning) in VARIABLES.items():
+    described = VARIABLES | {k: v for k, v in OPTIONAL_VARIABLES.items() if k in data}
+    for name, (dims, units, meaning) in described.items():
         var = xr.Variable(dims, np.asarray(data[name]))
         var.attrs.update(units=units, long_name=meaning)
         if name in bins:
@@ -200,8 +226,10 @@ def read_hazard_results(path: str):
     for key in _REQUIRED_ATTRS:
         if key not in ds.attrs:
             raise HazardResultsError(f"{path}: attribute {key!r} missing ({SCHEMA})")
-    for name, (dims, _, _) in VARIABLES.items():
+    for name, (dims, _, _) in (VARIABLES | OPTIONAL_VARIABLES).items():
         if name not in ds:
+            if name in OPTIONAL_VARIABLES:
+                continue
             raise HazardResultsError(f"{path}: variable {name!r} missing ({SCHEMA})")
         if ds[name].dims != dims:
             raise HazardResultsError(f"{path}: variable {name!r}: dims {ds[name].dims}, "

@@ -2,8 +2,10 @@
 hazard tables (``python -m calib.hazard results/calibration.json``).
 
 For each of a set of posterior draws (or the point estimate), blocks of each
-size are simulated with the calibrated solver, and at every analysis station x
-the run reports the runout exceedance P(x_stop > x) with its posterior bands,
+size (or of each volume class of a block-volume law, released over a zone at
+drawn heights and speeds: ``calib.model.release``; with an optional protection
+barrier, ``Barrier``) are simulated with the calibrated solver, and at every
+analysis station x the run reports the runout exceedance P(x_stop > x) with its posterior bands,
 the reach probability, energy / bounce-height / velocity design values of the
 blocks that pass x, the Swiss intensity class and, given a release rate, the
 annual frequencies and hazard level. See ``_tables`` for the definitions,
@@ -35,18 +37,20 @@ from calib.hazard._intensity import (
     probability_class,
 )
 from calib.hazard._run import (
+    Barrier,
     HazardCounts,
     check_dem_draws,
     default_release_x_m,
     dem_alpha,
     run_hazard,
 )
-from calib.hazard._stats import BINS, Bins, hist_quantile
+from calib.hazard._stats import BINS, Bins, hist_exceedance, hist_quantile
 from calib.hazard._tables import exceedance_table, hazard_table, summary_text
 from calib.model.dem_run import DemRun
 
 __all__ = [
     "BINS",
+    "Barrier",
     "ENERGY_THRESHOLDS_KJ",
     "SCHEMA",
     "Bins",
@@ -62,6 +66,7 @@ __all__ = [
     "exceedance_table",
     "hazard_level",
     "hazard_table",
+    "hist_exceedance",
     "hist_quantile",
     "intensity_class",
     "load_calibration",

@@ -16,6 +16,7 @@ import math
 import os
 import sys
 import time
+from typing import NamedTuple
 
 from calib.hazard._fragments import add_options as add_fragment_options
 from calib.model.dem_run import DEM_RUN
@@ -24,12 +25,14 @@ from solvers.cli import (
     OneLineParser,
     deprecated_alias,
     fail,
+    json_ready,
     parse_floats,
     parse_stations,
     write_outputs,
 )
 from solvers.dem import check_run_numerics
 
+DEFAULT_SIZES = "0.2,0.5,1.0,2.0"
 # model -> (blocks per draw and size, posterior draws); DEM defaults keep the
 # default DEM run under 10 minutes on 2 CPU cores (254 s on 2026-11-21: docs/studies.md)
 DEFAULTS = {"crsp": (20000, 100), "dem": (64, 16)}
@@ -53,11 +56,12 @@ def build_parser() -> OneLineParser:
     p.add_argument("--stations-m", help="stations 'start:stop:step' or 'x1,x2,...' in m "
                    "(default: the profile's range every 5 m)")
     deprecated_alias(p, "--stations", "--stations-m")
-    p.add_argument("--block-sizes-m", default="0.2,0.5,1.0,2.0",
+    p.add_argument("--block-sizes-m", default=None,
                    help="block sizes d (the diameter), m: CRSP spheres of radius d/2, DEM "
-                        "squares of side d (default 0.2,0.5,1.0,2.0)")
+                        f"squares of side d (default {DEFAULT_SIZES}; not with a volume "
+                        "distribution, whose classes replace the sizes)")
     deprecated_alias(p, "--block-sizes", "--block-sizes-m")
-    p.add_argument("--n-blocks", type=int, help="blocks per draw and size "
+    p.add_argument("--n-blocks", type=int, help="blocks per draw and size (or volume class) "
                    f"(default {DEFAULTS['crsp'][0]} CRSP, {DEFAULTS['dem'][0]} DEM)")
     p.add_argument("--n-posterior", type=int, help="posterior draws; 1 = the point "
                    f"estimate (default {DEFAULTS['crsp'][1]} CRSP, {DEFAULTS['dem'][1]} DEM)")
@@ -92,8 +96,68 @@ def build_parser() -> OneLineParser:
                    help="DEM: simulated-time bound per block, s (default: the fit's, from "
                         f"the calibration file; {DEM_RUN.max_time_s:g} for files without one)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _release_options(p)
+    _barrier_options(p)
     add_fragment_options(p)
     return p
+
+
+def _release_options(p: OneLineParser) -> None:
+    g = p.add_argument_group(
+        "release conditions (CRSP; calib/model/release.py)",
+        "Blocks drawn one by one: a volume from a block-volume distribution (a block of "
+        "volume V is the sphere of diameter d = (6 V / pi)^(1/3) and mass rho V), an "
+        "abscissa in a release zone, a height and a speed. The tables then report per "
+        "volume class, each simulated with --n-blocks blocks per draw; with "
+        "--release-rate-per-year (blocks per year of the whole distribution) a class's "
+        "frequencies are scaled by its probability. Classes or sizes outside the block "
+        "sizes the calibration was fitted on are flagged as extrapolation.")
+    g.add_argument("--volumes-csv", help="block survey CSV, column volume_m3 (m^3) or mass_kg "
+                   "(kg, divided by the calibration's rock_density_kg_m3): each block drawn "
+                   "from the surveyed volumes")
+    g.add_argument("--volume-law", help="a named block-volume law: "
+                   "'lognormal:median_m3=M,sigma=S' (sigma of ln V) or "
+                   "'powerlaw:vmin_m3=A,vmax_m3=B,b=B' (N(>V) ~ V^-b on [A, B], the "
+                   "magnitude-frequency relation)")
+    g.add_argument("--volume-classes-m3", help="interior edges of the volume classes, "
+                   "m^3, e.g. '0.1,1,5' (default: the distribution's 50, 90 and 99 %% "
+                   "quantiles)")
+    g.add_argument("--return-period-yr", type=float, help="report the design block of this "
+                   "return period: the volume V_T exceeded by R (1 - F(V_T)) = 1/T blocks per "
+                   "year (De Biagi et al. 2017; needs a volume distribution and "
+                   "--release-rate-per-year R)")
+    g.add_argument("--release-zone-m", help="release zone: 'A:B' (uniform on [A, B]) or "
+                   "'x1:w1,x2:w2,...' (points with weights), m (default: --release-x-m)")
+    g.add_argument("--release-height-m", type=float, help="release height above the ground, "
+                   "m (default: on the ground, the solver's)")
+    g.add_argument("--release-height-sd-m", type=float, default=None,
+                   help="standard deviation of the release height's error, m; each block's "
+                        "height a normal truncated to >= 0 (default, with "
+                        "--release-height-m: the calibration's release_height_sd_m, the "
+                        "site's tracked-height error; else 0)")
+    g.add_argument("--release-speed-m-s", type=float, help="horizontal release speed, m/s "
+                   "(default: 1 m/s, the solver's)")
+    g.add_argument("--release-speed-sd-m-s", type=float, default=None,
+                   help="standard deviation of the release speed's error, m/s; a normal "
+                        "truncated to >= 0 (default, with --release-speed-m-s: the "
+                        "calibration's release_speed_sd_m_s; else 0)")
+
+
+def _barrier_options(p: OneLineParser) -> None:
+    g = p.add_argument_group(
+        "protection barrier (CRSP; solvers/crsp/_barrier.py)",
+        "A vertical barrier at X: a block whose lowest point passes below H is stopped "
+        "where its kinetic energy is at most the capacity, else breaks through keeping E "
+        "minus the capacity; over H it flies over. The run writes its own hazard.nc: "
+        "python -m calib.design RUN_WITHOUT/hazard.nc --with-barrier THIS/hazard.nc "
+        "shows the residual hazard beside the run without it (same seed: common random "
+        "numbers).")
+    g.add_argument("--barrier-x-m", type=float, help="barrier abscissa, m: inside the "
+                   "profile, downslope of every release point (default: no barrier)")
+    g.add_argument("--barrier-height-m", type=float, help="its height above the ground, m "
+                   "(default: unlimited)")
+    g.add_argument("--barrier-capacity-kJ", type=float, dest="barrier_capacity_kJ",
+                   help="the energy it absorbs, kJ (a kit's MEL; default: unlimited)")
 
 
 def _positive_int(name: str, v: int) -> None:
@@ -106,7 +170,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     prog = parser.prog
     try:
-        sizes = parse_floats(args.block_sizes_m, "--block-sizes-m")
+        _check_conditions(args)
+        sizes = parse_floats(args.block_sizes_m or DEFAULT_SIZES, "--block-sizes-m")
         bad = [s for s in sizes if s <= 0]
         if bad:
             raise CliError(f"--block-sizes-m: sizes must be positive, got {bad[0]:g}")
@@ -180,19 +245,24 @@ def main(argv: list[str] | None = None) -> int:
             raise CliError(f"{where} {road_x:g}: the station of interest lies outside the "
                            f"profile ({lo:g}, {hi:g}] m")
         release_x, release_where = args.release_x_m, "--release-x-m"
-        if release_x is None:
+        zone = None
+        if args.release_zone_m is not None:
+            zone = _zone(args.release_zone_m, profile)
+            release_x, release_where = zone.span_m[1], "--release-zone-m"
+        elif release_x is None:
             release_x = default_release_x_m(cal, profile)
             release_where = (f"{cal.path}: release_x_m" if cal.release_x_m is not None
                              else "the profile's first vertex")
         if not (math.isfinite(release_x) and lo <= release_x < hi):
             raise CliError(f"{release_where} {release_x:g}: the release lies outside the "
                            f"profile [{lo:g}, {hi:g}) m")
-        if road_x <= release_x and args.release_x_m is not None and args.road_x_m is None:
+        typed = args.release_x_m is not None or zone is not None
+        if road_x <= release_x and typed and args.road_x_m is None:
             # the release was typed, the station was not: the flag is what to change
-            raise CliError(f"--release-x-m {release_x:g}: the release lies at or downslope of "
-                           f"the station of interest at x = {road_x:g} m ({where}), so no block "
-                           f"can pass it; the profile spans [{lo:g}, {hi:g}) m: release above "
-                           f"x = {road_x:g} m, or give --road-x-m")
+            raise CliError(f"{release_where} {release_x:g}: the release lies at or downslope "
+                           f"of the station of interest at x = {road_x:g} m ({where}), so no "
+                           f"block can pass it; the profile spans [{lo:g}, {hi:g}) m: release "
+                           f"above x = {road_x:g} m, or give --road-x-m")
         if road_x <= release_x:
             raise CliError(f"{where} {road_x:g}: the station of interest lies at or above "
                            f"the release at x = {release_x:g} m ({release_where}): no block "
@@ -203,7 +273,12 @@ def main(argv: list[str] | None = None) -> int:
         draws = draw_parameters(cal, n_post, args.seed)
         if cal.model == "dem":
             check_dem_draws(cal, draws, sizes)
+        cond = _conditions(args, cal, profile, sizes, release_x, zone)
         fragments = fragmentation_from_args(args, cal, draws, profile)
+        if fragments is not None and cond.seeder is not None:
+            raise CliError("--fragmentation/--fragments break blocks of the fixed sizes "
+                           "(--block-sizes-m); they do not combine with a volume "
+                           "distribution (--volumes-csv, --volume-law)")
     except (CalibrationError, ProfileError, CliError, SiteError) as exc:
         fail(prog, str(exc))
 
@@ -214,28 +289,32 @@ def main(argv: list[str] | None = None) -> int:
     if cal.model == "dem" and dem_run != fitted:
         print(f"note: the DEM runs with {dem_run}, not the fit's {fitted}: its alpha was "
               "calibrated with the fit's numerics", file=sys.stderr)
-    total = len(draws.values) * len(sizes) * n_blocks
+    n_sets = len(sizes) if cond.seeder is None else len(cond.seeder.classes)
+    total = len(draws.values) * n_sets * n_blocks
     bar = tqdm(total=total, unit="block", disable=args.no_progress, file=sys.stderr,
                desc=f"hazard {cal.model}")
     t0 = time.perf_counter()
     counts = run_hazard(cal, draws, profile, sizes, np.asarray(stations), n_blocks, args.seed,
                         chunk_blocks=args.chunk_blocks, pool=args.pool,
                         settings=crsp.Settings(max_events=args.max_events),
-                        dem_run=dem_run, release_x_m=release_x,
-                        progress=bar.update, fragments=fragments)
+                        dem_run=dem_run, release_x_m=release_x, release=cond.seeder,
+                        barrier=cond.barrier, progress=bar.update, fragments=fragments)
     wall = time.perf_counter() - t0
     bar.close()
     from calib.files.hazard_results import results_writer
     from calib.hazard._results import hazard_dataset
 
+    record = _record(parser.prog, args.seed, cal, args.calibration)
+    record.update(cond.record)
     results = hazard_dataset(counts, profile, seed=args.seed, road_x_m=road_x, road_label=label,
-                             release_rate_per_year=rate,
-                             record=_record(parser.prog, args.seed, cal, args.calibration))
+                             release_rate_per_year=rate, record=record,
+                             fitted=cond.fitted)
     exc_df = exceedance_table(results)
     table = hazard_table(results)
-    text = summary_text(results, table, road_x, rate, label)
+    text = summary_text(results, table, road_x, rate, label, fitted=cond.fitted)
     title = (f"{cal.model.upper()}: {len(draws.values)} draw(s) ({draws.source}) x "
-             f"{n_blocks} blocks per size")
+             f"{n_blocks} blocks per " + ("size" if cond.seeder is None or
+                                           cond.seeder.law is None else "volume class"))
 
     def csv_writer(df):
         return lambda p: df.to_csv(p, index=False)
@@ -259,6 +338,158 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{total:,} blocks in {wall:.1f} s ({total / wall:,.0f} blocks/s incl. compile) on "
           f"{len(jax.devices())} device(s); wrote {names} to {args.out}")
     return 0
+
+
+def _check_conditions(args) -> None:
+    """The release and barrier options, checked for what needs no file."""
+    dist = [o for o, v in (("--volumes-csv", args.volumes_csv),
+                           ("--volume-law", args.volume_law)) if v is not None]
+    if len(dist) > 1:
+        raise CliError("--volumes-csv and --volume-law: give one volume distribution")
+    if dist and args.block_sizes_m is not None:
+        raise CliError(f"--block-sizes-m and {dist[0]}: give fixed sizes or a volume "
+                       "distribution, not both")
+    for opt, v in (("--volume-classes-m3", args.volume_classes_m3),
+                   ("--return-period-yr", args.return_period_yr)):
+        if v is not None and not dist:
+            raise CliError(f"{opt}: needs a volume distribution (--volumes-csv or "
+                           "--volume-law)")
+    if args.return_period_yr is not None:
+        if not (math.isfinite(args.return_period_yr) and args.return_period_yr > 0):
+            raise CliError(f"--return-period-yr {args.return_period_yr:g}: expected a "
+                           "positive number of years")
+        if args.release_rate_per_year is None:
+            raise CliError("--return-period-yr: needs --release-rate-per-year (blocks per "
+                           "year of the whole distribution)")
+    if args.release_zone_m is not None and args.release_x_m is not None:
+        raise CliError("--release-zone-m and --release-x-m: give one of them")
+    for opt, mean, sd in (("height", args.release_height_m, args.release_height_sd_m),
+                          ("speed", args.release_speed_m_s, args.release_speed_sd_m_s)):
+        unit = "m" if opt == "height" else "m-s"
+        for name, v in ((f"--release-{opt}-{unit}", mean), (f"--release-{opt}-sd-{unit}", sd)):
+            if v is not None and not (math.isfinite(v) and v >= 0):
+                raise CliError(f"{name} {v:g}: expected a number >= 0")
+        if (sd or 0.0) > 0 and mean is None:
+            raise CliError(f"--release-{opt}-sd-{unit}: needs --release-{opt}-{unit} (the "
+                           "mean)")
+    if args.barrier_x_m is None:
+        for name in ("height_m", "capacity_kJ"):
+            if getattr(args, "barrier_" + name) is not None:
+                raise CliError(f"--barrier-{name.replace('_', '-')}: needs --barrier-x-m")
+        return
+    if not math.isfinite(args.barrier_x_m):
+        raise CliError(f"--barrier-x-m {args.barrier_x_m:g}: expected a finite abscissa, m")
+    for name, unit in (("height_m", "m"), ("capacity_kJ", "kJ")):
+        v = getattr(args, "barrier_" + name)
+        if v is not None and not v >= 0:
+            raise CliError(f"--barrier-{name.replace('_', '-')} {v:g}: expected a number >= "
+                           f"0 {unit} (inf: unlimited)")
+
+
+def _zone(text: str, profile):
+    """``--release-zone-m`` as a ``ReleaseZone`` inside the profile."""
+    from calib.model.release import parse_release_zone
+
+    try:
+        zone = parse_release_zone(text)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    lo, hi = profile.x_range_m
+    a, b = zone.span_m
+    if not (lo <= a and b < hi):
+        raise CliError(f"--release-zone-m {text}: the zone spans x = {a:g}-{b:g} m, outside "
+                       f"the profile [{lo:g}, {hi:g}) m")
+    return zone
+
+
+class _Conditions(NamedTuple):
+    """What the release and barrier options make of a run: ``seeder`` (None: every
+    block at one release, the solver's state), ``barrier`` (or None), ``fitted``
+    (the calibration's fitted block sizes and their source, or None), ``record``
+    (more hazard.nc attributes: the design block of a return period)."""
+
+    seeder: object
+    barrier: object
+    fitted: tuple | None
+    record: dict
+
+
+def _conditions(args, cal, profile, sizes, release_x: float, zone) -> _Conditions:
+    """The run's ``_Conditions`` from its options, checked against the calibration
+    and the profile (``CliError`` naming the option or the file)."""
+    from calib.files.block_survey import BlockSurveyError, read_block_survey
+    from calib.files.calibration_file import fitted_block_sizes_m
+    from calib.hazard._run import Barrier
+    from calib.model.release import (
+        ReleaseState,
+        ReleaseZone,
+        Seeder,
+        diameter_m,
+        parse_volume_law,
+        volume_classes,
+    )
+
+    used = [o for o, v in (("--volumes-csv", args.volumes_csv), ("--volume-law", args.volume_law),
+                           ("--release-zone-m", args.release_zone_m),
+                           ("--release-height-m", args.release_height_m),
+                           ("--release-speed-m-s", args.release_speed_m_s),
+                           ("--barrier-x-m", args.barrier_x_m)) if v is not None]
+    if cal.model != "crsp" and used:
+        raise CliError(f"{used[0]}: the DEM hazard run takes fixed sizes released at one point "
+                       "without a barrier; use --model crsp")
+    try:
+        law = (read_block_survey(args.volumes_csv, cal.rock_density_kg_m3) if args.volumes_csv
+               else parse_volume_law(args.volume_law) if args.volume_law else None)
+        edges = (None if args.volume_classes_m3 is None
+                 else parse_floats(args.volume_classes_m3, "--volume-classes-m3"))
+        classes = None if law is None else volume_classes(law, edges)
+    except (BlockSurveyError, ValueError) as exc:
+        raise CliError(str(exc)) from None
+    record = {}
+    nan = math.nan
+    # the errors of a given release height or speed: the option, else the
+    # calibration's (the site's tracked-release errors its fit drew with)
+    h_sd, v_sd = (given if given is not None else (fitted if mean is not None else 0.0)
+                  for given, fitted, mean in (
+                      (args.release_height_sd_m, cal.release_height_sd_m, args.release_height_m),
+                      (args.release_speed_sd_m_s, cal.release_speed_sd_m_s,
+                       args.release_speed_m_s)))
+    state = ReleaseState(nan if args.release_height_m is None else args.release_height_m, h_sd,
+                         nan if args.release_speed_m_s is None else args.release_speed_m_s, v_sd)
+    seeder = None
+    if law is not None or zone is not None or any(
+            v is not None for v in (args.release_height_m, args.release_speed_m_s)):
+        zone = zone or ReleaseZone("point", (float(release_x),))
+        seeder = (Seeder(law, tuple(classes), zone, state) if law is not None
+                  else Seeder.fixed_sizes(sizes, zone, state))
+        if args.return_period_yr is not None:
+            try:
+                v_t = law.return_period_volume_m3(args.return_period_yr,
+                                                  args.release_rate_per_year)
+            except ValueError as exc:
+                raise CliError(f"--return-period-yr: {exc}") from None
+            t = next(i for i, c in enumerate(seeder.classes) if v_t < c.volume_max_m3
+                     or i == len(seeder.classes) - 1)
+            record["design_block_json"] = json_ready({
+                "return_period_yr": args.return_period_yr,
+                "rate_per_year": args.release_rate_per_year, "volume_m3": v_t,
+                "block_size_m": float(diameter_m(v_t)), "volume_class": seeder.classes[t].label,
+                "class_block_size_m": seeder.classes[t].size_m,
+                "rule": "R (1 - F(V_T)) = 1 / T (calib.model.release; after De Biagi et al. "
+                        "2017, NHESS 17:103)"})
+    barrier = None
+    if args.barrier_x_m is not None:
+        lo, hi = profile.x_range_m
+        x = args.barrier_x_m
+        if not lo <= x <= hi:
+            raise CliError(f"--barrier-x-m {x:g}: outside the profile [{lo:g}, {hi:g}] m")
+        if x <= release_x:
+            raise CliError(f"--barrier-x-m {x:g}: at or above the release at x = "
+                           f"{release_x:g} m: blocks start below it")
+        inf = math.inf
+        barrier = Barrier(x, inf if args.barrier_height_m is None else args.barrier_height_m,
+                          inf if args.barrier_capacity_kJ is None else args.barrier_capacity_kJ)
+    return _Conditions(seeder, barrier, fitted_block_sizes_m(cal), record)
 
 
 def _record(prog: str, seed: int, cal, path: str) -> dict:

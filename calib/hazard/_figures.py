@@ -59,7 +59,7 @@ def plot_exceedance(exc: pd.DataFrame, profile: Profile, road_x_m: float, path: 
         color = f"C{i}"
         # zero (no simulated block beyond x) is not drawn on the log axis
         ax1.plot(g.x_m, np.where(g.p_exceed_mean > 0, g.p_exceed_mean, np.nan), color=color,
-                 label=f"D = {size:g} m")
+                 label=_name(size, g))
         ax1.fill_between(g.x_m, np.maximum(g.p_exceed_q05, floor),
                          np.maximum(g.p_exceed_q95, floor), color=color, alpha=0.25, lw=0)
     ax1.axvline(road_x_m, color="k", ls="--", lw=1)
@@ -74,6 +74,13 @@ def plot_exceedance(exc: pd.DataFrame, profile: Profile, road_x_m: float, path: 
     plt.close(fig)
 
 
+def _name(size: float, rows: pd.DataFrame) -> str:
+    """A curve's legend: its size, or its volume class (``volume_class`` column)."""
+    if "volume_class" in rows:
+        return f"{rows.volume_class.iloc[0]} (D = {size:.3g} m)"
+    return f"D = {size:g} m"
+
+
 def plot_envelopes(table: pd.DataFrame, profile: Profile, road_x_m: float, path: str,
                    title: str = "") -> None:
     """Energy and bounce-height envelopes along the profile."""
@@ -81,10 +88,10 @@ def plot_envelopes(table: pd.DataFrame, profile: Profile, road_x_m: float, path:
     fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
     for i, (size, g) in enumerate(table.groupby("block_size_m", sort=True)):
         color = f"C{i}"
-        ax0.plot(g.x_m, g.energy_p95_kJ, color=color, label=f"D = {size:g} m: p95")
+        ax0.plot(g.x_m, g.energy_p95_kJ, color=color, label=f"{_name(size, g)}: p95")
         ax0.fill_between(g.x_m, g.energy_p50_kJ, g.energy_p99_kJ, color=color, alpha=0.2,
                          lw=0)
-        ax1.plot(g.x_m, g.bounce_height_p95_m, color=color, label=f"D = {size:g} m")
+        ax1.plot(g.x_m, g.bounce_height_p95_m, color=color, label=_name(size, g))
     for e in (30.0, 300.0):
         ax0.axhline(e, color="0.4", ls=":", lw=1)
         ax0.annotate(f"{e:g} kJ", (float(profile.x_m[0]), e), fontsize=7, va="bottom")

@@ -527,7 +527,7 @@ def crsp_fragment_chunk(params, blocks, key, profile, stations_x_m, offset, n_va
             [item_fragment[a:a + batch], np.zeros(batch - m, np.uint32)]))))
         out = jax.device_get(crsp.simulate_fragments(
             *put((_take(p, t), _take(blocks, t), _take(res.breakup, t, j))), keys,
-            put(~np.asarray(res.barrier.reached)[t, j]), profile, stations_x_m, settings))
+            put(_barrier_open(res.barrier, t, j)), profile, stations_x_m, settings))
         out = jax.tree_util.tree_map(lambda x: np.asarray(x)[:m], out)
         parents.fold(par, out.stop_x_m, out.status, out.stations, out.stations.energy_kJ)
         c = _fragment_counts(t[:m], n_tasks, out.stop_x_m, out.status, out.stations,
@@ -535,6 +535,14 @@ def crsp_fragment_chunk(params, blocks, key, profile, stations_x_m, offset, n_va
         for k, v in c.items():
             frag[k] += v
     return _stats(parents, (n_tasks, n_chunk), valid, st_x, frag, put)
+
+
+def _barrier_open(barrier, t, j) -> np.ndarray:
+    """bool per fragment: its block had not met the barrier (every block, in a run
+    without one: ``Result.barrier`` None), so the fragment still can."""
+    if barrier is None:
+        return np.ones(np.shape(t), bool)
+    return ~np.asarray(barrier.reached)[t, j]
 
 
 def _no_fragments(n_tasks: int, n_stations: int) -> dict:

@@ -8,6 +8,7 @@ import numpy as np
 from calib.files.hazard_results import hazard_results
 from calib.hazard._run import HazardCounts
 from calib.hazard._stats import BINS, DRAW_BINS, PERCENTILES
+from solvers.jsonable import json_ready
 from solvers.profile import Profile
 
 __all__ = ["ENERGY_BASIS", "HEIGHT_CONVENTION", "as_results", "hazard_dataset"]
@@ -31,8 +32,15 @@ def _zone_at(profile: Profile, x_m: np.ndarray) -> list[str]:
 
 def hazard_dataset(c: HazardCounts, profile: Profile | None = None, *, seed: int | None = None,
                    road_x_m: float | None = None, road_label: str | None = None,
-                   release_rate_per_year: float | None = None, record: dict | None = None):
+                   release_rate_per_year: float | None = None, record: dict | None = None,
+                   fitted: tuple | None = None):
     """The results Dataset of a run.
+
+    A run of fixed sizes released at one point, without a barrier, gives the
+    variables and attributes of ``calib.files.hazard_results.VARIABLES`` only. A run
+    with release conditions (``c.release``) adds ``release_json`` and the range of
+    the calibration's fitted sizes; over volume classes, the class variables
+    (``OPTIONAL_VARIABLES``); a run with a barrier adds the barrier's attributes.
 
     Args:
         c: the run's counts (``run_hazard``).
@@ -44,6 +52,8 @@ def hazard_dataset(c: HazardCounts, profile: Profile | None = None, *, seed: int
         record: more attributes: ``calibration`` (path), ``provenance_json``
             (``calib.files.provenance.provenance``), ``adequacy_json``,
             ``rock_density_kg_m3``, ...; dicts are stored as JSON text.
+        fitted: (sizes, source) of the block sizes the calibration was fitted on
+            (``calib.files.calibration_file.fitted_block_sizes_m``), or None.
 
     Returns:
         ``xarray.Dataset`` of schema ``calib.files.hazard_results.SCHEMA``.
@@ -83,6 +93,25 @@ def hazard_dataset(c: HazardCounts, profile: Profile | None = None, *, seed: int
                                     "(calib.hazard._stats.percentile_interval)",
              "provenance_json": {}, "road_x_m": road_x_m, "road_label": road_label,
              "release_rate_per_year": release_rate_per_year}
+    if c.release is not None:
+        attrs["release_json"] = json_ready(c.release.record())  # unbounded classes: null
+        if fitted is not None:
+            attrs.update(fitted_block_size_min_m=float(np.min(fitted[0])),
+                         fitted_block_size_max_m=float(np.max(fitted[0])),
+                         fitted_block_sizes_source=str(fitted[1]))
+        if c.release.law is not None:
+            cls = c.release.classes
+            data.update(
+                class_label=np.asarray([k.label for k in cls], dtype=object),
+                class_volume_min_m3=np.asarray([k.volume_min_m3 for k in cls]),
+                class_volume_max_m3=np.asarray([k.volume_max_m3 for k in cls]),
+                class_volume_m3=np.asarray([k.volume_m3 for k in cls]),
+                class_probability=np.asarray([k.probability for k in cls]),
+                extrapolated_fraction=(np.full(len(cls), np.nan) if fitted is None
+                                       else c.release.extrapolated_fraction(fitted[0])))
+    if c.barrier is not None:
+        attrs.update(barrier_x_m=float(c.barrier.x_m), barrier_height_m=float(c.barrier.height_m),
+                     barrier_capacity_kJ=float(c.barrier.capacity_kJ))
     attrs.update(record or {})
     return hazard_results(data, coords, attrs, bins)
 

@@ -1,4 +1,5 @@
-"""The Monte Carlo loop: posterior draws x block sizes x blocks, in chunks.
+"""The Monte Carlo loop: posterior draws x block sizes (or volume classes) x blocks,
+in chunks.
 
 ``run_hazard`` turns a ``Calibration`` and its ``Draws`` into a ``HazardCounts``:
 per-draw counts at each station (so that posterior bands can be formed),
@@ -6,6 +7,18 @@ histograms pooled over draws (the posterior predictive distribution of energy,
 velocity and bounce height of the blocks that reach a station), and per draw
 the percentiles of those three with their Monte Carlo intervals and coarser
 histograms of energy and height (what a barrier design reads: ``calib.design``).
+
+What is simulated. Without release conditions (``release=None``): blocks of each
+size, all released at one abscissa with the solver's default release state,
+sizes sharing their random numbers (``_units.crsp_chunk``). With a
+``calib.model.release.Seeder``: per class (a volume class of a block-volume law,
+or a fixed size) ``n_blocks`` blocks per draw, each with its own volume drawn
+within the class, its own release abscissa, height and speed
+(``_units.seeded_chunk``: why each block is a task of its own is said there).
+Stratified, equal allocation: a class's counts are conditional on the class,
+and its weight (``VolumeClass.probability``) enters only the annual
+frequencies. A protection barrier (``Barrier``) is a CRSP parameter of every
+draw (``solvers.crsp._barrier``); the DEM has none.
 """
 
 from __future__ import annotations
@@ -29,16 +42,40 @@ from calib.hazard._stats import (
     percentile_table,
     rebin,
 )
-from calib.hazard._units import crsp_chunk, dem_chunk, draw_key
+from calib.hazard._units import crsp_chunk, dem_chunk, draw_key, seeded_chunk
 from calib.model.alpha_law import alpha_of, check_law
 from calib.model.dem_run import DEM_RUN, DemRun
 from calib.model.effects import draw_overrides
 from calib.model.entries import Entries, dem_side_m
 from calib.model.forward import stack_trees
+from calib.model.release import Seeder
 from solvers import crsp, dem
 from solvers.profile import Profile
 
-__all__ = ["HazardCounts", "check_dem_draws", "default_release_x_m", "dem_alpha", "run_hazard"]
+__all__ = ["Barrier", "HazardCounts", "check_dem_draws", "default_release_x_m", "dem_alpha",
+           "run_hazard"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Barrier:
+    """A protection barrier of a CRSP hazard run (``solvers.crsp._barrier``: a block
+    whose lowest point passes below H is stopped where its energy is at most the
+    capacity, else breaks through keeping E - E_cap; over H it flies over).
+
+    Attributes:
+        x_m: its abscissa, m.
+        height_m: H, m (+inf: unlimited).
+        capacity_kJ: E_cap, kJ (+inf: unlimited).
+    """
+
+    x_m: float
+    height_m: float = float("inf")
+    capacity_kJ: float = float("inf")
+
+    def overrides(self) -> dict:
+        """The ``solvers.crsp.Params`` fields it sets."""
+        return {"barrier_x_m": self.x_m, "barrier_height_m": self.height_m,
+                "barrier_capacity_kJ": self.capacity_kJ}
 
 
 @dataclasses.dataclass
@@ -68,7 +105,11 @@ class HazardCounts:
         draw_hist: "energy_kJ" and "bounce_height_m" -> (D, T, S, B) per-draw counts
             in ``_stats.DRAW_BINS``.
         block_mass_kg: (T,) mass of the simulated block of each size, kg (the DEM:
-            the cube of side D whose energy the tables report).
+            the cube of side D whose energy the tables report; a volume class: the
+            sphere of its representative volume).
+        release: the release conditions (``calib.model.release.Seeder``), or None
+            (every block at ``release_x_m``, the solver's release state).
+        barrier: the protection barrier, or None.
         fragments: a fragment run's per-fragment counts
             (``_fragments.FragmentCounts``; the other fields are then per parent
             block), or None.
@@ -92,6 +133,8 @@ class HazardCounts:
     pooled_percentiles: dict = dataclasses.field(default_factory=dict)
     draw_hist: dict = dataclasses.field(default_factory=dict)
     block_mass_kg: np.ndarray | None = None
+    release: Seeder | None = None
+    barrier: Barrier | None = None
     fragments: object = None
 
 
@@ -137,10 +180,11 @@ def _chunks(n_blocks: int, max_chunk: int) -> tuple[int, list[int]]:
 def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, stations_x_m,
                n_blocks: int, seed: int, *, chunk_blocks: int = 16384, pool: int | None = None,
                settings: crsp.Settings = crsp.Settings(), dem_run: DemRun = DEM_RUN,
-               release_x_m: float | None = None,
+               release_x_m: float | None = None, release: Seeder | None = None,
+               barrier: Barrier | None = None,
                progress: Callable[[int], None] | None = None, devices=None,
                fragments=None) -> HazardCounts:
-    """Simulate ``n_blocks`` blocks per draw and size; reduce at the stations.
+    """Simulate ``n_blocks`` blocks per draw and size (or class); reduce at the stations.
 
     Args:
         cal: the calibration (model and parameter names).
@@ -157,7 +201,10 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
         settings: CRSP settings.
         dem_run: DEM numerics (``calib.model.dem_run``; default: the fit's).
         release_x_m: release abscissa of every block, m (None:
-            ``default_release_x_m``).
+            ``default_release_x_m``); with ``release``: the zone's downslope end.
+        release: release conditions drawn per block (CRSP only); its classes
+            replace ``sizes_m`` (pass None).
+        barrier: a protection barrier (CRSP only), or None.
         progress: called with the number of blocks finished after each unit.
         devices: JAX devices (default all).
         fragments: a ``_fragments.Fragmentation``: every block broken and every
@@ -166,12 +213,22 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
     Returns:
         ``HazardCounts``.
     """
+    if cal.model != "crsp" and (release is not None or barrier is not None):
+        raise ValueError("release conditions and barriers need the CRSP model")
+    if fragments is not None and release is not None:
+        raise ValueError("fragments run from the fixed-size release; release conditions "
+                         "drawn per block (a volume distribution) are not broken")
+    if release is not None:
+        sizes_m = release.sizes_m
+        chunk_blocks = min(chunk_blocks, _seeded_chunk_cap(profile))
     sizes_m = np.asarray(sizes_m, dtype=np.float64)
     stations = np.asarray(stations_x_m, dtype=np.float64)
     n_draws, n_sizes, n_st = len(draws.values), len(sizes_m), len(stations)
     chunk, offsets = _chunks(n_blocks, chunk_blocks)
     release_x = (default_release_x_m(cal, profile) if release_x_m is None
                  else float(release_x_m))
+    if release is not None:
+        release_x = release.zone.span_m[1]
     shape = (n_draws, n_sizes, n_st)
     acc = {k: np.zeros(shape, np.int64) for k in ("exceed", "reach", "e30", "e300")}
     n_unfinished = np.zeros((n_draws, n_sizes), np.int64)
@@ -204,9 +261,13 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
 
     # what is simulated: each size at the release, at the calibration's rock density
     entries = Entries.at_sizes(sizes_m, release_x, density_kg_m3=cal.rock_density_kg_m3)
-    if cal.model == "crsp":
+    extra = {} if barrier is None else barrier.overrides()
+    if release is not None:
+        units = _seeded_units(draws, profile, release, entries.density_kg_m3, st_dev, n_blocks,
+                              seed, chunk, offsets, pool, settings, extra, cal.effects)
+    elif cal.model == "crsp":
         units = _crsp_units(draws, profile, entries, st_dev, n_blocks, seed, chunk, offsets,
-                            pool, settings, cal.effects)
+                            pool, settings, extra, cal.effects)
     else:
         check_dem_draws(cal, draws, sizes_m)
         units = _dem_units(cal, draws, profile, entries, stations, n_blocks, seed, chunk,
@@ -224,8 +285,8 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
                         energy_p95_per_draw_kJ=e95,
                         percentiles={q: tuple(v) for q, v in pct.items()},
                         pooled_percentiles=pooled, draw_hist=kept,
-                        block_mass_kg=_block_mass_kg(cal.model, entries), fragments=frag,
-                        **acc)
+                        block_mass_kg=_block_mass_kg(cal.model, entries),
+                        release=release, barrier=barrier, fragments=frag, **acc)
 
 
 def _draw_done(d: int, dh: dict, e95: np.ndarray, pct: dict, kept: dict) -> None:
@@ -243,14 +304,18 @@ def _block_mass_kg(model: str, entries: Entries) -> np.ndarray:
     """(T,) mass of the simulated block of each size, kg: the CRSP sphere
     ``_crsp_units`` simulates; the DEM square's mass per metre times its side (the
     cube whose energy ``_units`` reports)."""
-    if model == "crsp":
+    if model == "crsp":  # a volume class: the sphere of its representative volume
         return np.array([float(crsp.make_block(float(r), density_kg_m3=entries.density_kg_m3)
                                .mass_kg) for r in entries.crsp_radius_m])
     return float(entries.density_kg_m3) * np.asarray(entries.dem_side_m, np.float64) ** 3
 
 
 def _crsp_units(draws, profile, entries: Entries, stations, n_blocks, seed, chunk, offsets,
-                pool, settings, effects=()):
+                pool, settings, extra=None, effects=()):
+    """Per draw, the chunks of ``_units.crsp_chunk`` for every size at once;
+    ``extra``: more solver parameters (a barrier's), ``effects``: the fitted
+    model's effects (``Calibration.effects``)."""
+    extra = {} if extra is None else extra
     n_sizes, release_x = entries.n, float(entries.release_x_m[0])
     blocks = stack_trees([crsp.make_block(float(r), density_kg_m3=entries.density_kg_m3)
                           for r in entries.crsp_radius_m])
@@ -259,7 +324,7 @@ def _crsp_units(draws, profile, entries: Entries, stations, n_blocks, seed, chun
                            settings=settings)
     for d, values in enumerate(draws.values):
         # the fitted model: the baseline's parameters and the effects' (Calibration.effects)
-        p = crsp.params_from_profile(profile, release_x_m=release_x,
+        p = crsp.params_from_profile(profile, release_x_m=release_x, **extra,
                                      **draw_overrides(effects, draws.names, values, profile))
         params = stack_trees([p] * n_sizes)
         key = draw_key(seed, d)
@@ -271,6 +336,43 @@ def _crsp_units(draws, profile, entries: Entries, stations, n_blocks, seed, chun
                         jnp.asarray(n_valid, jnp.int32))
 
             yield (d, slice(0, n_sizes)), make_args, fn
+
+
+# memory of a seeded chunk's per-block segment constants (``_units.seeded_chunk``):
+# about 16 float64 per segment and block; the chunk is kept under this many bytes
+_SEEDED_TABLE_BYTES = 64 * 2**20
+
+
+def _seeded_chunk_cap(profile: Profile) -> int:
+    """Most blocks of a seeded chunk on ``profile``: its per-block segment tables
+    under ``_SEEDED_TABLE_BYTES`` (Postignano, 4 segments: 65,536 blocks; Tschamut,
+    179: 2,928), a multiple of 16 and at least 256."""
+    n_seg = len(profile.x_m) - 1
+    cap = _SEEDED_TABLE_BYTES // (16 * 8 * n_seg)
+    return max(256, cap // 16 * 16)
+
+
+def _seeded_units(draws, profile, release: Seeder, density, stations, n_blocks, seed, chunk,
+                  offsets, pool, settings, extra, effects=()):
+    """Per draw and class, the chunks of ``_units.seeded_chunk``."""
+    pool = crsp.default_pool() if pool is None else pool
+    fn = functools.partial(seeded_chunk, n_chunk=chunk, pool=min(pool, chunk),
+                           kinds=release.kinds, settings=settings)
+    seeds = [release.arrays(t) for t in range(len(release.classes))]
+    rho = jnp.asarray(density, jnp.float64)
+    for d, values in enumerate(draws.values):
+        p = crsp.params_from_profile(profile, **extra,
+                                     **draw_overrides(effects, draws.names, values, profile))
+        key = draw_key(seed, d)
+        for t, s in enumerate(seeds):
+            for off in offsets:
+                n_valid = min(chunk, n_blocks - off)
+
+                def make_args(s=s, key=key, off=off, n_valid=n_valid, p=p):
+                    return (p, s, rho, key, profile, stations, jnp.asarray(off, jnp.int32),
+                            jnp.asarray(n_valid, jnp.int32))
+
+                yield (d, slice(t, t + 1)), make_args, fn
 
 
 def _dem_units(cal, draws, profile, entries: Entries, stations, n_blocks, seed, chunk,

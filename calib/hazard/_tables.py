@@ -40,6 +40,18 @@ Definitions (station x, block size D; draws d = 1..M, N blocks each):
 * with a release rate R (blocks of this size per year): the annual frequencies
   R P(reach), R P(reach) P(E > 30 | reach), R P(reach) P(E > 300 | reach) and
   the hazard level of the intensity-frequency matrix (``_intensity``).
+
+A run over volume classes (``calib.model.release``): one row per class and
+station, ``block_size_m`` the class's representative size; every probability is
+conditional on the class (each class simulated with N blocks per draw); R is
+then the rate of the whole distribution and a class's frequencies use
+``class_rate_per_yr`` = R P(class). Columns ``volume_class``,
+``class_volume_min_m3``, ``class_volume_max_m3``, ``class_probability``,
+``extrapolated`` (some of the class's blocks lie outside the block sizes the
+calibration was fitted on) and ``extrapolated_fraction`` (how many, by the law)
+follow ``block_size_m``; ``exceedance.csv`` gains ``volume_class``. A run of fixed
+sizes has neither (its tables are those of a run without release conditions);
+``summary_text`` names its extrapolated sizes.
 """
 
 from __future__ import annotations
@@ -47,7 +59,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from calib.files.hazard_results import optional_attr
+from calib.files.hazard_results import json_attr, optional_attr
 from calib.hazard._intensity import hazard_level, intensity_class
 from calib.hazard._results import as_results
 from calib.hazard._stats import BINS, hist_quantile
@@ -86,6 +98,33 @@ class _Run:
         self.hist = {q: ds[f"hist_{q}"].values for q in BINS}
         self.energy_p95_per_draw_kJ = ds["energy_p95_binned_kJ"].values
         self.zones = [str(z) for z in ds["zone"].values]
+        self.classes = "class_probability" in ds
+        if self.classes:
+            self.class_label = [str(v) for v in ds["class_label"].values]
+            self.class_min = ds["class_volume_min_m3"].values
+            self.class_max = ds["class_volume_max_m3"].values
+            self.class_p = ds["class_probability"].values
+            self.extrapolated = ds["extrapolated_fraction"].values
+        self.release = json_attr(ds, "release_json")
+        self.design_block = json_attr(ds, "design_block_json")
+        self.fitted = (None if optional_attr(ds, "fitted_block_size_min_m") is None else
+                       (float(ds.attrs["fitted_block_size_min_m"]),
+                        float(ds.attrs["fitted_block_size_max_m"])))
+        self.barrier = (None if optional_attr(ds, "barrier_x_m") is None else
+                        tuple(float(ds.attrs[k]) for k in ("barrier_x_m", "barrier_height_m",
+                                                            "barrier_capacity_kJ")))
+
+    def class_columns(self, t: int) -> dict:
+        """The class columns of size index ``t`` (none for a run of sizes)."""
+        if not self.classes:
+            return {}
+        frac = float(self.extrapolated[t])
+        return {"volume_class": self.class_label[t],
+                "class_volume_min_m3": float(self.class_min[t]),
+                "class_volume_max_m3": float(self.class_max[t]),
+                "class_probability": float(self.class_p[t]),
+                "extrapolated": bool(frac > 0) if np.isfinite(frac) else None,
+                "extrapolated_fraction": frac}
 
 
 def exceedance_table(results, profile: Profile | None = None) -> pd.DataFrame:
@@ -101,7 +140,7 @@ def exceedance_table(results, profile: Profile | None = None) -> pd.DataFrame:
     q = _draw_quantiles(p)
     t_idx, s_idx = np.meshgrid(np.arange(len(c.sizes_m)), np.arange(len(c.stations_x_m)),
                                indexing="ij")
-    return pd.DataFrame({
+    df = pd.DataFrame({
         "model": c.model,
         "block_size_m": c.sizes_m[t_idx.ravel()],
         "x_m": c.stations_x_m[s_idx.ravel()],
@@ -110,6 +149,9 @@ def exceedance_table(results, profile: Profile | None = None) -> pd.DataFrame:
         "p_exceed_q50": q[1].ravel(),
         "p_exceed_q95": q[2].ravel(),
     })
+    if c.classes:
+        df["volume_class"] = np.asarray(c.class_label, dtype=object)[t_idx.ravel()]
+    return df
 
 
 def hazard_table(results, profile: Profile | None = None,
@@ -163,6 +205,7 @@ def hazard_table(results, profile: Profile | None = None,
             row = {
                 "model": c.model,
                 "block_size_m": float(size),
+                **c.class_columns(t),
                 "x_m": float(x),
                 "zone": zones[s],
                 "n_draws": n_draws,
@@ -189,7 +232,10 @@ def hazard_table(results, profile: Profile | None = None,
                 "p_unfinished": float(unfinished),
             }
             if release_rate_per_year is not None:
-                f0 = release_rate_per_year * r_mean
+                rate = release_rate_per_year
+                if c.classes:  # R is the whole distribution's rate
+                    rate = row["class_rate_per_yr"] = rate * float(c.class_p[t])
+                f0 = rate * r_mean
                 f30 = f0 * float(p30[t, s]) if ok and np.isfinite(p30[t, s]) else (
                     0.0 if ok else np.nan)
                 f300 = f0 * float(p300[t, s]) if ok and np.isfinite(p300[t, s]) else (
@@ -203,17 +249,37 @@ def hazard_table(results, profile: Profile | None = None,
 
 
 def summary_text(results, table: pd.DataFrame, road_x_m: float,
-                 release_rate_per_year: float | None = None, label: str = "road") -> str:
+                 release_rate_per_year: float | None = None, label: str = "road",
+                 fitted: tuple | None = None) -> str:
     """Short text: probability of reaching the station of interest at ``road_x_m``
     (named ``label``: "road", or what the site file calls it) and the design
-    values there (``results``: the results Dataset or a ``HazardCounts``)."""
+    values there (``results``: the results Dataset or a ``HazardCounts``).
+
+    ``fitted``: (sizes, source) of the block sizes the calibration was fitted on
+    (default: the range the Dataset records, if any); a size or class beyond
+    their range says "extrapolation" on its line."""
     c = _Run(as_results(results))
+    what = (f"{len(c.sizes_m)} volume class(es) of {c.release['volume_law']['source']}"
+            if c.classes else f"{len(c.sizes_m)} size(s)")
+    where = (f"released at x = {c.release_x_m:g} m" if c.release is None
+             else "released " + _zone_text(c.release["zone"]))
     lines = [f"hazard ({c.model}): {c.n_draws} draw(s) from the "
-             f"{c.draws_source} x {len(c.sizes_m)} size(s) x {c.n_blocks} blocks "
-             f"released at x = {c.release_x_m:g} m; {label} at x = {road_x_m:g} m"]
+             f"{c.draws_source} x {what} x {c.n_blocks} blocks {where}; {label} at x = "
+             f"{road_x_m:g} m"]
+    rng = (float(np.min(fitted[0])), float(np.max(fitted[0]))) if fitted is not None else (
+        c.fitted)
+    if c.release is not None and _state_text(c.release["state"]):
+        lines.append("  release: " + _state_text(c.release["state"]))
+    if c.barrier is not None:
+        x, h, e = c.barrier
+        lines.append(f"  barrier at x = {x:g} m, height {_limit(h, 'm')}, capacity "
+                     f"{_limit(e, 'kJ')} (solvers/crsp/_barrier.py)")
     at = table[np.isclose(table["x_m"], road_x_m)]
     for _, r in at.iterrows():
-        line = (f"  D = {r.block_size_m:g} m: P(reach {label}) = {r.reach_prob_mean:.3g} "
+        name = (f"class {r.volume_class} (D = {r.block_size_m:.3g} m, "
+                f"{100 * r.class_probability:.3g} % of the blocks)" if c.classes
+                else f"D = {r.block_size_m:g} m")
+        line = (f"  {name}: P(reach {label}) = {r.reach_prob_mean:.3g} "
                 f"[5-95 %: {r.reach_prob_q05:.3g}-{r.reach_prob_q95:.3g}]")
         if np.isfinite(r.energy_p95_kJ):
             rough = " (fewer than 20: rough)" if r.few_blocks else ""
@@ -233,7 +299,16 @@ def summary_text(results, table: pd.DataFrame, road_x_m: float,
         if r.p_unfinished > 0:
             line += (f"; {r.p_unfinished:.2%} of blocks unfinished (still moving at the "
                      f"solver's budget, or invalid), not counted as runouts")
+        line += _extrapolation(r, c.classes, rng)
         lines.append(line)
+    if c.classes and rng is None:
+        lines.append("  the block sizes the calibration was fitted on are not known (no "
+                     "release_groups in it, its data_csv not found): extrapolation not checked")
+    if c.design_block is not None:
+        b = c.design_block
+        lines.append(f"  design block of a {b['return_period_yr']:g}-year return period at "
+                     f"{b['rate_per_year']:g} blocks/yr: V = {b['volume_m3']:.3g} m3 (D = "
+                     f"{b['block_size_m']:.3g} m), in class {b['volume_class']} ({b['rule']})")
     few = table[table["few_blocks"]]
     warning = few_blocks_warning(
         [(f"D = {r.block_size_m:g} m at x = {r.x_m:g} m", r.n_blocks_reached)
@@ -241,3 +316,43 @@ def summary_text(results, table: pd.DataFrame, road_x_m: float,
     if warning:
         lines.append(warning + " (column few_blocks of hazard_table.csv)")
     return "\n".join(lines)
+
+
+def _limit(v: float, unit: str) -> str:
+    return "unlimited" if not np.isfinite(v) else f"{v:g} {unit}"
+
+
+def _zone_text(z: dict) -> str:
+    x = z["x_m"]
+    if z["kind"] == "point":
+        return f"at x = {x[0]:g} m"
+    if z["kind"] == "uniform":
+        return f"uniformly on x = {x[0]:g}-{x[1]:g} m"
+    return "at x = " + ", ".join(f"{a:g} m ({w:.0%})" for a, w in zip(x, z["weights"],
+                                                                     strict=True))
+
+
+def _state_text(st: dict) -> str:
+    parts = []
+    for key, sd, unit, what in (("height_m", "height_sd_m", "m", "height"),
+                                ("speed_m_s", "speed_sd_m_s", "m/s", "horizontal speed")):
+        if st.get(key) is not None:
+            spread = f" (sd {st[sd]:g}, clipped at 0)" if st.get(sd) else ""
+            parts.append(f"{what} {st[key]:g} {unit}{spread}")
+    return ", ".join(parts)
+
+
+def _extrapolation(r, classes: bool, rng) -> str:
+    """"; ... extrapolation" where the row's size or class reaches outside ``rng``."""
+    if rng is None:
+        return ""
+    lo, hi = rng
+    if classes:
+        frac = r.extrapolated_fraction
+        if not (np.isfinite(frac) and frac > 0):
+            return ""
+        return (f"; {100 * frac:.3g} % of the class's blocks lie outside the sizes the "
+                f"calibration was fitted on ({lo:g}-{hi:g} m): extrapolation")
+    if lo * (1 - 1e-9) <= r.block_size_m <= hi * (1 + 1e-9):
+        return ""
+    return f"; outside the sizes the calibration was fitted on ({lo:g}-{hi:g} m): extrapolation"

@@ -14,6 +14,10 @@ reads it (finished, left the profile, unfinished).
 
 CRSP: all sizes of a draw run as tasks of one lane pool
 (``solvers.crsp.simulate_tasks``, with the chunk's block offset).
+CRSP with release conditions drawn per block (``seeded_chunk``,
+``calib.model.release``): one class (a volume class, or a fixed size) per unit,
+every block its own task of one block keyed as above, so that each block has its
+own volume, sphere, release abscissa, height and speed.
 DEM: one size per unit, ``jax.vmap`` of ``solvers.dem.simulate``. The 2D DEM
 gives kinetic energy per metre of thickness; it is multiplied by the square's
 side L, i.e. the block is taken as a prism of thickness L (a cube of side D for
@@ -31,10 +35,11 @@ import jax
 import jax.numpy as jnp
 
 from calib.hazard._stats import ChunkStats, reduce_chunk
-from solvers.crsp import Settings, simulate_tasks
+from calib.model.release import SeedArrays, sample_release
+from solvers.crsp import Block, Settings, make_block, simulate_tasks
 from solvers.dem import simulate as dem_simulate
 
-__all__ = ["crsp_chunk", "dem_chunk", "draw_key"]
+__all__ = ["crsp_chunk", "dem_chunk", "draw_key", "seeded_chunk"]
 
 
 def draw_key(seed: int, draw: int) -> jax.Array:
@@ -92,3 +97,57 @@ def dem_chunk(params, block, key, offset, n_valid, *, n_chunk: int, options) -> 
     return reduce_chunk(res.stop_x_m[None, :, 0], res.status[None], st.passed[None, :, 0],
                         energy_kJ, st.velocity_m_s[None, :, 0],
                         st.bounce_height_m[None, :, 0], valid, block.stations_x_m)
+
+
+@functools.partial(jax.jit, static_argnames=("n_chunk", "pool", "settings", "kinds"))
+def seeded_chunk(params, seeds: SeedArrays, density_kg_m3, key, profile, stations_x_m, offset,
+                 n_valid, *, n_chunk: int, pool: int, kinds: tuple[str, str],
+                 settings: Settings = Settings()) -> ChunkStats:
+    """Blocks ``offset .. offset + n_chunk - 1`` of one class, each drawn by
+    ``calib.model.release.sample_release`` from its key, reduced (T = 1).
+
+    Why one task per block. A CRSP task runs its blocks with one ``Params`` and ONE
+    ``Block``, and its per-segment constants (roughness angle arctan(S / r), the
+    rolling loss per metre) depend on the radius; blocks of different volumes
+    therefore need tasks of their own. Groups of blocks sharing a drawn volume
+    would make the blocks of a class dependent (a percentile's Monte Carlo
+    interval, ``_stats``, assumes independent blocks), so every block is a task,
+    keyed as block ``offset + t`` of the draw (``simulate_tasks``' ``task_offsets``):
+    the solver's pool still schedules the lanes, and the segment constants are
+    computed once per block (the memory of a chunk grows with the profile's
+    segments: ``calib.hazard._run`` bounds it).
+
+    Args:
+        params: the draw's CRSP ``Params`` (one set; the release fields are
+            replaced block by block).
+        seeds: the class's ``SeedArrays``.
+        density_kg_m3: rho: a block of volume V weighs rho V.
+        key: the draw's key (block j uses fold_in(key, j)).
+        profile, stations_x_m, offset, n_valid: as for ``crsp_chunk``.
+        n_chunk, pool, settings: static sizes and solver settings.
+        kinds: (law kind, zone kind), static (``Seeder.kinds``).
+
+    Returns:
+        ``ChunkStats`` with T = 1.
+    """
+    idx = (offset + jnp.arange(n_chunk)).astype(jnp.uint32)
+    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(idx)
+    volume, diameter, x, h, v = jax.vmap(lambda k: sample_release(seeds, kinds, k))(keys)
+    tasks = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (n_chunk,) + a.shape), params)
+    tasks = tasks._replace(
+        release_x_m=x, release_x_spread_m=jnp.zeros(n_chunk),
+        release_height_m=jnp.where(jnp.isnan(h), params.release_height_m, h),
+        release_vx_m_s=jnp.where(jnp.isnan(v), params.release_vx_m_s, v))
+    sphere = make_block(1.0).inertia_ratio  # I / (m r^2) of a sphere
+    blocks = Block(radius_m=0.5 * diameter, mass_kg=density_kg_m3 * volume,
+                   inertia_ratio=jnp.broadcast_to(sphere, (n_chunk,)))
+    res = simulate_tasks(tasks, blocks, key, profile, stations_x_m, n_per_task=1, pool=pool,
+                         settings=settings, offset=offset,
+                         task_offsets=jnp.arange(n_chunk, dtype=jnp.int32))
+    st = res.stations  # fields (n_chunk, 1, S)
+    valid = jnp.arange(n_chunk) < n_valid
+    return reduce_chunk(res.stop_x_m[None, :, 0], res.status[None, :, 0],
+                        st.passed[None, :, 0], st.energy_kJ[None, :, 0],
+                        st.velocity_m_s[None, :, 0], st.bounce_height_m[None, :, 0], valid,
+                        stations_x_m)
+

@@ -8,7 +8,7 @@
   median release, and every entry of the rows that is not one of them).
 * ``predictive_adequacy``: ``calib.inference.adequacy`` of a fit: posterior
   mass near the prior bounds, the posterior predictive coverage of the rows,
-  blocks that stall at their release (``release_slopes_deg``, re-exported from
+  blocks that stall at their release (``release_slopes_deg`` of
   ``calib.model.forward``) and rows that do (with CRSP's rolling resistance at
   the release, ``release_rolling_deg``).
 """
@@ -31,8 +31,7 @@ from calib.model.entries import Entries
 from calib.model.forward import CrspForward, release_rolling_deg, release_slopes_deg
 from solvers.percentiles import few_blocks
 
-__all__ = ["check_entries", "fit_quality", "loglik_of_runouts", "predictive_adequacy",
-           "release_slopes_deg"]
+__all__ = ["check_entries", "fit_quality", "loglik_of_runouts", "predictive_adequacy"]
 
 
 def loglik_of_runouts(obs: Observations, index=None):

@@ -40,7 +40,19 @@ import numpy as np
 
 from solvers.material import ROCK_DENSITY_KG_M3, check_density
 
-__all__ = ["Entries", "crsp_radius_m", "dem_side_m"]
+__all__ = ["Entries", "crsp_radius_m", "dem_side_m", "sphere_diameter_m"]
+
+
+def sphere_diameter_m(mass_kg, density_kg_m3: float) -> np.ndarray:
+    """Volume-equivalent sphere diameter d = (6 m / (pi rho))^(1/3), m: the block
+    size of a block of mass m (a volume V with rho = 1), the rule every input of
+    masses or volumes follows (field runs, block surveys, volume laws).
+
+    Args:
+        mass_kg: any shape, kg.
+        density_kg_m3: rock density rho, kg/m^3.
+    """
+    return np.cbrt(6.0 * np.asarray(mass_kg, float) / (np.pi * density_kg_m3))
 
 
 def crsp_radius_m(block_size_m):

@@ -14,8 +14,9 @@ This toolkit's model (our choices):
 
 * The barrier is vertical, at abscissa ``barrier_x_m``, of height H
   (``barrier_height_m``) above the ground there, with capacity E_cap
-  (``barrier_capacity_kJ``); ``barrier_x_m = +inf`` (the default) is no
-  barrier, and a barrier beyond the profile is never met.
+  (``barrier_capacity_kJ``). By default there is none (``Params`` fields
+  None); ``barrier_x_m = +inf`` is none either, and a barrier beyond the
+  profile's end or behind the release is never met.
 * A block meets the barrier the first time its trajectory crosses
   ``barrier_x_m`` moving downslope: in flight where the event's parabola
   crosses it (exact), rolling where the closed-form rolling move passes it
@@ -39,15 +40,22 @@ This toolkit's model (our choices):
     both kinetic energies scale by f^2 and the total is exactly E - E_cap. It
     goes on from the crossing point (in flight on the parabola's new
     velocity, rolling along the same segment).
-* Whatever the event would have done beyond the barrier (its landing and
-  impact draw, a vertex, a break) is discarded for a block that hits the net:
-  the event ends at the barrier, and the roughness draws are per impact
-  (``_model``), so the block's later impacts take the draws it would have
-  taken.
+* Whatever the event would have done beyond the barrier (its landing, a
+  vertex, a break) is discarded for a block that hits the net: the event ends
+  at the barrier. The roughness draws are counted per impact (``_model``), so
+  the discarded landing consumes none.
 
 ``Barrier`` holds a run's barrier (set up once outside the event loop),
-``Crossing`` what a block carries through the loop, ``BarrierRecord`` what the
-``Result`` reports.
+``Crossing`` what a block carries through the loop, ``Kinematics`` and ``Cut``
+an event at the barrier, ``BarrierRecord`` what the ``Result`` reports.
+
+Cost. The barrier decides how an event ends, so its work enters every quantity
+the event ends with, and XLA repeats it in each fused output: a 256-lane event
+step on Postignano costs 873,573 floating-point operations with a barrier and
+580,812 without (XLA's cost analysis, 2026-11-26). A run without a barrier
+(``Params.barrier_x_m`` None) therefore compiles none of it: ``NO_CUT`` holds
+constants that the compiler folds away, and the step is the one of a solver
+without barriers, operation for operation.
 """
 
 from __future__ import annotations
@@ -56,13 +64,13 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from solvers.crsp._contact import speed2_after
-from solvers.crsp._stations import Passage
 from solvers.profile import Profile, ground_z, segment_index
 
-__all__ = ["Barrier", "BarrierRecord", "Crossing", "Kinematics", "at_barrier", "barrier_site",
-           "hits", "record", "start_crossing"]
+__all__ = ["NO_CUT", "Barrier", "BarrierRecord", "Crossing", "Cut", "Kinematics", "barrier_site",
+           "cut", "flight_at", "hits", "record", "rolling_at", "start_crossing"]
 
 
 class Barrier(NamedTuple):
@@ -84,12 +92,15 @@ class Barrier(NamedTuple):
 
 
 def barrier_site(profile: Profile, x_m, height_m, capacity_kJ) -> Barrier:
-    """The ``Barrier`` at ``x_m`` on ``profile`` (its segment and ground, once)."""
+    """The ``Barrier`` at ``x_m`` on ``profile`` (its segment and ground, once);
+    a height or capacity None is unlimited (+inf)."""
     x = jnp.asarray(x_m, jnp.float64)
     # an absent barrier (inf) or one beyond the ends looks up a finite abscissa
     x_in = jnp.clip(x, profile.x_m[0], profile.x_m[-1])
-    return Barrier(x_m=x, height_m=jnp.asarray(height_m, jnp.float64),
-                   capacity_kJ=jnp.asarray(capacity_kJ, jnp.float64),
+    inf = jnp.inf
+    return Barrier(x_m=x, height_m=jnp.asarray(inf if height_m is None else height_m, jnp.float64),
+                   capacity_kJ=jnp.asarray(inf if capacity_kJ is None else capacity_kJ,
+                                           jnp.float64),
                    seg=segment_index(profile, x_in), ground_z_m=ground_z(profile, x_in))
 
 
@@ -102,8 +113,8 @@ class Crossing(NamedTuple):
         clearance_m: passing height h of the lowest point above the ground, m.
         vx_m_s, vz_m_s: velocity at the crossing, before the barrier acts, m/s.
         energy_kJ: E, kinetic energy brought to the barrier, kJ.
-        energy_after_kJ: kinetic energy kept after it (E over the barrier, 0
-            when stopped, E - E_cap through it), kJ.
+        keep: the factor of velocity and spin after it (1 over the barrier, 0
+            stopped, ``sqrt((E - E_cap) / E)`` through it).
     """
 
     open: jax.Array
@@ -112,14 +123,14 @@ class Crossing(NamedTuple):
     vx_m_s: jax.Array
     vz_m_s: jax.Array
     energy_kJ: jax.Array
-    energy_after_kJ: jax.Array
+    keep: jax.Array
 
 
 def start_crossing(release_x_m: jax.Array, barrier_x_m: jax.Array) -> Crossing:
     """The ``Crossing`` at release: open when the block starts before the barrier."""
     nan = jnp.full_like(release_x_m, jnp.nan)
     return Crossing(open=release_x_m < barrier_x_m, reached=jnp.asarray(False), clearance_m=nan,
-                    vx_m_s=nan, vz_m_s=nan, energy_kJ=nan, energy_after_kJ=nan)
+                    vx_m_s=nan, vz_m_s=nan, energy_kJ=nan, keep=nan)
 
 
 class Kinematics(NamedTuple):
@@ -141,67 +152,90 @@ class Kinematics(NamedTuple):
     energy_kJ: jax.Array
 
 
-def at_barrier(p: Passage, z0_m: jax.Array, spin_rad_s: jax.Array, slope_sin: jax.Array,
-               radius_m: jax.Array, barrier: Barrier, g: float) -> Kinematics:
-    """The event of passage ``p`` at ``barrier.x_m`` (exact for the event).
+def flight_at(x0_m, z0_m, vx_m_s, vz_m_s, spin_rad_s, spin_energy_m2_s2, mass_kg,
+              barrier: Barrier, g: float) -> Kinematics:
+    """A flight from ``(x0, z0)`` with ``(vx, vz)`` at ``barrier.x_m`` (exact):
+    ``t = (x_b - x0) / vx``, ``z = z0 + vz t - g t^2 / 2`` (not below the
+    ground), velocity ``(vx, vz - g t)``, spin w unchanged,
+    ``E = 1/2 m (v^2 + k (r w)^2)`` (``spin_energy_m2_s2`` = k (r w)^2)."""
+    t = (barrier.x_m - x0_m) / jnp.where(vx_m_s > 0.0, vx_m_s, 1.0)
+    vz = vz_m_s - g * t
+    z = jnp.maximum(z0_m + (vz_m_s - 0.5 * g * t) * t, barrier.ground_z_m)
+    energy = 0.5 * mass_kg * (vx_m_s * vx_m_s + vz * vz + spin_energy_m2_s2) / 1000.0
+    return Kinematics(z_m=z, vx_m_s=vx_m_s, vz_m_s=vz, spin_rad_s=spin_rad_s,
+                      clearance_m=z - barrier.ground_z_m, energy_kJ=energy)
 
-    In flight (from ``(x0, z0)`` with ``(vx, vz)``, spin w unchanged):
-    ``t = (x_b - x0) / vx``, ``z = z0 + vz t - g t^2 / 2``, velocity
-    ``(vx, vz - g t)``, ``E = 1/2 m (v^2 + k (r w)^2)``. Rolling (from ``x0``
-    on a segment of angle beta, ``z0`` on its line): slope distance
-    ``d = (x_b - x0) / cos(beta)``, ``u^2 = speed2_after(u0^2, A, c, d)``
-    (``_contact``), velocity ``u (cos(beta), sin(beta))``, spin ``u / r``,
-    ``z = z0 + (x_b - x0) tan(beta)``, ``E = 1/2 m (1 + k) u^2``, clearance 0.
-    Both are evaluated (the caller selects); only a crossed barrier is used.
 
-    Args:
-        p: the event's ``_stations.Passage``.
-        z0_m: height at the start of the event, m.
-        spin_rad_s: spin at the start (flight), rad/s.
-        slope_sin: sin(beta) of the rolling segment.
-        radius_m: r, m.
-        barrier: the ``Barrier``.
-        g: gravity, m/s^2.
-
-    Returns:
-        ``Kinematics``.
-    """
-    dx = barrier.x_m - p.x0_m
-    safe_vx = jnp.where(p.vx_m_s > 0.0, p.vx_m_s, 1.0)
-    t = dx / safe_vx
-    vz_f = p.vz_m_s - g * t
-    z_f = jnp.maximum(z0_m + (p.vz_m_s - 0.5 * g * t) * t, barrier.ground_z_m)
-    e_f = 0.5 * p.mass_kg * (p.vx_m_s * p.vx_m_s + vz_f * vz_f + p.spin_energy_m2_s2) / 1000.0
-    u2 = speed2_after(p.u2_m2_s2, p.accel_m_s2, p.drag_per_m,
-                      jnp.maximum(dx / p.slope_cos, 0.0))
+def rolling_at(x0_m, z0_m, u2_m2_s2, accel_m_s2, drag_per_m, slope_cos, slope_sin, mass_kg,
+               inertia_ratio, radius_m, barrier: Barrier) -> Kinematics:
+    """A rolling move from ``x0`` (``z0`` on the segment's line) at ``barrier.x_m``
+    (exact): slope distance ``d = (x_b - x0) / cos(beta)``,
+    ``u^2 = speed2_after(u0^2, A, c, d)`` (``_contact``), velocity
+    ``u (cos(beta), sin(beta))``, spin ``u / r``, ``z = z0 + (x_b - x0) tan(beta)``,
+    clearance 0, ``E = 1/2 m (1 + k) u^2``."""
+    dx = barrier.x_m - x0_m
+    u2 = speed2_after(u2_m2_s2, accel_m_s2, drag_per_m, jnp.maximum(dx / slope_cos, 0.0))
     u = jnp.sqrt(u2)
-    e_r = 0.5 * p.mass_kg * (1.0 + p.inertia_ratio) * u2 / 1000.0
-    z_r = z0_m + dx * slope_sin / p.slope_cos
-    fl = p.flight
-    return Kinematics(
-        z_m=jnp.where(fl, z_f, z_r),
-        vx_m_s=jnp.where(fl, p.vx_m_s, u * p.slope_cos),
-        vz_m_s=jnp.where(fl, vz_f, u * slope_sin),
-        spin_rad_s=jnp.where(fl, spin_rad_s, u / radius_m),
-        clearance_m=jnp.where(fl, z_f - barrier.ground_z_m, 0.0),
-        energy_kJ=jnp.where(fl, e_f, e_r),
-    )
+    return Kinematics(z_m=z0_m + dx * slope_sin / slope_cos, vx_m_s=u * slope_cos,
+                      vz_m_s=u * slope_sin, spin_rad_s=u / radius_m,
+                      clearance_m=jnp.zeros_like(u),
+                      energy_kJ=0.5 * mass_kg * (1.0 + inertia_ratio) * u2 / 1000.0)
 
 
-def hits(kin: Kinematics, barrier: Barrier) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """The barrier's rule for a block that crosses it (module docstring).
+def hits(kin: Kinematics, barrier: Barrier, cross: jax.Array
+         ) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """The barrier's rule for an event that crosses its abscissa (``cross``;
+    module docstring).
 
     Returns:
-        (in_net: h < H, stopped: in the net with E <= E_cap, keep: the factor
-        of velocity and spin, 1 over the barrier, 0 stopped,
+        (net: crossed with h < H, stopped: in the net with E <= E_cap, keep: the
+        factor of velocity and spin, 1 unless in the net, 0 stopped,
         ``sqrt((E - E_cap) / E)`` through it).
     """
     e = kin.energy_kJ
-    in_net = kin.clearance_m < barrier.height_m
-    stopped = in_net & (e <= barrier.capacity_kJ)
+    net = cross & (kin.clearance_m < barrier.height_m)
+    stopped = net & (e <= barrier.capacity_kJ)
     through = jnp.sqrt(jnp.maximum(e - barrier.capacity_kJ, 0.0) / jnp.where(e > 0.0, e, 1.0))
-    keep = jnp.where(in_net, jnp.where(stopped, 0.0, through), 1.0)
-    return in_net, stopped, keep
+    keep = jnp.where(net, jnp.where(stopped, 0.0, through), 1.0)
+    return net, stopped, keep
+
+
+class Cut(NamedTuple):
+    """How an event ends against the barrier.
+
+    Attributes:
+        net: bool, the block hits the net: the event ends at the barrier.
+        caught: bool, it stops there.
+        keep: factor of its velocity and spin there (1 unless in the net).
+        at: its ``Kinematics`` at the barrier.
+        x_m: the barrier's abscissa, m.
+        seg: the segment it goes on from.
+        crossing: its ``Crossing`` after the event (None: no barrier).
+    """
+
+    net: jax.Array
+    caught: jax.Array
+    keep: jax.Array
+    at: Kinematics
+    x_m: jax.Array
+    seg: jax.Array
+    crossing: Crossing | None
+
+
+def cut(c: Crossing, barrier: Barrier, cross: jax.Array, kin: Kinematics, seg) -> Cut:
+    """The ``Cut`` of an event that crosses the barrier (``cross``) or not, with
+    ``kin`` its motion there and ``seg`` the segment under it."""
+    net, caught, keep = hits(kin, barrier, cross)
+    new = Crossing(open=jnp.zeros_like(c.open), reached=jnp.ones_like(c.reached),
+                   clearance_m=kin.clearance_m, vx_m_s=kin.vx_m_s, vz_m_s=kin.vz_m_s,
+                   energy_kJ=kin.energy_kJ, keep=keep)
+    return Cut(net=net, caught=caught, keep=keep, at=kin, x_m=barrier.x_m, seg=seg,
+               crossing=jax.tree_util.tree_map(lambda a, b: jnp.where(cross, a, b), new, c))
+
+
+# the ``Cut`` of a run without a barrier: constants that the compiler folds away
+NO_CUT = Cut(net=np.False_, caught=np.False_, keep=1.0, at=Kinematics(*(0.0,) * 6), x_m=0.0,
+             seg=0, crossing=None)
 
 
 class BarrierRecord(NamedTuple):
@@ -230,8 +264,9 @@ class BarrierRecord(NamedTuple):
 
 
 def record(c: Crossing) -> BarrierRecord:
-    """The ``BarrierRecord`` of a block's final ``Crossing`` (once, after the loop)."""
+    """The ``BarrierRecord`` of a block's final ``Crossing`` (once, after the loop;
+    the energy kept is ``keep^2 E``, so exactly E over the barrier)."""
     return BarrierRecord(
         reached=c.reached, height_m=c.clearance_m, speed_m_s=jnp.hypot(c.vx_m_s, c.vz_m_s),
         angle_deg=jnp.degrees(jnp.arctan2(-c.vz_m_s, c.vx_m_s)), energy_kJ=c.energy_kJ,
-        energy_after_kJ=c.energy_after_kJ)
+        energy_after_kJ=c.keep * c.keep * c.energy_kJ)

@@ -99,7 +99,8 @@ def simulate_pooled(params: Params, block: Block, key: jax.Array, profile: Profi
 def simulate_tasks(params: Params, block: Block, key: jax.Array, profile: Profile,
                    stations_x_m: jax.Array, n_per_task: int, pool: int | None = None,
                    settings: Settings = Settings(), refill_every: int = 8,
-                   offset: jax.Array | int = 0) -> Result:
+                   offset: jax.Array | int = 0, task_offsets: jax.Array | None = None
+                   ) -> Result:
     """Many (parameter set, block) tasks in one pool, with common random numbers.
 
     ``params`` and ``block`` carry a leading task axis T (every leaf). Block j of
@@ -111,20 +112,29 @@ def simulate_tasks(params: Params, block: Block, key: jax.Array, profile: Profil
     ``offset`` (traced) shifts the block indices to ``offset .. offset +
     n_per_task - 1``, so a long run can be computed in chunks with one program.
 
+    ``task_offsets`` ((T,) integers, traced; None: all 0) shifts each task's
+    block indices further: block j of task t uses ``fold_in(key, offset +
+    task_offsets[t] + j)``. With ``n_per_task = 1`` and ``task_offsets = arange(T)``
+    every task is ONE block with its own key, the key block ``offset + t`` of a
+    run keyed ``key`` has: a batch of blocks that differ block by block (size,
+    release), each as random as in a run of one block set, whatever the chunk
+    (``calib.hazard._units.seeded_chunk``).
+
     Returns:
         ``Result`` with leading dimensions (T, n_per_task).
     """
     return _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, settings,
-                   refill_every, offset)
+                   refill_every, offset, task_offsets)
 
 
 def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, settings,
-            refill_every, offset):
+            refill_every, offset, task_offsets=None):
     """Pool of lanes over T tasks x ``n_per_task`` blocks (traced, not jitted).
 
-    Work item i is block ``j = i % n_per_task`` of task ``t = i // n_per_task``;
-    every ``refill_every`` events the lanes whose block finished write its result
-    and take the next item, so the cost follows the mean event count.
+    Work item i is block ``j = i % n_per_task`` of task ``t = i // n_per_task``
+    (key index ``offset + task_offsets[t] + j``); every ``refill_every`` events the
+    lanes whose block finished write its result and take the next item, so the
+    cost follows the mean event count.
     """
     n_tasks = jax.tree_util.tree_leaves(params)[0].shape[0]
     n_items = n_tasks * n_per_task
@@ -150,7 +160,8 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
     def lane_init(i):
         t, j = i // n_per_task, i % n_per_task
         p, b, _ = task_of(t)
-        gi = (j + offset).astype(jnp.uint32)
+        gi = j + offset if task_offsets is None else j + offset + task_offsets[t]
+        gi = gi.astype(jnp.uint32)
         release_key, event_key = jax.random.split(jax.random.fold_in(key, gi))
         s = init(p, b, release_key, profile, settings)
         return s, key_words(event_key)

@@ -154,20 +154,23 @@ def fragment_state(record: BreakRecord, params: Params, profile: Profile,
         params: the block's ``Params`` (barrier and fragment ratios).
         profile: the slope.
         barrier_open: bool, the block had not met the barrier (``Result.barrier``
-            not reached): only then can the fragment meet it.
+            not reached): only then can the fragment meet it (ignored without
+            a barrier).
         settings: static settings (the event budget).
     """
     from solvers.crsp._model import State, event_budget
 
-    crossing = start_crossing(record.x_m, params.barrier_x_m)
-    crossing = crossing._replace(open=crossing.open & barrier_open)
+    crossing = None  # a run without a barrier (Params.barrier_x_m None) carries none
+    if params.barrier_x_m is not None:
+        crossing = start_crossing(record.x_m, params.barrier_x_m)
+        crossing = crossing._replace(open=crossing.open & barrier_open)
     zero = jnp.asarray(0, jnp.int32)
     return State(
         x_m=record.x_m, z_m=record.z_m, vx_m_s=record.vx_m_s, vz_m_s=record.vz_m_s,
         spin_rad_s=record.spin_rad_s, seg=record.seg, mode=record.mode, n_events=zero,
         n_impacts=zero, pending=record.pending, radius_m=record.radius_m,
         fragmented=jnp.asarray(True), budget=event_budget(profile, record.radius_m, settings),
-        barrier=crossing, breakup=no_break())
+        barrier=crossing, breakup=no_break() if settings.split_at_break else None)
 
 
 def simulate_fragment(params: Params, block: Block, record: BreakRecord, key: jax.Array,

@@ -25,10 +25,12 @@ each solved in closed form:
 * A protection barrier (``_barrier``; none by default): the event in which
   the block first crosses its abscissa downslope is evaluated there; a block
   that passes lower than its height is stopped (STOPPED_BY_BARRIER) or breaks
-  through with reduced energy, and the event ends at the barrier.
-* A break (``_effects``) is recorded in ``Result.breakup`` (``_break``);
-  with ``Settings.split_at_break`` the run ends there, for a caller that runs
-  every fragment on from the record.
+  through with reduced energy, and the event ends at the barrier. A run
+  without a barrier (``Params.barrier_x_m`` None) compiles none of its code.
+* A break (``_effects``) is recorded in ``Result.breakup`` (``_break``) when
+  ``Settings.split_at_break`` is set: the run then ends there, for a caller
+  that runs every fragment on from the record. Without it (the default) the
+  model follows one fragment and compiles none of the record's code.
 
 Status codes are those of ``solvers.status``. After every event the block must
 lie on or above the ground (``z >= ground - GROUND_TOL_M``) with finite values;
@@ -62,12 +64,14 @@ import jax.numpy as jnp
 
 from solvers._rng import key_words, uniform_from_counter
 from solvers.crsp._barrier import (
+    NO_CUT,
     Barrier,
     BarrierRecord,
     Crossing,
-    at_barrier,
     barrier_site,
-    hits,
+    cut,
+    flight_at,
+    rolling_at,
     start_crossing,
 )
 from solvers.crsp._barrier import record as barrier_record
@@ -164,8 +168,10 @@ class State(NamedTuple):
         radius_m: current radius (the fragment's after a break), m.
         fragmented: bool, the block has broken (``_effects``).
         budget: int, the event budget of this block (``event_budget``).
-        barrier: ``_barrier.Crossing``, the block's meeting with the barrier.
-        breakup: ``_break.BreakRecord``, the block's break, if it broke.
+        barrier: ``_barrier.Crossing``, the block's meeting with the barrier
+            (None in a run without one).
+        breakup: ``_break.BreakRecord``, the block's break, if it broke (None
+            unless ``Settings.split_at_break``).
     """
 
     x_m: jax.Array
@@ -181,8 +187,8 @@ class State(NamedTuple):
     radius_m: jax.Array
     fragmented: jax.Array
     budget: jax.Array
-    barrier: Crossing
-    breakup: BreakRecord
+    barrier: Crossing | None
+    breakup: BreakRecord | None
 
 
 class Result(NamedTuple):
@@ -199,8 +205,10 @@ class Result(NamedTuple):
         n_events, n_impacts: counts.
         release_x_m: the release abscissa actually used, m.
         stations: ``StationRecord`` with fields of shape (n_stations,).
-        barrier: ``_barrier.BarrierRecord``, what the block did at the barrier.
-        breakup: ``_break.BreakRecord``, the block's break (``_effects``), if any.
+        barrier: ``_barrier.BarrierRecord``, what the block did at the barrier
+            (None in a run without one: ``Params.barrier_x_m`` None).
+        breakup: ``_break.BreakRecord``, the block's break (``_effects``), if
+            any (None unless ``Settings.split_at_break``).
     """
 
     runout_m: jax.Array
@@ -212,8 +220,8 @@ class Result(NamedTuple):
     n_impacts: jax.Array
     release_x_m: jax.Array
     stations: StationRecord
-    barrier: BarrierRecord
-    breakup: BreakRecord
+    barrier: BarrierRecord | None
+    breakup: BreakRecord | None
 
 
 def _segment_geometry(profile: Profile, seg):
@@ -234,7 +242,8 @@ class SegmentTable(NamedTuple):
     """Per-segment constants, computed once per block outside the event loop
     (transcendentals inside the loop dominated its cost on CPU). Shapes (S,).
     The ``*_frag`` fields are those of a fragment (``_effects``); ``barrier``:
-    the run's ``_barrier.Barrier`` (scalars), looked up on the profile once."""
+    the run's ``_barrier.Barrier`` (scalars), looked up on the profile once, or
+    None: no barrier, and no barrier code in the compiled loop."""
 
     beta: jax.Array
     cos: jax.Array
@@ -251,7 +260,7 @@ class SegmentTable(NamedTuple):
     Kt_frag: jax.Array
     mass_frag_kg: jax.Array
     belt_keep: jax.Array
-    barrier: Barrier
+    barrier: Barrier | None
 
 
 def segment_table(profile: Profile, params: Params, block: Block) -> SegmentTable:
@@ -280,8 +289,8 @@ def segment_table(profile: Profile, params: Params, block: Block) -> SegmentTabl
         Kn_frag=size_scaled(Kn, r_frag, gamma), Kt_frag=size_scaled(Kt, r_frag, gamma),
         mass_frag_kg=block.mass_kg * params.frag_radius_ratio**3,
         belt_keep=jnp.sqrt(1.0 - params.belt_loss),
-        barrier=barrier_site(profile, params.barrier_x_m, params.barrier_height_m,
-                             params.barrier_capacity_kJ),
+        barrier=None if params.barrier_x_m is None else barrier_site(
+            profile, params.barrier_x_m, params.barrier_height_m, params.barrier_capacity_kJ),
     )
 
 
@@ -335,13 +344,17 @@ def init(params: Params, block: Block, key: jax.Array, profile: Profile,
         pending=jnp.asarray(False),
         radius_m=zero + block.radius_m, fragmented=jnp.asarray(False),
         budget=event_budget(profile, block.radius_m, settings),
-        barrier=start_crossing(x0, params.barrier_x_m),
-        breakup=no_break(),
+        barrier=None if params.barrier_x_m is None else start_crossing(x0, params.barrier_x_m),
+        breakup=no_break() if settings.split_at_break else None,
     )
 
 
 def _flight_event(state: State, params: Params, block: Block, key, profile: Profile,
                   table: SegmentTable, settings: Settings) -> tuple[State, Passage]:
+    """A flight to its landing (touch-down or CRSP impact), to the window's
+    edge, or into the barrier's net. Longer than 80 lines: one event in closed
+    form whose parts share the landing's values; a split would only pass them
+    around."""
     g = settings.g_m_s2
     x, z, vx, vz = state.x_m, state.z_m, state.vx_m_s, state.vz_m_s
     fh = next_impact(profile, state.seg, x, z, vx, vz, g, settings.window)
@@ -359,10 +372,18 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
     r, k = state.radius_m, block.inertia_ratio
     m = jnp.where(state.fragmented, table.mass_frag_kg, block.mass_kg)
     zero = jnp.zeros_like(x)
+    spin_energy = k * (r * state.spin_rad_s) ** 2
     passage = Passage(x0_m=x, x_end_m=x1, flight=jnp.asarray(True), z0_m=z, vx_m_s=vx, vz_m_s=vz,
-                      spin_energy_m2_s2=k * (r * state.spin_rad_s) ** 2, u2_m2_s2=zero,
+                      spin_energy_m2_s2=spin_energy, u2_m2_s2=zero,
                       accel_m_s2=zero, drag_per_m=zero, slope_cos=zero + 1.0, mass_kg=m,
                       inertia_ratio=k)
+
+    # the barrier (_barrier): a flight into its net ends there, before any landing
+    bc = NO_CUT
+    if table.barrier is not None:  # static: without a barrier none of this is compiled
+        site = table.barrier
+        bc = cut(state.barrier, site, state.barrier.open & (x < site.x_m) & (x1 >= site.x_m),
+                 flight_at(x, z, vx, vz, state.spin_rad_s, spin_energy, m, site, g), site.seg)
 
     seg = fh.seg
     xa, xb = profile.x_m[seg], profile.x_m[seg + 1]
@@ -370,9 +391,10 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
     beta, cb, sb = table.beta[seg], table.cos[seg], table.sin[seg]
     thr = params.rolling_threshold_m_s
     # speed into the mean segment at landing: a touch-down below the threshold
+    hit = fh.hit & ~bc.net
     vn_in = vx * sb - vz1 * cb
-    touch = fh.hit & (vn_in < thr)
-    impact = fh.hit & ~touch
+    touch = hit & (vn_in < thr)
+    impact = hit & ~touch
     u_touch = vx * cb + vz1 * sb
 
     # CRSP impact on the hit segment (used only if ``impact``)
@@ -397,17 +419,18 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
     u_t = jnp.where(touch, u_touch, imp.vx_m_s * cb + imp.vz_m_s * sb)
     z_line = za + (zb - za) * (x1 - xa) / (xb - xa)
 
-    hit = fh.hit
+    free = jnp.where(fh.left_profile & ~bc.net, LEFT_PROFILE, FLIGHT)
     mode = jnp.where(hit, jnp.where(roll, CONTACT, FLIGHT),
-                     jnp.where(fh.left_profile, LEFT_PROFILE, FLIGHT)).astype(jnp.int32)
+                     jnp.where(bc.caught, STOPPED_BY_BARRIER, free)).astype(jnp.int32)
     new = State(
-        x_m=x1,
-        z_m=jnp.where(hit, z_line, z1),
-        vx_m_s=jnp.where(hit, jnp.where(roll, u_t * cb, imp.vx_m_s), vx),
-        vz_m_s=jnp.where(hit, jnp.where(roll, u_t * sb, imp.vz_m_s), vz1),
+        x_m=jnp.where(bc.net, bc.x_m, x1),
+        z_m=jnp.where(hit, z_line, jnp.where(bc.net, bc.at.z_m, z1)),
+        vx_m_s=jnp.where(hit, jnp.where(roll, u_t * cb, imp.vx_m_s), bc.keep * vx),
+        vz_m_s=jnp.where(hit, jnp.where(roll, u_t * sb, imp.vz_m_s),
+                         bc.keep * jnp.where(bc.net, bc.at.vz_m_s, vz1)),
         spin_rad_s=jnp.where(hit, jnp.where(roll, u_t / r_new, imp.spin_rad_s),
-                             state.spin_rad_s),
-        seg=seg,
+                             bc.keep * state.spin_rad_s),
+        seg=jnp.where(bc.net, bc.seg, seg),
         mode=mode,
         n_events=state.n_events + 1,
         n_impacts=state.n_impacts + impact.astype(jnp.int32),
@@ -415,16 +438,19 @@ def _flight_event(state: State, params: Params, block: Block, key, profile: Prof
         radius_m=r_new,
         fragmented=frag | brk,
         budget=state.budget,
-        barrier=state.barrier,
+        barrier=bc.crossing,
         breakup=state.breakup,
     )
-    # the break, for a caller that follows every fragment (_break)
-    return note_break(state, new, brk, vx, vz1, block, params, table.mass_frag_kg,
-                      settings), passage
+    if settings.split_at_break:  # static: the break, for a caller that follows every fragment
+        new = note_break(state, new, brk, vx, vz1, block, params, table.mass_frag_kg, settings)
+    return new, passage
 
 
 def _contact_event(state: State, params: Params, block: Block, profile: Profile,
                    table: SegmentTable, settings: Settings) -> tuple[State, Passage]:
+    """A rolling move to the segment's end (and what happens at its vertex), to
+    rest, or into the barrier's net. Longer than 80 lines for the reason of
+    ``_flight_event``."""
     g = settings.g_m_s2
     n_seg = profile.x_m.shape[0] - 1
     seg = state.seg
@@ -454,6 +480,14 @@ def _contact_event(state: State, params: Params, block: Block, profile: Profile,
                       accel_m_s2=mv.accel_m_s2, drag_per_m=mv.drag_per_m, slope_cos=cb,
                       mass_kg=m, inertia_ratio=k)
 
+    # the barrier (_barrier): a move into its net ends there, before the segment's end
+    bc = NO_CUT
+    if table.barrier is not None:  # static: without a barrier none of this is compiled
+        site = table.barrier
+        bc = cut(state.barrier, site, state.barrier.open & (mv.direction > 0) & (x < site.x_m)
+                 & (x1 >= site.x_m), rolling_at(x, state.z_m, u * u, mv.accel_m_s2,
+                                                 mv.drag_per_m, cb, sb, m, k, r, site), seg)
+
     # what happens at the segment's end
     step = mv.direction.astype(jnp.int32)
     nxt = seg + step
@@ -464,14 +498,16 @@ def _contact_event(state: State, params: Params, block: Block, profile: Profile,
     vt = vertex_transition(speed, mv.direction, beta, table.beta[nxt_c], r, k,
                            params.rolling_threshold_m_s, g, table.length[nxt_c])
     at_end = mv.at_end
-    switch = at_end & ~off_end
+    switch = at_end & ~off_end & ~bc.net
     launch = switch & vt.launch
     impact = switch & vt.impact
     pit_rest = switch & vt.rest
     roll_on = switch & ~vt.launch & ~vt.impact & ~vt.rest
-    mode = jnp.where(mv.stopped | pit_rest, STOPPED,
-                     jnp.where(at_end & off_end, LEFT_PROFILE,
-                               jnp.where(launch | impact, FLIGHT, CONTACT))).astype(jnp.int32)
+    mode = jnp.where(bc.net, jnp.where(bc.caught, STOPPED_BY_BARRIER, CONTACT),
+                     jnp.where(mv.stopped | pit_rest, STOPPED,
+                               jnp.where(at_end & off_end, LEFT_PROFILE,
+                                         jnp.where(launch | impact, FLIGHT, CONTACT))
+                               )).astype(jnp.int32)
     d = mv.direction
     u_next = d * vt.u_next_m_s
     v_launch_x = speed * d * jnp.cos(vt.launch_rad)
@@ -483,11 +519,12 @@ def _contact_event(state: State, params: Params, block: Block, profile: Profile,
     speed_along = jnp.where(roll_on, vt.u_next_m_s, speed)
     stopped = mode == STOPPED
     return State(
-        x_m=x1,
-        z_m=z1,
-        vx_m_s=jnp.where(stopped, 0.0, vx_new),
-        vz_m_s=jnp.where(stopped, 0.0, vz_new),
-        spin_rad_s=jnp.where(stopped, 0.0, d * speed_along / r),
+        x_m=jnp.where(bc.net, bc.x_m, x1),
+        z_m=jnp.where(bc.net, bc.at.z_m, z1),
+        vx_m_s=jnp.where(bc.net, bc.keep * bc.at.vx_m_s, jnp.where(stopped, 0.0, vx_new)),
+        vz_m_s=jnp.where(bc.net, bc.keep * bc.at.vz_m_s, jnp.where(stopped, 0.0, vz_new)),
+        spin_rad_s=jnp.where(bc.net, bc.keep * bc.at.spin_rad_s,
+                             jnp.where(stopped, 0.0, d * speed_along / r)),
         seg=jnp.where(switch, nxt_c, seg).astype(jnp.int32),
         mode=mode,
         n_events=state.n_events + 1,
@@ -496,7 +533,7 @@ def _contact_event(state: State, params: Params, block: Block, profile: Profile,
         radius_m=r,
         fragmented=state.fragmented,
         budget=state.budget,
-        barrier=state.barrier,
+        barrier=bc.crossing,
         breakup=state.breakup,
     ), passage
 
@@ -518,8 +555,8 @@ def step(state: State, params: Params, block: Block, key: jax.Array, profile: Pr
 
     The event happens only if the block is moving within its budget; a finished
     block is unchanged and its passage ends at -inf (it passes nothing). An
-    event that crosses the barrier is cut there when the block hits the net
-    (``_barrier_event``). After
+    event that crosses the barrier ends there when the block hits the net
+    (``_barrier``). After
     an event the block must be on or above the ground of its segment
     (``z >= ground - GROUND_TOL_M``) with finite values, else its mode becomes
     ``INVALID``. ``key`` is the event key's two uint32 words
@@ -530,7 +567,6 @@ def step(state: State, params: Params, block: Block, key: jax.Array, profile: Pr
     in_flight = state.mode == FLIGHT
     new = jax.tree_util.tree_map(lambda a, b: jnp.where(in_flight, a, b), fl, co)
     passage = jax.tree_util.tree_map(lambda a, b: jnp.where(in_flight, a, b), fl_pass, co_pass)
-    new = _barrier_event(state, new, passage, go, table, settings)
     ground = _line_z(profile, new.seg, new.x_m)
     finite = (jnp.isfinite(new.x_m) & jnp.isfinite(new.z_m) & jnp.isfinite(new.vx_m_s)
               & jnp.isfinite(new.vz_m_s))
@@ -538,37 +574,6 @@ def step(state: State, params: Params, block: Block, key: jax.Array, profile: Pr
     new = new._replace(mode=jnp.where(bad, INVALID, new.mode).astype(jnp.int32))
     new = jax.tree_util.tree_map(lambda a, b: jnp.where(go, a, b), new, state)
     return new, passage._replace(x_end_m=jnp.where(go, new.x_m, -jnp.inf))
-
-
-def _barrier_event(state: State, new: State, passage: Passage, go: jax.Array,
-                   table: SegmentTable, settings: Settings) -> State:
-    """The event ``state`` -> ``new`` (of ``passage``) against the barrier
-    (``_barrier``): a block still open to it whose event crosses its abscissa
-    downslope (``x0 < x_b <= x1``) records the crossing; if it passes lower than
-    the barrier's height, the event ends at the barrier instead of ``new``:
-    stopped there (STOPPED_BY_BARRIER) or going on from the crossing point with
-    velocity and spin scaled by ``keep``, in its mode (flight, or rolling on its
-    segment), with the radius, fragment state and impact count it had before
-    the event (what the event did beyond the barrier is discarded)."""
-    site = table.barrier
-    cb = state.barrier
-    meet = go & cb.open & (passage.x0_m < site.x_m) & (new.x_m >= site.x_m)
-    kin = at_barrier(passage, state.z_m, state.spin_rad_s, table.sin[state.seg],
-                     state.radius_m, site, settings.g_m_s2)
-    in_net, stopped, keep = hits(kin, site)
-    net = meet & in_net
-    at_net = state._replace(
-        x_m=site.x_m + jnp.zeros_like(state.x_m), z_m=kin.z_m, vx_m_s=keep * kin.vx_m_s,
-        vz_m_s=keep * kin.vz_m_s, spin_rad_s=keep * kin.spin_rad_s,
-        seg=jnp.where(passage.flight, site.seg, state.seg).astype(jnp.int32),
-        mode=jnp.where(stopped, STOPPED_BY_BARRIER, state.mode).astype(jnp.int32),
-        n_events=new.n_events, pending=jnp.asarray(False), barrier=new.barrier)
-    new = jax.tree_util.tree_map(lambda a, b: jnp.where(net, a, b), at_net, new)
-    crossing = Crossing(open=cb.open & ~meet, reached=cb.reached | meet,
-                        clearance_m=kin.clearance_m, vx_m_s=kin.vx_m_s, vz_m_s=kin.vz_m_s,
-                        energy_kJ=kin.energy_kJ, energy_after_kJ=keep * keep * kin.energy_kJ)
-    return new._replace(barrier=jax.tree_util.tree_map(
-        lambda a, b: jnp.where(meet, a, b), crossing, cb))
 
 
 def sorted_stations(profile: Profile, stations_x_m) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -661,6 +666,6 @@ def raw_result(final: State, release_x_m: jax.Array) -> Result:
         n_impacts=final.n_impacts,
         release_x_m=release_x_m,
         stations=None,
-        barrier=barrier_record(final.barrier),
+        barrier=None if final.barrier is None else barrier_record(final.barrier),
         breakup=final.breakup,
     )

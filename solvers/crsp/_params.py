@@ -107,12 +107,19 @@ class Params(NamedTuple):
         belt_start_m, belt_end_m: abscissae of the vegetation belt, m.
         belt_loss: fraction of the rebound energy lost at an impact in the belt,
             and extra rolling resistance there (0: off).
-        barrier_x_m: abscissa of a protection barrier, m (+inf: none). See
+        barrier_x_m: abscissa of a protection barrier, m, or None: no barrier
+            (+inf: none either, but the run carries the barrier's code). See
             ``_barrier``.
         barrier_height_m: its height H above the ground there, m (a block whose
-            lowest point passes at H or higher flies over it).
+            lowest point passes at H or higher flies over it); None with
+            ``barrier_x_m``.
         barrier_capacity_kJ: the energy E_cap it absorbs, kJ (+inf: unlimited):
-            a block hitting it with more breaks through keeping E - E_cap.
+            a block hitting it with more breaks through keeping E - E_cap; None
+            with ``barrier_x_m``.
+
+    The barrier's three fields are None together or arrays together; tasks of
+    one batch (``_batch``) share that structure (a batch of runs with and
+    without a barrier gives the latter ``barrier_x_m = +inf``).
     """
 
     Kn: jax.Array
@@ -135,9 +142,9 @@ class Params(NamedTuple):
     belt_start_m: jax.Array
     belt_end_m: jax.Array
     belt_loss: jax.Array
-    barrier_x_m: jax.Array
-    barrier_height_m: jax.Array
-    barrier_capacity_kJ: jax.Array
+    barrier_x_m: jax.Array | None
+    barrier_height_m: jax.Array | None
+    barrier_capacity_kJ: jax.Array | None
 
 
 def params_from_profile(profile: Profile, **overrides) -> Params:
@@ -150,12 +157,13 @@ def params_from_profile(profile: Profile, **overrides) -> Params:
     height and speed known exactly (their sds 0). The optional
     effects of ``_effects`` are off (fragment size and speed ratios 0.5 and 0.7,
     assumptions, matter only once ``frag_energy_kJ`` is finite). There is no
-    barrier (``barrier_x_m`` +inf); given an abscissa only, the barrier is
-    unlimited (height and capacity +inf: it stops every block that reaches it).
+    barrier (its fields None); given an abscissa only, the barrier is unlimited
+    (height and capacity +inf: it stops every block that reaches it).
 
     Raises:
         TypeError: an unknown parameter name.
-        ValueError: a barrier height or capacity that is negative or NaN.
+        ValueError: a barrier height or capacity that is negative or NaN, or
+            given without the barrier's abscissa.
     """
     n_zones = len(profile.zone_names)
     values = dict(
@@ -166,17 +174,23 @@ def params_from_profile(profile: Profile, **overrides) -> Params:
         release_vz_m_s=0.0, restitution_size_exponent=0.0, frag_energy_kJ=float("inf"),
         release_height_sd_m=0.0, release_speed_sd_m_s=0.0,
         frag_radius_ratio=0.5, frag_speed_ratio=0.7, rolling_resistance=0.0,
-        belt_start_m=0.0, belt_end_m=0.0, belt_loss=0.0, barrier_x_m=float("inf"),
-        barrier_height_m=float("inf"), barrier_capacity_kJ=float("inf"),
+        belt_start_m=0.0, belt_end_m=0.0, belt_loss=0.0, barrier_x_m=None,
+        barrier_height_m=None, barrier_capacity_kJ=None,
     )
     unknown = set(overrides) - set(values)
     if unknown:
         raise TypeError(f"unknown CRSP parameter(s): {', '.join(sorted(unknown))}")
     values.update(overrides)
     _check_barrier(values)
+    if values["barrier_x_m"] is not None:
+        for name in ("barrier_height_m", "barrier_capacity_kJ"):
+            values[name] = float("inf") if values[name] is None else values[name]
     zone_fields = ("Kn", "Kt", "roughness_m", "rolling_friction_deg")
     out = {}
     for name, v in values.items():
+        if v is None:  # no barrier
+            out[name] = None
+            continue
         arr = jnp.asarray(v, dtype=jnp.float64)
         if name in zone_fields:
             arr = jnp.broadcast_to(arr, (n_zones,))
@@ -185,10 +199,16 @@ def params_from_profile(profile: Profile, **overrides) -> Params:
 
 
 def _check_barrier(values: dict) -> None:
-    """Refuse a negative or NaN barrier height or capacity and a NaN abscissa
-    (traced values are not checked)."""
+    """Refuse a negative or NaN barrier height or capacity, a NaN abscissa, and
+    a height or capacity without an abscissa (traced values are not checked)."""
+    if values["barrier_x_m"] is None:
+        given = [n for n in ("barrier_height_m", "barrier_capacity_kJ") if values[n] is not None]
+        if given:
+            raise ValueError(f"{', '.join(given)} given without barrier_x_m (the barrier's "
+                             "abscissa)")
+        return
     for name in ("barrier_x_m", "barrier_height_m", "barrier_capacity_kJ"):
-        if isinstance(values[name], jax.core.Tracer):
+        if values[name] is None or isinstance(values[name], jax.core.Tracer):
             continue
         v = np.asarray(values[name], dtype=float)
         if np.any(np.isnan(v)) or (name != "barrier_x_m" and np.any(v < 0.0)):
