@@ -147,11 +147,11 @@ def _run(args) -> int:
         profile = load_profile(args.profile)
     except ProfileError as e:
         raise CliError(str(e)) from None
+    speeds = speed_design(args, profile)  # every option checked before anything is simulated
     obs, truth = synthesize_effect(profile, args.effect, args.strength, args.n_obs,
                                    args.seed, args.model, args.sd_m)
     stem = args.out[:-4]
     files = {}
-    speeds = speed_design(args, profile)
     if speeds is not None:
         from calib.discovery.synthetic import synthesize_velocities
 
