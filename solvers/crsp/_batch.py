@@ -140,39 +140,10 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
     n_items = n_tasks * n_per_task
     pool = default_pool() if pool is None else pool
     stations_x_m, stations_z_m, order = sorted_stations(profile, stations_x_m)
-    # the task axis padded to the lane quantum (the padding is never simulated):
-    # XLA:CPU compiles a call with one task differently from one with several
-    # (and a vector loop differently from its scalar tail), which rounds the
-    # runouts differently (1.7e-13 m); a task's blocks must not depend on how
-    # many tasks share the call
-    pad = (-n_tasks) % _LANE_QUANTUM
-
-    def padded(tree):
-        return jax.tree_util.tree_map(
-            lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]), tree)
-
-    params, block = padded(params), padded(block)
-    tables = jax.vmap(segment_table, in_axes=(None, 0, 0))(profile, params, block)
-
-    def task_of(t):
-        return jax.tree_util.tree_map(lambda a: a[t], (params, block, tables))
-
-    def lane_init(i):
-        t, j = i // n_per_task, i % n_per_task
-        p, b, _ = task_of(t)
-        gi = j + offset if task_offsets is None else j + offset + task_offsets[t]
-        gi = gi.astype(jnp.uint32)
-        release_key, event_key = jax.random.split(jax.random.fold_in(key, gi))
-        s = init(p, b, release_key, profile, settings)
-        return s, key_words(event_key)
-
-    def lane_step(s, words, t):
-        p, b, table = task_of(t)
-        # a finished lane is left unchanged by ``step`` (and passes nothing)
-        return step(s, p, b, words, profile, table, settings)
-
-    def finalize(s, x0, reached):
-        return raw_result(s, x0), first_beyond(stations_x_m, x0), reached
+    params, block, tables = _padded_tasks(params, block, profile, n_tasks)
+    lane_init, lane_step = _lanes(params, block, tables, key, profile, settings, n_per_task,
+                                  offset, task_offsets)
+    finalize = functools.partial(_finalize, stations_x_m)
 
     lane = jnp.arange(pool)
     states, words = jax.vmap(lane_init)(jnp.minimum(lane, n_items - 1))
@@ -188,9 +159,85 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
     proto_passage = jax.eval_shape(lambda s, w, t: lane_step(s, w, t)[1],
                                    jax.tree_util.tree_map(lambda a: a[0], states), words[0],
                                    jnp.int32(0))
+    body = _pool_body(lane_init, lane_step, finalize, proto_passage, stations_x_m,
+                      stations_z_m, order, n_per_task, n_items, pool, refill_every, settings)
 
     def cond(carry):
         return jnp.any(carry[4])
+
+    carry = (states, words, x0, jnp.minimum(lane, n_items - 1), active,
+             jnp.asarray(pool), out, values, reached)
+    _, _, _, _, _, _, (res, first, last), values, _ = jax.lax.while_loop(cond, body, carry)
+    out = res._replace(stations=record(first, last, values, order))
+    return jax.tree_util.tree_map(
+        lambda a: a.reshape((n_tasks, n_per_task) + a.shape[1:]), out)
+
+
+def _padded_tasks(params, block, profile, n_tasks):
+    """The task axis padded to the lane quantum, and each task's segment table.
+
+    The padding (copies of the last task) is never simulated: XLA:CPU compiles a
+    call with one task differently from one with several (and a vector loop
+    differently from its scalar tail), which rounds the runouts differently
+    (1.7e-13 m); a task's blocks must not depend on how many tasks share the call.
+
+    Returns:
+        (params, block, tables), each leaf with a leading axis of
+        ``n_tasks`` rounded up to a multiple of ``_LANE_QUANTUM``.
+    """
+    pad = (-n_tasks) % _LANE_QUANTUM
+
+    def padded(tree):
+        return jax.tree_util.tree_map(
+            lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]), tree)
+
+    params, block = padded(params), padded(block)
+    tables = jax.vmap(segment_table, in_axes=(None, 0, 0))(profile, params, block)
+    return params, block, tables
+
+
+def _lanes(params, block, tables, key, profile, settings, n_per_task, offset, task_offsets):
+    """A lane's start and event step for work item i (see ``_pooled``).
+
+    Returns:
+        (lane_init, lane_step): ``lane_init(i)`` gives item i's initial state and
+        the key words of its events (release key and event key split from
+        ``fold_in(key, offset [+ task_offsets[t]] + j)``); ``lane_step(s, words,
+        t)`` is one event of task t (a finished lane is left unchanged by
+        ``step`` and passes nothing).
+    """
+
+    def task_of(t):
+        return jax.tree_util.tree_map(lambda a: a[t], (params, block, tables))
+
+    def lane_init(i):
+        t, j = i // n_per_task, i % n_per_task
+        p, b, _ = task_of(t)
+        gi = j + offset if task_offsets is None else j + offset + task_offsets[t]
+        gi = gi.astype(jnp.uint32)
+        release_key, event_key = jax.random.split(jax.random.fold_in(key, gi))
+        s = init(p, b, release_key, profile, settings)
+        return s, key_words(event_key)
+
+    def lane_step(s, words, t):
+        p, b, table = task_of(t)
+        return step(s, p, b, words, profile, table, settings)
+
+    return lane_init, lane_step
+
+
+def _finalize(stations_x_m, s, x0, reached):
+    """A finished lane's result: the run's outcome (``raw_result``) and the
+    station indices that ``record`` turns into its station records: the first
+    station beyond its release and the stations it reached (``first_beyond``)."""
+    return raw_result(s, x0), first_beyond(stations_x_m, x0), reached
+
+
+def _pool_body(lane_init, lane_step, finalize, proto_passage, stations_x_m, stations_z_m,
+               order, n_per_task, n_items, pool, refill_every, settings):
+    """The pool loop's body: ``refill_every`` events on every lane, then the
+    stations they passed written, finished lanes' results stored and those
+    lanes refilled with the next work items (``_refill``)."""
 
     def body(carry):
         states, words, x0, idx, active, nxt, out, values, reached = carry
@@ -213,29 +260,35 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
         res = jax.vmap(finalize)(states, x0, reached)
         target = jnp.where(done, idx, n_items)  # out of bounds: dropped
         out = jax.tree_util.tree_map(lambda o, r: o.at[target].set(r, mode="drop"), out, res)
-        new_idx = nxt + jnp.cumsum(done) - 1
-        refill = done & (new_idx < n_items)
-        ns, nw = jax.vmap(lane_init)(jnp.where(refill, new_idx, 0))
-
-        def pick(a, c):
-            m = refill.reshape(refill.shape + (1,) * (a.ndim - 1))
-            return jnp.where(m, a, c)
-
-        states = jax.tree_util.tree_map(pick, ns, states)
-        words = pick(nw, words)
-        x0 = jnp.where(refill, ns.x_m, x0)
-        reached = jnp.where(refill, first_beyond(stations_x_m, ns.x_m), reached)
-        idx = jnp.where(refill, new_idx, idx)
-        active = (active & ~done) | refill
-        nxt = nxt + jnp.sum(done)
+        states, words, x0, reached, idx, active, nxt = _refill(
+            lane_init, stations_x_m, n_items, done, states, words, x0, reached, idx, active,
+            nxt)
         return states, words, x0, idx, active, nxt, out, values, reached
 
-    carry = (states, words, x0, jnp.minimum(lane, n_items - 1), active,
-             jnp.asarray(pool), out, values, reached)
-    _, _, _, _, _, _, (res, first, last), values, _ = jax.lax.while_loop(cond, body, carry)
-    out = res._replace(stations=record(first, last, values, order))
-    return jax.tree_util.tree_map(
-        lambda a: a.reshape((n_tasks, n_per_task) + a.shape[1:]), out)
+    return body
+
+
+def _refill(lane_init, stations_x_m, n_items, done, states, words, x0, reached, idx, active,
+            nxt):
+    """Lanes whose block is ``done`` take the next work items (``nxt`` on) while
+    any are left; the others keep their state. Returns the lanes' new
+    (states, words, x0, reached, idx, active, nxt)."""
+    new_idx = nxt + jnp.cumsum(done) - 1
+    refill = done & (new_idx < n_items)
+    ns, nw = jax.vmap(lane_init)(jnp.where(refill, new_idx, 0))
+
+    def pick(a, c):
+        m = refill.reshape(refill.shape + (1,) * (a.ndim - 1))
+        return jnp.where(m, a, c)
+
+    states = jax.tree_util.tree_map(pick, ns, states)
+    words = pick(nw, words)
+    x0 = jnp.where(refill, ns.x_m, x0)
+    reached = jnp.where(refill, first_beyond(stations_x_m, ns.x_m), reached)
+    idx = jnp.where(refill, new_idx, idx)
+    active = (active & ~done) | refill
+    nxt = nxt + jnp.sum(done)
+    return states, words, x0, reached, idx, active, nxt
 
 
 _LANE_QUANTUM = 16
