@@ -98,6 +98,27 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     prog = parser.prog
+    _check_numbers(args, prog)
+    profile, stations, release_x, block = _setup(args, prog)
+    res, wall = _simulate(args, profile, stations, release_x, block)
+
+    import pandas as pd
+
+    cols = run_columns(args.block_size_m, res.status, res.runout_m, res.stop_x_m, res.stop_z_m)
+    cols.update(n_impacts=res.n_impacts, n_events=res.n_events)
+    cols.update(station_columns(stations, res.stations))
+    try:
+        write_csv_atomic(pd.DataFrame(cols), args.out)
+    except OSError as exc:
+        fail(prog, f"cannot write {args.out}: {exc.strerror or exc}")
+    _report(args, res, stations, wall)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _check_numbers(args, prog: str) -> None:
+    """Refuse, in one line, a non-positive block count, block size or event
+    budget and a negative release spread (before anything is loaded)."""
     if args.n_blocks <= 0:
         fail(prog, f"--n-blocks must be positive, got {args.n_blocks}")
     if not (args.block_size_m > 0 and np.isfinite(args.block_size_m)):
@@ -107,10 +128,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.release_spread_m < 0:
         fail(prog, f"--release-spread-m must be >= 0, got {args.release_spread_m}")
 
-    import jax
-    import pandas as pd
-    from tqdm import tqdm
 
+def _setup(args, prog: str):
+    """The profile (with the command line's material overrides), the stations,
+    the release abscissa and the block; a bad file or value fails in one line.
+
+    Returns:
+        (profile, stations, release_x_m, block).
+    """
     from solvers import crsp
     from solvers.profile import ProfileError, load_profile
 
@@ -130,6 +155,19 @@ def main(argv: list[str] | None = None) -> int:
         block = crsp.make_block(args.block_size_m / 2.0, args.shape, args.density_kg_m3)
     except (ProfileError, CliError, ValueError) as exc:
         fail(prog, str(exc))
+    return profile, stations, release_x, block
+
+
+def _simulate(args, profile, stations, release_x, block):
+    """Run the ``--n-blocks`` blocks keyed ``--seed`` (with a progress bar).
+
+    Returns:
+        (the run's ``Result``, wall time in s including compilation).
+    """
+    import jax
+    from tqdm import tqdm
+
+    from solvers import crsp
 
     params = crsp.params_from_profile(
         profile, release_x_m=release_x, release_x_spread_m=args.release_spread_m,
@@ -142,15 +180,13 @@ def main(argv: list[str] | None = None) -> int:
                           progress=bar.update)
     wall = time.perf_counter() - t0
     bar.close()
+    return res, wall
 
-    cols = run_columns(args.block_size_m, res.status, res.runout_m, res.stop_x_m, res.stop_z_m)
-    cols.update(n_impacts=res.n_impacts, n_events=res.n_events)
-    cols.update(station_columns(stations, res.stations))
-    try:
-        write_csv_atomic(pd.DataFrame(cols), args.out)
-    except OSError as exc:
-        fail(prog, f"cannot write {args.out}: {exc.strerror or exc}")
 
+def _report(args, res, stations, wall: float) -> None:
+    """Print the run's summary: runout percentiles of the finished blocks, the
+    status counts, each station's reach and energy p95; warn on stderr about
+    unfinished blocks and about percentiles resting on few blocks."""
     done = finished(res.status)
     ro = res.runout_m[done]
     counts = {STATUS_NAMES[int(c)]: int(np.sum(res.status == c)) for c in np.unique(res.status)}
@@ -177,8 +213,6 @@ def main(argv: list[str] | None = None) -> int:
     warning = few_blocks_warning(few)
     if warning:
         print(warning, file=sys.stderr)
-    print(f"wrote {args.out}")
-    return 0
 
 
 if __name__ == "__main__":
