@@ -183,7 +183,7 @@ def _area_text(r: Raster) -> str:
     return f"(cell centres span east {w:g} to {e:g} m, north {s:g} to {n:g} m)"
 
 
-def read_ascii_grid(path: str | os.PathLike) -> Raster:  # long: one check per header key
+def read_ascii_grid(path: str | os.PathLike) -> Raster:
     """Read an ESRI ASCII grid (format in the module docstring).
 
     Args:
@@ -199,65 +199,24 @@ def read_ascii_grid(path: str | os.PathLike) -> Raster:  # long: one check per h
             message names the file, the line and (for values) the column.
     """
     path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise RasterError(f"{path}: file not found")
+    expected = ("an ESRI ASCII grid starts with ncols, nrows, xllcorner|xllcenter, "
+                "yllcorner|yllcenter, cellsize and optionally NODATA_value")
+    lines = _text_lines(path, expected)
     header: dict[str, float] = {}
     rows: list[np.ndarray] = []
     nrows = ncols = None
-    expected = ("an ESRI ASCII grid starts with ncols, nrows, xllcorner|xllcenter, "
-                "yllcorner|yllcenter, cellsize and optionally NODATA_value")
-    try:
-        fh = open(path, encoding="utf-8")
-        lines = fh.read().splitlines()
-        fh.close()
-    except UnicodeDecodeError:
-        raise RasterError(f"{path}: not a text file ({expected})") from None
     for lineno, text in enumerate(lines, start=1):
         tokens = text.split()
         if not tokens:
             continue
         if nrows is None and tokens[0][0].isalpha():
-            key = tokens[0].lower()
-            if key not in _HEADER_KEYS:
-                raise RasterError(f"{path}: line {lineno}: unknown header key {tokens[0]!r}; "
-                                  f"{expected}")
-            if key in header:
-                raise RasterError(f"{path}: line {lineno}: header key {tokens[0]!r} given twice")
-            if len(tokens) != 2:
-                raise RasterError(f"{path}: line {lineno}: header key {tokens[0]!r}: expected "
-                                  f"one value, got {len(tokens) - 1}")
-            try:
-                header[key] = float(tokens[1])
-            except ValueError:
-                raise RasterError(f"{path}: line {lineno}: header key {tokens[0]!r}: expected "
-                                  f"a number, got {tokens[1]!r}") from None
-            if not math.isfinite(header[key]):
-                raise RasterError(f"{path}: line {lineno}: header key {tokens[0]!r}: expected "
-                                  f"a finite number, got {tokens[1]!r}")
+            _header_entry(path, lineno, tokens, header, expected)
             continue
         if nrows is None:
             ncols, nrows, east0, north0, cell, nodata = _check_header(path, header, expected)
         if len(rows) == nrows:
             raise RasterError(f"{path}: line {lineno}: more grid rows than nrows = {nrows}")
-        if len(tokens) != ncols:
-            raise RasterError(f"{path}: line {lineno}: grid row {len(rows) + 1}: expected "
-                              f"ncols = {ncols} values, got {len(tokens)}")
-        try:
-            vals = np.array(tokens, dtype=float)
-        except ValueError:
-            vals = None
-        if vals is None or not np.isfinite(vals).all():
-            for col, tok in enumerate(tokens, start=1):
-                try:
-                    ok = math.isfinite(float(tok))
-                except ValueError:
-                    ok = False
-                if not ok:
-                    raise RasterError(f"{path}: line {lineno}: column {col}: expected a "
-                                      f"finite number, got {tok!r}")
-        if nodata is not None:
-            vals = np.where(vals == nodata, np.nan, vals)
-        rows.append(vals)
+        rows.append(_grid_row(path, lineno, tokens, len(rows) + 1, ncols, nodata))
     if nrows is None:
         if not header:
             raise RasterError(f"{path}: empty file; {expected}")
@@ -266,6 +225,69 @@ def read_ascii_grid(path: str | os.PathLike) -> Raster:  # long: one check per h
         raise RasterError(f"{path}: expected nrows = {nrows} grid rows, got {len(rows)}")
     z = np.array(rows[::-1])  # file rows run north to south; row 0 here is southernmost
     return Raster(z, east0, north0, cell, path, "")
+
+
+def _text_lines(path: str, expected: str) -> list[str]:
+    """The file's lines; a missing file or one that is not UTF-8 text fails in
+    one line."""
+    if not os.path.isfile(path):
+        raise RasterError(f"{path}: file not found")
+    try:
+        fh = open(path, encoding="utf-8")
+        lines = fh.read().splitlines()
+        fh.close()
+    except UnicodeDecodeError:
+        raise RasterError(f"{path}: not a text file ({expected})") from None
+    return lines
+
+
+def _header_entry(path: str, lineno: int, tokens: list[str], header: dict[str, float],
+                  expected: str) -> None:
+    """Add one header line (a known key, given once, with one finite number) to
+    ``header``; anything else fails naming the line and the key."""
+    key = tokens[0].lower()
+    if key not in _HEADER_KEYS:
+        raise RasterError(f"{path}: line {lineno}: unknown header key {tokens[0]!r}; "
+                          f"{expected}")
+    if key in header:
+        raise RasterError(f"{path}: line {lineno}: header key {tokens[0]!r} given twice")
+    if len(tokens) != 2:
+        raise RasterError(f"{path}: line {lineno}: header key {tokens[0]!r}: expected "
+                          f"one value, got {len(tokens) - 1}")
+    try:
+        header[key] = float(tokens[1])
+    except ValueError:
+        raise RasterError(f"{path}: line {lineno}: header key {tokens[0]!r}: expected "
+                          f"a number, got {tokens[1]!r}") from None
+    if not math.isfinite(header[key]):
+        raise RasterError(f"{path}: line {lineno}: header key {tokens[0]!r}: expected "
+                          f"a finite number, got {tokens[1]!r}")
+
+
+def _grid_row(path: str, lineno: int, tokens: list[str], row: int, ncols: int,
+              nodata: float | None) -> np.ndarray:
+    """Grid row number ``row`` (1-based, from the north): ``ncols`` finite
+    numbers, NaN where they equal ``nodata``; a wrong count or a bad value fails
+    naming the line (and the column)."""
+    if len(tokens) != ncols:
+        raise RasterError(f"{path}: line {lineno}: grid row {row}: expected "
+                          f"ncols = {ncols} values, got {len(tokens)}")
+    try:
+        vals = np.array(tokens, dtype=float)
+    except ValueError:
+        vals = None
+    if vals is None or not np.isfinite(vals).all():
+        for col, tok in enumerate(tokens, start=1):
+            try:
+                ok = math.isfinite(float(tok))
+            except ValueError:
+                ok = False
+            if not ok:
+                raise RasterError(f"{path}: line {lineno}: column {col}: expected a "
+                                  f"finite number, got {tok!r}")
+    if nodata is not None:
+        vals = np.where(vals == nodata, np.nan, vals)
+    return vals
 
 
 def _check_header(path: str, header: dict[str, float], expected: str):
