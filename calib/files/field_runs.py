@@ -234,60 +234,74 @@ def load_runs(path: str | os.PathLike, blocks_path: str | os.PathLike | None = N
                          f"{', '.join(header)})")
     if not rows:
         raise FieldError(f"{path}: no runs after the header")
-    blocks: dict[str, tuple[int, dict]] = {}
     bpath = os.fspath(blocks_path) if blocks_path is not None else None
-    if bpath is not None:
-        if c.block_id not in header:
-            raise FieldError(f"{path}: line 1: missing column {c.block_id!r} to join "
-                             f"{bpath} on")
-        bheader, brows = _read(bpath, c.block_id)
-        if c.block_id not in bheader:
-            raise FieldError(f"{bpath}: line 1: missing column {c.block_id!r}")
-        for bline, brow in brows:
-            key = brow[c.block_id]
-            if key in blocks:
-                raise FieldError(f"{bpath}: line {bline}: column {c.block_id!r}: duplicate "
-                                 f"block {key!r}")
-            blocks[key] = (bline, brow)
-    vel_cols = all(k in header for k in c.velocity)
+    blocks = {} if bpath is None else _read_blocks(path, bpath, header, c)
     out: dict[str, list] = {k: [] for k in ("run_id", "block_id", "line", "re", "rn", "se", "sn",
                                             "mass", "size", "speed", "z")}
     for i, (line, row) in enumerate(rows):
-        run_id = row.get(c.run_id) or f"row {i + 1}"
-        block = row.get(c.block_id, "")
-        brow = None
-        if bpath is not None:
-            if block not in blocks:
-                raise FieldError(f"{path}: line {line}: column {c.block_id!r}: block {block!r} "
-                                 f"is not in {bpath}")
-            brow = blocks[block]
-        re_, rn = (_value(path, line, row, k) for k in c.release)
-        se, sn = (_value(path, line, row, k) for k in c.stop)
-        mass = _value(path, line, row, c.mass, positive=True, required=False)
-        if math.isnan(mass) and brow is not None:
-            mass = _value(bpath, brow[0], brow[1], c.mass, positive=True, required=False)
-        size = _size(path, line, row, c.size)
-        if np.isnan(size).all() and brow is not None:
-            size = _size(bpath, brow[0], brow[1], c.size)
-        if math.isnan(mass) and np.isnan(size).all():
-            where = f" or in {bpath} for block {block!r}" if bpath else ""
-            raise FieldError(f"{path}: line {line}: column {c.mass!r}: run {run_id} has no mass "
-                             f"and no dimensions ({', '.join(c.size)}){where}")
-        speed = math.nan
-        if vel_cols:
-            v = [_value(path, line, row, k, required=False) for k in c.velocity]
-            if not any(math.isnan(x) for x in v):
-                speed = math.sqrt(sum(x * x for x in v))
-        z = (_value(path, line, row, c.release_z, required=False)
-             if c.release_z and c.release_z in header else math.nan)
-        for key, val in (("run_id", run_id), ("block_id", block), ("line", line), ("re", re_),
-                         ("rn", rn), ("se", se), ("sn", sn), ("mass", mass), ("size", size),
-                         ("speed", speed), ("z", z)):
+        for key, val in _run_row(path, bpath, blocks, header, c, i, line, row).items():
             out[key].append(val)
     return FieldRuns(tuple(out["run_id"]), tuple(out["block_id"]), tuple(out["line"]),
                      np.array(out["re"]), np.array(out["rn"]), np.array(out["se"]),
                      np.array(out["sn"]), np.array(out["mass"]), np.array(out["size"]),
                      np.array(out["speed"]), np.array(out["z"]), path)
+
+
+def _read_blocks(path: str, bpath: str, header: list[str],
+                 c: RunColumns) -> dict[str, tuple[int, dict]]:
+    """The blocks table keyed by block id: (line, row) of each block; the runs
+    file must have the block id column to join on, and each id is given once."""
+    if c.block_id not in header:
+        raise FieldError(f"{path}: line 1: missing column {c.block_id!r} to join "
+                         f"{bpath} on")
+    bheader, brows = _read(bpath, c.block_id)
+    if c.block_id not in bheader:
+        raise FieldError(f"{bpath}: line 1: missing column {c.block_id!r}")
+    blocks: dict[str, tuple[int, dict]] = {}
+    for bline, brow in brows:
+        key = brow[c.block_id]
+        if key in blocks:
+            raise FieldError(f"{bpath}: line {bline}: column {c.block_id!r}: duplicate "
+                             f"block {key!r}")
+        blocks[key] = (bline, brow)
+    return blocks
+
+
+def _run_row(path: str, bpath: str | None, blocks: dict[str, tuple[int, dict]],
+             header: list[str], c: RunColumns, i: int, line: int, row: dict) -> dict:
+    """One run's validated values (row ``i``, file line ``line``): its ids, release
+    and stop points, mass and dimensions (its own cells, else its block's in the
+    blocks table), release speed (NaN unless every velocity component is given:
+    the Euclidean norm) and release height (NaN without the column)."""
+    run_id = row.get(c.run_id) or f"row {i + 1}"
+    block = row.get(c.block_id, "")
+    brow = None
+    if bpath is not None:
+        if block not in blocks:
+            raise FieldError(f"{path}: line {line}: column {c.block_id!r}: block {block!r} "
+                             f"is not in {bpath}")
+        brow = blocks[block]
+    re_, rn = (_value(path, line, row, k) for k in c.release)
+    se, sn = (_value(path, line, row, k) for k in c.stop)
+    mass = _value(path, line, row, c.mass, positive=True, required=False)
+    if math.isnan(mass) and brow is not None:
+        mass = _value(bpath, brow[0], brow[1], c.mass, positive=True, required=False)
+    size = _size(path, line, row, c.size)
+    if np.isnan(size).all() and brow is not None:
+        size = _size(bpath, brow[0], brow[1], c.size)
+    if math.isnan(mass) and np.isnan(size).all():
+        where = f" or in {bpath} for block {block!r}" if bpath else ""
+        raise FieldError(f"{path}: line {line}: column {c.mass!r}: run {run_id} has no mass "
+                         f"and no dimensions ({', '.join(c.size)}){where}")
+    speed = math.nan
+    if all(k in header for k in c.velocity):
+        v = [_value(path, line, row, k, required=False) for k in c.velocity]
+        if not any(math.isnan(x) for x in v):
+            speed = math.sqrt(sum(x * x for x in v))
+    z = (_value(path, line, row, c.release_z, required=False)
+         if c.release_z and c.release_z in header else math.nan)
+    return {"run_id": run_id, "block_id": block, "line": line, "re": re_, "rn": rn, "se": se,
+            "sn": sn, "mass": mass, "size": size, "speed": speed, "z": z}
 
 
 def _size(path: str, line: int, row: dict, cols: Sequence[str]) -> np.ndarray:
