@@ -106,6 +106,22 @@ def locate(obs, row_class: np.ndarray, class_sizes_m: np.ndarray, samples: np.nd
     y, sd = point_view(obs)
     x0 = np.broadcast_to(np.asarray(profile.x_m[0] if release_x_m is None else release_x_m,
                                     float), (obs.n_obs,))
+    by_size = _size_tests(q, row_class, class_sizes_m)
+    trend = _size_trend(obs, q)
+    by_part = _slope_part_tests(slope_parts(profile), x0, y, sd, samples, entry, rng)
+    n_tests = len(by_size) + len(by_part) + (trend["p_value"] is not None)
+    flagged = _bonferroni_findings(by_size, trend, by_part, n_tests)
+    summary = ("; ".join(flagged) if flagged else
+               f"no size class or slope part departs from the model at the 5 % level after "
+               f"Bonferroni correction over {n_tests} tests")
+    return {"pit": pit.tolist(), "quantile_residual": q.tolist(), "by_size": by_size,
+            "size_trend": trend, "by_slope_part": by_part, "n_tests": n_tests,
+            "flagged": flagged, "summary": summary}
+
+
+def _size_tests(q: np.ndarray, row_class: np.ndarray, class_sizes_m: np.ndarray) -> list[dict]:
+    """Per size class with rows: ``z = sum q_i / sqrt(n)`` (N(0, 1) under the
+    model) and its two-sided p-value."""
     by_size = []
     for c, d in enumerate(class_sizes_m):
         rows = row_class == c
@@ -115,17 +131,30 @@ def locate(obs, row_class: np.ndarray, class_sizes_m: np.ndarray, samples: np.nd
         z = float(q[rows].sum() / np.sqrt(n))
         by_size.append({"size_m": float(d), "n": n, "mean_q": float(q[rows].mean()), "z": z,
                         "p_value": float(2 * stats.norm.sf(abs(z)))})
+    return by_size
+
+
+def _size_trend(obs, q: np.ndarray) -> dict:
+    """Spearman's rank correlation of q with block size over all rows and its
+    p-value (both None with fewer than 3 rows or a single size)."""
     if obs.n_obs >= 3 and np.unique(obs.block_size_m).size > 1:
         rho, p_rho = stats.spearmanr(obs.block_size_m, q)
-        trend = {"spearman_rho": float(rho), "p_value": float(p_rho)}
-    else:
-        trend = {"spearman_rho": None, "p_value": None}
-    parts = slope_parts(profile)
+        return {"spearman_rho": float(rho), "p_value": float(p_rho)}
+    return {"spearman_rho": None, "p_value": None}
+
+
+def _slope_part_tests(parts, x0: np.ndarray, y: np.ndarray, sd: np.ndarray,
+                      samples: np.ndarray, entry: np.ndarray,
+                      rng: np.random.Generator) -> list[dict]:
+    """Per slope part: observed stops O against the expected ``E = sum_i P_i(part)``,
+    ``P_i`` row i's predictive stop positions (release + runout + its measurement
+    noise, one normal draw per simulated block) in the part; ``z = (O - E) / sd``
+    with variance ``sum_i P_i (1 - P_i)`` floored at a quarter of a count."""
     edges = np.array([a for a, _, _ in parts] + [parts[-1][1]])
     stop_obs = x0 + y
     by_part = []
-    probs = np.zeros((obs.n_obs, len(parts)))
-    for i in range(obs.n_obs):
+    probs = np.zeros((y.size, len(parts)))
+    for i in range(y.size):
         noise = sd[i] * rng.standard_normal(samples.shape[1])  # drawn for every block
         s = x0[i] + samples[entry[i]] + noise
         s = s[np.isfinite(s)]
@@ -140,7 +169,14 @@ def locate(obs, row_class: np.ndarray, class_sizes_m: np.ndarray, samples: np.nd
         by_part.append({"x_from_m": a, "x_to_m": e, "zone": zone, "observed": o,
                         "expected": ex, "z": float(z),
                         "p_value": float(2 * stats.norm.sf(abs(z)))})
-    n_tests = len(by_size) + len(by_part) + (trend["p_value"] is not None)
+    return by_part
+
+
+def _bonferroni_findings(by_size: list[dict], trend: dict, by_part: list[dict],
+                         n_tests: int) -> list[str]:
+    """Add ``p_adj = min(1, p n_tests)`` (Bonferroni) and ``flag`` (p_adj < P_FLAG)
+    to every test; the plain-text findings of the flagged ones, most significant
+    first."""
     findings = []
     for s in by_size:
         s["p_adj"] = min(1.0, s["p_value"] * n_tests)
@@ -169,10 +205,4 @@ def locate(obs, row_class: np.ndarray, class_sizes_m: np.ndarray, samples: np.nd
                              f"observed {s['observed']}, expected {s['expected']:.1f} "
                              f"(z = {s['z']:+.1f}, p_adj = {s['p_adj']:.2g})"))
     findings.sort(key=lambda t: t[0])
-    flagged = [t for _, t in findings]
-    summary = ("; ".join(flagged) if flagged else
-               f"no size class or slope part departs from the model at the 5 % level after "
-               f"Bonferroni correction over {n_tests} tests")
-    return {"pit": pit.tolist(), "quantile_residual": q.tolist(), "by_size": by_size,
-            "size_trend": trend, "by_slope_part": by_part, "n_tests": n_tests,
-            "flagged": flagged, "summary": summary}
+    return [t for _, t in findings]
