@@ -169,21 +169,46 @@ def hazard_table(results, profile: Profile | None = None,
     if release_rate_per_year is None:
         release_rate_per_year = optional_attr(ds, "release_rate_per_year")
     c = _Run(ds)
-    n_draws = c.n_draws
+    st = _table_stats(c)
+    rows = []
+    for t, size in enumerate(c.sizes_m):
+        unfinished = c.n_unfinished[:, t].sum() / (c.n_draws * c.n_blocks)
+        left = c.n_left_profile[:, t].sum() / (c.n_draws * c.n_blocks)
+        pq = _draw_quantiles(st["p_ex"][:, t])
+        rq = _draw_quantiles(st["reach"][:, t]) if np.any(st["downslope"]) else None
+        for s, x in enumerate(c.stations_x_m):
+            row = _station_row(c, st, t, s, size, x, pq, rq, left, unfinished)
+            if release_rate_per_year is not None:
+                _add_frequencies(row, c, st, t, s, release_rate_per_year)
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _table_stats(c: _Run) -> dict:
+    """The (D, T, S) and (T, S) arrays the rows read: which stations lie downslope
+    of the release, exceedance and reach probabilities per draw, blocks passing,
+    P(E > 30 / 300 kJ | reach) pooled over the draws, the pooled energy
+    (p50/p95/p99), bounce-height and speed p95 (binned) and the 5-95 % band of
+    the per-draw energy p95."""
     downslope = c.stations_x_m > c.release_x_m            # (S,)
-    p_ex = c.exceed / c.n_blocks
     reach = np.where(downslope, c.reach / c.n_blocks, np.nan)  # (D, T, S)
     n_pass = c.reach.sum(axis=0)                           # (T, S)
     with np.errstate(invalid="ignore", divide="ignore"):
         p30 = np.where(n_pass > 0, c.e30.sum(axis=0) / n_pass, np.nan)
         p300 = np.where(n_pass > 0, c.e300.sum(axis=0) / n_pass, np.nan)
-    e_q = {q: hist_quantile(c.hist["energy_kJ"], q, BINS["energy_kJ"])
-           for q in (0.5, 0.95, 0.99)}
-    h95 = hist_quantile(c.hist["bounce_height_m"], 0.95, BINS["bounce_height_m"])
-    v95 = hist_quantile(c.hist["velocity_m_s"], 0.95, BINS["velocity_m_s"])
-    e95_draws = c.energy_p95_per_draw_kJ
+    return {"downslope": downslope, "p_ex": c.exceed / c.n_blocks, "reach": reach,
+            "n_pass": n_pass, "p30": p30, "p300": p300,
+            "e_q": {q: hist_quantile(c.hist["energy_kJ"], q, BINS["energy_kJ"])
+                    for q in (0.5, 0.95, 0.99)},
+            "h95": hist_quantile(c.hist["bounce_height_m"], 0.95, BINS["bounce_height_m"]),
+            "v95": hist_quantile(c.hist["velocity_m_s"], 0.95, BINS["velocity_m_s"]),
+            "e95_band": _draw_band(c.energy_p95_per_draw_kJ)}
+
+
+def _draw_band(e95_draws: np.ndarray) -> np.ndarray:
+    """(2, T, S) 5 and 95 % quantiles over the draws of (D, T, S) per-draw values,
+    over the draws that had passers (NaN in a draw without; NaN where none had)."""
     with np.errstate(invalid="ignore"):
-        # NaN where a draw had no passers: bands over the draws that had some
         e95_band = np.full((2,) + e95_draws.shape[1:], np.nan)
         has = np.isfinite(e95_draws)
         for t in range(e95_draws.shape[1]):
@@ -191,61 +216,71 @@ def hazard_table(results, profile: Profile | None = None,
                 col = e95_draws[has[:, t, s], t, s]
                 if col.size:
                     e95_band[:, t, s] = np.quantile(col, [0.05, 0.95])
-    zones = c.zones
-    rows = []
-    for t, size in enumerate(c.sizes_m):
-        unfinished = c.n_unfinished[:, t].sum() / (n_draws * c.n_blocks)
-        left = c.n_left_profile[:, t].sum() / (n_draws * c.n_blocks)
-        pq = _draw_quantiles(p_ex[:, t])
-        rq = _draw_quantiles(reach[:, t]) if np.any(downslope) else None
-        for s, x in enumerate(c.stations_x_m):
-            ok = bool(downslope[s])
-            r_mean = float(reach[:, t, s].mean()) if ok else np.nan
-            e95 = float(e_q[0.95][t, s]) if ok else np.nan
-            row = {
-                "model": c.model,
-                "block_size_m": float(size),
-                **c.class_columns(t),
-                "x_m": float(x),
-                "zone": zones[s],
-                "n_draws": n_draws,
-                "n_blocks_per_draw": c.n_blocks,
-                "p_exceed_mean": float(p_ex[:, t, s].mean()),
-                "p_exceed_q05": float(pq[0, s]),
-                "p_exceed_q95": float(pq[2, s]),
-                "reach_prob_mean": r_mean,
-                "reach_prob_q05": float(rq[0, s]) if ok else np.nan,
-                "reach_prob_q95": float(rq[2, s]) if ok else np.nan,
-                "n_blocks_reached": int(n_pass[t, s]),
-                "few_blocks": bool(ok and n_pass[t, s] > 0 and few_blocks(n_pass[t, s])),
-                "energy_p50_kJ": float(e_q[0.5][t, s]) if ok else np.nan,
-                "energy_p95_kJ": e95,
-                "energy_p99_kJ": float(e_q[0.99][t, s]) if ok else np.nan,
-                "energy_p95_kJ_q05": float(e95_band[0, t, s]) if ok else np.nan,
-                "energy_p95_kJ_q95": float(e95_band[1, t, s]) if ok else np.nan,
-                "bounce_height_p95_m": float(h95[t, s]) if ok else np.nan,
-                "velocity_p95_m_s": float(v95[t, s]) if ok else np.nan,
-                "p_E_gt_30kJ_given_reach": float(p30[t, s]) if ok else np.nan,
-                "p_E_gt_300kJ_given_reach": float(p300[t, s]) if ok else np.nan,
-                "intensity_class": intensity_class(e95),
-                "p_left_profile": float(left),
-                "p_unfinished": float(unfinished),
-            }
-            if release_rate_per_year is not None:
-                rate = release_rate_per_year
-                if c.classes:  # R is the whole distribution's rate
-                    rate = row["class_rate_per_yr"] = rate * float(c.class_p[t])
-                f0 = rate * r_mean
-                f30 = f0 * float(p30[t, s]) if ok and np.isfinite(p30[t, s]) else (
-                    0.0 if ok else np.nan)
-                f300 = f0 * float(p300[t, s]) if ok and np.isfinite(p300[t, s]) else (
-                    0.0 if ok else np.nan)
-                row["freq_reach_per_yr"] = f0
-                row["freq_E_gt_30kJ_per_yr"] = f30
-                row["freq_E_gt_300kJ_per_yr"] = f300
-                row["hazard_level"] = hazard_level(f0, f30, f300)
-            rows.append(row)
-    return pd.DataFrame(rows)
+    return e95_band
+
+
+def _station_row(c: _Run, st: dict, t: int, s: int, size, x, pq: np.ndarray,
+                 rq: np.ndarray | None, left: float, unfinished: float) -> dict:
+    """The row of size index ``t`` at station ``s`` (columns as in the module
+    docstring; NaN for the quantities of blocks passing where the station is not
+    downslope of the release)."""
+    ok = bool(st["downslope"][s])
+    reach, e_q, p30, p300 = st["reach"], st["e_q"], st["p30"], st["p300"]
+    n_pass, e95_band = st["n_pass"], st["e95_band"]
+    r_mean = float(reach[:, t, s].mean()) if ok else np.nan
+    e95 = float(e_q[0.95][t, s]) if ok else np.nan
+    return {
+        "model": c.model,
+        "block_size_m": float(size),
+        **c.class_columns(t),
+        "x_m": float(x),
+        "zone": c.zones[s],
+        "n_draws": c.n_draws,
+        "n_blocks_per_draw": c.n_blocks,
+        "p_exceed_mean": float(st["p_ex"][:, t, s].mean()),
+        "p_exceed_q05": float(pq[0, s]),
+        "p_exceed_q95": float(pq[2, s]),
+        "reach_prob_mean": r_mean,
+        "reach_prob_q05": float(rq[0, s]) if ok else np.nan,
+        "reach_prob_q95": float(rq[2, s]) if ok else np.nan,
+        "n_blocks_reached": int(n_pass[t, s]),
+        "few_blocks": bool(ok and n_pass[t, s] > 0 and few_blocks(n_pass[t, s])),
+        "energy_p50_kJ": float(e_q[0.5][t, s]) if ok else np.nan,
+        "energy_p95_kJ": e95,
+        "energy_p99_kJ": float(e_q[0.99][t, s]) if ok else np.nan,
+        "energy_p95_kJ_q05": float(e95_band[0, t, s]) if ok else np.nan,
+        "energy_p95_kJ_q95": float(e95_band[1, t, s]) if ok else np.nan,
+        "bounce_height_p95_m": float(st["h95"][t, s]) if ok else np.nan,
+        "velocity_p95_m_s": float(st["v95"][t, s]) if ok else np.nan,
+        "p_E_gt_30kJ_given_reach": float(p30[t, s]) if ok else np.nan,
+        "p_E_gt_300kJ_given_reach": float(p300[t, s]) if ok else np.nan,
+        "intensity_class": intensity_class(e95),
+        "p_left_profile": float(left),
+        "p_unfinished": float(unfinished),
+    }
+
+
+def _add_frequencies(row: dict, c: _Run, st: dict, t: int, s: int,
+                     release_rate_per_year: float) -> None:
+    """Add the annual frequencies to ``row``: ``f0 = R P(reach)``, ``f30 = f0
+    P(E > 30 kJ | reach)``, ``f300`` likewise (0 where no block reached a
+    downslope station, NaN upslope of the release), and the hazard level from
+    them; with volume classes R is the whole distribution's rate, so each
+    class's is ``R p_class`` (``class_rate_per_yr``)."""
+    ok = bool(st["downslope"][s])
+    p30, p300 = st["p30"], st["p300"]
+    rate = release_rate_per_year
+    if c.classes:  # R is the whole distribution's rate
+        rate = row["class_rate_per_yr"] = rate * float(c.class_p[t])
+    f0 = rate * row["reach_prob_mean"]
+    f30 = f0 * float(p30[t, s]) if ok and np.isfinite(p30[t, s]) else (
+        0.0 if ok else np.nan)
+    f300 = f0 * float(p300[t, s]) if ok and np.isfinite(p300[t, s]) else (
+        0.0 if ok else np.nan)
+    row["freq_reach_per_yr"] = f0
+    row["freq_E_gt_30kJ_per_yr"] = f30
+    row["freq_E_gt_300kJ_per_yr"] = f300
+    row["hazard_level"] = hazard_level(f0, f30, f300)
 
 
 def summary_text(results, table: pd.DataFrame, road_x_m: float,
