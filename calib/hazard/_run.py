@@ -213,80 +213,111 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
     Returns:
         ``HazardCounts``.
     """
-    if cal.model != "crsp" and (release is not None or barrier is not None):
-        raise ValueError("release conditions and barriers need the CRSP model")
-    if fragments is not None and release is not None:
-        raise ValueError("fragments run from the fixed-size release; release conditions "
-                         "drawn per block (a volume distribution) are not broken")
+    _check_options(cal, release, barrier, fragments)
     if release is not None:
         sizes_m = release.sizes_m
         chunk_blocks = min(chunk_blocks, _seeded_chunk_cap(profile))
     sizes_m = np.asarray(sizes_m, dtype=np.float64)
     stations = np.asarray(stations_x_m, dtype=np.float64)
-    n_draws, n_sizes, n_st = len(draws.values), len(sizes_m), len(stations)
     chunk, offsets = _chunks(n_blocks, chunk_blocks)
     release_x = (default_release_x_m(cal, profile) if release_x_m is None
                  else float(release_x_m))
     if release is not None:
         release_x = release.zone.span_m[1]
-    shape = (n_draws, n_sizes, n_st)
-    acc = {k: np.zeros(shape, np.int64) for k in ("exceed", "reach", "e30", "e300")}
-    n_unfinished = np.zeros((n_draws, n_sizes), np.int64)
-    n_left_profile = np.zeros((n_draws, n_sizes), np.int64)
-    fine = {q: np.zeros((n_sizes, n_st, b.n), np.int64) for q, b in FINE_BINS.items()}
-    draw_hist = {}
-    draw_left = {}
-    e95 = np.full(shape, np.nan)
-    pct = {q: np.full((3,) + shape + (len(PERCENTILES),), np.nan) for q in FINE_BINS}
-    kept = {q: np.zeros(shape + ((b.n - 2) // DRAW_SUB + 2,), np.int32)
-            for q, b in FINE_BINS.items() if q != "velocity_m_s"}
-    st_dev = jnp.asarray(stations)
-
-    def on_result(tag, out):
-        d, t_sl = tag
-        for k in acc:
-            acc[k][d, t_sl] += getattr(out, k)
-        n_unfinished[d, t_sl] += out.n_unfinished
-        n_left_profile[d, t_sl] += out.n_left_profile
-        dh = draw_hist.setdefault(d, {q: np.zeros_like(f) for q, f in fine.items()})
-        for q in fine:
-            fine[q][t_sl] += getattr(out, f"hist_{q}")
-            dh[q][t_sl] += getattr(out, f"hist_{q}")
-        draw_left[d] = draw_left.get(d, n_sizes * n_blocks) - int(out.n_blocks) * (
-            t_sl.stop - t_sl.start)
-        if draw_left[d] == 0:
-            _draw_done(d, draw_hist.pop(d), e95, pct, kept)
-        if progress is not None:
-            progress(int(out.n_blocks) * (t_sl.stop - t_sl.start))
+    tally = _Tally(len(draws.values), len(sizes_m), len(stations), n_blocks, progress)
 
     # what is simulated: each size at the release, at the calibration's rock density
     entries = Entries.at_sizes(sizes_m, release_x, density_kg_m3=cal.rock_density_kg_m3)
-    extra = {} if barrier is None else barrier.overrides()
-    if release is not None:
-        units = _seeded_units(draws, profile, release, entries.density_kg_m3, st_dev, n_blocks,
-                              seed, chunk, offsets, pool, settings, extra, cal.effects)
-    elif cal.model == "crsp":
-        units = _crsp_units(draws, profile, entries, st_dev, n_blocks, seed, chunk, offsets,
-                            pool, settings, extra, cal.effects)
-    else:
-        check_dem_draws(cal, draws, sizes_m)
-        units = _dem_units(cal, draws, profile, entries, stations, n_blocks, seed, chunk,
-                           offsets, dem_run)
-    frag = None
+    units = _work_units(cal, draws, profile, entries, release, barrier, sizes_m, stations,
+                        n_blocks, seed, chunk, offsets, pool, settings, dem_run)
+    on_result, frag = tally.on_result, None
     if fragments is not None:  # every fragment its own block (_fragments)
         units, on_result, frag = fragments.plan(units, on_result, cal, draws, sizes_m,
                                                 stations, dem_run)
     run_units(units, on_result, devices=devices)
+    fine = tally.fine
     pooled = {q: percentile_table(f, FINE_BINS[q]) for q, f in fine.items()}
     return HazardCounts(model=cal.model, sizes_m=sizes_m, stations_x_m=stations,
                         release_x_m=release_x, n_blocks=n_blocks, draws=draws,
-                        n_unfinished=n_unfinished, n_left_profile=n_left_profile,
+                        n_unfinished=tally.n_unfinished, n_left_profile=tally.n_left_profile,
                         hist={q: rebin(f, FINE) for q, f in fine.items()},
-                        energy_p95_per_draw_kJ=e95,
-                        percentiles={q: tuple(v) for q, v in pct.items()},
-                        pooled_percentiles=pooled, draw_hist=kept,
+                        energy_p95_per_draw_kJ=tally.e95,
+                        percentiles={q: tuple(v) for q, v in tally.pct.items()},
+                        pooled_percentiles=pooled, draw_hist=tally.kept,
                         block_mass_kg=_block_mass_kg(cal.model, entries),
-                        release=release, barrier=barrier, fragments=frag, **acc)
+                        release=release, barrier=barrier, fragments=frag, **tally.acc)
+
+
+def _check_options(cal: Calibration, release, barrier, fragments) -> None:
+    """Refuse the combinations ``run_hazard`` cannot run: release conditions or a
+    barrier without the CRSP model; fragments with release conditions."""
+    if cal.model != "crsp" and (release is not None or barrier is not None):
+        raise ValueError("release conditions and barriers need the CRSP model")
+    if fragments is not None and release is not None:
+        raise ValueError("fragments run from the fixed-size release; release conditions "
+                         "drawn per block (a volume distribution) are not broken")
+
+
+def _work_units(cal, draws, profile, entries: Entries, release, barrier, sizes_m, stations,
+                n_blocks, seed, chunk, offsets, pool, settings, dem_run):
+    """The run's work units: seeded CRSP units with release conditions, else
+    CRSP units of the sizes, else DEM units (after checking the DEM draws);
+    a barrier enters every CRSP draw as parameter overrides."""
+    st_dev = jnp.asarray(stations)
+    extra = {} if barrier is None else barrier.overrides()
+    if release is not None:
+        return _seeded_units(draws, profile, release, entries.density_kg_m3, st_dev, n_blocks,
+                             seed, chunk, offsets, pool, settings, extra, cal.effects)
+    if cal.model == "crsp":
+        return _crsp_units(draws, profile, entries, st_dev, n_blocks, seed, chunk, offsets,
+                           pool, settings, extra, cal.effects)
+    check_dem_draws(cal, draws, sizes_m)
+    return _dem_units(cal, draws, profile, entries, stations, n_blocks, seed, chunk,
+                      offsets, dem_run)
+
+
+class _Tally:
+    """What ``run_hazard`` adds up as the work units finish (``on_result``), in
+    the arrays of ``HazardCounts``: per draw, size and station the counts
+    (``acc``: exceed, reach, e30, e300), per draw and size the unfinished and
+    left-profile blocks, per size the fine histograms pooled over draws
+    (``fine``), and, once a draw's every block is in, its energy p95, percentiles
+    and kept histograms (``_draw_done``)."""
+
+    def __init__(self, n_draws: int, n_sizes: int, n_st: int, n_blocks: int,
+                 progress: Callable[[int], None] | None):
+        shape = (n_draws, n_sizes, n_st)
+        self.n_sizes, self.n_blocks, self.progress = n_sizes, n_blocks, progress
+        self.acc = {k: np.zeros(shape, np.int64) for k in ("exceed", "reach", "e30", "e300")}
+        self.n_unfinished = np.zeros((n_draws, n_sizes), np.int64)
+        self.n_left_profile = np.zeros((n_draws, n_sizes), np.int64)
+        self.fine = {q: np.zeros((n_sizes, n_st, b.n), np.int64) for q, b in FINE_BINS.items()}
+        self.draw_hist = {}
+        self.draw_left = {}
+        self.e95 = np.full(shape, np.nan)
+        self.pct = {q: np.full((3,) + shape + (len(PERCENTILES),), np.nan) for q in FINE_BINS}
+        self.kept = {q: np.zeros(shape + ((b.n - 2) // DRAW_SUB + 2,), np.int32)
+                     for q, b in FINE_BINS.items() if q != "velocity_m_s"}
+
+    def on_result(self, tag, out) -> None:
+        """Add one unit's reduced output ``out`` for draw ``d`` and sizes ``t_sl``
+        (``tag``); reduce the draw when its last unit is in; report progress."""
+        d, t_sl = tag
+        acc, fine = self.acc, self.fine
+        for k in acc:
+            acc[k][d, t_sl] += getattr(out, k)
+        self.n_unfinished[d, t_sl] += out.n_unfinished
+        self.n_left_profile[d, t_sl] += out.n_left_profile
+        dh = self.draw_hist.setdefault(d, {q: np.zeros_like(f) for q, f in fine.items()})
+        for q in fine:
+            fine[q][t_sl] += getattr(out, f"hist_{q}")
+            dh[q][t_sl] += getattr(out, f"hist_{q}")
+        self.draw_left[d] = self.draw_left.get(d, self.n_sizes * self.n_blocks) - int(
+            out.n_blocks) * (t_sl.stop - t_sl.start)
+        if self.draw_left[d] == 0:
+            _draw_done(d, self.draw_hist.pop(d), self.e95, self.pct, self.kept)
+        if self.progress is not None:
+            self.progress(int(out.n_blocks) * (t_sl.stop - t_sl.start))
 
 
 def _draw_done(d: int, dh: dict, e95: np.ndarray, pct: dict, kept: dict) -> None:
