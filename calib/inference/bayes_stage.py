@@ -27,7 +27,6 @@ from __future__ import annotations
 import time
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from calib.inference.bayes import run_nuts
@@ -42,47 +41,19 @@ from calib.inference.focus import (
     region_record,
     widen,
 )
-from calib.inference.likelihood import log_likelihood, observed_rows
-from calib.inference.loglik_emulator import (
-    at_posterior,
-    fit_loglik_emulator,
-    loglik_holdout,
-    loglik_noise_var,
-    summed_loglik,
-)
+from calib.inference.loglik_emulator import at_posterior, fit_loglik_emulator, loglik_holdout
 from calib.inference.realisations import realisation_check
 
-__all__ = ["MAX_REFINE", "bayes_stage", "emulated_loglik"]
+__all__ = ["MAX_REFINE", "bayes_stage"]
 
 MAX_REFINE = 2  # refinement waves: screened draws added to the log-likelihood GP
-
-
-def _median_kernel_var_m2(obs) -> float:
-    """Median over rows of the kernel variance the likelihood gives one sample:
-    the tolerance sd^2 of a point row, the smallest kernel width h^2 (0.5 m) of
-    an interval row (``calib.inference.likelihood``)."""
-    return float(np.median(np.where(obs.is_interval, 0.5**2, np.nan_to_num(obs.runout_sd_m)**2)))
-
-
-def emulated_loglik(obs, emu, forward, inflation: float, index=None):
-    """theta (d,) -> pointwise log-likelihood (n_obs,) from the emulator (row i:
-    entry ``index[i]`` of the forward model, default ``obs.size_index``)."""
-    y, sd, lo, hi, is_int = observed_rows(obs)
-    idx = jnp.asarray(obs.size_index if index is None else index)
-
-    def f(theta):
-        mean, var = emu.predict(forward.emulator_inputs(theta))
-        return log_likelihood(mean[idx], y, sd, lo, hi, is_int, inflation * var[idx])
-
-    return f
 
 
 class _Stage:
     """The Bayesian stage's state and steps (module docstring)."""
 
-    def __init__(self, forward, obs, index, loglik_runs, budget, keys, tick, tally,
-                 timings: dict):
-        self.forward, self.obs, self.index, self.loglik_runs = forward, obs, index, loglik_runs
+    def __init__(self, forward, rows, budget, keys, tick, tally, timings: dict):
+        self.forward, self.rows = forward, rows
         self.budget, self.tick, self.tally, self.timings = budget, tick, tally, timings
         self.k_design, self.k_pilot, self.k_nuts = keys
         self.box = forward.box
@@ -94,7 +65,7 @@ class _Stage:
     # -- the simulated design -------------------------------------------------
     def add(self, theta, runs, refinement: bool = False) -> None:
         """Simulated points join the design (``refinement``: a repair wave's)."""
-        self.ll = np.concatenate([self.ll, summed_loglik(self.loglik_runs, runs)])
+        self.ll = np.concatenate([self.ll, self.rows.summed(runs)])
         self.x = np.concatenate([self.x, np.asarray(self.forward.to_input(theta))])
         self.r = np.concatenate([self.r, runs])
         self.refined = np.concatenate([self.refined, np.full(len(runs), refinement)])
@@ -115,7 +86,7 @@ class _Stage:
         self.tick("design", 0, 1)
         self.x, self.r = fw.design(b.n_design, seed=int(jax.random.randint(
             self.k_design, (), 0, 2**31 - 1)))
-        self.ll = summed_loglik(self.loglik_runs, self.r)
+        self.ll = self.rows.summed(self.r)
         self.tick("design", 1, 1)
         self.tally("design", self.r)
         self.timings["design_s"] = time.perf_counter() - t0
@@ -125,7 +96,7 @@ class _Stage:
             emu = fit_emulator(self.x, self.r, self.ibox.lo, self.ibox.hi, b.n_levels)
             self.tick("design2", 0, 1)
             self.simulate(second_design(
-                fw, emulated_loglik(self.obs, emu, fw, 1.0, self.index), fw.from_input(self.x),
+                fw, self.rows.emulated(emu, fw.emulator_inputs, 1.0), fw.from_input(self.x),
                 self.ll, b.n_design2, self.k_pilot))
             self.tick("design2", 1, 1)
             self.timings["design2_s"] = time.perf_counter() - t0
@@ -133,7 +104,7 @@ class _Stage:
     def focus_region(self) -> bool:
         """CRSP: the focus region and its design; False where there is none."""
         b, fw = self.budget, self.forward
-        focus = (focus_boxes(fw, fw.from_input(self.x), self.ll, self.obs.n_obs)
+        focus = (focus_boxes(fw, fw.from_input(self.x), self.ll, self.rows.n_rows)
                  if b.n_design3 > 0 and hasattr(fw, "from_input") else None)
         if focus is None:
             return False
@@ -148,7 +119,7 @@ class _Stage:
             keep = self.inside()
             emu = fit_emulator(self.x[keep], self.r[keep], self.ibox.lo, self.ibox.hi,
                                b.n_levels)
-            self.simulate(sir_draws(fw, emulated_loglik(self.obs, emu, fw, 1.0, self.index),
+            self.simulate(sir_draws(fw, self.rows.emulated(emu, fw.emulator_inputs, 1.0),
                                     self.ibox, self.nuts_box, n_sir, k_sir))
         self.tick("design3", 2, 2)
         self.timings["design3_s"] = time.perf_counter() - t0
@@ -162,22 +133,22 @@ class _Stage:
         keep = self.inside() if focus else np.ones(len(self.x), bool)
         x_emu, r_emu, ll_emu = self.x[keep], self.r[keep], self.ll[keep]
         if focus:  # a GP of the summed log-likelihood (calib.inference.loglik_emulator)
-            noise = loglik_noise_var(self.loglik_runs, r_emu)
+            noise = self.rows.noise_var(r_emu)
             level_of = ~self.refined[keep]
             self.emu_check = loglik_holdout(x_emu, ll_emu, noise, self.ibox.lo, self.ibox.hi,
-                                            self.obs.n_obs, level_of=level_of)
+                                            self.rows.n_rows, level_of=level_of)
             lemu = self.lemu = fit_loglik_emulator(x_emu, ll_emu, noise, self.ibox.lo,
-                                                   self.ibox.hi, self.obs.n_obs, level_of)
+                                                   self.ibox.hi, self.rows.n_rows, level_of)
 
             def target(theta, lemu=lemu):
                 return lemu.predict(self.forward.to_input(theta))[0][None]
         else:  # GPs of the runout quantiles (calib.inference.emulator)
             self.emu_check = holdout_error(x_emu, r_emu, self.ibox.lo, self.ibox.hi,
                                            self.budget.n_levels,
-                                           kernel_var_m2=_median_kernel_var_m2(self.obs))
+                                           kernel_var_m2=self.rows.kernel_var_m2)
             emu = fit_emulator(x_emu, r_emu, self.ibox.lo, self.ibox.hi, self.budget.n_levels)
-            target = emulated_loglik(self.obs, emu, self.forward,
-                                     self.emu_check["variance_inflation"], self.index)
+            target = self.rows.emulated(emu, self.forward.emulator_inputs,
+                                        self.emu_check["variance_inflation"])
         self.emu_check["n_design"] = int(x_emu.shape[0])
         self.emu_check["n_blocks_per_point"] = int(r_emu.shape[-1])
         self.timings["emulator_s"] += time.perf_counter() - t0
@@ -201,7 +172,7 @@ class _Stage:
                 return runs
 
             self.posterior, self.chain_screen, self.screened = screen_chains(
-                self.posterior, screen_runs, self.loglik_runs, self.obs.n_obs)
+                self.posterior, screen_runs, self.rows)
         self.tick(f"nuts run {self.n_nuts}", 1, 1)
         self.timings["nuts_s"] += time.perf_counter() - t0
 
@@ -213,8 +184,7 @@ class _Stage:
         if self.screened is not None:  # the GP against the simulator at the screened draws
             emu_there = at_posterior(
                 self.lemu, np.asarray(self.forward.to_input(self.screened[0])),
-                summed_loglik(self.loglik_runs, self.screened[1]),
-                loglik_noise_var(self.loglik_runs, self.screened[1]))
+                self.rows.summed(self.screened[1]), self.rows.noise_var(self.screened[1]))
             self.focus_record["at_posterior"] = emu_there
         faces = cut_faces(self.posterior.samples, self.nuts_box, self.box)
         if faces and self.n_widened != MAX_WIDEN:
@@ -296,13 +266,12 @@ class _Stage:
         post.ok = post.ok and not cut
 
 
-def bayes_stage(forward, obs, index, loglik_runs, budget, keys, tick, tally, timings: dict):
+def bayes_stage(forward, rows, budget, keys, tick, tally, timings: dict):
     """Stage 1 of ``calib.inference.calibrate`` (module docstring).
 
     Args:
-        forward, obs: the forward model and the rows.
-        index: (n_obs,) the entry of each row.
-        loglik_runs: runouts (T, S, n) -> pointwise log-likelihood (T, n_obs).
+        forward: the forward model.
+        rows: the rows' likelihood (``calib.inference.likelihood.RowLikelihood``).
         budget: ``calib.inference.budget.Budget``.
         keys: (design, pilot, NUTS) PRNG keys.
         tick: progress callable(stage, done, total).
@@ -313,7 +282,7 @@ def bayes_stage(forward, obs, index, loglik_runs, budget, keys, tick, tally, tim
         (posterior, emulator check, focus record or None, chain-screen record or
         None, design inputs (D, d), their summed simulated log-likelihoods (D,)).
     """
-    s = _Stage(forward, obs, index, loglik_runs, budget, keys, tick, tally, timings)
+    s = _Stage(forward, rows, budget, keys, tick, tally, timings)
     s.first_designs()
     focus = s.focus_region()
     timings["emulator_s"] = timings["nuts_s"] = 0.0

@@ -82,14 +82,9 @@ from calib.inference.adequacy import better_design_point
 from calib.inference.bayes import Posterior
 from calib.inference.bayes_stage import bayes_stage
 from calib.inference.budget import Budget, presets
-from calib.inference.fit_check import (
-    check_entries,
-    fit_quality,
-    loglik_of_runouts,
-    predictive_adequacy,
-)
+from calib.inference.fit_check import check_entries, fit_quality, predictive_adequacy
 from calib.inference.gradient import GradientFit, fit_gradient
-from calib.inference.loglik_emulator import summed_loglik
+from calib.inference.likelihood import RowLikelihood
 from calib.model.entries import Entries
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
 
@@ -163,7 +158,7 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     tick = progress or (lambda *a: None)
     timings, posterior, gfit, emu_check, x, design_ll = {}, None, None, None, None, None
     focus_record = chain_screen = None
-    loglik_runs = loglik_of_runouts(obs, index)
+    rows = RowLikelihood(obs, index)
     box = forward.box
     sizes = np.unique(np.concatenate([obs.sizes_m, np.asarray(extra_sizes_m, float)]))
     tallies = {}
@@ -174,12 +169,11 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
 
     if "bayes" in methods:
         posterior, emu_check, focus_record, chain_screen, x, design_ll = bayes_stage(
-            forward, obs, index, loglik_runs, budget, (k_design, k_pilot, k_nuts), tick, tally,
-            timings)
+            forward, rows, budget, (k_design, k_pilot, k_nuts), tick, tally, timings)
 
     if "gradient" in methods:
         t0 = time.perf_counter()
-        gfit = _gradient_stage(forward, loglik_runs, budget, k_grad, tick, tally, x, design_ll)
+        gfit = _gradient_stage(forward, rows, budget, k_grad, tick, tally, x, design_ll)
         timings["gradient_s"] = time.perf_counter() - t0
 
     if gfit is not None:
@@ -192,13 +186,12 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
                                key=k_check).runouts(estimate[None])[0]
     tally("check", runs[None], estimate[None], checked.sizes_m)
     check, at_rows = runs[:len(sizes)], runs[entry]
-    quality = fit_quality(obs, at_rows, index)
+    quality = fit_quality(obs, at_rows, rows)
     better = None
     if design_ll is not None and hasattr(forward, "from_input"):  # CRSP: theta-space design
-        fitted = {"estimate": float(summed_loglik(loglik_runs, at_rows[None])[0])}
+        fitted = {"estimate": float(rows.summed(at_rows[None])[0])}
         if posterior is not None:  # its mode with the design's own blocks
-            fitted["posterior mode"] = float(summed_loglik(
-                loglik_runs, forward.runouts(posterior.map[None]))[0])
+            fitted["posterior mode"] = float(rows.summed(forward.runouts(posterior.map[None]))[0])
         better = better_design_point(box.names, forward.from_input(x), design_ll, fitted,
                                      obs.n_obs)
     timings["check_s"] = time.perf_counter() - t0
@@ -214,7 +207,7 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
                     chain_screen)
 
 
-def _gradient_stage(forward, loglik_runs, budget: Budget, key: jax.Array, tick, tally, x,
+def _gradient_stage(forward, rows: RowLikelihood, budget: Budget, key: jax.Array, tick, tally, x,
                     design_ll) -> GradientFit:
     """Stage 2 of the module docstring: Adam on the smoothed CRN objective of the
     simulator from the box's centre, ``grad_starts - 1`` quasi-random points and
@@ -227,7 +220,7 @@ def _gradient_stage(forward, loglik_runs, budget: Budget, key: jax.Array, tick, 
     def objective(theta):
         runs = grad_forward.runouts(theta)
         tally("gradient", runs, theta)
-        return -np.asarray(loglik_runs(jnp.asarray(runs))).sum(1)
+        return -np.asarray(rows.pointwise(jnp.asarray(runs))).sum(1)
 
     starts = [0.5 * (box.lo + box.hi)]
     if budget.grad_starts > 1:

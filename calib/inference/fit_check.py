@@ -1,7 +1,5 @@
 """The fit's check of itself: each row against the blocks of its entry.
 
-* ``loglik_of_runouts``: simulated runouts -> pointwise log-likelihood of the
-  rows (``calib.inference.likelihood``), jitted.
 * ``fit_quality``: per row, the simulated 5/50/95 % runouts, its PIT and
   log-likelihood at the point estimate (re-simulated with fresh blocks).
 * ``check_entries``: what the check simulates (the figure's sizes at the rows'
@@ -25,36 +23,24 @@ from scipy.special import ndtr
 from calib.files.observations import Observations
 from calib.inference.adequacy import adequacy_record
 from calib.inference.bayes import Posterior
-from calib.inference.likelihood import log_likelihood, observed_rows
+from calib.inference.likelihood import RowLikelihood
 from calib.inference.predictive_check import pool_draws
 from calib.model.entries import Entries
 from calib.model.forward import CrspForward, release_rolling_deg, release_slopes_deg
 from solvers.percentiles import few_blocks
 
-__all__ = ["check_entries", "fit_quality", "loglik_of_runouts", "predictive_adequacy"]
+__all__ = ["check_entries", "fit_quality", "predictive_adequacy"]
 
 
-def loglik_of_runouts(obs: Observations, index=None):
-    """runouts (T, S, n) -> pointwise log-likelihood (T, n_obs) (jitted); row i
-    reads simulated entry ``index[i]`` (default ``obs.size_index``)."""
-    y, sd, lo, hi, is_int = observed_rows(obs)
-    idx = jnp.asarray(obs.size_index if index is None else index)
-
-    @jax.jit
-    def f(runouts):
-        return jax.vmap(lambda r: log_likelihood(r[idx], y, sd, lo, hi, is_int))(runouts)
-
-    return f
-
-
-def fit_quality(obs: Observations, runouts: np.ndarray, index=None) -> list[dict]:
+def fit_quality(obs: Observations, runouts: np.ndarray, rows: RowLikelihood) -> list[dict]:
     """Per-observation fit: simulated 5/50/95 % runouts, PIT and log-likelihood.
 
     Args:
+        obs: the rows.
         runouts: (S, n) runouts per simulated entry, m; NaN for an unfinished
             block (left out).
-        index: (n_obs,) entry of each row (default ``obs.size_index``: one entry
-            per distinct size, ``obs.sizes_m``).
+        rows: the fit's likelihood of ``obs`` (``RowLikelihood``: row i reads
+            entry ``rows.index[i]``).
 
     PIT = P(R + e <= y), e ~ N(0, sd^2), for a point (the predictive CDF of the
     OBSERVED value, tolerance included) (about uniform on [0, 1] if the model is right;
@@ -64,8 +50,8 @@ def fit_quality(obs: Observations, runouts: np.ndarray, index=None) -> list[dict
     ``sim_few_blocks`` is True where 1 to 19 blocks finished, too few for the
     5/95 % values (``solvers.percentiles.few_blocks``).
     """
-    index = obs.size_index if index is None else np.asarray(index)
-    ll = np.asarray(loglik_of_runouts(obs, index)(jnp.asarray(runouts)[None]))[0]
+    index = rows.index
+    ll = np.asarray(rows.pointwise(jnp.asarray(runouts)[None]))[0]
     out = []
     for i in range(obs.n_obs):
         r = runouts[index[i]]
