@@ -78,18 +78,18 @@ import jax.numpy as jnp
 import numpy as np
 
 from calib.files.observations import Observations
-from calib.inference.adequacy import better_design_point
+from calib.inference.adequacy import fit_adequacy
 from calib.inference.bayes import Posterior
 from calib.inference.bayes_stage import bayes_stage
 from calib.inference.budget import Budget, presets
-from calib.inference.fit_check import check_entries, fit_quality, predictive_adequacy
+from calib.inference.fit_check import check_fit
 from calib.inference.gradient import GradientFit, fit_gradient
 from calib.inference.likelihood import RowLikelihood
 from calib.model.entries import Entries
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
 
-# Budget, presets and fit_quality are re-exported: the fit driver's API in one place
-__all__ = ["Budget", "ModelFit", "calibrate", "fit_quality", "presets"]
+# Budget and presets are re-exported: the fit driver's API in one place
+__all__ = ["Budget", "ModelFit", "calibrate", "presets"]
 
 
 @dataclasses.dataclass
@@ -153,12 +153,11 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
             the median of the rows' releases (``ModelFit.check_runouts``).
     """
     entries = _row_entries(forward, obs)
-    index = entries.index
     k_design, k_grad, k_nuts, k_pilot, k_check = jax.random.split(key, 5)
     tick = progress or (lambda *a: None)
     timings, posterior, gfit, emu_check, x, design_ll = {}, None, None, None, None, None
     focus_record = chain_screen = None
-    rows = RowLikelihood(obs, index)
+    rows = RowLikelihood(obs, entries.index)
     box = forward.box
     sizes = np.unique(np.concatenate([obs.sizes_m, np.asarray(extra_sizes_m, float)]))
     tallies = {}
@@ -181,30 +180,21 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     else:
         estimate, source = posterior.map, "posterior_mode"
     t0 = time.perf_counter()
-    checked, entry = check_entries(entries, sizes)
-    runs = dataclasses.replace(forward, entries=checked, n_blocks=budget.n_check,
-                               key=k_check).runouts(estimate[None])[0]
-    tally("check", runs[None], estimate[None], checked.sizes_m)
-    check, at_rows = runs[:len(sizes)], runs[entry]
-    quality = fit_quality(obs, at_rows, rows)
-    better = None
-    if design_ll is not None and hasattr(forward, "from_input"):  # CRSP: theta-space design
-        fitted = {"estimate": float(rows.summed(at_rows[None])[0])}
-        if posterior is not None:  # its mode with the design's own blocks
-            fitted["posterior mode"] = float(rows.summed(forward.runouts(posterior.map[None]))[0])
-        better = better_design_point(box.names, forward.from_input(x), design_ll, fitted,
-                                     obs.n_obs)
+    check = check_fit(forward, entries, obs, rows, estimate, sizes, budget.n_check, k_check,
+                      tally)
     timings["check_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    adequacy = predictive_adequacy(forward, obs, posterior, at_rows, budget,
-                                   jax.random.fold_in(k_check, 1), tally, index, better,
-                                   estimate)
+    design = ((forward.from_input(x), design_ll)
+              if design_ll is not None and hasattr(forward, "from_input")  # CRSP: theta space
+              else None)
+    adequacy = fit_adequacy(forward, obs, rows, posterior, estimate, check.at_rows, design,
+                            budget, jax.random.fold_in(k_check, 1), tally)
     timings["adequacy_s"] = time.perf_counter() - t0
     record = unfinished_record(tallies, f"{type(forward).__name__} calibration")
     warn_unfinished(record)
     return ModelFit(tuple(box.names), np.asarray(estimate), source, posterior, gfit, emu_check,
-                    quality, sizes, check, timings, budget, record, adequacy, focus_record,
-                    chain_screen)
+                    check.quality, sizes, check.runouts, timings, budget, record, adequacy,
+                    focus_record, chain_screen)
 
 
 def _gradient_stage(forward, rows: RowLikelihood, budget: Budget, key: jax.Array, tick, tally, x,
