@@ -31,7 +31,7 @@ import numpy as np
 
 from calib.inference.bayes import run_nuts
 from calib.inference.chains import chain_starts, screen_chains
-from calib.inference.design_waves import focus_design, second_design, sir_draws
+from calib.inference.design_waves import Design
 from calib.inference.emulator import fit_emulator, holdout_error
 from calib.inference.focus import (
     MAX_WIDEN,
@@ -62,49 +62,26 @@ class _Stage:
         self.posterior = self.emu_check = None
         self.n_widened = self.n_nuts = 0
 
-    # -- the simulated design -------------------------------------------------
-    def add(self, theta, runs, refinement: bool = False) -> None:
-        """Simulated points join the design (``refinement``: a repair wave's)."""
-        self.ll = np.concatenate([self.ll, self.rows.summed(runs)])
-        self.x = np.concatenate([self.x, np.asarray(self.forward.to_input(theta))])
-        self.r = np.concatenate([self.r, runs])
-        self.refined = np.concatenate([self.refined, np.full(len(runs), refinement)])
-
-    def simulate(self, theta) -> None:
-        runs = self.forward.runouts(theta)
-        self.tally("design", runs, theta)
-        self.add(theta, runs)
-
-    def inside(self) -> np.ndarray:
-        """Design points inside the emulator's box (the focus region)."""
-        return np.all((self.x >= self.ibox.lo - 1e-9) & (self.x <= self.ibox.hi + 1e-9), axis=1)
-
     # -- a, b: the designs ----------------------------------------------------
     def first_designs(self) -> None:
-        b, fw = self.budget, self.forward
+        b = self.budget
         t0 = time.perf_counter()
         self.tick("design", 0, 1)
-        self.x, self.r = fw.design(b.n_design, seed=int(jax.random.randint(
-            self.k_design, (), 0, 2**31 - 1)))
-        self.ll = self.rows.summed(self.r)
+        self.design = Design(self.forward, self.rows, self.tally, b.n_design, seed=int(
+            jax.random.randint(self.k_design, (), 0, 2**31 - 1)))
         self.tick("design", 1, 1)
-        self.tally("design", self.r)
         self.timings["design_s"] = time.perf_counter() - t0
-        self.refined = np.zeros(len(self.x), bool)  # points of the refinement waves
         if b.n_design2 > 0:
             t0 = time.perf_counter()
-            emu = fit_emulator(self.x, self.r, self.ibox.lo, self.ibox.hi, b.n_levels)
             self.tick("design2", 0, 1)
-            self.simulate(second_design(
-                fw, self.rows.emulated(emu, fw.emulator_inputs, 1.0), fw.from_input(self.x),
-                self.ll, b.n_design2, self.k_pilot))
+            self.design.second_wave(b.n_levels, b.n_design2, self.k_pilot)
             self.tick("design2", 1, 1)
             self.timings["design2_s"] = time.perf_counter() - t0
 
     def focus_region(self) -> bool:
         """CRSP: the focus region and its design; False where there is none."""
-        b, fw = self.budget, self.forward
-        focus = (focus_boxes(fw, fw.from_input(self.x), self.ll, self.rows.n_rows)
+        b, fw, design = self.budget, self.forward, self.design
+        focus = (focus_boxes(fw, design.theta, design.ll, self.rows.n_rows)
                  if b.n_design3 > 0 and hasattr(fw, "from_input") else None)
         if focus is None:
             return False
@@ -113,14 +90,10 @@ class _Stage:
         k_fill, k_sir, self.k_widen = jax.random.split(jax.random.fold_in(self.k_pilot, 1), 3)
         n_sir = b.n_design3 // 2
         self.tick("design3", 0, 2)
-        self.simulate(focus_design(fw, self.ibox, self.nuts_box, b.n_design3 - n_sir, k_fill))
+        design.fill(self.ibox, self.nuts_box, b.n_design3 - n_sir, k_fill)
         self.tick("design3", 1, 2)
         if n_sir:
-            keep = self.inside()
-            emu = fit_emulator(self.x[keep], self.r[keep], self.ibox.lo, self.ibox.hi,
-                               b.n_levels)
-            self.simulate(sir_draws(fw, self.rows.emulated(emu, fw.emulator_inputs, 1.0),
-                                    self.ibox, self.nuts_box, n_sir, k_sir))
+            design.sir_wave(self.ibox, self.nuts_box, b.n_levels, n_sir, k_sir)
         self.tick("design3", 2, 2)
         self.timings["design3_s"] = time.perf_counter() - t0
         self.focus_record.update(widened=[], refined=[], realisation_waves=[])
@@ -130,11 +103,12 @@ class _Stage:
     def emulate(self, focus: bool):
         """The density NUTS samples, and the design points it was fitted on."""
         t0 = time.perf_counter()
-        keep = self.inside() if focus else np.ones(len(self.x), bool)
-        x_emu, r_emu, ll_emu = self.x[keep], self.r[keep], self.ll[keep]
+        d = self.design
+        keep = d.inside(self.ibox) if focus else np.ones(len(d.x), bool)
+        x_emu, r_emu, ll_emu = d.x[keep], d.r[keep], d.ll[keep]
         if focus:  # a GP of the summed log-likelihood (calib.inference.loglik_emulator)
             noise = self.rows.noise_var(r_emu)
-            level_of = ~self.refined[keep]
+            level_of = ~d.refined[keep]
             self.emu_check = loglik_holdout(x_emu, ll_emu, noise, self.ibox.lo, self.ibox.hi,
                                             self.rows.n_rows, level_of=level_of)
             lemu = self.lemu = fit_loglik_emulator(x_emu, ll_emu, noise, self.ibox.lo,
@@ -201,7 +175,7 @@ class _Stage:
             "problems_before": list(self.posterior.problems),
             "emulator_at_posterior": emu_there,
             "chain_loglik": self.chain_screen["chain_loglik"]})
-        self.add(*self.screened, refinement=True)
+        self.design.add(*self.screened, refinement=True)
         return False
 
     def _realisation_wave(self) -> bool:
@@ -224,11 +198,9 @@ class _Stage:
             self.timings["realisations_s"] += time.perf_counter() - t0
             return True
         self.tick("realisation waves", len(waves), b.realisation_waves)
-        runs = self.forward.runouts(pts)
-        self.tally("design", runs, pts)
         waves.append({**record, "n_points": int(len(pts)),
                       "problems_before": list(post.problems) + spread})
-        self.add(pts, runs, refinement=True)
+        self.design.simulate(pts, refinement=True)
         self.tick("realisation waves", len(waves), b.realisation_waves)
         self.timings["realisations_s"] += time.perf_counter() - t0
         return False
@@ -243,16 +215,15 @@ class _Stage:
                                              for i, side, mass in faces])
         per = max(2, (self.budget.n_design3 // 2) // len(slabs))
         for j, slab in enumerate(slabs):
-            self.simulate(focus_design(self.forward, slab, self.nuts_box, per,
-                                       jax.random.fold_in(self.k_widen,
-                                                          16 * self.n_widened + j)))
+            self.design.fill(slab, self.nuts_box, per,
+                             jax.random.fold_in(self.k_widen, 16 * self.n_widened + j))
         self.n_widened += 1
         self.timings["design3_s"] += time.perf_counter() - t0
 
     def finish_focus(self) -> None:
         """The focus region's record, and its problems joined to the posterior's."""
         rec, post = self.focus_record, self.posterior
-        rec["n_emulator_points"] = int(self.inside().sum())
+        rec["n_emulator_points"] = int(self.design.inside(self.ibox).sum())
         rec.update(region_record(self.nuts_box, self.box))  # after any widening
         cut = face_problems(post.samples, self.nuts_box, self.box)
         there = rec.get("at_posterior")
@@ -280,7 +251,7 @@ def bayes_stage(forward, rows, budget, keys, tick, tally, timings: dict):
 
     Returns:
         (posterior, emulator check, focus record or None, chain-screen record or
-        None, design inputs (D, d), their summed simulated log-likelihoods (D,)).
+        None, the simulated design: ``calib.inference.design_waves.Design``).
     """
     s = _Stage(forward, rows, budget, keys, tick, tally, timings)
     s.first_designs()
@@ -294,4 +265,4 @@ def bayes_stage(forward, rows, budget, keys, tick, tally, timings: dict):
             break
     if focus:
         s.finish_focus()
-    return s.posterior, s.emu_check, s.focus_record, s.chain_screen, s.x, s.ll
+    return s.posterior, s.emu_check, s.focus_record, s.chain_screen, s.design

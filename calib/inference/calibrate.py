@@ -155,7 +155,7 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     entries = _row_entries(forward, obs)
     k_design, k_grad, k_nuts, k_pilot, k_check = jax.random.split(key, 5)
     tick = progress or (lambda *a: None)
-    timings, posterior, gfit, emu_check, x, design_ll = {}, None, None, None, None, None
+    timings, posterior, gfit, emu_check, design = {}, None, None, None, None
     focus_record = chain_screen = None
     rows = RowLikelihood(obs, entries.index)
     box = forward.box
@@ -167,12 +167,12 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
         t.add(runouts, theta, tuple(box.names))
 
     if "bayes" in methods:
-        posterior, emu_check, focus_record, chain_screen, x, design_ll = bayes_stage(
+        posterior, emu_check, focus_record, chain_screen, design = bayes_stage(
             forward, rows, budget, (k_design, k_pilot, k_nuts), tick, tally, timings)
 
     if "gradient" in methods:
         t0 = time.perf_counter()
-        gfit = _gradient_stage(forward, rows, budget, k_grad, tick, tally, x, design_ll)
+        gfit = _gradient_stage(forward, rows, budget, k_grad, tick, tally, design)
         timings["gradient_s"] = time.perf_counter() - t0
 
     if gfit is not None:
@@ -184,10 +184,10 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
                       tally)
     timings["check_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    design = ((forward.from_input(x), design_ll)
-              if design_ll is not None and hasattr(forward, "from_input")  # CRSP: theta space
+    scored = ((design.theta, design.ll)
+              if design is not None and hasattr(forward, "from_input")  # CRSP: theta space
               else None)
-    adequacy = fit_adequacy(forward, obs, rows, posterior, estimate, check.at_rows, design,
+    adequacy = fit_adequacy(forward, obs, rows, posterior, estimate, check.at_rows, scored,
                             budget, jax.random.fold_in(k_check, 1), tally)
     timings["adequacy_s"] = time.perf_counter() - t0
     record = unfinished_record(tallies, f"{type(forward).__name__} calibration")
@@ -197,8 +197,8 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
                     focus_record, chain_screen)
 
 
-def _gradient_stage(forward, rows: RowLikelihood, budget: Budget, key: jax.Array, tick, tally, x,
-                    design_ll) -> GradientFit:
+def _gradient_stage(forward, rows: RowLikelihood, budget: Budget, key: jax.Array, tick, tally,
+                    design) -> GradientFit:
     """Stage 2 of the module docstring: Adam on the smoothed CRN objective of the
     simulator from the box's centre, ``grad_starts - 1`` quasi-random points and
     (after a design) the design's best simulated point."""
@@ -216,12 +216,11 @@ def _gradient_stage(forward, rows: RowLikelihood, budget: Budget, key: jax.Array
     if budget.grad_starts > 1:
         z = qmc.Halton(box.dim, scramble=True, seed=1).random(budget.grad_starts - 1)
         starts += list(box.from_unit(0.15 + 0.7 * z))
-    if design_ll is not None and hasattr(forward, "from_input") and \
-            np.isfinite(design_ll).any():
+    if design is not None and hasattr(forward, "from_input") and np.isfinite(design.ll).any():
         # one more start at the design's best simulated point: where the
         # likelihood is peaked in a thin part of the box, the box's centre and
         # a few quasi-random starts may all lie on its flat part
-        starts.append(np.clip(forward.from_input(x[int(np.argmax(design_ll))]),
+        starts.append(np.clip(forward.from_input(design.x[int(np.argmax(design.ll))]),
                               box.lo, box.hi))
     return fit_gradient(objective, box, np.array(starts), key, n_steps=budget.grad_steps,
                         k=budget.grad_k,
