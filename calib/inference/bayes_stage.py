@@ -5,7 +5,7 @@ forward model:
 
 a. a first design (``forward.design``) and, where the budget asks, a second
    one drawn from a pilot posterior of the runout-quantile emulator
-   (``calib.inference.design_waves.second_design``);
+   (``calib.inference.design_waves.Design``);
 b. CRSP: the focus region (``calib.inference.focus``) and its own design;
 c. emulate (``calib.inference.loglik_emulator`` inside the focus region,
    ``calib.inference.emulator`` elsewhere) and sample with NUTS
@@ -18,8 +18,11 @@ d. CRSP, until settled: widen a focus face the posterior piles against (at
    move the posterior beyond its intervals, simulate one point per
    realisation and sample again (``calib.inference.realisations``).
 
-The stage's state (the simulated design, the focus boxes, the records) lives
-in one ``_Stage`` object whose methods are the steps above.
+The simulated design is a ``Design`` (``calib.inference.design_waves``), which
+simulates every wave the steps ask for and scores it with the rows' likelihood
+(``calib.inference.likelihood.RowLikelihood``); the rest of the stage's state
+(the focus boxes, the emulators, the posterior, the records) lives in one
+``_Stage`` object whose methods are the steps above.
 """
 
 from __future__ import annotations
