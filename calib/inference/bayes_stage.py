@@ -20,9 +20,10 @@ d. CRSP, until settled: widen a focus face the posterior piles against (at
 
 The simulated design is a ``Design`` (``calib.inference.design_waves``), which
 simulates every wave the steps ask for and scores it with the rows' likelihood
-(``calib.inference.likelihood.RowLikelihood``); the rest of the stage's state
-(the focus boxes, the emulators, the posterior, the records) lives in one
-``_Stage`` object whose methods are the steps above.
+(``calib.inference.likelihood.RowLikelihood``); the focus region is a
+``FocusRegion`` (``calib.inference.focus``), which widens itself and fills the
+slabs it uncovers; the rest of the stage's state (the emulators, the posterior,
+the records) lives in one ``_Stage`` object whose methods are the steps above.
 """
 
 from __future__ import annotations
@@ -36,14 +37,7 @@ from calib.inference.bayes import run_nuts
 from calib.inference.chains import chain_starts, screen_chains
 from calib.inference.design_waves import Design
 from calib.inference.emulator import fit_emulator, holdout_error
-from calib.inference.focus import (
-    MAX_WIDEN,
-    cut_faces,
-    face_problems,
-    focus_boxes,
-    region_record,
-    widen,
-)
+from calib.inference.focus import MAX_WIDEN, FocusRegion
 from calib.inference.loglik_emulator import at_posterior, fit_loglik_emulator, loglik_holdout
 from calib.inference.realisations import realisation_check
 
@@ -60,10 +54,19 @@ class _Stage:
         self.budget, self.tick, self.tally, self.timings = budget, tick, tally, timings
         self.k_design, self.k_pilot, self.k_nuts = keys
         self.box = forward.box
-        self.ibox, self.nuts_box = forward.input_box, forward.box
-        self.focus_record = self.chain_screen = self.screened = self.lemu = None
+        self.region = self.chain_screen = self.screened = self.lemu = None
         self.posterior = self.emu_check = None
-        self.n_widened = self.n_nuts = 0
+        self.n_nuts = 0
+
+    @property
+    def ibox(self):
+        """The emulator's box: the focus region's (``FocusRegion.input_box``), or the prior's."""
+        return self.forward.input_box if self.region is None else self.region.input_box
+
+    @property
+    def nuts_box(self):
+        """The box NUTS samples: the focus region's (``FocusRegion.box``), or the prior."""
+        return self.box if self.region is None else self.region.box
 
     # -- a, b: the designs ----------------------------------------------------
     def first_designs(self) -> None:
@@ -84,12 +87,11 @@ class _Stage:
     def focus_region(self) -> bool:
         """CRSP: the focus region and its design; False where there is none."""
         b, fw, design = self.budget, self.forward, self.design
-        focus = (focus_boxes(fw, design.theta, design.ll, self.rows.n_rows)
-                 if b.n_design3 > 0 and hasattr(fw, "from_input") else None)
-        if focus is None:
+        if b.n_design3 > 0 and hasattr(fw, "from_input"):
+            self.region = FocusRegion.around(fw, design, self.rows.n_rows)
+        if self.region is None:
             return False
         t0 = time.perf_counter()
-        self.ibox, self.nuts_box, self.focus_record = focus
         k_fill, k_sir, self.k_widen = jax.random.split(jax.random.fold_in(self.k_pilot, 1), 3)
         n_sir = b.n_design3 // 2
         self.tick("design3", 0, 2)
@@ -99,7 +101,7 @@ class _Stage:
             design.sir_wave(self.ibox, self.nuts_box, b.n_levels, n_sir, k_sir)
         self.tick("design3", 2, 2)
         self.timings["design3_s"] = time.perf_counter() - t0
-        self.focus_record.update(widened=[], refined=[], realisation_waves=[])
+        self.region.record.update(refined=[], realisation_waves=[])
         return True
 
     # -- c: emulate and sample ------------------------------------------------
@@ -162,18 +164,22 @@ class _Stage:
             emu_there = at_posterior(
                 self.lemu, np.asarray(self.forward.to_input(self.screened[0])),
                 self.rows.summed(self.screened[1]), self.rows.noise_var(self.screened[1]))
-            self.focus_record["at_posterior"] = emu_there
-        faces = cut_faces(self.posterior.samples, self.nuts_box, self.box)
-        if faces and self.n_widened != MAX_WIDEN:
-            self._widen(faces)
+            self.region.record["at_posterior"] = emu_there
+        faces = self.region.faces_holding(self.posterior.samples)
+        if faces and self.region.n_widened != MAX_WIDEN:
+            # the posterior piles against a face the focus region drew, not the
+            # prior's: move that face out and fill the new slab
+            t0 = time.perf_counter()
+            self.region.widen_faces(faces, self.design, self.budget.n_design3 // 2, self.k_widen)
+            self.timings["design3_s"] += time.perf_counter() - t0
             return False
         wrong_there = emu_there is not None and not emu_there["ok"]
         if ((self.posterior.ok and not wrong_there) or self.screened is None
-                or len(self.focus_record["refined"]) == MAX_REFINE):
+                or len(self.region.record["refined"]) == MAX_REFINE):
             return self.budget.n_realisations == 0 or self._realisation_wave()
         # the chains do not agree (or mix too slowly), or the GP is wrong where
         # they sit: it is taught the simulated log-likelihood there
-        self.focus_record["refined"].append({
+        self.region.record["refined"].append({
             "n_points": int(self.screened[0].shape[0]),
             "problems_before": list(self.posterior.problems),
             "emulator_at_posterior": emu_there,
@@ -188,14 +194,14 @@ class _Stage:
         True when no wave is needed (or none is left)."""
         b, post = self.budget, self.posterior
         t0 = time.perf_counter()
-        waves = self.focus_record["realisation_waves"]
+        waves = self.region.record["realisation_waves"]
         record, spread, pts = realisation_check(
             self.lemu, self.forward.to_input, self.nuts_box, post.samples,
             tuple(self.box.names), jax.random.fold_in(jax.random.fold_in(self.k_nuts, 7),
                                                       len(waves)),
             b.n_realisations, draw=len(waves) < b.realisation_waves)
         if pts is None:
-            self.focus_record["realisations"] = record
+            self.region.record["realisations"] = record
             post.problems += spread
             post.ok = post.ok and not spread
             self.timings["realisations_s"] += time.perf_counter() - t0
@@ -208,28 +214,11 @@ class _Stage:
         self.timings["realisations_s"] += time.perf_counter() - t0
         return False
 
-    def _widen(self, faces) -> None:
-        """The posterior piles against a face the focus region drew, not the
-        prior's: move that face out and fill the new slab."""
-        t0 = time.perf_counter()
-        self.ibox, self.nuts_box, slabs = widen(self.forward, self.ibox, faces)
-        self.focus_record["widened"].append([{"parameter": self.box.names[i], "side": side,
-                                              "posterior_mass_at_face": mass}
-                                             for i, side, mass in faces])
-        per = max(2, (self.budget.n_design3 // 2) // len(slabs))
-        for j, slab in enumerate(slabs):
-            self.design.fill(slab, self.nuts_box, per,
-                             jax.random.fold_in(self.k_widen, 16 * self.n_widened + j))
-        self.n_widened += 1
-        self.timings["design3_s"] += time.perf_counter() - t0
-
     def finish_focus(self) -> None:
         """The focus region's record, and its problems joined to the posterior's."""
-        rec, post = self.focus_record, self.posterior
-        rec["n_emulator_points"] = int(self.design.inside(self.ibox).sum())
-        rec.update(region_record(self.nuts_box, self.box))  # after any widening
-        cut = face_problems(post.samples, self.nuts_box, self.box)
-        there = rec.get("at_posterior")
+        post = self.posterior
+        cut = self.region.finish(post.samples, self.design)
+        there = self.region.record.get("at_posterior")
         if there is not None and not there["ok"]:
             cut.append(f"the log-likelihood GP is wrong where the posterior sits: at "
                        f"{len(self.screened[0])} of its draws it promised a median of "
@@ -268,4 +257,5 @@ def bayes_stage(forward, rows, budget, keys, tick, tally, timings: dict):
             break
     if focus:
         s.finish_focus()
-    return s.posterior, s.emu_check, s.focus_record, s.chain_screen, s.design
+    return (s.posterior, s.emu_check, None if s.region is None else s.region.record,
+            s.chain_screen, s.design)
