@@ -82,7 +82,7 @@ from calib.inference.adequacy import fit_adequacy
 from calib.inference.bayes import Posterior
 from calib.inference.bayes_stage import bayes_stage
 from calib.inference.budget import Budget, presets
-from calib.inference.fit_check import check_fit
+from calib.inference.fit_check import check_estimate
 from calib.inference.gradient import GradientFit, fit_gradient
 from calib.inference.likelihood import RowLikelihood
 from calib.model.entries import Entries
@@ -180,8 +180,8 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     else:
         estimate, source = posterior.map, "posterior_mode"
     t0 = time.perf_counter()
-    check = check_fit(forward, entries, obs, rows, estimate, sizes, budget.n_check, k_check,
-                      tally)
+    check = check_estimate(forward, entries, obs, rows, estimate, sizes, budget.n_check,
+                           k_check, tally)
     timings["check_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     scored = ((design.theta, design.ll)

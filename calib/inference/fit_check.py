@@ -1,7 +1,7 @@
 """The fit's check of itself: the point estimate re-simulated with fresh blocks,
 each row against the blocks of its entry (stage 3 of ``calib.inference.calibrate``).
 
-* ``check_fit``: the check of one fit (``FitCheck``).
+* ``check_estimate``: the check of one fit (``FitCheck``).
 * ``check_entries``: what the check simulates (the figure's sizes at the rows'
   median release, and every entry of the rows that is not one of them).
 * ``fit_quality``: per row, the simulated 5/50/95 % runouts, its PIT and
@@ -23,11 +23,11 @@ from calib.inference.likelihood import RowLikelihood
 from calib.model.entries import Entries
 from solvers.percentiles import few_blocks
 
-__all__ = ["FitCheck", "check_entries", "check_fit", "fit_quality"]
+__all__ = ["FitCheck", "check_entries", "check_estimate", "fit_quality"]
 
 
 class FitCheck(NamedTuple):
-    """The check of one fit (``check_fit``).
+    """The check of one fit (``check_estimate``).
 
     Attributes:
         sizes_m: (K,) the sizes simulated at the rows' median release, m.
@@ -42,7 +42,7 @@ class FitCheck(NamedTuple):
     quality: list[dict]
 
 
-def check_fit(forward, entries: Entries, obs: Observations, rows: RowLikelihood,
+def check_estimate(forward, entries: Entries, obs: Observations, rows: RowLikelihood,
               estimate: np.ndarray, sizes_m: np.ndarray, n_blocks: int, key: jax.Array,
               tally) -> FitCheck:
     """Re-simulate the point estimate with ``n_blocks`` fresh blocks per entry of
