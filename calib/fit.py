@@ -119,7 +119,6 @@ def _run(args) -> int:
     from calib.plots import figures
 
     t_start = time.perf_counter()
-    _check_effects(args)
     inputs, data_csv, files = _inputs(args)
     entries = inputs.entries(args.release_tolerance_m)
     grouped = inputs.own_releases
@@ -163,15 +162,17 @@ def _run(args) -> int:
 def _inputs(args):
     """The checked inputs (``calib.files.inputs.Inputs``), with the rows of the
     hold-out split's fit part under ``--holdout-fraction``; the path of the
-    rows fitted; the row files the split adds to the outputs."""
+    rows fitted; the row files the split adds to the outputs. The options that
+    can be refused without the files are checked first."""
     from calib.files.inputs import InputError, load_inputs
 
+    _check_effects(args)
+    if not args.release_tolerance_m >= 0:
+        raise CliError(f"--release-tolerance-m must be >= 0, got {args.release_tolerance_m:g}")
     try:
         inputs = load_inputs(args.data, args.profile, args.out)
     except InputError as e:
         raise CliError(str(e)) from None
-    if not args.release_tolerance_m >= 0:
-        raise CliError(f"--release-tolerance-m must be >= 0, got {args.release_tolerance_m:g}")
     files, data_csv = {}, args.data
     if args.holdout_fraction:
         obs, data_csv = _split(args, inputs.obs, files)

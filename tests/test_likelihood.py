@@ -12,8 +12,13 @@ from scipy.stats import norm
 from calib.discovery.candidate_fit import _loglik_design
 from calib.discovery.discrepancy import size_classes
 from calib.files.observations import Observations
-from calib.inference.fit_check import loglik_of_runouts as _loglik_of_runouts
-from calib.inference.likelihood import R_MAX_M, RUNOUT_EPS, log_likelihood, observed_rows
+from calib.inference.likelihood import (
+    R_MAX_M,
+    RUNOUT_EPS,
+    RowLikelihood,
+    log_likelihood,
+    observed_rows,
+)
 
 NAN = np.nan
 
@@ -70,7 +75,7 @@ def _documented(obs: Observations, runouts: np.ndarray) -> np.ndarray:
 
 def test_fit_and_discover_score_the_same_rows_identically():
     obs, runs = _rows(), _runouts()
-    fit_path = np.asarray(_loglik_of_runouts(obs)(runs))
+    fit_path = np.asarray(RowLikelihood(obs).pointwise(runs))
     _, row_class = size_classes(obs.block_size_m)
     discover_path = np.asarray(_loglik_design(runs, row_class, *observed_rows(obs)))
     assert fit_path.shape == (3, obs.n_obs)
@@ -83,7 +88,7 @@ def test_fit_and_discover_score_the_same_rows_identically():
 
 def test_both_paths_are_the_documented_model():
     obs, runs = _rows(), _runouts()
-    np.testing.assert_allclose(np.asarray(_loglik_of_runouts(obs)(runs)),
+    np.testing.assert_allclose(np.asarray(RowLikelihood(obs).pointwise(runs)),
                                _documented(obs, runs), rtol=1e-9)
 
 

@@ -10,11 +10,11 @@ import numpy as np
 from scipy.stats import qmc
 
 from calib.inference.bayes import keep_chains
+from calib.inference.likelihood import RowLikelihood
 from calib.inference.loglik_emulator import (
     CAP_NATS_PER_ROW,
     fit_loglik_emulator,
     loglik_holdout,
-    loglik_noise_var,
 )
 
 LO, HI = np.zeros(2), np.ones(2)
@@ -103,16 +103,13 @@ def test_a_flat_ridge_next_to_a_wall_gets_no_invented_peak():
 def test_noise_variance_falls_with_the_number_of_blocks():
     """Bootstrap over a design point's blocks: four times the blocks, about a
     quarter of the variance of the summed log-likelihood."""
+    from calib.files.observations import Observations
+
     rng = np.random.default_rng(1)
-    y = jnp.asarray([100.0, 120.0])
-
-    def loglik_runs(runs):  # (T, S, n) -> (T, 2): a Gaussian kernel at 5 m
-        r = runs[:, 0]
-        return jnp.log(jnp.mean(jnp.exp(-0.5 * ((r[:, None, :] - y[None, :, None]) / 5.0) ** 2),
-                                -1) + 1e-300)
-
-    small = loglik_noise_var(loglik_runs, 110 + 10 * rng.standard_normal((3, 1, 200)), 64)
-    large = loglik_noise_var(loglik_runs, 110 + 10 * rng.standard_normal((3, 1, 800)), 64)
+    # two point rows of one size, 5 m tolerance: a Gaussian kernel at 5 m
+    rows = RowLikelihood(Observations.points([0.5, 0.5], [100.0, 120.0], [5.0, 5.0]))
+    small = rows.noise_var(110 + 10 * rng.standard_normal((3, 1, 200)), 64)
+    large = rows.noise_var(110 + 10 * rng.standard_normal((3, 1, 800)), 64)
     ratio = float(np.mean(small) / np.mean(large))
     assert 2.5 < ratio < 6.0, ratio
 
@@ -136,10 +133,13 @@ def test_chains_the_simulator_fits_far_worse_are_dropped():
     def runouts(theta):  # one entry, one "block" whose runout is the point's quality
         return np.where(theta[:, 0] > 0.6, -500.0, -50.0)[:, None, None]
 
-    def loglik_runs(runs):
-        return runs[:, 0]  # (T, 1): the summed log-likelihood itself
+    class Rows:  # 10 rows whose summed log-likelihood is the point's one "runout"
+        n_rows = 10
 
-    kept, rec, (theta, runs) = screen_chains(post, runouts, loglik_runs, 10)
+        def summed(self, runs):
+            return runs[:, 0, 0]
+
+    kept, rec, (theta, runs) = screen_chains(post, runouts, Rows())
     assert rec["kept"] == [True, True, True, False] and rec["n_dropped"] == 1
     # the screened draws (8 per chain, the dropped chain's too) come back for the
     # next refinement wave, with their simulations
@@ -148,7 +148,7 @@ def test_chains_the_simulator_fits_far_worse_are_dropped():
     assert kept.n_chains == 3 and kept.samples.shape == (3 * n, 2)
     assert kept.rhat.max() < 1.05 and kept.ok is not None and kept.loglik_kind == "summed"
     same, rec, _ = screen_chains(keep_chains(post, [True, True, True, False]), runouts,
-                                  loglik_runs, 10)
+                                  Rows())
     assert rec["n_dropped"] == 0 and same.n_chains == 3
 
 

@@ -74,10 +74,17 @@ reported per fit (``calib.inference.calibrate``; ``calibration.json`` under
 
 Without a posterior (gradient-only fits) the predictive distribution is that
 of the point estimate (plug-in), and the record says so.
+
+``fit_adequacy`` makes the record of one fit (``calib.inference.calibrate``,
+stage 4): it simulates the posterior predictive and the fit's points for
+check 4, and hands them to ``adequacy_record``.
 """
 
 from __future__ import annotations
 
+import dataclasses
+
+import jax
 import numpy as np
 from scipy.stats import binomtest, chi2
 
@@ -85,15 +92,17 @@ from calib.files.observations import Observations
 from calib.inference.predictive_check import (
     in_band,
     observed_ensemble,
+    pool_draws,
     stall_message,
     stalled_rows,
 )
+from calib.model.forward import CrspForward, release_rolling_deg, release_slopes_deg
 from calib.model.priors import Box
 
 __all__ = ["BETTER_NATS_PER_ROW", "BOUND_BAND", "BOUND_FLAG", "COVERAGE_ALPHA", "LEVELS",
            "REACH_BAND", "REACH_QUANTILE",
            "STALL_FLAG", "STALL_M", "adequacy_record", "better_design_point", "bound_mass",
-           "loglik_gap_nats", "predictive_coverage", "stalled_releases"]
+           "fit_adequacy", "loglik_gap_nats", "predictive_coverage", "stalled_releases"]
 
 BOUND_BAND = 0.02  # width of the band at each bound, as a fraction of the box width
 BOUND_FLAG = 0.10  # posterior mass in that band above which a parameter is flagged
@@ -288,6 +297,64 @@ def _better_problem(better: dict | None) -> str | None:
             "not describe the best fit found")
 
 
+def fit_adequacy(forward, obs: Observations, rows, posterior, estimate: np.ndarray,
+                 at_rows: np.ndarray, design: tuple | None, budget, key: jax.Array,
+                 tally) -> dict:
+    """The adequacy record of one fit (``adequacy_record``).
+
+    Its predictive: runouts at ``n_predictive_draws`` posterior draws spread
+    evenly over the chains' output, with ``n_blocks_predictive`` fresh blocks
+    per draw and entry; without a posterior, the check's runouts ``at_rows``
+    at the point estimate (plug-in). CRSP: with the rolling resistance angle
+    at each release of every draw (or of the estimate), for the rows that
+    stall at their release (check 5). With a design, check 4 scores the
+    estimate (the check's blocks) and the posterior's mode (the design's own
+    blocks) against the design's best point.
+
+    Args:
+        forward: the fit's forward model (``calib.model.forward``).
+        obs: the calibration rows.
+        rows: their likelihood (``calib.inference.likelihood.RowLikelihood``).
+        posterior: ``calib.inference.bayes.Posterior`` or None.
+        estimate: (d,) the point estimate.
+        at_rows: (G, n) the check's runouts at the estimate per entry of the rows.
+        design: (theta (D, d), summed simulated log-likelihoods (D,)) of a
+            theta-space design (CRSP), or None.
+        budget: ``calib.inference.budget.Budget``.
+        key: PRNG key of the predictive's blocks.
+        tally: records unfinished blocks per stage.
+    """
+    better = None
+    if design is not None:
+        fitted = {"estimate": float(rows.summed(at_rows[None])[0])}
+        if posterior is not None:  # its mode with the design's own blocks
+            fitted["posterior mode"] = float(rows.summed(forward.runouts(posterior.map[None]))[0])
+        better = better_design_point(forward.box.names, *design, fitted, rows.n_rows)
+    release = forward.entries.release_x_m
+    slopes_deg = release_slopes_deg(forward.profile, release, forward.entries.profiles)
+
+    def rolling(theta):
+        if not isinstance(forward, CrspForward) or theta is None:
+            return None
+        return release_rolling_deg(forward.box.names, theta, forward.profile, forward.entries)
+
+    if posterior is None:
+        samples, runouts, theta = None, at_rows, np.atleast_2d(estimate)
+        source = (f"plug-in at the point estimate, {at_rows.shape[-1]} blocks per size "
+                  "(no posterior)")
+    else:
+        n = posterior.samples.shape[0]
+        pick = np.linspace(0, n - 1, min(budget.n_predictive_draws, n)).round().astype(int)
+        samples, theta = posterior.samples, posterior.samples[pick]
+        pred = dataclasses.replace(forward, n_blocks=budget.n_blocks_predictive, key=key)
+        runs = pred.runouts(theta)  # (T, S, n)
+        tally("predictive", runs, theta)
+        runouts = pool_draws(runs)
+        source = (f"posterior predictive, {len(pick)} draws x {budget.n_blocks_predictive} "
+                  "blocks per size")
+    return adequacy_record(samples, forward.box, obs, runouts, source, rows.index, release,
+                           slopes_deg, better, rolling(theta))
+
 def adequacy_record(samples: np.ndarray | None, box: Box, obs: Observations,
                     runouts: np.ndarray, source: str, index=None, release_x_m=None,
                     release_slope_deg=None, better: dict | None = None,
@@ -310,8 +377,8 @@ def adequacy_record(samples: np.ndarray | None, box: Box, obs: Observations,
             that stall at their release (check 5, ``stalled_rows``).
     """
     bounds = None if samples is None else bound_mass(samples, box)
-    cov = predictive_coverage(obs, runouts, index=index)
     stalls = stalled_releases(obs, runouts, index, release_x_m, release_slope_deg)
+    cov = predictive_coverage(obs, runouts, index=index)
     stalled = stalled_rows(obs, runouts, index, release_x_m, release_slope_deg,
                            release_rolling_deg)
     problems = []

@@ -5,7 +5,7 @@ forward model:
 
 a. a first design (``forward.design``) and, where the budget asks, a second
    one drawn from a pilot posterior of the runout-quantile emulator
-   (``calib.inference.design_waves.second_design``);
+   (``calib.inference.design_waves.Design``);
 b. CRSP: the focus region (``calib.inference.focus``) and its own design;
 c. emulate (``calib.inference.loglik_emulator`` inside the focus region,
    ``calib.inference.emulator`` elsewhere) and sample with NUTS
@@ -18,8 +18,12 @@ d. CRSP, until settled: widen a focus face the posterior piles against (at
    move the posterior beyond its intervals, simulate one point per
    realisation and sample again (``calib.inference.realisations``).
 
-The stage's state (the simulated design, the focus boxes, the records) lives
-in one ``_Stage`` object whose methods are the steps above.
+The simulated design is a ``Design`` (``calib.inference.design_waves``), which
+simulates every wave the steps ask for and scores it with the rows' likelihood
+(``calib.inference.likelihood.RowLikelihood``); the focus region is a
+``FocusRegion`` (``calib.inference.focus``), which widens itself and fills the
+slabs it uncovers; the rest of the stage's state (the emulators, the posterior,
+the records) lives in one ``_Stage`` object whose methods are the steps above.
 """
 
 from __future__ import annotations
@@ -27,157 +31,103 @@ from __future__ import annotations
 import time
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from calib.inference.bayes import run_nuts
 from calib.inference.chains import chain_starts, screen_chains
-from calib.inference.design_waves import focus_design, second_design, sir_draws
+from calib.inference.design_waves import Design
 from calib.inference.emulator import fit_emulator, holdout_error
-from calib.inference.focus import (
-    MAX_WIDEN,
-    cut_faces,
-    face_problems,
-    focus_boxes,
-    region_record,
-    widen,
-)
-from calib.inference.likelihood import log_likelihood, observed_rows
-from calib.inference.loglik_emulator import (
-    at_posterior,
-    fit_loglik_emulator,
-    loglik_holdout,
-    loglik_noise_var,
-    summed_loglik,
-)
+from calib.inference.focus import MAX_WIDEN, FocusRegion
+from calib.inference.loglik_emulator import at_posterior, fit_loglik_emulator, loglik_holdout
 from calib.inference.realisations import realisation_check
 
-__all__ = ["MAX_REFINE", "bayes_stage", "emulated_loglik"]
+__all__ = ["MAX_REFINE", "bayes_stage"]
 
 MAX_REFINE = 2  # refinement waves: screened draws added to the log-likelihood GP
-
-
-def _median_kernel_var_m2(obs) -> float:
-    """Median over rows of the kernel variance the likelihood gives one sample:
-    the tolerance sd^2 of a point row, the smallest kernel width h^2 (0.5 m) of
-    an interval row (``calib.inference.likelihood``)."""
-    return float(np.median(np.where(obs.is_interval, 0.5**2, np.nan_to_num(obs.runout_sd_m)**2)))
-
-
-def emulated_loglik(obs, emu, forward, inflation: float, index=None):
-    """theta (d,) -> pointwise log-likelihood (n_obs,) from the emulator (row i:
-    entry ``index[i]`` of the forward model, default ``obs.size_index``)."""
-    y, sd, lo, hi, is_int = observed_rows(obs)
-    idx = jnp.asarray(obs.size_index if index is None else index)
-
-    def f(theta):
-        mean, var = emu.predict(forward.emulator_inputs(theta))
-        return log_likelihood(mean[idx], y, sd, lo, hi, is_int, inflation * var[idx])
-
-    return f
 
 
 class _Stage:
     """The Bayesian stage's state and steps (module docstring)."""
 
-    def __init__(self, forward, obs, index, loglik_runs, budget, keys, tick, tally,
-                 timings: dict):
-        self.forward, self.obs, self.index, self.loglik_runs = forward, obs, index, loglik_runs
+    def __init__(self, forward, rows, budget, keys, tick, tally, timings: dict):
+        self.forward, self.rows = forward, rows
         self.budget, self.tick, self.tally, self.timings = budget, tick, tally, timings
         self.k_design, self.k_pilot, self.k_nuts = keys
         self.box = forward.box
-        self.ibox, self.nuts_box = forward.input_box, forward.box
-        self.focus_record = self.chain_screen = self.screened = self.lemu = None
+        self.region = self.chain_screen = self.screened = self.lemu = None
         self.posterior = self.emu_check = None
-        self.n_widened = self.n_nuts = 0
+        self.n_nuts = 0
 
-    # -- the simulated design -------------------------------------------------
-    def add(self, theta, runs, refinement: bool = False) -> None:
-        """Simulated points join the design (``refinement``: a repair wave's)."""
-        self.ll = np.concatenate([self.ll, summed_loglik(self.loglik_runs, runs)])
-        self.x = np.concatenate([self.x, np.asarray(self.forward.to_input(theta))])
-        self.r = np.concatenate([self.r, runs])
-        self.refined = np.concatenate([self.refined, np.full(len(runs), refinement)])
+    @property
+    def ibox(self):
+        """The emulator's box: the focus region's (``FocusRegion.input_box``), or the prior's."""
+        return self.forward.input_box if self.region is None else self.region.input_box
 
-    def simulate(self, theta) -> None:
-        runs = self.forward.runouts(theta)
-        self.tally("design", runs, theta)
-        self.add(theta, runs)
-
-    def inside(self) -> np.ndarray:
-        """Design points inside the emulator's box (the focus region)."""
-        return np.all((self.x >= self.ibox.lo - 1e-9) & (self.x <= self.ibox.hi + 1e-9), axis=1)
+    @property
+    def nuts_box(self):
+        """The box NUTS samples: the focus region's (``FocusRegion.box``), or the prior."""
+        return self.box if self.region is None else self.region.box
 
     # -- a, b: the designs ----------------------------------------------------
     def first_designs(self) -> None:
-        b, fw = self.budget, self.forward
+        b = self.budget
         t0 = time.perf_counter()
         self.tick("design", 0, 1)
-        self.x, self.r = fw.design(b.n_design, seed=int(jax.random.randint(
-            self.k_design, (), 0, 2**31 - 1)))
-        self.ll = summed_loglik(self.loglik_runs, self.r)
+        self.design = Design(self.forward, self.rows, self.tally, b.n_design, seed=int(
+            jax.random.randint(self.k_design, (), 0, 2**31 - 1)))
         self.tick("design", 1, 1)
-        self.tally("design", self.r)
         self.timings["design_s"] = time.perf_counter() - t0
-        self.refined = np.zeros(len(self.x), bool)  # points of the refinement waves
         if b.n_design2 > 0:
             t0 = time.perf_counter()
-            emu = fit_emulator(self.x, self.r, self.ibox.lo, self.ibox.hi, b.n_levels)
             self.tick("design2", 0, 1)
-            self.simulate(second_design(
-                fw, emulated_loglik(self.obs, emu, fw, 1.0, self.index), fw.from_input(self.x),
-                self.ll, b.n_design2, self.k_pilot))
+            self.design.second_wave(b.n_levels, b.n_design2, self.k_pilot)
             self.tick("design2", 1, 1)
             self.timings["design2_s"] = time.perf_counter() - t0
 
     def focus_region(self) -> bool:
         """CRSP: the focus region and its design; False where there is none."""
-        b, fw = self.budget, self.forward
-        focus = (focus_boxes(fw, fw.from_input(self.x), self.ll, self.obs.n_obs)
-                 if b.n_design3 > 0 and hasattr(fw, "from_input") else None)
-        if focus is None:
+        b, fw, design = self.budget, self.forward, self.design
+        if b.n_design3 > 0 and hasattr(fw, "from_input"):
+            self.region = FocusRegion.around(fw, design, self.rows.n_rows)
+        if self.region is None:
             return False
         t0 = time.perf_counter()
-        self.ibox, self.nuts_box, self.focus_record = focus
         k_fill, k_sir, self.k_widen = jax.random.split(jax.random.fold_in(self.k_pilot, 1), 3)
         n_sir = b.n_design3 // 2
         self.tick("design3", 0, 2)
-        self.simulate(focus_design(fw, self.ibox, self.nuts_box, b.n_design3 - n_sir, k_fill))
+        design.fill(self.ibox, self.nuts_box, b.n_design3 - n_sir, k_fill)
         self.tick("design3", 1, 2)
         if n_sir:
-            keep = self.inside()
-            emu = fit_emulator(self.x[keep], self.r[keep], self.ibox.lo, self.ibox.hi,
-                               b.n_levels)
-            self.simulate(sir_draws(fw, emulated_loglik(self.obs, emu, fw, 1.0, self.index),
-                                    self.ibox, self.nuts_box, n_sir, k_sir))
+            design.sir_wave(self.ibox, self.nuts_box, b.n_levels, n_sir, k_sir)
         self.tick("design3", 2, 2)
         self.timings["design3_s"] = time.perf_counter() - t0
-        self.focus_record.update(widened=[], refined=[], realisation_waves=[])
+        self.region.record.update(refined=[], realisation_waves=[])
         return True
 
     # -- c: emulate and sample ------------------------------------------------
     def emulate(self, focus: bool):
         """The density NUTS samples, and the design points it was fitted on."""
         t0 = time.perf_counter()
-        keep = self.inside() if focus else np.ones(len(self.x), bool)
-        x_emu, r_emu, ll_emu = self.x[keep], self.r[keep], self.ll[keep]
+        d = self.design
+        keep = d.inside(self.ibox) if focus else np.ones(len(d.x), bool)
+        x_emu, r_emu, ll_emu = d.x[keep], d.r[keep], d.ll[keep]
         if focus:  # a GP of the summed log-likelihood (calib.inference.loglik_emulator)
-            noise = loglik_noise_var(self.loglik_runs, r_emu)
-            level_of = ~self.refined[keep]
+            noise = self.rows.noise_var(r_emu)
+            level_of = ~d.refined[keep]
             self.emu_check = loglik_holdout(x_emu, ll_emu, noise, self.ibox.lo, self.ibox.hi,
-                                            self.obs.n_obs, level_of=level_of)
+                                            self.rows.n_rows, level_of=level_of)
             lemu = self.lemu = fit_loglik_emulator(x_emu, ll_emu, noise, self.ibox.lo,
-                                                   self.ibox.hi, self.obs.n_obs, level_of)
+                                                   self.ibox.hi, self.rows.n_rows, level_of)
 
             def target(theta, lemu=lemu):
                 return lemu.predict(self.forward.to_input(theta))[0][None]
         else:  # GPs of the runout quantiles (calib.inference.emulator)
             self.emu_check = holdout_error(x_emu, r_emu, self.ibox.lo, self.ibox.hi,
                                            self.budget.n_levels,
-                                           kernel_var_m2=_median_kernel_var_m2(self.obs))
+                                           kernel_var_m2=self.rows.kernel_var_m2)
             emu = fit_emulator(x_emu, r_emu, self.ibox.lo, self.ibox.hi, self.budget.n_levels)
-            target = emulated_loglik(self.obs, emu, self.forward,
-                                     self.emu_check["variance_inflation"], self.index)
+            target = self.rows.emulated(emu, self.forward.emulator_inputs,
+                                        self.emu_check["variance_inflation"])
         self.emu_check["n_design"] = int(x_emu.shape[0])
         self.emu_check["n_blocks_per_point"] = int(r_emu.shape[-1])
         self.timings["emulator_s"] += time.perf_counter() - t0
@@ -201,7 +151,7 @@ class _Stage:
                 return runs
 
             self.posterior, self.chain_screen, self.screened = screen_chains(
-                self.posterior, screen_runs, self.loglik_runs, self.obs.n_obs)
+                self.posterior, screen_runs, self.rows)
         self.tick(f"nuts run {self.n_nuts}", 1, 1)
         self.timings["nuts_s"] += time.perf_counter() - t0
 
@@ -213,25 +163,28 @@ class _Stage:
         if self.screened is not None:  # the GP against the simulator at the screened draws
             emu_there = at_posterior(
                 self.lemu, np.asarray(self.forward.to_input(self.screened[0])),
-                summed_loglik(self.loglik_runs, self.screened[1]),
-                loglik_noise_var(self.loglik_runs, self.screened[1]))
-            self.focus_record["at_posterior"] = emu_there
-        faces = cut_faces(self.posterior.samples, self.nuts_box, self.box)
-        if faces and self.n_widened != MAX_WIDEN:
-            self._widen(faces)
+                self.rows.summed(self.screened[1]), self.rows.noise_var(self.screened[1]))
+            self.region.record["at_posterior"] = emu_there
+        faces = self.region.faces_holding(self.posterior.samples)
+        if faces and self.region.n_widened != MAX_WIDEN:
+            # the posterior piles against a face the focus region drew, not the
+            # prior's: move that face out and fill the new slab
+            t0 = time.perf_counter()
+            self.region.widen_faces(faces, self.design, self.budget.n_design3 // 2, self.k_widen)
+            self.timings["design3_s"] += time.perf_counter() - t0
             return False
         wrong_there = emu_there is not None and not emu_there["ok"]
         if ((self.posterior.ok and not wrong_there) or self.screened is None
-                or len(self.focus_record["refined"]) == MAX_REFINE):
+                or len(self.region.record["refined"]) == MAX_REFINE):
             return self.budget.n_realisations == 0 or self._realisation_wave()
         # the chains do not agree (or mix too slowly), or the GP is wrong where
         # they sit: it is taught the simulated log-likelihood there
-        self.focus_record["refined"].append({
+        self.region.record["refined"].append({
             "n_points": int(self.screened[0].shape[0]),
             "problems_before": list(self.posterior.problems),
             "emulator_at_posterior": emu_there,
             "chain_loglik": self.chain_screen["chain_loglik"]})
-        self.add(*self.screened, refinement=True)
+        self.design.add(*self.screened, refinement=True)
         return False
 
     def _realisation_wave(self) -> bool:
@@ -241,51 +194,31 @@ class _Stage:
         True when no wave is needed (or none is left)."""
         b, post = self.budget, self.posterior
         t0 = time.perf_counter()
-        waves = self.focus_record["realisation_waves"]
+        waves = self.region.record["realisation_waves"]
         record, spread, pts = realisation_check(
             self.lemu, self.forward.to_input, self.nuts_box, post.samples,
             tuple(self.box.names), jax.random.fold_in(jax.random.fold_in(self.k_nuts, 7),
                                                       len(waves)),
             b.n_realisations, draw=len(waves) < b.realisation_waves)
         if pts is None:
-            self.focus_record["realisations"] = record
+            self.region.record["realisations"] = record
             post.problems += spread
             post.ok = post.ok and not spread
             self.timings["realisations_s"] += time.perf_counter() - t0
             return True
         self.tick("realisation waves", len(waves), b.realisation_waves)
-        runs = self.forward.runouts(pts)
-        self.tally("design", runs, pts)
         waves.append({**record, "n_points": int(len(pts)),
                       "problems_before": list(post.problems) + spread})
-        self.add(pts, runs, refinement=True)
+        self.design.simulate(pts, refinement=True)
         self.tick("realisation waves", len(waves), b.realisation_waves)
         self.timings["realisations_s"] += time.perf_counter() - t0
         return False
 
-    def _widen(self, faces) -> None:
-        """The posterior piles against a face the focus region drew, not the
-        prior's: move that face out and fill the new slab."""
-        t0 = time.perf_counter()
-        self.ibox, self.nuts_box, slabs = widen(self.forward, self.ibox, faces)
-        self.focus_record["widened"].append([{"parameter": self.box.names[i], "side": side,
-                                              "posterior_mass_at_face": mass}
-                                             for i, side, mass in faces])
-        per = max(2, (self.budget.n_design3 // 2) // len(slabs))
-        for j, slab in enumerate(slabs):
-            self.simulate(focus_design(self.forward, slab, self.nuts_box, per,
-                                       jax.random.fold_in(self.k_widen,
-                                                          16 * self.n_widened + j)))
-        self.n_widened += 1
-        self.timings["design3_s"] += time.perf_counter() - t0
-
     def finish_focus(self) -> None:
         """The focus region's record, and its problems joined to the posterior's."""
-        rec, post = self.focus_record, self.posterior
-        rec["n_emulator_points"] = int(self.inside().sum())
-        rec.update(region_record(self.nuts_box, self.box))  # after any widening
-        cut = face_problems(post.samples, self.nuts_box, self.box)
-        there = rec.get("at_posterior")
+        post = self.posterior
+        cut = self.region.finish(post.samples, self.design)
+        there = self.region.record.get("at_posterior")
         if there is not None and not there["ok"]:
             cut.append(f"the log-likelihood GP is wrong where the posterior sits: at "
                        f"{len(self.screened[0])} of its draws it promised a median of "
@@ -296,13 +229,12 @@ class _Stage:
         post.ok = post.ok and not cut
 
 
-def bayes_stage(forward, obs, index, loglik_runs, budget, keys, tick, tally, timings: dict):
+def bayes_stage(forward, rows, budget, keys, tick, tally, timings: dict):
     """Stage 1 of ``calib.inference.calibrate`` (module docstring).
 
     Args:
-        forward, obs: the forward model and the rows.
-        index: (n_obs,) the entry of each row.
-        loglik_runs: runouts (T, S, n) -> pointwise log-likelihood (T, n_obs).
+        forward: the forward model.
+        rows: the rows' likelihood (``calib.inference.likelihood.RowLikelihood``).
         budget: ``calib.inference.budget.Budget``.
         keys: (design, pilot, NUTS) PRNG keys.
         tick: progress callable(stage, done, total).
@@ -311,9 +243,9 @@ def bayes_stage(forward, obs, index, loglik_runs, budget, keys, tick, tally, tim
 
     Returns:
         (posterior, emulator check, focus record or None, chain-screen record or
-        None, design inputs (D, d), their summed simulated log-likelihoods (D,)).
+        None, the simulated design: ``calib.inference.design_waves.Design``).
     """
-    s = _Stage(forward, obs, index, loglik_runs, budget, keys, tick, tally, timings)
+    s = _Stage(forward, rows, budget, keys, tick, tally, timings)
     s.first_designs()
     focus = s.focus_region()
     timings["emulator_s"] = timings["nuts_s"] = 0.0
@@ -325,4 +257,5 @@ def bayes_stage(forward, obs, index, loglik_runs, budget, keys, tick, tally, tim
             break
     if focus:
         s.finish_focus()
-    return s.posterior, s.emu_check, s.focus_record, s.chain_screen, s.x, s.ll
+    return (s.posterior, s.emu_check, None if s.region is None else s.region.record,
+            s.chain_screen, s.design)

@@ -78,23 +78,18 @@ import jax.numpy as jnp
 import numpy as np
 
 from calib.files.observations import Observations
-from calib.inference.adequacy import better_design_point
+from calib.inference.adequacy import fit_adequacy
 from calib.inference.bayes import Posterior
 from calib.inference.bayes_stage import bayes_stage
 from calib.inference.budget import Budget, presets
-from calib.inference.fit_check import (
-    check_entries,
-    fit_quality,
-    loglik_of_runouts,
-    predictive_adequacy,
-)
+from calib.inference.fit_check import check_estimate
 from calib.inference.gradient import GradientFit, fit_gradient
-from calib.inference.loglik_emulator import summed_loglik
+from calib.inference.likelihood import RowLikelihood
 from calib.model.entries import Entries
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
 
-# Budget, presets and fit_quality are re-exported: the fit driver's API in one place
-__all__ = ["Budget", "ModelFit", "calibrate", "fit_quality", "presets"]
+# Budget and presets are re-exported: the fit driver's API in one place
+__all__ = ["Budget", "ModelFit", "calibrate", "presets"]
 
 
 @dataclasses.dataclass
@@ -158,12 +153,11 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
             the median of the rows' releases (``ModelFit.check_runouts``).
     """
     entries = _row_entries(forward, obs)
-    index = entries.index
     k_design, k_grad, k_nuts, k_pilot, k_check = jax.random.split(key, 5)
     tick = progress or (lambda *a: None)
-    timings, posterior, gfit, emu_check, x, design_ll = {}, None, None, None, None, None
+    timings, posterior, gfit, emu_check, design = {}, None, None, None, None
     focus_record = chain_screen = None
-    loglik_runs = loglik_of_runouts(obs, index)
+    rows = RowLikelihood(obs, entries.index)
     box = forward.box
     sizes = np.unique(np.concatenate([obs.sizes_m, np.asarray(extra_sizes_m, float)]))
     tallies = {}
@@ -173,13 +167,12 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
         t.add(runouts, theta, tuple(box.names))
 
     if "bayes" in methods:
-        posterior, emu_check, focus_record, chain_screen, x, design_ll = bayes_stage(
-            forward, obs, index, loglik_runs, budget, (k_design, k_pilot, k_nuts), tick, tally,
-            timings)
+        posterior, emu_check, focus_record, chain_screen, design = bayes_stage(
+            forward, rows, budget, (k_design, k_pilot, k_nuts), tick, tally, timings)
 
     if "gradient" in methods:
         t0 = time.perf_counter()
-        gfit = _gradient_stage(forward, loglik_runs, budget, k_grad, tick, tally, x, design_ll)
+        gfit = _gradient_stage(forward, rows, budget, k_grad, tick, tally, design)
         timings["gradient_s"] = time.perf_counter() - t0
 
     if gfit is not None:
@@ -187,35 +180,25 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     else:
         estimate, source = posterior.map, "posterior_mode"
     t0 = time.perf_counter()
-    checked, entry = check_entries(entries, sizes)
-    runs = dataclasses.replace(forward, entries=checked, n_blocks=budget.n_check,
-                               key=k_check).runouts(estimate[None])[0]
-    tally("check", runs[None], estimate[None], checked.sizes_m)
-    check, at_rows = runs[:len(sizes)], runs[entry]
-    quality = fit_quality(obs, at_rows, index)
-    better = None
-    if design_ll is not None and hasattr(forward, "from_input"):  # CRSP: theta-space design
-        fitted = {"estimate": float(summed_loglik(loglik_runs, at_rows[None])[0])}
-        if posterior is not None:  # its mode with the design's own blocks
-            fitted["posterior mode"] = float(summed_loglik(
-                loglik_runs, forward.runouts(posterior.map[None]))[0])
-        better = better_design_point(box.names, forward.from_input(x), design_ll, fitted,
-                                     obs.n_obs)
+    check = check_estimate(forward, entries, obs, rows, estimate, sizes, budget.n_check,
+                           k_check, tally)
     timings["check_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    adequacy = predictive_adequacy(forward, obs, posterior, at_rows, budget,
-                                   jax.random.fold_in(k_check, 1), tally, index, better,
-                                   estimate)
+    scored = ((design.theta, design.ll)
+              if design is not None and hasattr(forward, "from_input")  # CRSP: theta space
+              else None)
+    adequacy = fit_adequacy(forward, obs, rows, posterior, estimate, check.at_rows, scored,
+                            budget, jax.random.fold_in(k_check, 1), tally)
     timings["adequacy_s"] = time.perf_counter() - t0
     record = unfinished_record(tallies, f"{type(forward).__name__} calibration")
     warn_unfinished(record)
     return ModelFit(tuple(box.names), np.asarray(estimate), source, posterior, gfit, emu_check,
-                    quality, sizes, check, timings, budget, record, adequacy, focus_record,
-                    chain_screen)
+                    check.quality, sizes, check.runouts, timings, budget, record, adequacy,
+                    focus_record, chain_screen)
 
 
-def _gradient_stage(forward, loglik_runs, budget: Budget, key: jax.Array, tick, tally, x,
-                    design_ll) -> GradientFit:
+def _gradient_stage(forward, rows: RowLikelihood, budget: Budget, key: jax.Array, tick, tally,
+                    design) -> GradientFit:
     """Stage 2 of the module docstring: Adam on the smoothed CRN objective of the
     simulator from the box's centre, ``grad_starts - 1`` quasi-random points and
     (after a design) the design's best simulated point."""
@@ -227,18 +210,17 @@ def _gradient_stage(forward, loglik_runs, budget: Budget, key: jax.Array, tick, 
     def objective(theta):
         runs = grad_forward.runouts(theta)
         tally("gradient", runs, theta)
-        return -np.asarray(loglik_runs(jnp.asarray(runs))).sum(1)
+        return -np.asarray(rows.pointwise(jnp.asarray(runs))).sum(1)
 
     starts = [0.5 * (box.lo + box.hi)]
     if budget.grad_starts > 1:
         z = qmc.Halton(box.dim, scramble=True, seed=1).random(budget.grad_starts - 1)
         starts += list(box.from_unit(0.15 + 0.7 * z))
-    if design_ll is not None and hasattr(forward, "from_input") and \
-            np.isfinite(design_ll).any():
+    if design is not None and hasattr(forward, "from_input") and np.isfinite(design.ll).any():
         # one more start at the design's best simulated point: where the
         # likelihood is peaked in a thin part of the box, the box's centre and
         # a few quasi-random starts may all lie on its flat part
-        starts.append(np.clip(forward.from_input(x[int(np.argmax(design_ll))]),
+        starts.append(np.clip(forward.from_input(design.x[int(np.argmax(design.ll))]),
                               box.lo, box.hi))
     return fit_gradient(objective, box, np.array(starts), key, n_steps=budget.grad_steps,
                         k=budget.grad_k,

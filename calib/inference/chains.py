@@ -8,7 +8,6 @@ import numpy as np
 
 from calib.inference.adequacy import loglik_gap_nats
 from calib.inference.bayes import Posterior, keep_chains
-from calib.inference.loglik_emulator import summed_loglik
 
 __all__ = ["N_SCREEN", "chain_starts", "screen_chains"]
 
@@ -43,14 +42,15 @@ def chain_starts(theta: np.ndarray, ll: np.ndarray, box, n_chains: int
     return theta[cand[take]]
 
 
-def screen_chains(posterior: Posterior, runouts, loglik_runs, n_rows: int
+def screen_chains(posterior: Posterior, runouts, rows
                    ) -> tuple[Posterior, dict, tuple[np.ndarray, np.ndarray]]:
     """Keep the chains whose draws the SIMULATOR fits about as well as the best
     chain's; drop the others (the emulator was wrong where they sit).
 
     Each chain's score is the median, over ``N_SCREEN`` of its draws spread
     evenly over its output, of the rows' summed simulated log-likelihood with
-    the design's blocks (``runouts``: theta (T, d) -> (T, S, n)). A chain whose
+    the design's blocks (``runouts``: theta (T, d) -> (T, S, n); ``rows``: the
+    fit's ``calib.inference.likelihood.RowLikelihood``). A chain whose
     score trails the best chain's by more than ``adequacy.loglik_gap_nats`` is
     dropped and the diagnostics are recomputed on the others
     (``bayes.keep_chains``).
@@ -74,9 +74,9 @@ def screen_chains(posterior: Posterior, runouts, loglik_runs, n_rows: int
     pick = np.linspace(0, n - 1, min(N_SCREEN, n)).round().astype(int)
     draws = posterior.samples.reshape(c, n, d)[:, pick].reshape(-1, d)
     runs = runouts(draws)
-    ll = summed_loglik(loglik_runs, runs).reshape(c, len(pick))
+    ll = rows.summed(runs).reshape(c, len(pick))
     score = np.median(ll, axis=1)
-    bar = loglik_gap_nats(n_rows, d)
+    bar = loglik_gap_nats(rows.n_rows, d)
     keep = score >= np.max(score) - bar if np.isfinite(score).any() else np.ones(c, bool)
     record = {"rule": (f"chains whose median simulated log-likelihood over {len(pick)} draws "
                        f"trails the best chain's by more than {bar:.1f} nats are dropped"),

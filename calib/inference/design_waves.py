@@ -1,14 +1,20 @@
-"""The later waves of a CRSP fit's design (``calib.inference.calibrate``, stage 1):
-where to simulate next, given the first design and an emulator.
+"""The simulated design of a fit's Bayesian stage (``calib.inference.bayes_stage``)
+and where its later waves go.
 
-* ``second_design``: a pilot posterior on the whole box plus points around
-  the best simulated ones;
-* ``focus_design``: scrambled Sobol in the focus region
-  (``calib.inference.focus``);
-* ``sir_draws``: draws from an emulated posterior restricted to a box.
+``Design`` holds every simulated point: its emulator coordinates, its runouts,
+the rows' summed simulated log-likelihood there, and whether a repair wave put
+it there. Its waves:
 
-Every design is chosen in the emulator's coordinates (``forward.to_input``)
-and returned in theta, inside the prior box.
+* ``Design.second_wave``: a pilot posterior on the whole box plus points
+  around the best simulated ones (``second_design``);
+* ``Design.fill``: scrambled Sobol in a box of the emulator's coordinates, the
+  focus region or a slab it widened into (``focus_design``,
+  ``calib.inference.focus``);
+* ``Design.sir_wave``: draws from an emulated posterior restricted to the focus
+  region (``sir_draws``).
+
+Every wave is chosen in the emulator's coordinates (``forward.to_input``)
+and simulated in theta, inside the prior box.
 """
 
 from __future__ import annotations
@@ -17,7 +23,79 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["focus_design", "second_design", "sir_draws"]
+from calib.inference.emulator import fit_emulator
+
+__all__ = ["Design", "focus_design", "second_design", "sir_draws"]
+
+
+class Design:
+    """The simulated design: the first one (``forward.design``) and every point
+    simulated after it.
+
+    Attributes:
+        x: (D, d) the points in the emulator's coordinates.
+        r: (D, S, n) their runouts, m.
+        ll: (D,) the rows' summed simulated log-likelihood at each
+            (``RowLikelihood.summed``).
+        refined: (D,) bool, placed by a repair wave (where an emulated
+            posterior sat), not by a design rule.
+    """
+
+    def __init__(self, forward, rows, tally, n: int, seed: int):
+        """The first design: ``n`` points of ``forward.design`` (seed ``seed``)
+        scored by ``rows`` (``calib.inference.likelihood.RowLikelihood``);
+        ``tally`` records the unfinished blocks of every simulation (stage
+        "design")."""
+        self.forward, self.rows, self.tally = forward, rows, tally
+        self.x, self.r = forward.design(n, seed=seed)
+        self.ll = rows.summed(self.r)
+        tally("design", self.r)
+        self.refined = np.zeros(len(self.x), bool)
+
+    @property
+    def theta(self) -> np.ndarray:
+        """(D, d) the points in theta."""
+        return self.forward.from_input(self.x)
+
+    def add(self, theta, runs, refinement: bool = False) -> None:
+        """Simulated points join the design (``refinement``: a repair wave's)."""
+        self.ll = np.concatenate([self.ll, self.rows.summed(runs)])
+        self.x = np.concatenate([self.x, np.asarray(self.forward.to_input(theta))])
+        self.r = np.concatenate([self.r, runs])
+        self.refined = np.concatenate([self.refined, np.full(len(runs), refinement)])
+
+    def simulate(self, theta, refinement: bool = False) -> None:
+        """Simulate the points theta (T, d) and add them."""
+        runs = self.forward.runouts(theta)
+        self.tally("design", runs, theta)
+        self.add(theta, runs, refinement)
+
+    def inside(self, input_box) -> np.ndarray:
+        """(D,) bool: the points inside ``input_box`` (emulator coordinates)."""
+        return np.all((self.x >= input_box.lo - 1e-9) & (self.x <= input_box.hi + 1e-9), axis=1)
+
+    def second_wave(self, n_levels: int, n: int, key: jax.Array) -> None:
+        """``second_design``'s n points, its pilot posterior that of the runout
+        quantile emulator (``n_levels`` levels) fitted on the design so far."""
+        fw = self.forward
+        ibox = fw.input_box
+        emu = fit_emulator(self.x, self.r, ibox.lo, ibox.hi, n_levels)
+        self.simulate(second_design(fw, self.rows.emulated(emu, fw.emulator_inputs, 1.0),
+                                    self.theta, self.ll, n, key))
+
+    def fill(self, input_box, box, n: int, key: jax.Array) -> None:
+        """``focus_design``'s n points in ``input_box`` (``box``: its image in theta)."""
+        self.simulate(focus_design(self.forward, input_box, box, n, key))
+
+    def sir_wave(self, input_box, box, n_levels: int, n: int, key: jax.Array) -> None:
+        """``sir_draws``' n points in ``input_box`` (``box``: its image in theta),
+        from the posterior of the runout quantile emulator (``n_levels``
+        levels) fitted on the design points inside it."""
+        fw = self.forward
+        keep = self.inside(input_box)
+        emu = fit_emulator(self.x[keep], self.r[keep], input_box.lo, input_box.hi, n_levels)
+        self.simulate(sir_draws(fw, self.rows.emulated(emu, fw.emulator_inputs, 1.0),
+                                input_box, box, n, key))
 
 
 def sir_draws(forward, pointwise_loglik, input_box, box, n: int, key: jax.Array

@@ -1,21 +1,17 @@
-"""The fit's check of itself: each row against the blocks of its entry.
+"""The fit's check of itself: the point estimate re-simulated with fresh blocks,
+each row against the blocks of its entry (stage 3 of ``calib.inference.calibrate``).
 
-* ``loglik_of_runouts``: simulated runouts -> pointwise log-likelihood of the
-  rows (``calib.inference.likelihood``), jitted.
-* ``fit_quality``: per row, the simulated 5/50/95 % runouts, its PIT and
-  log-likelihood at the point estimate (re-simulated with fresh blocks).
+* ``check_estimate``: the check of one fit (``FitCheck``).
 * ``check_entries``: what the check simulates (the figure's sizes at the rows'
   median release, and every entry of the rows that is not one of them).
-* ``predictive_adequacy``: ``calib.inference.adequacy`` of a fit: posterior
-  mass near the prior bounds, the posterior predictive coverage of the rows,
-  blocks that stall at their release (``release_slopes_deg`` of
-  ``calib.model.forward``) and rows that do (with CRSP's rolling resistance at
-  the release, ``release_rolling_deg``).
+* ``fit_quality``: per row, the simulated 5/50/95 % runouts, its PIT and
+  log-likelihood at the point estimate.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -23,38 +19,54 @@ import numpy as np
 from scipy.special import ndtr
 
 from calib.files.observations import Observations
-from calib.inference.adequacy import adequacy_record
-from calib.inference.bayes import Posterior
-from calib.inference.likelihood import log_likelihood, observed_rows
-from calib.inference.predictive_check import pool_draws
+from calib.inference.likelihood import RowLikelihood
 from calib.model.entries import Entries
-from calib.model.forward import CrspForward, release_rolling_deg, release_slopes_deg
 from solvers.percentiles import few_blocks
 
-__all__ = ["check_entries", "fit_quality", "loglik_of_runouts", "predictive_adequacy"]
+__all__ = ["FitCheck", "check_entries", "check_estimate", "fit_quality"]
 
 
-def loglik_of_runouts(obs: Observations, index=None):
-    """runouts (T, S, n) -> pointwise log-likelihood (T, n_obs) (jitted); row i
-    reads simulated entry ``index[i]`` (default ``obs.size_index``)."""
-    y, sd, lo, hi, is_int = observed_rows(obs)
-    idx = jnp.asarray(obs.size_index if index is None else index)
+class FitCheck(NamedTuple):
+    """The check of one fit (``check_estimate``).
 
-    @jax.jit
-    def f(runouts):
-        return jax.vmap(lambda r: log_likelihood(r[idx], y, sd, lo, hi, is_int))(runouts)
+    Attributes:
+        sizes_m: (K,) the sizes simulated at the rows' median release, m.
+        runouts: (K, n) their runouts at the point estimate, m.
+        at_rows: (G, n) the runouts of each entry of the rows, m.
+        quality: per row, ``fit_quality``.
+    """
 
-    return f
+    sizes_m: np.ndarray
+    runouts: np.ndarray
+    at_rows: np.ndarray
+    quality: list[dict]
 
 
-def fit_quality(obs: Observations, runouts: np.ndarray, index=None) -> list[dict]:
+def check_estimate(forward, entries: Entries, obs: Observations, rows: RowLikelihood,
+              estimate: np.ndarray, sizes_m: np.ndarray, n_blocks: int, key: jax.Array,
+              tally) -> FitCheck:
+    """Re-simulate the point estimate with ``n_blocks`` fresh blocks per entry of
+    ``check_entries`` (the sizes ``sizes_m`` at the rows' median release, and
+    every entry of the rows, ``entries``, that is not one of them) and score
+    every row against its entry's blocks (``fit_quality``); ``tally`` records
+    the unfinished blocks (stage "check")."""
+    checked, entry = check_entries(entries, sizes_m)
+    runs = dataclasses.replace(forward, entries=checked, n_blocks=n_blocks,
+                               key=key).runouts(estimate[None])[0]
+    tally("check", runs[None], estimate[None], checked.sizes_m)
+    at_rows = runs[entry]
+    return FitCheck(sizes_m, runs[:len(sizes_m)], at_rows, fit_quality(obs, at_rows, rows))
+
+
+def fit_quality(obs: Observations, runouts: np.ndarray, rows: RowLikelihood) -> list[dict]:
     """Per-observation fit: simulated 5/50/95 % runouts, PIT and log-likelihood.
 
     Args:
+        obs: the rows.
         runouts: (S, n) runouts per simulated entry, m; NaN for an unfinished
             block (left out).
-        index: (n_obs,) entry of each row (default ``obs.size_index``: one entry
-            per distinct size, ``obs.sizes_m``).
+        rows: the fit's likelihood of ``obs`` (``RowLikelihood``: row i reads
+            entry ``rows.index[i]``).
 
     PIT = P(R + e <= y), e ~ N(0, sd^2), for a point (the predictive CDF of the
     OBSERVED value, tolerance included) (about uniform on [0, 1] if the model is right;
@@ -64,8 +76,8 @@ def fit_quality(obs: Observations, runouts: np.ndarray, index=None) -> list[dict
     ``sim_few_blocks`` is True where 1 to 19 blocks finished, too few for the
     5/95 % values (``solvers.percentiles.few_blocks``).
     """
-    index = obs.size_index if index is None else np.asarray(index)
-    ll = np.asarray(loglik_of_runouts(obs, index)(jnp.asarray(runouts)[None]))[0]
+    index = rows.index
+    ll = np.asarray(rows.pointwise(jnp.asarray(runouts)[None]))[0]
     out = []
     for i in range(obs.n_obs):
         r = runouts[index[i]]
@@ -111,37 +123,3 @@ def check_entries(entries: Entries, sizes_m: np.ndarray) -> tuple[Entries, np.nd
             at[g] = len(sizes_m) + len(own)
             own.append(g)
     return (figure.concat(entries.take(own)) if own else figure), at
-
-
-def predictive_adequacy(forward, obs: Observations, posterior: Posterior | None, check: np.ndarray,
-              budget, key: jax.Array, tally, index, better: dict | None = None,
-              estimate=None) -> dict:
-    """``calib.inference.adequacy`` of one fit: posterior predictive runouts at
-    ``n_predictive_draws`` draws spread evenly over the chains' output, with
-    ``n_blocks_predictive`` fresh blocks per draw and size; without a posterior,
-    the check's runouts at the point estimate (plug-in). CRSP: with the rolling
-    resistance angle at each release of every draw (or of ``estimate``), for
-    the rows that stall at their release (``adequacy_record``)."""
-    release = forward.entries.release_x_m
-    slopes_deg = release_slopes_deg(forward.profile, release, forward.entries.profiles)
-
-    def rolling(theta):
-        if not isinstance(forward, CrspForward) or theta is None:
-            return None
-        return release_rolling_deg(forward.box.names, theta, forward.profile, forward.entries)
-
-    if posterior is None:
-        return adequacy_record(None, forward.box, obs, check,
-                               f"plug-in at the point estimate, {check.shape[-1]} blocks "
-                               "per size (no posterior)", index, release, slopes_deg, better,
-                               rolling(None if estimate is None else np.atleast_2d(estimate)))
-    n = posterior.samples.shape[0]
-    pick = np.linspace(0, n - 1, min(budget.n_predictive_draws, n)).round().astype(int)
-    draws = posterior.samples[pick]
-    pred = dataclasses.replace(forward, n_blocks=budget.n_blocks_predictive, key=key)
-    runs = pred.runouts(draws)  # (T, S, n)
-    tally("predictive", runs, draws)
-    return adequacy_record(posterior.samples, forward.box, obs, pool_draws(runs),
-                           f"posterior predictive, {len(pick)} draws x "
-                           f"{budget.n_blocks_predictive} blocks per size", index, release,
-                           slopes_deg, better, rolling(draws))

@@ -39,21 +39,78 @@ likelihood is e^-(NATS_PER_ROW n_rows) of the best one's or less, as far as
 the design resolves the box; where the posterior piles against a face of the
 focus box that is not a prior bound, the truncation may have cut it, and
 ``face_problems`` says so (the command prints it with the failed diagnostics).
+
+``FocusRegion`` is the region as the Bayesian stage (``calib.inference.bayes_stage``)
+holds it: found around a design, widened, and recorded.
 """
 
 from __future__ import annotations
 
+import jax
 import numpy as np
 
 from calib.inference.adequacy import BOUND_BAND, bound_mass
 from calib.model.priors import Box
 
-__all__ = ["MARGIN", "MAX_WIDEN", "NATS_PER_ROW", "cut_faces", "face_problems", "focus_boxes",
-           "region_record", "widen"]
+__all__ = ["MARGIN", "MAX_WIDEN", "NATS_PER_ROW", "FocusRegion", "cut_faces", "face_problems",
+           "focus_boxes", "region_record", "widen"]
 
 NATS_PER_ROW = 3.0  # points this close to the best simulated log-likelihood are kept
 MARGIN = 0.10  # widening of the kept points' bounding box, fraction of the input box
 MAX_WIDEN = 3  # times a cut face is moved outward before the cut is reported
+
+
+class FocusRegion:
+    """The focus region of one fit (module docstring): its box in the emulator's
+    coordinates (``input_box``, where the GP is fitted) and in theta (``box``,
+    the prior restricted to it, where NUTS samples), widened while the
+    posterior piles against one of its faces (at most ``MAX_WIDEN`` times).
+
+    Attributes:
+        input_box, box: the focus box in both coordinates.
+        prior: the prior box, theta.
+        record: its ``bayes.focus`` record (``focus_boxes``; ``widened``: the
+            faces moved, one list per widening).
+        n_widened: how often it was widened.
+    """
+
+    def __init__(self, forward, input_box: Box, box: Box, record: dict):
+        self.forward, self.input_box, self.box, self.record = forward, input_box, box, record
+        self.prior = forward.box
+        self.n_widened = 0
+        record.update(widened=[])
+
+    @classmethod
+    def around(cls, forward, design, n_rows: int) -> FocusRegion | None:
+        """The region ``focus_boxes`` draws around the simulated ``design``
+        (``calib.inference.design_waves.Design``); None where it draws none."""
+        focus = focus_boxes(forward, design.theta, design.ll, n_rows)
+        return None if focus is None else cls(forward, *focus)
+
+    def faces_holding(self, samples: np.ndarray) -> list[tuple[int, str, float]]:
+        """The faces that hold the posterior ``samples`` (``cut_faces``)."""
+        return cut_faces(samples, self.box, self.prior)
+
+    def widen_faces(self, faces, design, n: int, key: jax.Array) -> None:
+        """Move ``faces`` outward (``widen``) and fill each slab they uncover with
+        its share of ``n`` new design points, at least 2 (``Design.fill``; slab
+        j with the key fold_in(key, 16 x widenings so far + j))."""
+        self.input_box, self.box, slabs = widen(self.forward, self.input_box, faces)
+        self.record["widened"].append([{"parameter": self.prior.names[i], "side": side,
+                                        "posterior_mass_at_face": mass}
+                                       for i, side, mass in faces])
+        per = max(2, n // len(slabs))
+        for j, slab in enumerate(slabs):
+            design.fill(slab, self.box, per, jax.random.fold_in(key, 16 * self.n_widened + j))
+        self.n_widened += 1
+
+    def finish(self, samples: np.ndarray, design) -> list[str]:
+        """Complete the record (the design points inside the region, its bounds
+        after any widening) and say which faces hold the posterior
+        (``face_problems``)."""
+        self.record["n_emulator_points"] = int(design.inside(self.input_box).sum())
+        self.record.update(region_record(self.box, self.prior))
+        return face_problems(samples, self.box, self.prior)
 
 
 def focus_boxes(forward, design_theta: np.ndarray, design_ll: np.ndarray, n_rows: int

@@ -91,8 +91,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import log_ndtr, logsumexp
 
-__all__ = ["RUNOUT_EPS", "R_MAX_M", "ObservedRows", "log_likelihood", "observed_rows",
-           "silverman_width_m", "velocity_log_likelihood"]
+__all__ = ["RUNOUT_EPS", "R_MAX_M", "ObservedRows", "RowLikelihood", "log_likelihood",
+           "observed_rows", "silverman_width_m", "velocity_log_likelihood"]
 
 _LOG_2PI = 1.8378770664093453
 RUNOUT_EPS = 1e-3  # weight of the runouts' defensive uniform component
@@ -199,6 +199,70 @@ def log_likelihood(samples: jax.Array, y_m: jax.Array, sd_m: jax.Array, lo_m: ja
 
 
 log_likelihood_jit = jax.jit(log_likelihood)
+
+
+class RowLikelihood:
+    """The rows of one fit scored against simulated runouts: row i reads the
+    blocks of simulated entry ``index[i]`` (``log_likelihood`` of each row).
+
+    Built once per fit from the observations; every stage of
+    ``calib.inference.calibrate`` scores its simulations through it.
+
+    Attributes:
+        rows: the rows as ``log_likelihood`` takes them (``observed_rows``).
+        index: (n_rows,) int, the simulated entry of each row (default
+            ``obs.size_index``: one entry per distinct size).
+        n_rows: the number of rows.
+        kernel_var_m2: the median over rows of the kernel variance one
+            simulated sample gets: the tolerance sd^2 of a point row, the
+            smallest kernel width h^2 (0.5 m) of an interval row, m^2.
+        pointwise: runouts (T, S, n) -> (T, n_rows) pointwise log-likelihood
+            (jitted).
+    """
+
+    def __init__(self, obs, index=None):
+        self.rows = observed_rows(obs)
+        self.index = np.asarray(obs.size_index if index is None else index)
+        self.n_rows = int(obs.n_obs)
+        self.kernel_var_m2 = float(np.median(np.where(
+            obs.is_interval, 0.5**2, np.nan_to_num(obs.runout_sd_m)**2)))
+        rows, idx = self.rows, jnp.asarray(self.index)
+
+        @jax.jit
+        def pointwise(runouts):
+            return jax.vmap(lambda r: log_likelihood(r[idx], *rows))(runouts)
+
+        self.pointwise = pointwise
+
+    def summed(self, runouts) -> np.ndarray:
+        """(D,) summed log-likelihood of the rows at each of D points (runouts
+        (D, S, n)); -inf where a row gets no finished block."""
+        ll = np.asarray(self.pointwise(jnp.asarray(runouts))).sum(1)
+        return np.where(np.isnan(ll), -np.inf, ll)
+
+    def noise_var(self, runouts: np.ndarray, n_boot: int = 16, seed: int = 0) -> np.ndarray:
+        """(D,) Monte Carlo variance of the summed log-likelihood at each of D
+        points: bootstrap over each point's blocks (runouts (D, S, n); Efron
+        1979); 0 where it is not finite."""
+        rng = np.random.default_rng(seed)
+        n = runouts.shape[-1]
+        boot = np.stack([np.asarray(self.pointwise(jnp.asarray(
+            runouts[..., rng.integers(0, n, n)]))).sum(1) for _ in range(n_boot)])
+        var = np.var(np.where(np.isfinite(boot), boot, np.nan), axis=0)
+        return np.where(np.isfinite(var), var, 0.0)
+
+    def emulated(self, emu, emulator_inputs, inflation: float):
+        """theta (d,) -> pointwise log-likelihood (n_rows,) from an emulator of the
+        runout quantiles (``calib.inference.emulator``): each row's entry's
+        predicted quantiles are its samples, with ``inflation`` times their
+        predictive variance as the samples' extra variance v_j."""
+        idx = jnp.asarray(self.index)
+
+        def f(theta):
+            mean, var = emu.predict(emulator_inputs(theta))
+            return log_likelihood(mean[idx], *self.rows, inflation * var[idx])
+
+        return f
 
 VELOCITY_EPS = 1e-3  # weight of the defensive uniform component
 V_MAX_M_S = 100.0  # its upper end, m/s

@@ -76,7 +76,7 @@ import numpy as np
 from calib.inference.emulator import QuantileEmulator, fit_gps, se_kernel
 
 __all__ = ["CAP_NATS_PER_ROW", "Z_AT_POSTERIOR_MAX", "LoglikEmulator", "at_posterior",
-           "fit_loglik_emulator", "loglik_holdout", "loglik_noise_var", "summed_loglik"]
+           "fit_loglik_emulator", "loglik_holdout"]
 
 CAP_NATS_PER_ROW = 10.0
 N_FEATURES = 1024  # random Fourier features of a realisation (``realisation_draw``)
@@ -155,26 +155,6 @@ class LoglikEmulator:
         return self.ceiling - jnp.exp(gp.y_mean[0, 0] + gp.y_std[0, 0] * f)
 
 
-def summed_loglik(loglik_runs, runouts) -> np.ndarray:
-    """(D,) summed simulated log-likelihood of the rows at each of D points
-    (runouts (D, S, n)); -inf where a row gets no finished block."""
-    ll = np.asarray(loglik_runs(jnp.asarray(runouts))).sum(1)
-    return np.where(np.isnan(ll), -np.inf, ll)
-
-
-def loglik_noise_var(loglik_runs, runouts: np.ndarray, n_boot: int = 16, seed: int = 0
-                     ) -> np.ndarray:
-    """(D,) Monte Carlo variance of the summed log-likelihood at each of D design
-    points: bootstrap over each point's blocks (runouts (D, S, n); ``loglik_runs``
-    maps (T, S, n) to (T, n_obs)); 0 where it is not finite."""
-    rng = np.random.default_rng(seed)
-    n = runouts.shape[-1]
-    boot = np.stack([np.asarray(loglik_runs(jnp.asarray(runouts[..., rng.integers(0, n, n)])))
-                     .sum(1) for _ in range(n_boot)])
-    var = np.var(np.where(np.isfinite(boot), boot, np.nan), axis=0)
-    return np.where(np.isfinite(var), var, 0.0)
-
-
 def _capped(ll: np.ndarray, n_rows: int) -> tuple[np.ndarray, float]:
     ll = np.where(np.isfinite(ll), ll, -np.inf)
     cap = float(np.max(ll) - CAP_NATS_PER_ROW * n_rows)
@@ -189,7 +169,8 @@ def fit_loglik_emulator(x: np.ndarray, ll: np.ndarray, noise_var: np.ndarray, lo
         x: (D, d) design points in the emulator's coordinates.
         ll: (D,) their summed simulated log-likelihoods (-inf: a row got no
             finished block; capped like any value below the cap).
-        noise_var: (D,) their Monte Carlo variances (``loglik_noise_var``).
+        noise_var: (D,) their Monte Carlo variances
+            (``calib.inference.likelihood.RowLikelihood.noise_var``).
         lo, hi: (d,) the box the inputs are scaled to (the focus box).
         n_rows: observation rows (the cap is ``CAP_NATS_PER_ROW`` per row).
         level_of: (D,) bool, the points whose mean is the GP's mean m (the level
@@ -232,7 +213,7 @@ def at_posterior(emu: LoglikEmulator, x: np.ndarray, ll: np.ndarray, noise_var: 
     z_t = (l_t - m(x_t)) / sqrt(s^2(x_t) + v_t)   (l_t capped like the design's),
 
     with m, s^2 the GP's mean and latent variance and v_t the draw's bootstrap
-    Monte Carlo variance (``loglik_noise_var``). An honest GP gives z of order
+    Monte Carlo variance (``RowLikelihood.noise_var``). An honest GP gives z of order
     1; the rule (ours) calls it wrong there when the RMS of z exceeds
     ``Z_AT_POSTERIOR_MAX``. Why it is needed (measured on the synthetic data
     set 3 of ``tests/test_calib_recovery``, default budget): all four chains
