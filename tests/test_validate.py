@@ -319,3 +319,18 @@ def test_fit_checks_the_posterior_and_the_point_estimate(tmp_path, capsys):
     assert main_check["draws"] == "posterior" and main_check["n_draws"] == 50
     assert point["draws"] == "point estimate" and point["n_blocks_per_draw_and_group"] == 2000
     assert "point estimate: 1 draws x 2000 blocks" in capsys.readouterr().out
+
+
+def test_read_summary_checks_the_schema(tmp_path):
+    """read_summary (the notebooks' reader of validation.json) hands back the summary
+    of the schema run_validation writes, and refuses another file."""
+    from calib.validate import SCHEMA, read_summary
+
+    good = tmp_path / "validation.json"
+    good.write_text(json.dumps({"schema": SCHEMA, "n_scored": 3}))
+    assert read_summary(str(good))["n_scored"] == 3
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"schema": "rockfall-calibration/1"}))
+    for path, needle in ((other, "schema"), (tmp_path / "missing.json", "cannot read")):
+        with pytest.raises(ValueError, match=needle):
+            read_summary(str(path))
