@@ -24,6 +24,11 @@ the model: their parameters are fitted with the baseline's over their prior
 boxes, by the same stages and checks, and written like the baseline's
 (``crsp.effects`` names them; ``calib.files.calibration_file``).
 
+The command is options and printing around ``run_fit`` (the fit and its
+outputs, typed results back; one model's calibration is
+``calib.inference.calibrate.fit_model``) and ``validate_heldout`` (the
+hold-out check); a notebook or script calls them with the same options.
+
 The likelihood (``calib.inference.likelihood``): each observed row is one draw from the
 simulated runout distribution of blocks of its size, seen with a Gaussian
 tolerance (points) or known to lie in an interval.
