@@ -40,7 +40,6 @@ Writes into ``--out`` (atomically; nothing on error):
 from __future__ import annotations
 
 import argparse
-import functools
 import json
 import os
 import shlex
@@ -56,9 +55,6 @@ from solvers.cli import CliError, OneLineParser, Progress, json_ready, run_guard
 __all__ = ["main"]
 
 PROG = "python -m calib.discover"
-# The DEM's fragmentation candidate (2 x 2 bonded fragments) is opt-in: on
-# Postignano its 12-point grid took 1548 s of a 1738 s run (2 cores, under load).
-DEM_DEFAULT = ("none", "size_dissipation")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -125,42 +121,6 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _candidates(model: str, effects_arg: str | None, profile, rolling: str = "profile"):
-    """The candidates of ``--effects``, and the function that adds effects to
-    the baseline for the later steps (None for the DEM: one step)."""
-    from calib.model.effects import CRSP_EFFECTS, DEM_EFFECTS
-
-    allowed = CRSP_EFFECTS if model == "crsp" else DEM_EFFECTS
-    if effects_arg is None:
-        chosen = list(allowed) if model == "crsp" else list(DEM_DEFAULT)
-    else:
-        chosen = [e.strip() for e in effects_arg.split(",") if e.strip()]
-        bad = [e for e in chosen if e not in allowed]
-        if bad or not chosen:
-            raise CliError(f"--effects: {', '.join(bad) or '(empty)'}: expected effects of the "
-                           f"{model} model among {', '.join(a for a in allowed if a != 'none')}")
-    if model == "crsp":
-        from calib.discovery.candidates import crsp_candidates, crsp_model
-        from calib.model.priors import CRSP_BOX, CRSP_ROLLING_BOX
-
-        if rolling == "fit":
-            if effects_arg is not None and "rolling_resistance" in chosen:
-                raise CliError("--effects rolling_resistance: with --rolling-resistance fit "
-                               "the baseline already fits the rolling resistance angle; "
-                               "leave it out or use --rolling-resistance profile")
-            base = CRSP_ROLLING_BOX
-        else:
-            base = CRSP_BOX
-        return (crsp_candidates(profile, chosen, base),
-                functools.partial(crsp_model, profile, base=base))
-    if rolling == "fit":
-        raise CliError("--rolling-resistance fit: the rolling resistance is a CRSP "
-                       "parameter; the DEM candidates have none")
-    from calib.discovery.dem_candidates import dem_candidates
-
-    return dem_candidates(profile, chosen), None
-
-
 def refit_command(args, named: tuple[str, ...]) -> str | None:
     """The ``python -m calib.fit`` command that calibrates the model discovery
     ended with (the baseline plus the ``named`` effects) on the same data,
@@ -198,6 +158,7 @@ def _fit_section(f) -> dict:
 
 def _run(args) -> int:
     from calib.discovery.candidate_fit import GAP_METRIC
+    from calib.discovery.candidates import candidate_set
     from calib.discovery.discovery_warnings import (
         concentration_warnings,
         ess_warnings,
@@ -226,7 +187,11 @@ def _run(args) -> int:
     velocities = _load_velocities(args.velocities, args.model, profile)
     if not args.release_tolerance_m >= 0:
         raise CliError(f"--release-tolerance-m must be >= 0, got {args.release_tolerance_m:g}")
-    cands, combine = _candidates(args.model, args.effects, profile, args.rolling_resistance)
+    try:
+        cands, combine = candidate_set(args.model, args.effects, profile,
+                                       args.rolling_resistance)
+    except ValueError as e:
+        raise CliError(str(e)) from None
     if args.max_steps is not None and args.max_steps < 1:
         raise CliError(f"--max-steps: expected at least 1, got {args.max_steps}")
     try:
@@ -237,11 +202,9 @@ def _run(args) -> int:
     with warnings.catch_warnings():  # reported in the summary and discovery.json
         warnings.simplefilter("ignore", UnfinishedBlocksWarning)
         d = discover(cands, obs, profile, jax.random.key(args.seed), budget, bar, velocities,
-                     args.release_tolerance_m, (inputs.site.release_height_sd_m,
-                                                inputs.site.release_speed_sd_m_s),
+                     args.release_tolerance_m, inputs.release_errors,
                      combine=combine, max_steps=args.max_steps)
     bar.close()
-    final_fit = d.fits[d.final_model]
     result = {
         "schema": "rockfall-discovery/1",
         "command": " ".join([PROG] + sys.argv[1:]),
@@ -302,17 +265,7 @@ def _run(args) -> int:
                           + later
                           + [f.unfinished["warning"] for f in d.fits.values()
                              if f.unfinished and f.unfinished["warning"]])
-    base = d.fits["none"]
-    out_figs = {
-        "residuals.png": figs.residuals(obs, d.where_before,
-                                        f"where the baseline ({args.model}) disagrees: "
-                                        f"{len(d.where_before['flagged'])} flagged"),
-        "candidates.png": figs.candidates(d.table, d.named_effect, ELPD_MIN),
-        "before_after.png": figs.before_after(
-            obs, d.class_sizes_m, d.row_class, base.class_samples,
-            None if not d.named_effects else final_fit.class_samples, d.final_model,
-            (d.gap_before, d.gap_after)),
-    }
+    out_figs = figs.discovery_figures(obs, d, args.model)
     text = json.dumps(json_ready(result), indent=1, allow_nan=False) + "\n"
     write_outputs(args.out, {"discovery.json": text}, out_figs)
     _print_summary(result, args.out)

@@ -21,11 +21,10 @@ from calib.files.field_runs import (
     DEFAULT_RUNOUT_SD_M,
     FieldError,
     RunColumns,
-    field_observations,
     load_runs,
     nearest_profiles,
     observations_csv_text,
-    take_runs,
+    observations_on_profiles,
 )
 from solvers.cli import CliError, OneLineParser, run_guarded, text_writer, write_all_atomic
 
@@ -115,7 +114,7 @@ def _names(text: str, n: int, option: str) -> tuple[str, ...]:
 
 
 def _run(args) -> int:
-    from solvers.profile import ProfileError, load_profile
+    from solvers.profile import ProfileError
     from terrain.plan_line import read_profile_trace
     from terrain.raster import RasterError
 
@@ -133,26 +132,14 @@ def _run(args) -> int:
         size=_names(args.size_cols, 3, "--size-cols"), release_z=args.release_z_col.strip())
     paths = list(dict.fromkeys(args.profile))
     try:
-        traces = [read_profile_trace(p) for p in paths]
         runs = load_runs(args.runs, args.blocks, columns)
-        which = nearest_profiles(runs, [t for _, t in traces])
-        rows: list = [None] * runs.n_runs
-        for k, (path, (x, trace)) in enumerate(zip(paths, traces)):
-            idx = np.flatnonzero(which == k)
-            if not idx.size:
-                raise CliError(f"--profile {path}: no run's release lies nearer this profile "
-                               "than the others; leave it out")
-            sub = field_observations(
-                take_runs(runs, idx), x, trace, density_kg_m3=args.density_kg_m3,
-                runout_sd_m=args.runout_sd_m, max_offset_m=args.max_offset_m,
-                source=args.source if args.source is not None else os.path.basename(args.runs),
-                columns=columns, profile_path=path,
-                profile_z_m=np.asarray(load_profile(path).z_m))
-            rel = os.path.relpath(path, os.path.dirname(os.path.abspath(args.out)))
-            for i, r in zip(idx, sub):
-                if len(paths) > 1:
-                    r["profile"] = rel
-                rows[i] = r
+        rows = observations_on_profiles(
+            runs, paths, os.path.dirname(os.path.abspath(args.out)),
+            density_kg_m3=args.density_kg_m3, runout_sd_m=args.runout_sd_m,
+            max_offset_m=args.max_offset_m,
+            source=args.source if args.source is not None else os.path.basename(args.runs),
+            columns=columns)
+        which = nearest_profiles(runs, [read_profile_trace(p)[1] for p in paths])
     except (FieldError, RasterError, ProfileError) as e:
         raise CliError(str(e)) from None
     try:

@@ -24,6 +24,11 @@ the model: their parameters are fitted with the baseline's over their prior
 boxes, by the same stages and checks, and written like the baseline's
 (``crsp.effects`` names them; ``calib.files.calibration_file``).
 
+The command is options and printing around ``run_fit`` (the fit and its
+outputs, typed results back; one model's calibration is
+``calib.inference.calibrate.fit_model``) and ``validate_heldout`` (the
+hold-out check); a notebook or script calls them with the same options.
+
 The likelihood (``calib.inference.likelihood``): each observed row is one draw from the
 simulated runout distribution of blocks of its size, seen with a Gaussian
 tolerance (points) or known to lie in an interval.
@@ -43,6 +48,9 @@ import numpy as np
 
 from calib.files.provenance import provenance, versions
 from calib.model.effects import CRSP_EFFECTS
+from calib.model.unfinished import UnfinishedBlocksWarning
+from calib.validate import print_summary as print_validation
+from calib.validate import run_validation
 from solvers.cli import (
     CliError,
     OneLineParser,
@@ -52,7 +60,7 @@ from solvers.cli import (
 )
 from solvers.percentiles import few_blocks_warning
 
-__all__ = ["main"]
+__all__ = ["FitRun", "main", "run_fit", "validate_heldout"]
 
 PROG = "python -m calib.fit"
 
@@ -113,29 +121,117 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _run(args) -> int:
-    from calib.files.calibration_file import fit_document, posterior_csv_text
+@dataclasses.dataclass
+class FitRun:
+    """What one calibration run (``run_fit``) produced, typed.
+
+    Attributes:
+        calibration: the calibration file written, read back
+            (``calib.files.calibration_file.CalibrationFile``; one model's
+            ``Calibration`` is ``calibration.calibration(model)``).
+        fits: model -> its ``calib.inference.calibrate.ModelRun`` (the
+            ``ModelFit`` with its posterior, check and adequacy; the forward model).
+        inputs: the rows fitted (under a hold-out split, the calibration part),
+            their profile and site (``calib.files.inputs.Inputs``).
+        entries: what those rows made the solvers simulate
+            (``calib.model.entries.Entries``).
+        out: the output folder.
+        heldout_csv: the held-out rows' CSV in ``out``, or None (no split).
+    """
+
+    calibration: object
+    fits: dict
+    inputs: object
+    entries: object
+    out: str
+    heldout_csv: str | None = None
+
+
+def run_fit(data: str, out: str, *, profile: str | None = None,
+            models: tuple[str, ...] = ("crsp", "dem"),
+            methods: tuple[str, ...] = ("gradient", "bayes"), rolling_resistance: str = "fit",
+            effects: tuple[str, ...] = (), alpha_law: str = "power", seed: int = 0,
+            quick: bool = False, holdout_fraction: float = 0.0,
+            release_tolerance_m: float = 1.0, progress: bool = False,
+            report=None) -> FitRun:
+    """Calibrate ``models`` on the rows of ``data`` and write every output into
+    ``out`` (the files of the module docstring; the rows files of the split),
+    as ``python -m calib.fit`` does with the same options (defaults: the
+    command's). The predictive check of a hold-out split is ``validate_heldout``.
+
+    Args:
+        data, profile: the observations CSV and its profile (None: the default
+            profile next to the data, ``calib.files.inputs.default_profile``).
+        out: output folder.
+        models, methods, rolling_resistance, effects, alpha_law, seed, quick,
+        holdout_fraction, release_tolerance_m: the command's options of those
+            names (``--model``, ``--method``, ...; ``build_parser``).
+        progress: show progress bars on stderr.
+        report: callable(line) given the lines the command prints before it
+            fits (the split, the release groups); None: silent.
+
+    Returns:
+        ``FitRun``.
+
+    Raises:
+        CliError: bad input (one line naming the file, row and column) or a
+            fit the alpha-law check refuses; nothing is written.
+    """
+    from calib.files.calibration_file import CalibrationFile, fit_document
+    from calib.inference.calibrate import fit_model
+    from calib.model.alpha_law import check_fit
+
+    t_start = time.perf_counter()
+    say = report or (lambda line: None)
+    _check_effects(models, rolling_resistance, effects)
+    inputs, data_csv, files = _inputs(data, profile, out, release_tolerance_m,
+                                      holdout_fraction, seed, say)
+    entries = inputs.entries(release_tolerance_m)
+    grouped = inputs.own_releases
+    if grouped:
+        for line in _entries_lines(inputs, entries, release_tolerance_m):
+            say(line)
+    models, methods = tuple(models), tuple(methods)
+    key = jax.random.key(seed)
+    fits = {}
+    for i, model in enumerate(models):
+        bar = Progress(progress, model.upper())
+        with warnings.catch_warnings():  # reported in the summary and the json
+            warnings.simplefilter("ignore", UnfinishedBlocksWarning)
+            fits[model] = fit_model(model, inputs, entries, jax.random.fold_in(key, i),
+                                    methods=methods, quick=quick,
+                                    rolling_resistance=rolling_resistance,
+                                    effects=tuple(effects), alpha_law=alpha_law, progress=bar)
+        bar.close()
+        if model == "dem":
+            fit = fits[model].fit
+            try:
+                check_fit(alpha_law, fit.estimate,
+                          None if fit.posterior is None else fit.posterior.samples,
+                          inputs.obs.sizes_m)
+            except ValueError as e:
+                raise CliError(str(e)) from None
+    header = {"command": " ".join([PROG] + sys.argv[1:]), "data_csv": data_csv,
+              "seed": seed, "quick": bool(quick), "methods": methods,
+              "versions": versions(),
+              "inputs": provenance(PROG, seed, {"data": data,
+                                                "profile": inputs.profile_path})["inputs"]}
+    cal = fit_document(header, inputs, entries, fits, grouped, release_tolerance_m,
+                       time.perf_counter() - t_start)
+    files["calibration.json"] = cal.to_json()
+    figs, writers = _fit_outputs(fits, inputs, files)
+    write_outputs(out, files, figs, writers)
+    return FitRun(CalibrationFile.from_json(os.path.join(out, "calibration.json")), fits,
+                  inputs, entries, out,
+                  os.path.join(out, "heldout_rows.csv") if holdout_fraction else None)
+
+
+def _fit_outputs(fits, inputs, files):
+    """The posterior CSVs (added to ``files``), NetCDF writers and figures of a fit."""
+    from calib.files.calibration_file import posterior_csv_text
     from calib.files.inference_data import inference_data, netcdf_writer
     from calib.plots import figures
 
-    t_start = time.perf_counter()
-    inputs, data_csv, files = _inputs(args)
-    entries = inputs.entries(args.release_tolerance_m)
-    grouped = inputs.own_releases
-    if grouped:
-        _print_entries(inputs, entries, args.release_tolerance_m)
-    models = ["crsp", "dem"] if args.model == "both" else [args.model]
-    methods = ("gradient", "bayes") if args.method == "both" else (args.method,)
-    key = jax.random.key(args.seed)
-    fits = {model: _fit_model(model, args, inputs, entries, methods, jax.random.fold_in(key, i))
-            for i, model in enumerate(models)}
-    header = {"command": " ".join([PROG] + sys.argv[1:]), "data_csv": data_csv,
-              "seed": args.seed, "quick": bool(args.quick), "methods": methods,
-              "versions": versions(),
-              "inputs": provenance(PROG, args.seed, {"data": args.data,
-                                                     "profile": inputs.profile_path})["inputs"]}
-    cal = fit_document(header, inputs, entries, fits, grouped, args.release_tolerance_m,
-                       time.perf_counter() - t_start)
     figs, writers = {}, {}
     for model, (fit, _, form) in fits.items():
         post = fit.posterior
@@ -150,131 +246,104 @@ def _run(args) -> int:
             figs["alpha_law.png"] = figures.fitted_alpha_law(form, fit, inputs.site,
                                                              inputs.obs.sizes_m)
     figs["runout_vs_size.png"] = figures.runout_vs_size(
-        inputs.obs, {m: (f.check_sizes_m, f.check_runouts) for m, (f, _, _) in fits.items()})
-    files["calibration.json"] = cal.to_json()
-    write_outputs(args.out, files, figs, writers)
-    _print_summary(cal.doc, models, args.out)
+        inputs.obs, {m: (r.fit.check_sizes_m, r.fit.check_runouts) for m, r in fits.items()})
+    return figs, writers
+
+
+def _run(args) -> int:
+    models = ("crsp", "dem") if args.model == "both" else (args.model,)
+    methods = ("gradient", "bayes") if args.method == "both" else (args.method,)
+    run = run_fit(args.data, args.out, profile=args.profile, models=models, methods=methods,
+                  rolling_resistance=args.rolling_resistance, effects=tuple(args.effect),
+                  alpha_law=args.alpha_law, seed=args.seed, quick=args.quick,
+                  holdout_fraction=args.holdout_fraction,
+                  release_tolerance_m=args.release_tolerance_m,
+                  progress=not args.no_progress, report=print)
+    _print_summary(run.calibration.doc, models, args.out)
     if args.holdout_fraction:
-        _validate(args, models)
+        for summary, folder in validate_heldout(args.out, models[0], args.seed,
+                                                posterior=args.method != "gradient"):
+            print()
+            print_validation(summary, folder)
     return 0
 
 
-def _inputs(args):
+def _inputs(data, profile, out, tol_m, holdout_fraction, seed, say):
     """The checked inputs (``calib.files.inputs.Inputs``), with the rows of the
-    hold-out split's fit part under ``--holdout-fraction``; the path of the
+    hold-out split's fit part under ``holdout_fraction``; the path of the
     rows fitted; the row files the split adds to the outputs. The options that
     can be refused without the files are checked first."""
     from calib.files.inputs import InputError, load_inputs
 
-    _check_effects(args)
-    if not args.release_tolerance_m >= 0:
-        raise CliError(f"--release-tolerance-m must be >= 0, got {args.release_tolerance_m:g}")
+    if not tol_m >= 0:
+        raise CliError(f"--release-tolerance-m must be >= 0, got {tol_m:g}")
     try:
-        inputs = load_inputs(args.data, args.profile, args.out)
+        inputs = load_inputs(data, profile, out)
     except InputError as e:
         raise CliError(str(e)) from None
-    files, data_csv = {}, args.data
-    if args.holdout_fraction:
-        obs, data_csv = _split(args, inputs.obs, files)
+    files, data_csv = {}, data
+    if holdout_fraction:
+        obs, data_csv = _split(data, out, holdout_fraction, seed, inputs.obs, files, say)
         inputs = dataclasses.replace(inputs, obs=obs)
     return inputs, data_csv, files
 
 
-def _check_effects(args) -> None:
+def _check_effects(models, rolling_resistance, effects) -> None:
     """Refuse, in one line, ``--effect`` with a model or baseline it cannot join."""
-    if not args.effect:
+    if not effects:
         return
     from calib.model.effects import effect_names
 
-    if args.model != "crsp":
-        raise CliError(f"--effect {args.effect[0]}: effects are fitted with --model crsp only "
+    if tuple(models) != ("crsp",):
+        raise CliError(f"--effect {effects[0]}: effects are fitted with --model crsp only "
                        "(the DEM's size-dependent damping is --alpha-law power; its bonded "
                        "fragments are a calib.discover candidate only)")
     try:
-        names = effect_names(args.effect)
-        if "rolling_resistance" in names and args.rolling_resistance != "profile":
-            raise ValueError(f"--rolling-resistance {args.rolling_resistance} fits the rolling "
+        names = effect_names(effects)
+        if "rolling_resistance" in names and rolling_resistance != "profile":
+            raise ValueError(f"--rolling-resistance {rolling_resistance} fits the rolling "
                              "resistance angle already (the two are one parameter); use "
                              "--rolling-resistance profile with it")
     except ValueError as e:
         raise CliError(f"--effect: {e}") from None
 
 
-def _print_entries(inputs, entries, tol_m: float) -> None:
-    """Say how the rows' own releases were grouped into simulated entries."""
+def _entries_lines(inputs, entries, tol_m: float) -> list[str]:
+    """How the rows' own releases were grouped into simulated entries."""
     obs, x0 = inputs.obs, float(inputs.profile.x_m[0])
     rel = np.asarray(obs.release_x_m, float)
     err = np.abs(entries.release_x_m[entries.index] - np.where(np.isfinite(rel), rel, x0))
-    print(f"each row released from its own point, rows of one size within {tol_m:g} m "
-          f"grouped: {entries.n} simulated releases for {obs.n_obs} rows (largest release "
-          f"shift {err.max():.2f} m)")
+    lines = [f"each row released from its own point, rows of one size within {tol_m:g} m "
+             f"grouped: {entries.n} simulated releases for {obs.n_obs} rows (largest release "
+             f"shift {err.max():.2f} m)"]
     own = [p for p in dict.fromkeys(obs.profile) if p]
     if own:
-        print("rows on their own profiles: " + "; ".join(
+        lines.append("rows on their own profiles: " + "; ".join(
             f"{int(np.sum(obs.profile == p))} on {p}" for p in own)
-              + f"; {int(np.sum(obs.profile == ''))} on {inputs.profile_path}")
+            + f"; {int(np.sum(obs.profile == ''))} on {inputs.profile_path}")
     speed, height = (np.asarray(v, float) for v in (obs.release_speed_m_s,
                                                      obs.release_height_m))
     gspeed, gheight = (v[entries.index] for v in (entries.release_speed_m_s,
                                                   entries.release_height_m))
     known = np.isfinite(speed) & np.isfinite(gspeed)
     if known.any():
-        print(f"each group released at its rows' mean tracked speed (largest "
-              f"release-speed shift {np.abs(gspeed - speed)[known].max():.2f} m/s)")
+        lines.append(f"each group released at its rows' mean tracked speed (largest "
+                     f"release-speed shift {np.abs(gspeed - speed)[known].max():.2f} m/s)")
     site = inputs.site
     if site.release_height_sd_m or site.release_speed_sd_m_s:
-        print(f"CRSP draws each block's release height and speed about its group's, sd "
-              f"{site.release_height_sd_m:g} m and {site.release_speed_sd_m_s:g} m/s (the site "
-              f"file {site.path}); the DEM releases at the means")
+        lines.append(f"CRSP draws each block's release height and speed about its group's, sd "
+                     f"{site.release_height_sd_m:g} m and {site.release_speed_sd_m_s:g} m/s "
+                     f"(the site file {site.path}); the DEM releases at the means")
     high = np.isfinite(height)
     if high.any():
-        print(f"each group released at its rows' mean height above the ground, "
-              f"{np.nanmin(entries.release_height_m):.2f} to "
-              f"{np.nanmax(entries.release_height_m):.2f} m (largest release-height "
-              f"shift {np.abs(gheight - height)[high].max():.2f} m)")
+        lines.append(f"each group released at its rows' mean height above the ground, "
+                     f"{np.nanmin(entries.release_height_m):.2f} to "
+                     f"{np.nanmax(entries.release_height_m):.2f} m (largest release-height "
+                     f"shift {np.abs(gheight - height)[high].max():.2f} m)")
+    return lines
 
 
-def _fit_model(model: str, args, inputs, entries, methods, key):
-    """One model's calibration: (``ModelFit``, its forward model, the DEM's
-    alpha-law form or None)."""
-    from calib.inference.calibrate import calibrate, presets
-    from calib.model.alpha_law import check_fit
-    from calib.model.forward import CrspForward, DemForward
-    from calib.model.priors import CRSP_BOX, CRSP_ROLLING_BOX, zoned_rolling_box
-    from calib.model.unfinished import UnfinishedBlocksWarning
-
-    budget = presets(model, args.quick)
-    profile = inputs.profile
-    if model == "crsp":
-        box = {"fit": CRSP_ROLLING_BOX, "profile": CRSP_BOX}.get(args.rolling_resistance) \
-            or zoned_rolling_box(dict.fromkeys(
-                z for pr in (profile, *entries.profiles) if pr is not None
-                for z in pr.zone_names))
-        forward = CrspForward(profile, entries, budget.n_blocks_design,
-                              jax.random.fold_in(key, 1), box=box,
-                              effect=tuple(args.effect) or "none")  # columns after box's
-        extra = np.geomspace(0.2, 2.0, 6)  # the check's sizes for the runout-vs-size figure
-    else:
-        forward = DemForward(profile, entries, budget.n_blocks_design,
-                             jax.random.fold_in(key, 1), form=args.alpha_law)
-        extra = [0.2, 0.9, 2.0] if args.quick else [0.2, 0.5, 0.9, 1.4, 2.0]
-    bar = Progress(not args.no_progress, model.upper())
-    with warnings.catch_warnings():  # reported below, in the summary and the json
-        warnings.simplefilter("ignore", UnfinishedBlocksWarning)
-        fit = calibrate(forward, inputs.obs, jax.random.fold_in(key, 2), methods, budget, bar,
-                        extra_sizes_m=extra)
-    bar.close()
-    if model == "dem":
-        try:
-            check_fit(args.alpha_law, fit.estimate,
-                      None if fit.posterior is None else fit.posterior.samples,
-                      inputs.obs.sizes_m)
-        except ValueError as e:
-            raise CliError(str(e)) from None
-    return fit, forward, (args.alpha_law if model == "dem" else None)
-
-
-def _split(args, obs, files):
+def _split(data, out, fraction, seed, obs, files, say):
     """Split the rows (``calib.files.split``): the fit's observations, and the path its
     calibration rows will have; both row files join the outputs."""
 
@@ -282,40 +351,45 @@ def _split(args, obs, files):
     from calib.files.split import holdout_rows, subset
 
     try:
-        fit_rows, held_rows = holdout_rows(obs.n_obs, args.holdout_fraction, args.seed)
+        fit_rows, held_rows = holdout_rows(obs.n_obs, fraction, seed)
     except ValueError as e:
         raise CliError(str(e)) from None
-    table = read_table(args.data, "block_size_m,...")
+    table = read_table(data, "block_size_m,...")
     if "profile" in table.columns:  # the row files live in --out: paths relative to it
-        table["profile"] = [os.path.relpath(p, args.out) if p else "" for p in obs.profile]
+        table["profile"] = [os.path.relpath(p, out) if p else "" for p in obs.profile]
     files["calibration_rows.csv"] = table.iloc[fit_rows].to_csv(index=False)
     files["heldout_rows.csv"] = table.iloc[held_rows].to_csv(index=False)
-    print(f"holding out {len(held_rows)} of {obs.n_obs} rows (seed {args.seed}): "
-          f"{os.path.join(args.out, 'heldout_rows.csv')}")
-    return subset(obs, fit_rows), os.path.join(args.out, "calibration_rows.csv")
+    say(f"holding out {len(held_rows)} of {obs.n_obs} rows (seed {seed}): "
+        f"{os.path.join(out, 'heldout_rows.csv')}")
+    return subset(obs, fit_rows), os.path.join(out, "calibration_rows.csv")
 
 
-def _validate(args, models) -> None:
-    """The predictive check of the first calibrated model on the held-out rows:
-    of its posterior predictive (``validation/``) and, after a Bayesian fit,
-    also of its point estimate alone (``validation/point_estimate/``): where
-    the posterior failed its checks, the two can differ widely, and the
-    user should see both."""
-    from calib.validate import print_summary, run_validation
+def validate_heldout(out: str, model: str, seed: int = 0,
+                     posterior: bool = True) -> list[tuple[dict, str]]:
+    """The predictive check (``calib.validate.run_validation``) of ``model``'s
+    calibration in ``out`` on the held-out rows ``run_fit`` wrote there. With
+    ``posterior`` (after a Bayesian fit): of its posterior predictive
+    (``out/validation/``, 50 draws) and also of its point estimate alone
+    (``out/validation/point_estimate/``, 2000 CRSP blocks per row group):
+    where the posterior failed its checks, the two can differ widely, and the
+    user should see both. Without (a gradient-only fit): of the point
+    estimate, in ``out/validation/``.
 
+    Returns:
+        [(summary written to validation.json, its folder)], the posterior's first.
+    """
     vargs = argparse.Namespace(
-        calibration=os.path.join(args.out, "calibration.json"),
-        heldout=os.path.join(args.out, "heldout_rows.csv"), model=models[0],
-        calibration_data=None, n_posterior=1 if args.method == "gradient" else 50,
-        n_blocks=None, seed=args.seed, out=os.path.join(args.out, "validation"))
-    print()
-    print_summary(run_validation(vargs), vargs.out)
-    if vargs.n_posterior > 1:
+        calibration=os.path.join(out, "calibration.json"),
+        heldout=os.path.join(out, "heldout_rows.csv"), model=model,
+        calibration_data=None, n_posterior=50 if posterior else 1,
+        n_blocks=None, seed=seed, out=os.path.join(out, "validation"))
+    done = [(run_validation(vargs), vargs.out)]
+    if posterior:
         point = argparse.Namespace(**{**vars(vargs), "n_posterior": 1,
-                                      "n_blocks": 2000 if models[0] == "crsp" else None,
+                                      "n_blocks": 2000 if model == "crsp" else None,
                                       "out": os.path.join(vargs.out, "point_estimate")})
-        print()
-        print_summary(run_validation(point), point.out)
+        done.append((run_validation(point), point.out))
+    return done
 
 
 def _fmt(v, nd=3):

@@ -140,7 +140,11 @@ def speed_design(args, profile):
 
 def _run(args) -> int:
     _check(args)
-    from calib.discovery.synthetic import synthesize_effect
+    from calib.discovery.synthetic import (
+        observations_csv_text,
+        synthesize_effect,
+        velocities_csv_text,
+    )
     from solvers.profile import ProfileError, default_materials_path, load_profile
 
     try:
@@ -160,29 +164,22 @@ def _run(args) -> int:
                                         args.seed, speeds[0], speeds[2])
         except ValueError as e:
             raise CliError(f"--velocity-stations-m: {e}") from None
-        vlines = ["station_x_m,block_size_m,velocity_m_s,velocity_sd_m_s,source"]
-        vlines += [f"{x:g},{d:g},{v:.3f},{s:g},synthetic: calib.synth seed {args.seed}"
-                   for x, d, v, s in zip(vel.station_x_m, vel.block_size_m, vel.velocity_m_s,
-                                         vel.velocity_sd_m_s)]
-        files[stem + "_velocities.csv"] = text_writer("\n".join(vlines) + "\n")
+        files[stem + "_velocities.csv"] = text_writer(velocities_csv_text(vel, args.seed))
         truth.update({"velocities_csv": stem + "_velocities.csv",
                       "velocity_stations_m": speeds[0], "n_velocity": args.n_velocity,
                       "velocity_sd_m_s": args.velocity_sd_m_s})
     truth.update({"observations_csv": args.out, "profile_csv": stem + "_profile.csv",
                   "profile_source": args.profile, "command": " ".join([PROG] + sys.argv[1:]),
                   "note": "the truth is kept out of the observations on purpose"})
-    lines = ["block_size_m,runout_m,runout_sd_m,runout_min_m,runout_max_m,source"]
-    lines += [f"{d:g},{y:.3f},{s:g},,,synthetic: calib.synth seed {args.seed}"
-              for d, y, s in zip(obs.block_size_m, obs.runout_m, obs.runout_sd_m)]
     write_all_atomic({
-        args.out: text_writer("\n".join(lines) + "\n"),
+        args.out: text_writer(observations_csv_text(obs, args.seed)),
         stem + ".truth.json": text_writer(json.dumps(truth, indent=1) + "\n"),
         stem + "_profile.csv": lambda p: shutil.copyfile(args.profile, p),
         stem + "_materials.csv":
             lambda p: shutil.copyfile(default_materials_path(args.profile), p),
         **files,
     })
-    print(f"wrote {len(lines) - 1} rows to {args.out} (truth in {stem}.truth.json, "
+    print(f"wrote {obs.n_obs} rows to {args.out} (truth in {stem}.truth.json, "
           f"profile in {stem}_profile.csv and {stem}_materials.csv)")
     if files:
         print(f"wrote {args.n_velocity} passage speeds to {stem}_velocities.csv (use "

@@ -34,6 +34,9 @@ from solvers.cli import CliError, OneLineParser, run_guarded
 from solvers.percentiles import few_blocks_warning
 
 PROG = "python -m calib.validate"
+SCHEMA = "rockfall-validation/1"
+
+__all__ = ["SCHEMA", "main", "print_summary", "read_summary", "run_validation"]
 
 
 def build_parser() -> OneLineParser:
@@ -128,7 +131,7 @@ def run_validation(args) -> dict:
                           release_slopes_deg(profile, entries.release_x_m, entries.profiles),
                           release_rolling_deg(draws.names, draws.values, profile, entries)
                           if cal.model == "crsp" else None)
-    summary = {"schema": "rockfall-validation/1", "model": cal.model,
+    summary = {"schema": SCHEMA, "model": cal.model,
                "draws": draws.source, "n_draws": int(draws.values.shape[0]),
                "n_blocks_per_draw_and_group": int(n_blocks), **check.summary,
                "release_height_sd_m": cal.release_height_sd_m,
@@ -141,6 +144,23 @@ def run_validation(args) -> dict:
              "validation.json": json.dumps(summary, indent=1, allow_nan=False) + "\n"}
     write_outputs(args.out, files, figs)
     return summary
+
+
+def read_summary(path: str) -> dict:
+    """The summary a check wrote (``validation.json``: the dict ``run_validation``
+    returns), its schema checked.
+
+    Raises:
+        ValueError: the file does not parse or is not a ``SCHEMA`` summary.
+    """
+    try:
+        with open(path) as fh:
+            doc = json.load(fh)
+    except (OSError, json.JSONDecodeError) as e:
+        raise ValueError(f"{path}: cannot read a validation summary ({e})") from None
+    if not isinstance(doc, dict) or doc.get("schema") != SCHEMA:
+        raise ValueError(f"{path}: key 'schema': expected {SCHEMA!r}")
+    return doc
 
 
 def print_summary(s: dict, out: str) -> None:

@@ -54,6 +54,7 @@ import sys
 
 import matplotlib.pyplot as plt
 import pandas as pd
+from IPython.display import Image, display
 
 ROOT = os.path.abspath(".")
 if not os.path.isdir(os.path.join(ROOT, "calib")):  # run from notebooks/
@@ -62,7 +63,9 @@ os.chdir(ROOT)
 sys.path.insert(0, ROOT)
 
 from calib.files.calibration_file import CalibrationFile  # noqa: E402
+from calib.files.observations import load_observations  # noqa: E402
 from calib.files.site import load_site  # noqa: E402
+from solvers import load_profile  # noqa: E402
 
 # NOTEBOOK_RESULTS: reuse a finished `calib.fit` output folder (the test suite does);
 # NOTEBOOK_QUICK=1: small budgets. By hand, leave both unset for the full run (~5 min).
@@ -73,12 +76,13 @@ QUICK = os.environ.get("NOTEBOOK_QUICK", "0") == "1"
 # ## 1. The observations and the slope
 
 # %%
-obs = pd.read_csv("data/postignano.csv")
-profile = pd.read_csv("data/postignano_profile.csv")
-print(obs[["block_size_m", "runout_m", "runout_sd_m"]])
+obs = load_observations("data/postignano.csv")  # checked rows (calib.files.observations)
+profile = load_profile("data/postignano_profile.csv")
+print(pd.DataFrame({"block_size_m": obs.block_size_m, "runout_m": obs.runout_m,
+                    "runout_sd_m": obs.runout_sd_m}))
 fig, ax = plt.subplots(figsize=(8, 3))
-ax.plot(profile["x_m"], profile["z_m"], "k-")
-for y in obs["runout_m"]:
+ax.plot(profile.x_m, profile.z_m, "k-")
+for y in obs.runout_m:
     ax.axvline(y, color="tab:red", ls="--", lw=1)
 site = load_site("data/postignano_profile.csv")  # data/postignano_site.json
 ax.axvline(site.station_x_m, color="tab:gray", lw=3, alpha=0.5,
@@ -93,18 +97,23 @@ plt.show()
 # %% [markdown]
 # ## 2. Run the calibration
 #
-# The same as typing `python -m calib.fit data/postignano.csv --out results/`.
+# The same as typing `python -m calib.fit data/postignano.csv --out results/`:
+# `calib.fit.run_fit` reads and checks the rows and their profile
+# (`calib.files.inputs`), calibrates each model (`calib.inference.calibrate.fit_model`),
+# writes the outputs and hands back the typed results. A finished output folder is
+# read back with the one reader of the calibration file.
 
 # %%
 if RESULTS and os.path.isfile(os.path.join(RESULTS, "calibration.json")):
     out = RESULTS
+    calfile = CalibrationFile.from_json(os.path.join(out, "calibration.json"))
 else:
-    from calib.fit import main
+    from calib.fit import run_fit
 
     out = "results"
-    main(["data/postignano.csv", "--out", out, "--no-progress"] + (["--quick"] if QUICK else []))
-cal = CalibrationFile.from_json(os.path.join(out, "calibration.json")).doc  # the one reader
-print("run:", cal["command"], "| quick:", cal["quick"])
+    calfile = run_fit("data/postignano.csv", out, quick=QUICK, report=print).calibration
+print("run:", calfile.command, "| quick:", calfile.quick)
+crsp, dem = calfile.summary("crsp"), calfile.summary("dem")  # typed model sections
 
 # %% [markdown]
 # ## 3. CRSP: Kn, Kt, S (and the rolling resistance angle) against the paper
@@ -115,34 +124,28 @@ print("run:", cal["command"], "| quick:", cal["quick"])
 # %%
 rows = []
 PAPER = {"Kn": 0.41, "Kt": 0.87, "roughness_m": 2.0, "rolling_friction_deg": None}
-for name in cal["crsp"]["parameters"]:
-    s = cal["crsp"][name]
-    rows.append({"parameter": name, "estimate": s["map"], "posterior mean": s["mean"],
-                 "90% interval": f"{s['q05']:.2f} - {s['q95']:.2f}",
+for name, s in crsp.parameters.items():
+    rows.append({"parameter": name, "estimate": s.map, "posterior mean": s.mean,
+                 "90% interval": f"{s.q05:.2f} - {s.q95:.2f}",
                  "paper": PAPER.get(name)})
 crsp_table = pd.DataFrame(rows)
 print(crsp_table.to_string(index=False))
-b = cal["crsp"]["bayes"]
-print("diagnostics ok:", b["ok"], "|", "; ".join(b["problems"]) or "all passed")
+print("diagnostics ok:", crsp.diagnostics_ok, "|", "; ".join(crsp.problems) or "all passed")
 
 # %% [markdown]
 # ## 4. DEM: the damping law alpha(L) against Table 1
 
 # %%
-law = cal["dem"]["alpha_law"]
-print("law:", law["form"], {k: round(law[k]["map"], 3) for k in cal["dem"]["parameters"]})
-print(pd.DataFrame([{"L (m)": L, "alpha fitted": v["map"],
-                     "90% interval": f"{v['q05']:.2f} - {v['q95']:.2f}",
-                     "Table 1": v.get("reference")} for L, v in cal["dem"]["alpha_at_L"].items()])
+print("law:", dem.alpha_form, {k: round(v.map, 3) for k, v in dem.parameters.items()})
+print(pd.DataFrame([{"L (m)": f"{L:g}", "alpha fitted": v.map,
+                     "90% interval": f"{v.q05:.2f} - {v.q95:.2f}",
+                     "Table 1": dem.alpha_reference.get(L)} for L, v in dem.alpha_at_L.items()])
       .to_string(index=False))
 
 # %%
 for name in ("runout_vs_size.png", "alpha_law.png", "crsp_pairs.png"):
-    img = plt.imread(os.path.join(out, name))
-    plt.figure(figsize=(7, 5))
-    plt.imshow(img)
-    plt.axis("off")
-    plt.show()
+    with open(os.path.join(out, name), "rb") as fh:
+        display(Image(fh.read()))
 
 # %% [markdown]
 # ## 5. How well does each model reproduce each observation?
@@ -152,8 +155,8 @@ for name in ("runout_vs_size.png", "alpha_law.png", "crsp_pairs.png"):
 # means the observation lies outside the model's 90 % band.
 
 # %%
-for model in ("crsp", "dem"):
-    q = pd.DataFrame(cal["fit_quality"][model])
+for model, sec in (("crsp", crsp), ("dem", dem)):
+    q = pd.DataFrame(sec.fit_quality)
     print(model.upper())
     print(q[["block_size_m", "observed_m", "sim_q05_m", "sim_median_m", "sim_q95_m", "pit"]]
           .round(2).to_string(index=False))
@@ -166,22 +169,19 @@ for model in ("crsp", "dem"):
 # 90 % interval spans most of its prior range is NOT constrained by the data.
 
 # %%
-prior = cal["crsp"]["prior"]
-for name in cal["crsp"]["parameters"]:
-    s = cal["crsp"][name]
-    lo, hi = prior[name]
-    frac = (s["q95"] - s["q05"]) / (hi - lo)
+for name, s in crsp.parameters.items():
+    lo, hi = crsp.prior[name]
+    frac = (s.q95 - s.q05) / (hi - lo)
     verdict = "constrained" if frac < 0.5 else "weakly constrained" if frac < 0.8 else \
         "NOT constrained"
     print(f"{name:12} 90% interval covers {100 * frac:4.0f} % of the prior range -> {verdict}")
-for name in cal["dem"]["parameters"]:
-    s = cal["dem"]["alpha_law"][name]
-    lo, hi = cal["dem"]["prior"][name]
-    frac = (s["q95"] - s["q05"]) / (hi - lo)
+for name, s in dem.parameters.items():
+    lo, hi = dem.prior[name]
+    frac = (s.q95 - s.q05) / (hi - lo)
     print(f"DEM {name:8} 90% interval covers {100 * frac:4.0f} % of the prior range")
 
 # %% [markdown]
 # ## 7. Stage timings
 
 # %%
-print(json.dumps(cal["timings_s"], indent=1))
+print(json.dumps(calfile.timings_s, indent=1))

@@ -38,55 +38,98 @@
 # to Postignano.
 
 # %%
-import json
+import io
 import os
 import tempfile
+import warnings
 
+import jax
+import matplotlib.pyplot as plt
 from IPython.display import Image, display
 
-from calib import discover, synth
+from calib.discovery.candidates import candidate_set
+from calib.discovery.discrepancy import discover
+from calib.discovery.synthetic import (
+    observations_csv_text,
+    synthesize_effect,
+    synthesize_velocities,
+    velocities_csv_text,
+)
+from calib.files.inputs import load_inputs
+from calib.files.observations import load_velocities
+from calib.inference.budget import discovery_budget
+from calib.model.unfinished import UnfinishedBlocksWarning
+from calib.plots.discovery_figures import discovery_figures
+from solvers import load_profile
 
 SMALL = os.environ.get("NOTEBOOK_SMALL") == "1"  # the tests run this notebook at small size
 work = tempfile.mkdtemp(prefix="discovery-")
+PROFILE_CSV = "data/postignano_profile.csv"
+slope = load_profile(PROFILE_CSV)
+
+
+def write(path, text):
+    with open(path, "w") as fh:
+        fh.write(text)
+
+
+def run_discovery(data, model="crsp", velocities=None):
+    """The workflow as `python -m calib.discover DATA --model MODEL` runs it (seed 0,
+    each row from its own release, rows within 1 m grouped), on the checked rows of
+    DATA and PROFILE_CSV: the rows, and the typed `Discovery`."""
+    inputs = load_inputs(data, PROFILE_CSV, work)
+    cands, combine = candidate_set(model, None, inputs.profile)
+    with warnings.catch_warnings():  # counted in each fit's record instead
+        warnings.simplefilter("ignore", UnfinishedBlocksWarning)
+        d = discover(cands, inputs.obs, inputs.profile, jax.random.key(0),
+                     discovery_budget(model, SMALL), velocities=velocities,
+                     release_tolerance_m=1.0, release_errors=inputs.release_errors,
+                     combine=combine)
+    return inputs.obs, d
+
+
+def show(fig):
+    """A figure as the command writes it (PNG, 120 dpi)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=120)
+    plt.close(fig)
+    display(Image(buf.getvalue()))
 
 # %% [markdown]
 # ## 1. A hidden effect: blocks that roll with extra resistance
 #
-# `calib.synth` simulates 60 blocks (0.2-2.0 m) with CRSP, with rolling
-# resistance switched on. The answer goes to a separate `synth.truth.json`, and the
-# workflow only sees the CSV.
+# `calib.discovery.synthetic` (the library of `python -m calib.synth`) simulates
+# 60 blocks (0.2-2.0 m) with CRSP, with rolling resistance switched on. The answer
+# stays in `truth`, and the workflow only sees the CSV.
 
 # %%
 data = os.path.join(work, "synth.csv")
-synth.main(["--effect", "rolling_resistance", "--strength", "1.5", "--seed", "21",
-            "--n-obs", "30" if SMALL else "60", "--profile", "data/postignano_profile.csv",
-            "--out", data])
+synth_obs, truth = synthesize_effect(slope, "rolling_resistance", 1.5, 30 if SMALL else 60, 21)
+write(data, observations_csv_text(synth_obs, 21))
 print(open(data).read().splitlines()[:4])
 
 # %%
-out = os.path.join(work, "disc")
-discover.main([data, "--out", out, "--no-progress"] + (["--quick"] if SMALL else []))
-result = json.load(open(os.path.join(out, "discovery.json")))
-truth = json.load(open(os.path.join(work, "synth.truth.json")))
-print("hidden:", truth["effect"], "| named:", result["named_effect"])
+obs, result = run_discovery(data)
+print("hidden:", truth["effect"], "| named:", result.named_effect)
+figs = discovery_figures(obs, result, "crsp")
 
 # %% [markdown]
 # **Where the baseline failed.** The small blocks stop *short*, some of them on the
 # 40° talus, where the baseline never lets a block rest:
 
 # %%
-for line in result["where"]["flagged"][:5]:
+for line in result.where_before["flagged"][:5]:
     print("-", line)
-display(Image(os.path.join(out, "residuals.png")))
+show(figs["residuals.png"])
 
 # %% [markdown]
 # **The candidates, ranked** by held-out score gain over the baseline. The effect
 # was named only because its gain is large against its standard error.
 
 # %%
-display(Image(os.path.join(out, "candidates.png")))
-display(Image(os.path.join(out, "before_after.png")))
-print(f"gap before {result['gap_before']:.1f} m -> after {result['gap_after']:.1f} m")
+show(figs["candidates.png"])
+show(figs["before_after.png"])
+print(f"gap before {result.gap_before:.1f} m -> after {result.gap_after:.1f} m")
 
 # %% [markdown]
 # ## 2. When runouts are not enough: a forest belt and passage speeds
@@ -96,24 +139,23 @@ print(f"gap before {result['gap_before']:.1f} m -> after {result['gap_after']:.1
 # and with runouts and sizes alone the baseline can mimic the belt that way
 # (docs/studies.md, "Passage speeds"). The two differ *above* the belt: a lower
 # Kt slows blocks there too, a belt does not. `calib.synth --velocity-stations-m 110` also
-# writes the speeds of some blocks passing 110 m (the belt starts at 129 m), and
-# `calib.discover --velocities` scores them together with the runouts.
+# writes the speeds of some blocks passing 110 m (the belt starts at 129 m)
+# (`synthesize_velocities` here), and `calib.discover --velocities` scores them
+# together with the runouts.
 
 # %%
 data_b = os.path.join(work, "belt.csv")
-synth.main(["--effect", "vegetation_belt", "--seed", "99", "--n-obs", "30" if SMALL else "60",
-            "--profile", "data/postignano_profile.csv",
-            "--velocity-stations-m", "110", "--n-velocity", "12" if SMALL else "30",
-            "--out", data_b])
-out_b = os.path.join(work, "belt")
-discover.main([data_b, "--velocities", os.path.join(work, "belt_velocities.csv"),
-               "--out", out_b, "--no-progress"] + (["--quick"] if SMALL else []))
-belt = json.load(open(os.path.join(out_b, "discovery.json")))
-for c in belt["candidates"]:
+belt_obs, _ = synthesize_effect(slope, "vegetation_belt", 1.0, 30 if SMALL else 60, 99)
+write(data_b, observations_csv_text(belt_obs, 99))
+speeds_csv = os.path.join(work, "belt_velocities.csv")
+write(speeds_csv, velocities_csv_text(
+    synthesize_velocities(slope, "vegetation_belt", 1.0, 12 if SMALL else 30, 99, [110.0]), 99))
+_, belt = run_discovery(data_b, velocities=load_velocities(speeds_csv))
+for c in belt.table:
     if c["effect"] != "none":
         print(f"{c['effect']:18} gain {c['delta_vs_none']:+7.1f} +- {c['se_delta']:5.1f}, "
               f"of which from the speeds {c['delta_velocity_rows']:+6.1f}")
-print("named:", belt["named_effect"])
+print("named:", belt.named_effect)
 
 # %% [markdown]
 # At full size (60 runout rows, 30 speeds) this seed names the belt. Over five
@@ -139,21 +181,16 @@ print("named:", belt["named_effect"])
 # size the notebook uses the quick budget.
 
 # %%
-out_p = os.path.join(work, "postignano")
-args = ["data/postignano.csv", "--model", "dem", "--out", out_p, "--no-progress"]
-if SMALL:
-    args += ["--quick"]
-discover.main(args)
-post = json.load(open(os.path.join(out_p, "discovery.json")))
-for line in post["where"]["flagged"] or [post["where"]["summary"]]:
+post_obs, post = run_discovery("data/postignano.csv", model="dem")
+for line in post.where_before["flagged"] or [post.where_before["summary"]]:
     print("-", line)
-for c in post["candidates"]:
+for c in post.table:
     print(f"{c['effect']:18} score {c['score']:7.2f}  gain {c['delta_vs_none']:+6.2f}  "
           f"gap {c['gap']:6.1f} m")
-print("named:", post["named_effect"])
+print("named:", post.named_effect)
 
 # %%
-display(Image(os.path.join(out_p, "before_after.png")))
+show(discovery_figures(post_obs, post, "dem")["before_after.png"])
 
 # %% [markdown]
 # **Reading the Postignano result.** With two observations, the question is

@@ -20,24 +20,25 @@
 # ODbL with DbCL; provenance in `data/tschamut2014/README.md`):
 #
 # 1. cut a 2D slope profile from the raster along the mean fall line of the runs
-#    (`python -m terrain.cut`);
+#    (`python -m terrain.cut`; its library `terrain.raster`, `terrain.plan_line`);
 # 2. turn the runs into observations: distance travelled along the profile,
 #    each block's size from its mass, each run's own release point
-#    (`python -m calib.field`);
+#    (`python -m calib.field`; its library `calib.files.field_runs`);
 # 3. calibrate CRSP on part of the runs, keeping the rest aside
-#    (`python -m calib.fit --holdout-fraction`), with the rolling resistance
-#    fitted as a fourth parameter;
+#    (`python -m calib.fit --holdout-fraction`, `calib.fit.run_fit` here), with
+#    the rolling resistance fitted as a fourth parameter;
 # 4. ask whether the calibration earns its keep: does it predict the held-out
 #    runs better than simply quoting the runouts seen so far
 #    (`python -m calib.validate`, run at the end of the fit)?
 #
-# Every number below is read from the commands' outputs, not typed in. With
+# Every number below is computed by the same library functions the commands
+# run, not typed in. With
 # `NOTEBOOK_QUICK=1` the fit uses small budgets (a first look, about 2 minutes
 # on 2 cores; its posterior diagnostics fail and say so); the default budgets
 # take about 10-20 minutes. `NOTEBOOK_RESULTS=folder` reuses a finished fit.
 
 # %%
-import json
+import io
 import os
 import sys
 import tempfile
@@ -52,12 +53,18 @@ if not os.path.isdir(os.path.join(ROOT, "calib")):  # run from notebooks/
 os.chdir(ROOT)
 sys.path.insert(0, ROOT)
 
-from calib import field  # noqa: E402
-from calib import fit as calib_fit  # noqa: E402
 from calib.files.calibration_file import CalibrationFile  # noqa: E402
+from calib.files.field_runs import (  # noqa: E402
+    load_runs,
+    observations_csv_text,
+    observations_on_profiles,
+)
+from calib.files.observations import load_observations  # noqa: E402
+from calib.fit import run_fit, validate_heldout  # noqa: E402
+from calib.validate import read_summary  # noqa: E402
 from solvers import load_profile  # noqa: E402
-from terrain import cut as terrain_cut  # noqa: E402
-from terrain.raster import read_raster  # noqa: E402
+from terrain.plan_line import read_fall_line  # noqa: E402
+from terrain.raster import cut_profile, parse_zones, profile_csv_text, read_raster  # noqa: E402
 
 QUICK = os.environ.get("NOTEBOOK_QUICK", "0") == "1"
 RESULTS = os.environ.get("NOTEBOOK_RESULTS", "")
@@ -101,11 +108,10 @@ plt.show()
 # meadow and the flat run-out (the zone split is our reading of the terrain).
 
 # %%
-prof_csv = os.path.join(WORK, "profile.csv")
-terrain_cut.main([os.path.join(SITE, "terrain_proxy.asc"),
-                  "--fall-line", os.path.join(SITE, "runs.csv"), "--margin-m", "40",
-                  "--zones", "steep:0:100,flat:100:", "--out", prof_csv])
-ours, shipped = pd.read_csv(prof_csv), pd.read_csv(os.path.join(SITE, "profile.csv"))
+ZONES = parse_zones("steep:0:100,flat:100:")
+cut = cut_profile(grid, read_fall_line(os.path.join(SITE, "runs.csv"), 40.0), 1.0, ZONES)
+ours = pd.read_csv(io.StringIO(profile_csv_text(cut)))  # the profile CSV terrain.cut writes
+shipped = pd.read_csv(os.path.join(SITE, "profile.csv"))
 print("same profile as the shipped one:", ours[["x_m", "z_m"]].equals(shipped[["x_m", "z_m"]]))
 profile = load_profile(os.path.join(SITE, "profile.csv"))
 
@@ -117,11 +123,12 @@ profile = load_profile(os.path.join(SITE, "profile.csv"))
 # mean fall line of the runs released within 10 m of it (`--fall-line-near`).
 
 # %%
-spot_csv = os.path.join(WORK, "east_spot_profile.csv")
-terrain_cut.main([os.path.join(SITE, "terrain_proxy.asc"),
-                  "--fall-line", os.path.join(SITE, "runs.csv"),
-                  "--fall-line-near", "59,257.5,10", "--margin-m", "40",
-                  "--zones", "steep:0:100,flat:100:", "--out", spot_csv])
+spot_cut = cut_profile(grid, read_fall_line(os.path.join(SITE, "runs.csv"), 40.0,
+                                            near=(59.0, 257.5, 10.0)), 1.0, ZONES)
+spot_ours = pd.read_csv(io.StringIO(profile_csv_text(spot_cut)))
+spot_shipped = pd.read_csv(os.path.join(SITE, "east_spot_profile.csv"))
+print("same spot profile as the shipped one:",
+      spot_ours[["x_m", "z_m"]].equals(spot_shipped[["x_m", "z_m"]]))
 spot = load_profile(os.path.join(SITE, "east_spot_profile.csv"))
 
 # %% [markdown]
@@ -139,12 +146,15 @@ spot = load_profile(os.path.join(SITE, "east_spot_profile.csv"))
 
 # %%
 obs_csv = os.path.join(WORK, "observations.csv")
-field.main([os.path.join(SITE, "runs.csv"), "--blocks", os.path.join(SITE, "blocks.csv"),
-            "--profile", os.path.join(SITE, "profile.csv"),
-            "--profile", os.path.join(SITE, "east_spot_profile.csv"),
-            "--source", "Tschamut 2014 (Volkwein & Gerber 2018, EnviDat, "
-            "doi:10.16904/envidat.34)", "--out", obs_csv])
-obs = pd.read_csv(obs_csv)
+field_rows = observations_on_profiles(
+    load_runs(os.path.join(SITE, "runs.csv"), os.path.join(SITE, "blocks.csv")),
+    [os.path.join(SITE, "profile.csv"), os.path.join(SITE, "east_spot_profile.csv")], WORK,
+    source="Tschamut 2014 (Volkwein & Gerber 2018, EnviDat, doi:10.16904/envidat.34)")
+with open(obs_csv, "w") as fh:  # what python -m calib.field writes
+    fh.write(observations_csv_text(field_rows))
+observed = load_observations(obs_csv)  # read back and checked (calib.files.observations)
+obs = pd.DataFrame({k: getattr(observed, k) for k in ("block_size_m", "runout_m", "release_x_m",
+                                                   "release_height_m", "profile")})
 on_spot = obs.profile.str.endswith("east_spot_profile.csv").to_numpy()
 print(obs.groupby("block_size_m").runout_m.describe()[["count", "min", "50%", "max"]])
 print(f"release heights above the profile's ground: {obs.release_height_m.min():.2f} to "
@@ -181,28 +191,29 @@ plt.show()
 # %%
 if RESULTS:
     out = RESULTS
+    calfile = CalibrationFile.from_json(os.path.join(out, "calibration.json"))
+    val = read_summary(os.path.join(out, "validation", "validation.json"))
 else:
     out = os.path.join(WORK, "fit")
-    calib_fit.main([obs_csv, "--profile", os.path.join(SITE, "profile.csv"), "--model", "crsp",
-                    "--holdout-fraction", str(HOLDOUT_FRACTION), "--seed", str(SEED),
-                    "--out", out, "--no-progress"] + (["--quick"] if QUICK else []))
-cal = CalibrationFile.from_json(os.path.join(out, "calibration.json")).doc  # the one reader
-with open(os.path.join(out, "validation", "validation.json")) as fh:
-    val = json.load(fh)
+    run = run_fit(obs_csv, out, profile=os.path.join(SITE, "profile.csv"), models=("crsp",),
+                  holdout_fraction=HOLDOUT_FRACTION, seed=SEED, quick=QUICK, report=print)
+    calfile = run.calibration
+    # the posterior's predictive check (out/validation/) and the point estimate's
+    val = validate_heldout(out, "crsp", SEED)[0][0]
+crsp = calfile.summary("crsp")  # the typed CRSP section
 
 # %% [markdown]
 # ## 5. What the calibration says, and whether to trust it
 
 # %%
-crsp = cal["crsp"]
-print(pd.DataFrame([{"parameter": n, "estimate": crsp[n]["map"], "mean": crsp[n]["mean"],
-                     "90 % interval": f"{crsp[n]['q05']:.3g} - {crsp[n]['q95']:.3g}",
-                     "prior": f"{crsp['prior'][n][0]:g} - {crsp['prior'][n][1]:g}"}
-                    for n in crsp["parameters"]]).to_string(index=False))
-print("\nposterior diagnostics ok:", crsp["bayes"]["ok"])
-for p in crsp["bayes"]["problems"]:
+print(pd.DataFrame([{"parameter": n, "estimate": s.map, "mean": s.mean,
+                     "90 % interval": f"{s.q05:.3g} - {s.q95:.3g}",
+                     "prior": f"{crsp.prior[n][0]:g} - {crsp.prior[n][1]:g}"}
+                    for n, s in crsp.parameters.items()]).to_string(index=False))
+print("\nposterior diagnostics ok:", crsp.diagnostics_ok)
+for p in crsp.problems:
     print("  -", p)
-ad = crsp["adequacy"]
+ad = crsp.adequacy
 print("\ncan the model fit these rows?", "yes" if ad["ok"] else "NO")
 for p in ad["problems"]:
     print("  -", p)

@@ -140,3 +140,20 @@ def test_notebook_01_calibration_runs(quick_run, tmp_path):
     text = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code"
                    for o in c.get("outputs", []))
     assert "Kn" in text and "Table 1" in text and "prior range" in text
+
+
+def test_run_fit_refuses_bad_input_in_one_line_and_writes_nothing(tmp_path):
+    """run_fit (the command's work, what the notebooks call): a bad row or an effect
+    with the DEM is one CliError line before anything runs; nothing is written."""
+    from calib.fit import run_fit
+    from solvers.cli import CliError
+
+    bad = tmp_path / "rows.csv"
+    bad.write_text("block_size_m,runout_m,runout_sd_m\n0.2,abc,15\n")
+    out = tmp_path / "out"
+    with pytest.raises(CliError, match=r"rows.csv: line 2.*runout_m"):
+        run_fit(str(bad), str(out), profile=PROFILE)
+    with pytest.raises(CliError, match="--effect fragmentation: effects are fitted with "
+                                       "--model crsp only"):
+        run_fit(DATA, str(out), effects=("fragmentation",))
+    assert not out.exists()

@@ -196,3 +196,39 @@ def test_a_calibration_with_bad_dem_numerics_is_refused(tmp_path, key, value, me
         json.dump(doc, fh)
     with pytest.raises(CalibrationError, match=message):
         load_calibration(path, "dem")
+
+
+def test_summary_reads_each_model_section_typed(tmp_path):
+    """CalibrationFile.summary: each parameter's map/mean/q05/q95 as written, the
+    prior box, the diagnostics and (DEM) alpha(L) with the published values,
+    keyed by the side in metres; a model the file lacks is refused."""
+    from calib.files.calibration_file import CalibrationError, CalibrationFile
+
+    box = CRSP_ROLLING_BOX
+    samples = _box_points(box, 40, 0)
+    est = samples.mean(axis=0)
+    with open(_write_fit(str(tmp_path), "crsp", box, est, samples)) as fh:
+        doc = json.load(fh)
+    doc.update(data_csv="rows.csv", seed=0)
+    s = CalibrationFile.from_dict(doc, str(tmp_path / "calibration.json")).summary("crsp")
+    assert tuple(s.parameters) == tuple(box.names)
+    kn = s.parameters["Kn"]
+    assert kn.map == est[0] and kn.q05 == pytest.approx(np.quantile(samples[:, 0], 0.05))
+    assert kn.mean == pytest.approx(samples[:, 0].mean())
+    assert s.prior["Kn"] == (float(box.lo[0]), float(box.hi[0]))
+    assert s.diagnostics_ok is True and s.problems == () and s.alpha_form == ""
+    assert s.alpha_at_L == {} and s.alpha_reference == {}
+
+    dbox = DEM_BOXES["power"]
+    dsamples = _box_points(dbox, 10, 1)
+    with open(_write_fit(str(tmp_path), "dem", dbox, dsamples[0], dsamples, "power")) as fh:
+        ddoc = json.load(fh)
+    ddoc.update(data_csv="rows.csv", seed=0)
+    ddoc["dem"]["alpha_at_L"] = {"0.2": {"map": 0.8, "mean": 0.7, "q05": 0.6, "q95": 0.9,
+                                         "reference": 0.9}}
+    d = CalibrationFile.from_dict(ddoc).summary("dem")
+    assert d.alpha_form == "power" and tuple(d.parameters) == ("a", "b")
+    assert d.parameters["a"].map == dsamples[0][0]
+    assert d.alpha_at_L[0.2].q95 == 0.9 and d.alpha_reference == {0.2: 0.9}
+    with pytest.raises(CalibrationError, match="no 'crsp' section"):
+        CalibrationFile.from_dict(ddoc).summary("crsp")

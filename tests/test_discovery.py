@@ -715,3 +715,52 @@ def test_the_naming_bar_is_raised_for_the_candidates_compared():
     assert four["named"] == "none" and four["best"] == "e" and four["n_compared"] == 4
     first = _step_record(1, (), {"e": fit(d), **others}, base, n, None)
     assert first["named"] == "e" and first["z"] == 2.0
+
+
+def test_candidate_set_is_the_commands_choice_of_candidates():
+    """candidate_set (what calib.discover and the notebook run): every CRSP effect
+    after the baseline, combinable; the DEM's default pair, not combinable; the
+    rolling baseline leaves the rolling_resistance effect out; bad choices are
+    refused naming the option."""
+    from calib.discovery.candidates import DEM_DEFAULT, candidate_set
+    from calib.model.effects import CRSP_EFFECTS
+
+    cands, combine = candidate_set("crsp", None, PROFILE)
+    assert [c.effect for c in cands] == list(CRSP_EFFECTS) and combine is not None
+    assert combine(("fragmentation",)).effect == "fragmentation"
+    cands, combine = candidate_set("dem", None, PROFILE)
+    assert tuple(c.effect for c in cands) == DEM_DEFAULT and combine is None
+    cands, _ = candidate_set("crsp", "fragmentation", PROFILE, "fit")
+    assert [c.effect for c in cands] == ["none", "fragmentation"]
+    assert "rolling_resistance" not in [c.effect for c in candidate_set(
+        "crsp", None, PROFILE, "fit")[0]]
+    for args, needle in ((("crsp", "foo"), "--effects: foo"),
+                         (("crsp", ""), r"--effects: \(empty\)"),
+                         (("dem", None, "fit"), "--rolling-resistance fit"),
+                         (("crsp", ["rolling_resistance"], "fit"), "already fits")):
+        model, effects, *rolling = args
+        with pytest.raises(ValueError, match=needle):
+            candidate_set(model, effects, PROFILE, *rolling)
+
+
+def test_synthetic_rows_written_by_the_library_read_back_as_the_command_writes(tmp_path):
+    """observations_csv_text / velocities_csv_text (calib.synth's files): the rows
+    load back rounded to 1 mm (1 mm/s), sizes and tolerances exact."""
+    from calib.discovery.synthetic import observations_csv_text, velocities_csv_text
+    from calib.files.observations import Velocities, load_observations, load_velocities
+
+    obs = Observations.points([0.2, 0.7, 2.0], [101.23456, 150.0004, 219.9996], 5.0)
+    path = tmp_path / "rows.csv"
+    path.write_text(observations_csv_text(obs, 3))
+    back = load_observations(str(path))
+    np.testing.assert_array_equal(back.block_size_m, obs.block_size_m)
+    np.testing.assert_array_equal(back.runout_m, [101.235, 150.0, 220.0])
+    np.testing.assert_array_equal(back.runout_sd_m, obs.runout_sd_m)
+    assert all("seed 3" in s for s in back.source)
+    vel = Velocities(np.array([110.0, 110.0]), np.array([0.2, 2.0]),
+                     np.array([12.34567, 20.0]), np.array([1.0, 1.0]), ("", ""))
+    vpath = tmp_path / "speeds.csv"
+    vpath.write_text(velocities_csv_text(vel, 3))
+    vback = load_velocities(str(vpath))
+    np.testing.assert_array_equal(vback.velocity_m_s, [12.346, 20.0])
+    np.testing.assert_array_equal(vback.station_x_m, vel.station_x_m)

@@ -16,7 +16,9 @@ from calib.files.field_runs import (
     crsp_shape,
     field_observations,
     load_runs,
+    observations_csv_text,
     sphere_diameter_m,
+    take_runs,
 )
 from calib.files.observations import ObservationError, load_observations
 from terrain.plan_line import read_profile_trace
@@ -246,3 +248,26 @@ def test_runs_go_on_the_profile_nearest_their_release(capsys):
     off = np.abs(df["release_offset_m"].to_numpy(float))
     assert off[east].max() < 2.5 and off[~east].max() < 21.0
     assert obs.release_height_m[east].min() > 0.0
+
+
+def test_observations_on_profiles_is_what_the_command_writes(tmp_path, capsys):
+    """The library call (``observations_on_profiles``, what the notebook runs) gives
+    the rows the command writes, each run on the profile nearest its release, with
+    the profile column relative to the table's folder; a profile no run's release
+    is nearest to is refused."""
+    from calib.files.field_runs import observations_on_profiles
+
+    source = "Tschamut 2014 (Volkwein & Gerber 2018, EnviDat, doi:10.16904/envidat.34)"
+    profiles = [f"{DATA}/profile.csv", f"{DATA}/east_spot_profile.csv"]
+    runs = load_runs(f"{DATA}/runs.csv", f"{DATA}/blocks.csv")
+    rows = observations_on_profiles(runs, profiles, str(tmp_path), source=source)
+    out = str(tmp_path / "cli.csv")
+    rc, _, err = _cli([f"{DATA}/runs.csv", "--blocks", f"{DATA}/blocks.csv", "--profile",
+                       profiles[0], "--profile", profiles[1], "--source", source, "--out", out],
+                      capsys)
+    assert rc == 0, err
+    assert observations_csv_text(rows) == _read(out)
+    on = [os.path.abspath(os.path.join(tmp_path, r["profile"])) for r in rows]
+    assert sorted(set(on)) == sorted(os.path.abspath(p) for p in profiles)
+    with pytest.raises(FieldError, match="east_spot_profile.csv: no run's release"):
+        observations_on_profiles(take_runs(runs, [0]), profiles, str(tmp_path))

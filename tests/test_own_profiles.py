@@ -200,17 +200,13 @@ def test_split_rows_keep_their_profiles(tmp_path, capsys):
     """``calib.fit --holdout-fraction`` writes the row files into --out: their
     profile column is rewritten relative to it, so that the held-out rows
     (``calib.validate``) and the calibration rows still name the same files."""
-    import argparse
-
     from calib.fit import _split
 
     out = tmp_path / "results"
     out.mkdir()
     obs = load_observations(f"{DATA}/observations.csv")
     files = {}
-    args = argparse.Namespace(holdout_fraction=0.3, seed=1, data=f"{DATA}/observations.csv",
-                              out=str(out))
-    fit_obs, _ = _split(args, obs, files)
+    fit_obs, _ = _split(f"{DATA}/observations.csv", str(out), 0.3, 1, obs, files, print)
     for name in ("calibration_rows.csv", "heldout_rows.csv"):
         (out / name).write_text(files[name])
     held = load_observations(out / "heldout_rows.csv")

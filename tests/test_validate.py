@@ -295,15 +295,13 @@ def test_calibrate_without_groups_is_the_one_release_grouping():
                   obs, jax.random.key(4), ("gradient",), budget)
 
 
-def test_fit_checks_the_posterior_and_the_point_estimate(tmp_path, capsys):
+def test_fit_checks_the_posterior_and_the_point_estimate(tmp_path):
     """After a Bayesian fit, ``calib.fit --holdout-fraction`` scores the
     posterior predictive (validation/) and the point estimate alone
     (validation/point_estimate/, 2000 CRSP blocks per row group): on Tschamut a
     posterior that failed its checks scored skill -2.04 where its estimate
     scored -0.08."""
-    import argparse
-
-    from calib.fit import _validate
+    from calib.fit import validate_heldout
 
     rng = np.random.default_rng(0)
     post = np.column_stack([rng.uniform(0.3, 0.5, 60), rng.uniform(0.8, 0.9, 60),
@@ -311,11 +309,27 @@ def test_fit_checks_the_posterior_and_the_point_estimate(tmp_path, capsys):
     write_calibration(tmp_path, crsp_posterior=post)
     (tmp_path / "heldout_rows.csv").write_text(
         "block_size_m,runout_m,runout_sd_m\n0.2,110,15\n2.0,220,15\n")
-    args = argparse.Namespace(out=str(tmp_path), method="both", seed=0)
-    _validate(args, ["crsp"])
+    done = validate_heldout(str(tmp_path), "crsp", 0, posterior=True)
+    assert [folder for _, folder in done] == [str(tmp_path / "validation"),
+                                              str(tmp_path / "validation" / "point_estimate")]
     main_check = json.loads((tmp_path / "validation" / "validation.json").read_text())
     point = json.loads((tmp_path / "validation" / "point_estimate" /
                         "validation.json").read_text())
+    assert [s["n_draws"] for s, _ in done] == [main_check["n_draws"], point["n_draws"]]
     assert main_check["draws"] == "posterior" and main_check["n_draws"] == 50
     assert point["draws"] == "point estimate" and point["n_blocks_per_draw_and_group"] == 2000
-    assert "point estimate: 1 draws x 2000 blocks" in capsys.readouterr().out
+
+
+def test_read_summary_checks_the_schema(tmp_path):
+    """read_summary (the notebooks' reader of validation.json) hands back the summary
+    of the schema run_validation writes, and refuses another file."""
+    from calib.validate import SCHEMA, read_summary
+
+    good = tmp_path / "validation.json"
+    good.write_text(json.dumps({"schema": SCHEMA, "n_scored": 3}))
+    assert read_summary(str(good))["n_scored"] == 3
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"schema": "rockfall-calibration/1"}))
+    for path, needle in ((other, "schema"), (tmp_path / "missing.json", "cannot read")):
+        with pytest.raises(ValueError, match=needle):
+            read_summary(str(path))

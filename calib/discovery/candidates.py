@@ -6,7 +6,9 @@ each effect of ``calib.model.effects``, all simulated by
 ``calib.model.forward.CrspForward`` (the effects run inside the solver,
 ``solvers.crsp._effects``). ``crsp_model`` builds the baseline with several
 effects at once, the models of discovery's later steps. DEM: see
-``calib.discovery.dem_candidates``.
+``calib.discovery.dem_candidates``. ``candidate_set`` chooses the candidates
+of a run by model and effect names (``python -m calib.discover``'s
+``--model``, ``--effects`` and ``--rolling-resistance``).
 """
 
 from __future__ import annotations
@@ -14,11 +16,15 @@ from __future__ import annotations
 import functools
 
 from calib.discovery.candidate_fit import Candidate
-from calib.model.effects import CRSP_EFFECTS, effect_names, full_box, model_label
+from calib.model.effects import CRSP_EFFECTS, DEM_EFFECTS, effect_names, full_box, model_label
 from calib.model.forward import CrspForward
-from calib.model.priors import CRSP_BOX, Box, has_rolling
+from calib.model.priors import CRSP_BOX, CRSP_ROLLING_BOX, Box, has_rolling
 
-__all__ = ["crsp_candidates", "crsp_model"]
+__all__ = ["DEM_DEFAULT", "candidate_set", "crsp_candidates", "crsp_model"]
+
+# The DEM's fragmentation candidate (2 x 2 bonded fragments) is opt-in: on
+# Postignano its 12-point grid took 1548 s of a 1738 s run (2 cores, under load).
+DEM_DEFAULT = ("none", "size_dissipation")
 
 
 def _crsp_forward(profile, effect, base, entries, n_blocks, key, stations_x_m=()):
@@ -46,3 +52,56 @@ def crsp_candidates(profile, effects=CRSP_EFFECTS, base: Box = CRSP_BOX) -> list
     if has_rolling(base.names):
         names = [e for e in names if e != "rolling_resistance"]
     return [crsp_model(profile, e, base) for e in names]
+
+
+def candidate_set(model: str, effects=None, profile=None, rolling: str = "profile"):
+    """The candidates of one discovery run and how later steps combine effects.
+
+    Args:
+        model: "crsp" or "dem".
+        effects: effect names to try (a sequence, or one comma-separated text);
+            None: every CRSP effect, or ``DEM_DEFAULT`` for the DEM.
+        profile: the slope profile (``solvers.profile.Profile``).
+        rolling: CRSP baseline: "profile" (the profile's per-zone rolling
+            resistance, Kn, Kt, S fitted) or "fit" (the rolling resistance angle
+            fitted too, ``CRSP_ROLLING_BOX``; the ``rolling_resistance`` effect is
+            then part of the baseline and left out).
+
+    Returns:
+        (candidates, baseline first, as ``calib.discovery.discrepancy.discover``
+        takes them; ``combine``: effects -> the baseline with them, for the
+        later steps, or None for the DEM, whose candidates cannot be combined).
+
+    Raises:
+        ValueError: an effect the model does not have, none at all, or a
+            choice that contradicts ``rolling`` (the message names the option
+            of ``python -m calib.discover`` that gives it).
+    """
+    allowed = CRSP_EFFECTS if model == "crsp" else DEM_EFFECTS
+    if effects is None:
+        chosen = list(allowed) if model == "crsp" else list(DEM_DEFAULT)
+    else:
+        parts = effects.split(",") if isinstance(effects, str) else effects
+        chosen = [e.strip() for e in parts if e.strip()]
+        bad = [e for e in chosen if e not in allowed]
+        if bad or not chosen:
+            raise ValueError(f"--effects: {', '.join(bad) or '(empty)'}: expected effects of "
+                             f"the {model} model among "
+                             f"{', '.join(a for a in allowed if a != 'none')}")
+    if model == "crsp":
+        if rolling == "fit":
+            if effects is not None and "rolling_resistance" in chosen:
+                raise ValueError("--effects rolling_resistance: with --rolling-resistance fit "
+                                 "the baseline already fits the rolling resistance angle; "
+                                 "leave it out or use --rolling-resistance profile")
+            base = CRSP_ROLLING_BOX
+        else:
+            base = CRSP_BOX
+        return (crsp_candidates(profile, chosen, base),
+                functools.partial(crsp_model, profile, base=base))
+    if rolling == "fit":
+        raise ValueError("--rolling-resistance fit: the rolling resistance is a CRSP "
+                         "parameter; the DEM candidates have none")
+    from calib.discovery.dem_candidates import dem_candidates
+
+    return dem_candidates(profile, chosen), None

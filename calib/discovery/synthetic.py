@@ -20,7 +20,8 @@ import numpy as np
 from calib.files.observations import Observations, Velocities
 from calib.model.forward import CrspForward, DemForward
 
-__all__ = ["SYNTH_SIZES_M", "synthesize", "synthesize_effect", "synthesize_velocities"]
+__all__ = ["SYNTH_SIZES_M", "observations_csv_text", "synthesize", "synthesize_effect",
+           "synthesize_velocities", "velocities_csv_text"]
 
 # size classes of synthetic data with hidden effects (0.2-2.0 m, the paper's range)
 SYNTH_SIZES_M = (0.2, 0.4, 0.7, 1.0, 1.4, 2.0)
@@ -169,3 +170,23 @@ def synthesize_velocities(profile, effect: str, strength: float, n_obs: int, see
     d = np.array([sizes[i] for _, i in rows])
     return Velocities(x, d, np.maximum(v + noise, 0.0), np.full(n_obs, float(sd_m_s)),
                       (f"synthetic (crsp, effect {effect}, seed {seed})",) * n_obs)
+
+
+def observations_csv_text(obs: Observations, seed: int) -> str:
+    """Synthetic rows as an observations CSV (the schema of ``data/postignano.csv``,
+    ``calib.files.observations``): runouts to 1 mm, each row's source naming
+    the seed. What ``python -m calib.synth`` writes and the workflow reads."""
+    lines = ["block_size_m,runout_m,runout_sd_m,runout_min_m,runout_max_m,source"]
+    lines += [f"{d:g},{y:.3f},{s:g},,,synthetic: calib.synth seed {seed}"
+              for d, y, s in zip(obs.block_size_m, obs.runout_m, obs.runout_sd_m)]
+    return "\n".join(lines) + "\n"
+
+
+def velocities_csv_text(vel: Velocities, seed: int) -> str:
+    """Synthetic passage speeds as a CSV of ``calib.files.observations.load_velocities``
+    (speeds to 1 mm/s, each row's source naming the seed)."""
+    lines = ["station_x_m,block_size_m,velocity_m_s,velocity_sd_m_s,source"]
+    lines += [f"{x:g},{d:g},{v:.3f},{s:g},synthetic: calib.synth seed {seed}"
+              for x, d, v, s in zip(vel.station_x_m, vel.block_size_m, vel.velocity_m_s,
+                                    vel.velocity_sd_m_s)]
+    return "\n".join(lines) + "\n"

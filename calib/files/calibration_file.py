@@ -57,8 +57,8 @@ from solvers.dem import check_run_numerics
 from solvers.material import ROCK_DENSITY_KG_M3
 
 __all__ = ["ALPHA_AT_L", "SCHEMA", "Calibration", "CalibrationError", "CalibrationFile", "Draws",
-           "dem_alpha_section", "draw_parameters", "fit_document", "fitted_block_sizes_m",
-           "load_calibration",
+           "ModelSummary", "ParameterSummary", "dem_alpha_section", "draw_parameters",
+           "fit_document", "fitted_block_sizes_m", "load_calibration",
            "model_section", "posterior_csv_text", "summary_stats"]
 
 SCHEMA = "rockfall-calibration/1"
@@ -468,6 +468,53 @@ def draw_parameters(cal: Calibration, n_posterior: int, seed: int) -> Draws:
     return Draws(cal.posterior[rows], cal.names, rows + 1, "posterior")
 
 
+class ParameterSummary(NamedTuple):
+    """One fitted quantity as the file records it (``summary_stats``): the point
+    estimate ``map``, and the posterior ``mean`` and 5 % / 95 % quantiles (None
+    after a gradient-only fit)."""
+
+    map: float
+    mean: float | None
+    q05: float | None
+    q95: float | None
+
+
+class ModelSummary(NamedTuple):
+    """One model's section of the file, as a reader shows it (``CalibrationFile.summary``).
+
+    Attributes:
+        parameters: name -> ``ParameterSummary``, in the file's order (DEM: the
+            alpha law's ``a``, ``b`` or ``alpha``).
+        prior: name -> (lower, upper) of the prior box.
+        alpha_form: DEM: "power" or "constant"; "" for CRSP.
+        alpha_at_L: DEM: square side L (m) -> alpha(L) as a ``ParameterSummary``;
+            {} for CRSP.
+        alpha_reference: DEM: L -> the published alpha the site file gives
+            there (``calib.files.site``); {} where it gives none.
+        diagnostics_ok: the posterior passed its diagnostics; None without a
+            Bayesian fit.
+        problems: the diagnostics that failed, in words.
+        adequacy: the adequacy record (``calib.inference.adequacy``), or None.
+        fit_quality: one record per observed row (``calib.inference.fit_check``).
+        timings_s: stage -> seconds.
+    """
+
+    parameters: dict
+    prior: dict
+    alpha_form: str
+    alpha_at_L: dict
+    alpha_reference: dict
+    diagnostics_ok: bool | None
+    problems: tuple[str, ...]
+    adequacy: dict | None
+    fit_quality: list
+    timings_s: dict
+
+
+def _parameter_summary(entry: dict) -> ParameterSummary:
+    return ParameterSummary(entry["map"], entry.get("mean"), entry.get("q05"), entry.get("q95"))
+
+
 @dataclasses.dataclass
 class CalibrationFile:
     """The whole calibration file, as ``calib.fit`` writes it and everyone reads it.
@@ -538,6 +585,47 @@ class CalibrationFile:
         for m in out.models:
             _model_from_doc(path, doc, m)
         return out
+
+    @property
+    def command(self) -> str | None:
+        """The command line of the fit (key ``command``)."""
+        return self.record.get("command")
+
+    @property
+    def quick(self) -> bool:
+        """The fit ran with the small budgets (key ``quick``)."""
+        return bool(self.record.get("quick"))
+
+    @property
+    def timings_s(self) -> dict:
+        """Stage times per model and ``total_s``, s (key ``timings_s``)."""
+        return self.record.get("timings_s", {})
+
+    def summary(self, model: str) -> ModelSummary:
+        """The section of ``model`` ("crsp" or "dem") as a ``ModelSummary``."""
+        if model not in self.models:
+            raise CalibrationError(f"{self.path or '<calibration>'}: no {model!r} section "
+                                   f"(this file calibrates {', '.join(self.models)})")
+        sec = self.models[model]
+        for key in ("parameters", "prior"):
+            if key not in sec:
+                raise CalibrationError(f"{self.path or '<calibration>'}: key "
+                                       f"'{model}.{key}' missing")
+        law = sec.get("alpha_law") or {}
+        values = law if model == "dem" else sec
+        at_l = sec.get("alpha_at_L") or {}
+        bayes = sec.get("bayes")
+        return ModelSummary(
+            {n: _parameter_summary(values[n]) for n in sec["parameters"]},
+            {n: (float(lo), float(hi)) for n, (lo, hi) in sec["prior"].items()},
+            law.get("form", ""),
+            {float(k): _parameter_summary(v) for k, v in at_l.items()},
+            {float(k): v["reference"] for k, v in at_l.items() if "reference" in v},
+            None if bayes is None else bool(bayes["ok"]),
+            () if bayes is None else tuple(bayes["problems"]),
+            sec.get("adequacy"),
+            list(self.record.get("fit_quality", {}).get(model, sec.get("fit_quality", []))),
+            dict(sec.get("timings_s", {})))
 
     def calibration(self, model: str | None = None) -> Calibration:
         """One model's ``Calibration`` (what the hazard run and validate use)."""

@@ -92,6 +92,7 @@ __all__ = [
     "load_runs",
     "nearest_profiles",
     "observations_csv_text",
+    "observations_on_profiles",
     "take_runs",
     "sphere_diameter_m",
 ]
@@ -410,6 +411,51 @@ def nearest_profiles(runs: FieldRuns, traces) -> np.ndarray:
     off = np.stack([np.abs(t.project(runs.release_east_m, runs.release_north_m)[1])
                     for t in traces])
     return np.argmin(off, axis=0)
+
+
+def observations_on_profiles(runs: FieldRuns, profile_paths: Sequence[str],
+                             out_dir: str = ".", **options) -> list[dict]:
+    """One observation row per run (``field_observations``), each run on the
+    profile whose plan trace passes nearest its release (``nearest_profiles``).
+
+    Args:
+        runs: the validated runs (``load_runs``).
+        profile_paths: profile CSVs with plan traces (``python -m terrain.cut``
+            writes them); a path given twice counts once.
+        out_dir: the folder of the observations CSV the rows are for: with
+            more than one profile, each row's ``profile`` is its profile's path
+            relative to it (``calib.files.observations`` resolves it so).
+        **options: ``density_kg_m3``, ``runout_sd_m``, ``max_offset_m``,
+            ``source``, ``columns`` of ``field_observations``.
+
+    Returns:
+        The rows in the runs' order.
+
+    Raises:
+        FieldError: a profile no run's release lies nearest to, or bad runs
+            (``field_observations``); ``terrain.raster.RasterError`` or
+            ``solvers.profile.ProfileError``: a profile that does not read.
+    """
+    from solvers.profile import load_profile
+    from terrain.plan_line import read_profile_trace
+
+    paths = list(dict.fromkeys(profile_paths))
+    traces = [read_profile_trace(p) for p in paths]
+    which = nearest_profiles(runs, [t for _, t in traces])
+    rows: list = [None] * runs.n_runs
+    for k, (path, (x, trace)) in enumerate(zip(paths, traces)):
+        idx = np.flatnonzero(which == k)
+        if not idx.size:
+            raise FieldError(f"--profile {path}: no run's release lies nearer this profile "
+                             "than the others; leave it out")
+        sub = field_observations(take_runs(runs, idx), x, trace, profile_path=path,
+                                 profile_z_m=np.asarray(load_profile(path).z_m), **options)
+        rel = os.path.relpath(path, os.path.abspath(out_dir))
+        for i, r in zip(idx, sub):
+            if len(paths) > 1:
+                r["profile"] = rel
+            rows[i] = r
+    return rows
 
 
 def take_runs(runs: FieldRuns, idx) -> FieldRuns:

@@ -124,6 +124,12 @@ class Inputs:
         return common_release_m(self.obs, self.profile)
 
     @property
+    def release_errors(self) -> tuple[float, float]:
+        """The site's errors (sds) of the tracked release heights and speeds, m and
+        m/s (``calib.files.site``), with which CRSP draws its blocks' releases."""
+        return self.site.release_height_sd_m, self.site.release_speed_sd_m_s
+
+    @property
     def own_releases(self) -> bool:
         """True where the rows give their own release points or profiles."""
         return bool(np.any(np.isfinite(self.obs.release_x_m)) or any(self.obs.profile))

@@ -72,6 +72,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -89,7 +90,7 @@ from calib.model.entries import Entries
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
 
 # Budget and presets are re-exported: the fit driver's API in one place
-__all__ = ["Budget", "ModelFit", "calibrate", "presets"]
+__all__ = ["Budget", "ModelFit", "ModelRun", "calibrate", "fit_model", "presets"]
 
 
 @dataclasses.dataclass
@@ -225,3 +226,70 @@ def _gradient_stage(forward, rows: RowLikelihood, budget: Budget, key: jax.Array
     return fit_gradient(objective, box, np.array(starts), key, n_steps=budget.grad_steps,
                         k=budget.grad_k,
                         progress=lambda i: tick("gradient", i + 1, budget.grad_steps))
+
+
+class ModelRun(NamedTuple):
+    """One model's calibration on a data set (``fit_model``).
+
+    Attributes:
+        fit: the stages' results (``ModelFit``).
+        forward: the forward model fitted (``calib.model.forward.CrspForward`` or
+            ``DemForward``: its prior box, entries and, for the DEM, run numerics).
+        alpha_form: the DEM's damping law ("power" or "constant"); None for CRSP.
+    """
+
+    fit: ModelFit
+    forward: object
+    alpha_form: str | None
+
+
+def fit_model(model: str, inputs, entries: Entries, key: jax.Array, *,
+              methods: tuple[str, ...] = ("gradient", "bayes"), quick: bool = False,
+              rolling_resistance: str = "fit", effects: tuple[str, ...] = (),
+              alpha_law: str = "power",
+              progress: Callable[[str, int, int], None] | None = None) -> ModelRun:
+    """Calibrate one model on a data set's rows, as ``python -m calib.fit`` does.
+
+    Builds the forward model on the rows' ``entries`` with the preset budget
+    (``presets(model, quick)``) and runs ``calibrate``; the check also simulates
+    the sizes of the runout-vs-size figure (CRSP: six sizes from 0.2 to 2.0 m,
+    geometric; DEM: 0.2, 0.9, 2.0 m quick, else 0.2, 0.5, 0.9, 1.4, 2.0 m). A DEM
+    fit is not yet checked against the consumers' alpha-law rule: that is
+    ``calib.model.alpha_law.check_fit``, which ``calib.fit.run_fit`` applies.
+
+    Args:
+        model: "crsp" or "dem".
+        inputs: the data set (``calib.files.inputs.Inputs``).
+        entries: what the rows make the solvers simulate (``Inputs.entries``).
+        key: PRNG key of this model's fit.
+        methods: subset of ("gradient", "bayes").
+        quick: the small budgets (``calib.inference.budget.QUICK``).
+        rolling_resistance: CRSP's prior box: "fit" (``CRSP_ROLLING_BOX``, one
+            rolling resistance angle), "zones" (one angle per material zone of
+            the profiles, ``zoned_rolling_box``) or "profile" (``CRSP_BOX``:
+            the profile's angles).
+        effects: CRSP candidate effects switched on (``calib.model.effects``).
+        alpha_law: DEM damping law, "power" or "constant".
+        progress: optional callable(stage, done, total).
+    """
+    from calib.model.forward import CrspForward, DemForward
+    from calib.model.priors import CRSP_BOX, CRSP_ROLLING_BOX, zoned_rolling_box
+
+    budget = presets(model, quick)
+    profile = inputs.profile
+    if model == "crsp":
+        box = {"fit": CRSP_ROLLING_BOX, "profile": CRSP_BOX}.get(rolling_resistance) \
+            or zoned_rolling_box(dict.fromkeys(
+                z for pr in (profile, *entries.profiles) if pr is not None
+                for z in pr.zone_names))
+        forward = CrspForward(profile, entries, budget.n_blocks_design,
+                              jax.random.fold_in(key, 1), box=box,
+                              effect=tuple(effects) or "none")  # columns after box's
+        extra = np.geomspace(0.2, 2.0, 6)  # the check's sizes for the runout-vs-size figure
+    else:
+        forward = DemForward(profile, entries, budget.n_blocks_design,
+                             jax.random.fold_in(key, 1), form=alpha_law)
+        extra = [0.2, 0.9, 2.0] if quick else [0.2, 0.5, 0.9, 1.4, 2.0]
+    fit = calibrate(forward, inputs.obs, jax.random.fold_in(key, 2), methods, budget, progress,
+                    extra_sizes_m=extra)
+    return ModelRun(fit, forward, alpha_law if model == "dem" else None)

@@ -11,7 +11,7 @@ import numpy as np  # noqa: E402
 
 from calib.model.unfinished import nan_quantile  # noqa: E402
 
-__all__ = ["before_after", "candidates", "residuals"]
+__all__ = ["before_after", "candidates", "discovery_figures", "residuals"]
 
 
 def residuals(obs, where: dict, title: str):
@@ -85,3 +85,23 @@ def before_after(obs, class_sizes, row_class, before, after, named: str, gaps):
     ax.set_title("gap before / after adding the named effect")
     fig.tight_layout()
     return fig
+
+
+def discovery_figures(obs, d, model: str) -> dict:
+    """The three figures of one discovery run ``d`` (``calib.discovery.discrepancy.
+    Discovery``) on rows ``obs`` of ``model``: {"residuals.png": where the baseline
+    disagrees, "candidates.png": the first step's scores, "before_after.png":
+    the gap per size class before and after the named effects}."""
+    from calib.discovery.scores import ELPD_MIN
+
+    base, final = d.fits["none"], d.fits[d.final_model]
+    return {
+        "residuals.png": residuals(obs, d.where_before,
+                                   f"where the baseline ({model}) disagrees: "
+                                   f"{len(d.where_before['flagged'])} flagged"),
+        "candidates.png": candidates(d.table, d.named_effect, ELPD_MIN),
+        "before_after.png": before_after(
+            obs, d.class_sizes_m, d.row_class, base.class_samples,
+            None if not d.named_effects else final.class_samples, d.final_model,
+            (d.gap_before, d.gap_after)),
+    }
