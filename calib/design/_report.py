@@ -164,6 +164,22 @@ def _prob_lines(r: dict) -> list[str]:
     return out + [""]
 
 
+def _angle_lines(r: dict) -> list[str]:
+    a = r.get("impact_angle")
+    if a is None:
+        return ["Not computed: the hazard results hold no velocity directions; give "
+                "--calibration (the hazard run's calibration.json) to simulate them.", ""]
+    h, g = a["below_horizontal_deg"], a["to_ground_deg"]
+    return [f"Of {a['n_crossings']} blocks of D = {a['size_m']:g} m crossing x = "
+            f"{a['x_m']:g} m ({a['n_draws']} draw(s) x {a['n_blocks_per_draw']} blocks, the "
+            "hazard run's draws and seed): inclination of the velocity below the horizontal "
+            f"p5 / p50 / p95 = {_g(h['p5'])} / {_g(h['p50'])} / {_g(h['p95'])} deg (median, "
+            f"5-95 % over draws: {_band(a['median_band_deg'])} deg); to the ground, whose "
+            f"slope there is {_g(a['ground_slope_deg'])} deg: {_g(g['p5'])} / {_g(g['p50'])} / "
+            f"{_g(g['p95'])} deg (0: along the ground). Kits are tested with impacts normal "
+            "to the net (EAD 340059-00-0106).", ""]
+
+
 def design_markdown(r: dict) -> str:
     """``design.md`` from the record of ``calib.design.__main__``."""
     b, d = r["design_block"], r["design"]
@@ -215,6 +231,7 @@ def design_markdown(r: dict) -> str:
         lines += [f"**{r['kit_chosen_by']}: {kit['kit']}** (MEL {kit['mel_kJ']:g} kJ, "
                   f"nominal height {kit['nominal_height_m']:g} m, max elongation "
                   f"{kit['max_elongation_m']:g} m).", ""]
+    lines += ["## Impact angle", ""] + _angle_lines(r)
     lines += ["## Without partial factors", ""]
     lines += _prob_lines(r)
     lines += ["## Residual hazard behind the barrier", ""]

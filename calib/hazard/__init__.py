@@ -36,6 +36,7 @@ from calib.hazard._intensity import (
     intensity_class,
     probability_class,
 )
+from calib.hazard._results import hazard_dataset
 from calib.hazard._run import (
     Barrier,
     HazardCounts,
@@ -64,6 +65,7 @@ __all__ = [
     "dem_alpha",
     "draw_parameters",
     "exceedance_table",
+    "hazard_dataset",
     "hazard_level",
     "hazard_table",
     "hist_exceedance",
