@@ -23,8 +23,21 @@ scans), ``_angles`` (impact angles), ``_residual`` (with and without the barrier
 
 from calib.design._angles import ImpactAngles, impact_angles
 from calib.design._checks import check_kits, impacts, kit_probabilities, smallest_passing
-from calib.design._design import Design, DesignOptions, design_at, design_record, scan_rows
+from calib.design._design import (
+    Design,
+    DesignOptions,
+    best_position,
+    design_at,
+    design_record,
+    scan_rows,
+)
 from calib.design._factors import DEFAULTS, GAMMA_E, SOURCES, Factors, free_board_m
+from calib.design._figures import (
+    distributions_figure,
+    exceedance_figure,
+    profile_figure,
+    scan_figure,
+)
 from calib.design._inputs import DesignError, design_block
 from calib.design._kits import Kit, KitError, load_kits
 from calib.design._residual import residual_exceedance
@@ -43,17 +56,22 @@ __all__ = [
     "ImpactAngles",
     "Kit",
     "KitError",
+    "best_position",
     "check_kits",
     "design_at",
     "design_block",
     "design_record",
     "design_values",
+    "distributions_figure",
+    "exceedance_figure",
     "free_board_m",
     "impact_angles",
     "impacts",
     "kit_probabilities",
     "load_kits",
+    "profile_figure",
     "residual_exceedance",
+    "scan_figure",
     "scan_rows",
     "smallest_passing",
 ]

@@ -15,8 +15,6 @@ from __future__ import annotations
 import math
 import sys
 
-import numpy as np
-
 from calib.design._factors import DEFAULTS, GAMMA_E, free_board_m
 from calib.design._kits import CATEGORIES, KitError, load_kits
 from solvers.cli import (
@@ -120,7 +118,13 @@ def _checked(args) -> int:
 
 
 def _main(args) -> int:
-    from calib.design._design import DesignOptions, design_at, design_record, scan_rows
+    from calib.design._design import (
+        DesignOptions,
+        best_position,
+        design_at,
+        design_record,
+        scan_rows,
+    )
     from calib.design._inputs import (
         design_block,
         factors_from_args,
@@ -184,7 +188,9 @@ def _main(args) -> int:
     rows = scan_rows(ds, block, scan, options) if scan else None
     x = args.barrier_x_m
     if x is None:
-        x = _best(rows)
+        x = best_position(rows)
+        if x is None:
+            raise CliError("--scan-x-m: no simulated block passes any scanned position")
     if with_barrier is not None and not math.isclose(barrier_of(with_barrier)[0], x,
                                                      rel_tol=0.0, abs_tol=1e-6):
         raise CliError(f"--with-barrier {args.with_barrier}: its barrier stands at x = "
@@ -242,16 +248,6 @@ def _impact_angle(ds, args, x_m: float, size_m: float) -> tuple[dict, list[str]]
                       x_m, size_m, args.angle_blocks, int(ds.attrs["seed"]),
                       float(ds.attrs["release_x_m"]))
     return a.record(), warnings
-
-
-def _best(rows: list[dict]) -> float:
-    """The scanned position whose smallest passing kit has the least MEL (then the
-    least E_sd); where no kit passes anywhere, the one of least E_sd."""
-    ok = [r for r in rows if r["kit"] is not None]
-    pool = ok or [r for r in rows if np.isfinite(r["E_sd_kJ"])]
-    if not pool:
-        raise CliError("--scan-x-m: no simulated block passes any scanned position")
-    return min(pool, key=lambda r: (r.get("kit_mel_kJ") or 0.0, r["E_sd_kJ"]))["x_m"]
 
 
 def _write(ds, record: dict, with_barrier, args) -> None:

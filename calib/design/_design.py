@@ -22,7 +22,8 @@ from calib.design._values import DesignBlock, DesignValues, design_values
 from calib.files.hazard_results import json_attr, optional_attr
 from calib.files.provenance import file_sha256, provenance
 
-__all__ = ["Design", "DesignOptions", "design_at", "design_record", "scan_rows"]
+__all__ = ["Design", "DesignOptions", "best_position", "design_at", "design_record",
+           "scan_rows"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -153,6 +154,17 @@ def scan_rows(ds, block: DesignBlock, positions: list[float], options: DesignOpt
                     "kit": kit["kit"] if kit else None,
                     "kit_mel_kJ": kit["mel_kJ"] if kit else None})
     return out
+
+
+def best_position(rows: list[dict]) -> float | None:
+    """The scanned position (``scan_rows``) whose smallest passing kit has the least MEL,
+    then the least E_sd; where no kit passes anywhere, the one of least E_sd; None
+    where no simulated block passes any position."""
+    ok = [r for r in rows if r["kit"] is not None]
+    pool = ok or [r for r in rows if math.isfinite(r["E_sd_kJ"])]
+    if not pool:
+        return None
+    return min(pool, key=lambda r: (r.get("kit_mel_kJ") or 0.0, r["E_sd_kJ"]))["x_m"]
 
 
 def design_at(ds, x_m: float, block: DesignBlock, options: DesignOptions) -> Design:

@@ -36,7 +36,7 @@ from calib.hazard._intensity import (
     intensity_class,
     probability_class,
 )
-from calib.hazard._results import hazard_dataset
+from calib.hazard._results import calibration_record, hazard_dataset
 from calib.hazard._run import (
     Barrier,
     HazardCounts,
@@ -60,6 +60,7 @@ __all__ = [
     "DemRun",
     "Draws",
     "HazardCounts",
+    "calibration_record",
     "check_dem_draws",
     "default_release_x_m",
     "dem_alpha",
