@@ -73,6 +73,7 @@ class Design:
             ``P_E_gt_capacity_mean`` and ``P_h_gt_nominal_height_mean`` (mean over
             draws, no partial factors; None where the kit has no such energy).
         kit: the record of the checked or chosen kit, None where none passes.
+        chosen_kit: that kit's catalogue row (``Kit``), None where none passes.
         chosen_by: how ``kit`` was chosen.
         unfactored: for ``kit``, name -> {"per_draw", "mean", "q05", "q95"}:
             P(E > capacity), P(E > MEL), P(h > nominal height) given reach.
@@ -87,6 +88,7 @@ class Design:
     values: DesignValues
     kits: list[dict]
     kit: dict | None
+    chosen_kit: Kit | None
     chosen_by: str
     unfactored: dict
     impacts: dict | None
@@ -188,7 +190,7 @@ def design_at(ds, x_m: float, block: DesignBlock, options: DesignOptions) -> Des
     kit = next((k for k in o.kits if kit_row and k.name == kit_row["kit"]), None)
     rate = optional_attr(ds, "release_rate_per_year")
     return Design(
-        values=dv, kits=rows, kit=kit_row, chosen_by=chosen_by,
+        values=dv, kits=rows, kit=kit_row, chosen_kit=kit, chosen_by=chosen_by,
         unfactored=kit_probabilities(ds, dv, kit, o.energy_level) if kit else {},
         impacts=(impacts(ds, dv, kit, rate, o.inspection_interval_yr)
                  if kit is not None and rate is not None else None),
