@@ -176,8 +176,9 @@ def _angle_lines(r: dict) -> list[str]:
             f"p5 / p50 / p95 = {_g(h['p5'])} / {_g(h['p50'])} / {_g(h['p95'])} deg (median, "
             f"5-95 % over draws: {_band(a['median_band_deg'])} deg); to the ground, whose "
             f"slope there is {_g(a['ground_slope_deg'])} deg: {_g(g['p5'])} / {_g(g['p50'])} / "
-            f"{_g(g['p95'])} deg (0: along the ground). Kits are tested with impacts normal "
-            "to the net (EAD 340059-00-0106).", ""]
+            f"{_g(g['p95'])} deg (0: along the ground). Angles in the profile's vertical plane "
+            "only (2D: the angle across the slope is not modelled). Kits are tested with "
+            "impacts normal to the net (EAD 340059-00-0106).", ""]
 
 
 def design_markdown(r: dict) -> str:
