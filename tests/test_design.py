@@ -234,6 +234,8 @@ def test_command_writes_the_sheet(hazard, tmp_path, capsys):
     for text in ("NOT a product", "gamma_Tr", "unverified", "2D", "lateral spread",
                  "generic-4500kJ", "Monte Carlo error", "No flag raised", "[R]"):
         assert text in md, text
+    v_err = rec["mc"]["v_p_m_s"]["rel_half_width"]
+    assert f"| {200 * v_err:.2g} % (twice the speed's: E_sd ~ v_p^2) |" in md
     assert "generic-4500kJ" in cap.out
 
 

@@ -95,6 +95,10 @@ def _values_table(r: dict) -> list[str]:
            "(median) |", "|---|---|---|---|---|---|---|"]
     for name, ch, fac, des, band, m in rows:
         err = draw = ""
+        if name.startswith("energy E, translational"):  # E_sd ~ v_p^2: twice v_p's
+            v = mc["v_p_m_s"]
+            err = f"{_g(200 * v['rel_half_width'], 2)} % (twice the speed's: E_sd ~ v_p^2)"
+            draw = f"{_g(200 * v['per_draw_median_rel_half_width'], 2)} %"
         if m is not None:
             err = f"{_g(100 * m['rel_half_width'], 2)} % " + (
                 "(target 2 % met)" if m["met"] else
