@@ -234,6 +234,8 @@ def test_command_writes_the_sheet(hazard, tmp_path, capsys):
     for text in ("NOT a product", "gamma_Tr", "unverified", "2D", "lateral spread",
                  "generic-4500kJ", "Monte Carlo error", "No flag raised", "[R]"):
         assert text in md, text
+    v_err = rec["mc"]["v_p_m_s"]["rel_half_width"]
+    assert f"| {200 * v_err:.2g} % (twice the speed's: E_sd ~ v_p^2) |" in md
     assert "generic-4500kJ" in cap.out
 
 
@@ -389,3 +391,28 @@ def test_hazard_file_of_another_schema_exit_2_in_a_real_process(hazard, tmp_path
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and "old.nc: attribute 'schema'" in r.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_percentile_99_option_designs_on_the_99th(hazard, tmp_path, capsys):
+    """--percentile 99 (ONR 24810): v_d and h_d from the exact 99th percentiles of the
+    pooled passers (0.23 % bins), the sheet says p99, and its Monte Carlo error is the
+    99th's (wider than the 95th's on the same blocks)."""
+    path, ds = hazard
+    samples = _samples()
+    pool = {q: np.concatenate([samples[(d, 1, 2)][q] for d in range(4)])
+            for q in ("velocity_m_s", "bounce_height_m")}
+    out = tmp_path / "p99"
+    code, _ = _run([path, "--barrier-x-m", "100", "--kits", KITS, "--out", str(out),
+                    "--percentile", "99"], capsys)
+    assert code == 0
+    rec = json.loads((out / "design.json").read_text())
+    speed = DEFAULTS.gamma_Tr * DEFAULTS.gamma_Dp
+    v99 = np.quantile(pool["velocity_m_s"], 0.99, method="inverted_cdf")
+    h99 = np.quantile(pool["bounce_height_m"], 0.99, method="inverted_cdf") + 2.0
+    assert rec["percentile"] == 99.0
+    assert rec["design"]["v_d_m_s"] == pytest.approx(v99 * speed, rel=2.3e-3)
+    assert rec["design"]["h_d_m"] == pytest.approx(h99 * speed, rel=2.3e-3)
+    block, _ = design_block(ds, path)
+    p95 = design_values(ds, 100.0, block, DEFAULTS, 95.0, 1.0)
+    assert rec["mc"]["h_p_m"]["rel_half_width"] > p95.mc["h_p_m"]["rel_half_width"]
+    assert "| p99 simulated |" in (out / "design.md").read_text()

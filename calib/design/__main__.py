@@ -15,8 +15,6 @@ from __future__ import annotations
 import math
 import sys
 
-import numpy as np
-
 from calib.design._factors import DEFAULTS, GAMMA_E, free_board_m
 from calib.design._kits import CATEGORIES, KitError, load_kits
 from solvers.cli import (
@@ -95,6 +93,11 @@ def build_parser() -> OneLineParser:
                    "position (python -m calib.hazard --barrier-x-m X --barrier-height-m H "
                    "--barrier-capacity-kJ E, same seed and draws): its exceedance and reach at "
                    "the station of interest, with bands, beside the run without it")
+    p.add_argument("--calibration", help="calibration.json of the hazard run (CRSP): the "
+                   "impact angle at the barrier from a run of the hazard file's draws with "
+                   "the barrier element (default: no impact angle)")
+    p.add_argument("--angle-blocks", type=int, default=2000,
+                   help="blocks per draw of the impact-angle run (with --calibration)")
     p.add_argument("--out", default="results/design/", help="output folder")
     return p
 
@@ -115,7 +118,13 @@ def _checked(args) -> int:
 
 
 def _main(args) -> int:
-    from calib.design._design import design_record, scan_rows
+    from calib.design._design import (
+        DesignOptions,
+        best_position,
+        design_at,
+        design_record,
+        scan_rows,
+    )
     from calib.design._inputs import (
         design_block,
         factors_from_args,
@@ -164,37 +173,81 @@ def _main(args) -> int:
                             f"(D = {block.size_m:g} m) lie outside the block sizes the "
                             "calibration was fitted on: extrapolation")
     try:
-        board = free_board_m(block.size_m, args.free_board_m)
+        free_board_m(block.size_m, args.free_board_m)
     except ValueError as exc:
         raise CliError(str(exc)) from None
+    options = DesignOptions(
+        kits=kits, factors=factors, percentile=args.percentile, energy_level=args.energy_level,
+        free_board_m=args.free_board_m, kit=args.kit,
+        protected_distance_m=args.protected_distance_m,
+        min_residual_category=args.min_residual_category,
+        inspection_interval_yr=args.inspection_interval_yr, hazard_name=args.hazard)
     scan = (scan_positions(ds, args.hazard, parse_stations(args.scan_x_m, profile_range(ds),
                                                            "--scan-x-m"))
             if args.scan_x_m else [])
-    options = dict(kits=kits, factors=factors, free_board=board, args=args)
     rows = scan_rows(ds, block, scan, options) if scan else None
     x = args.barrier_x_m
     if x is None:
-        x = _best(rows)
+        x = best_position(rows)
+        if x is None:
+            raise CliError("--scan-x-m: no simulated block passes any scanned position")
     if with_barrier is not None and not math.isclose(barrier_of(with_barrier)[0], x,
                                                      rel_tol=0.0, abs_tol=1e-6):
         raise CliError(f"--with-barrier {args.with_barrier}: its barrier stands at x = "
                        f"{barrier_of(with_barrier)[0]:g} m, the design at x = {x:g} m: rerun "
                        "python -m calib.hazard with --barrier-x-m there, or design there")
-    record = design_record(ds, x, block, options, with_barrier)
+    design = design_at(ds, x, block, options)
+    inputs = {"hazard": args.hazard, "kits": args.kits, "with_barrier": args.with_barrier}
+    angle = None
+    if args.calibration is not None:
+        angle, more = _impact_angle(ds, args, x, block.size_m)
+        warnings += more
+        inputs["calibration"] = args.calibration
+    record = design_record(ds, design, options, hazard_path=args.hazard, inputs=inputs,
+                           with_barrier=with_barrier, impact_angle=angle)
     record["scan"] = rows
     record["warnings"] = warnings + record["warnings"]
     _write(ds, record, with_barrier, args)
     return 0
 
 
-def _best(rows: list[dict]) -> float:
-    """The scanned position whose smallest passing kit has the least MEL (then the
-    least E_sd); where no kit passes anywhere, the one of least E_sd."""
-    ok = [r for r in rows if r["kit"] is not None]
-    pool = ok or [r for r in rows if np.isfinite(r["E_sd_kJ"])]
-    if not pool:
-        raise CliError("--scan-x-m: no simulated block passes any scanned position")
-    return min(pool, key=lambda r: (r.get("kit_mel_kJ") or 0.0, r["E_sd_kJ"]))["x_m"]
+def _impact_angle(ds, args, x_m: float, size_m: float) -> tuple[dict, list[str]]:
+    """The impact-angle record at the barrier (``_angles``) from ``--calibration``, and
+    the warnings: its inputs differ from the hazard run's, or the run had release
+    conditions the angle run does not repeat."""
+    from calib.design._angles import impact_angles
+    from calib.files.calibration_file import CalibrationError, load_calibration
+    from calib.files.hazard_results import json_attr
+    from calib.files.provenance import file_sha256
+    from solvers import load_profile
+
+    if not args.angle_blocks > 0:
+        raise CliError(f"--angle-blocks {args.angle_blocks}: expected a positive integer")
+    if str(ds.attrs["model"]) != "crsp":
+        raise CliError(f"--calibration: impact angles need a CRSP run, {args.hazard} is "
+                       f"{str(ds.attrs['model']).upper()}")
+    try:
+        cal = load_calibration(args.calibration, "crsp")
+    except CalibrationError as exc:
+        raise CliError(str(exc)) from None
+    names = tuple(str(n) for n in ds["parameter"].values)
+    if tuple(cal.names) != names:
+        raise CliError(f"--calibration {args.calibration}: parameters "
+                       f"{', '.join(cal.names)}, {args.hazard} drew {', '.join(names)}")
+    warnings = []
+    recorded = ((json_attr(ds, "provenance_json") or {}).get("inputs") or {}).get("calibration")
+    if recorded and recorded.get("sha256") != file_sha256(args.calibration):
+        warnings.append(f"warning: --calibration {args.calibration} is not the file the hazard "
+                        f"run read ({recorded.get('path')}): the angles come from its draws "
+                        "only")
+    if "release_json" in ds.attrs:
+        warnings.append("warning: the hazard run had release conditions; the impact-angle run "
+                        f"releases blocks of D = {size_m:g} m at x = "
+                        f"{float(ds.attrs['release_x_m']):g} m, the solver's release state")
+    a = impact_angles(cal, ds["parameter_value"].values, names, load_profile(cal.profile_csv),
+                      x_m, size_m, args.angle_blocks, int(ds.attrs["seed"]),
+                      float(ds.attrs["release_x_m"]))
+    return a.record(), warnings
 
 
 def _write(ds, record: dict, with_barrier, args) -> None:
@@ -245,6 +298,11 @@ def _print(r: dict, written: list[str], out: str) -> None:
           f"p{r['percentile']:g}: v_d = {d['v_d_m_s']:.3g} m/s, E_sd = {d['E_sd_kJ']:.4g} kJ "
           f"(total {d['E_total_kJ']:.4g} kJ), h_d + f = {d['design_height_m']:.3g} m; "
           + (f"{r['kit_chosen_by']}: {kit['kit']}" if kit else "no kit of the catalogue passes"))
+    a = r.get("impact_angle")
+    if a is not None:
+        h = a["below_horizontal_deg"]
+        print(f"impact angle below the horizontal p5/p50/p95: {h['p5']:.3g}/{h['p50']:.3g}/"
+              f"{h['p95']:.3g} deg ({a['n_crossings']} crossings)")
     print(f"wrote {', '.join(os.path.basename(w) for w in written)} to {out}")
 
 

@@ -95,6 +95,10 @@ def _values_table(r: dict) -> list[str]:
            "(median) |", "|---|---|---|---|---|---|---|"]
     for name, ch, fac, des, band, m in rows:
         err = draw = ""
+        if name.startswith("energy E, translational"):  # E_sd ~ v_p^2: twice v_p's
+            v = mc["v_p_m_s"]
+            err = f"{_g(200 * v['rel_half_width'], 2)} % (twice the speed's: E_sd ~ v_p^2)"
+            draw = f"{_g(200 * v['per_draw_median_rel_half_width'], 2)} %"
         if m is not None:
             err = f"{_g(100 * m['rel_half_width'], 2)} % " + (
                 "(target 2 % met)" if m["met"] else
@@ -164,6 +168,23 @@ def _prob_lines(r: dict) -> list[str]:
     return out + [""]
 
 
+def _angle_lines(r: dict) -> list[str]:
+    a = r.get("impact_angle")
+    if a is None:
+        return ["Not computed: the hazard results hold no velocity directions; give "
+                "--calibration (the hazard run's calibration.json) to simulate them.", ""]
+    h, g = a["below_horizontal_deg"], a["to_ground_deg"]
+    return [f"Of {a['n_crossings']} blocks of D = {a['size_m']:g} m crossing x = "
+            f"{a['x_m']:g} m ({a['n_draws']} draw(s) x {a['n_blocks_per_draw']} blocks, the "
+            "hazard run's draws and seed): inclination of the velocity below the horizontal "
+            f"p5 / p50 / p95 = {_g(h['p5'])} / {_g(h['p50'])} / {_g(h['p95'])} deg (median, "
+            f"5-95 % over draws: {_band(a['median_band_deg'])} deg); to the ground, whose "
+            f"slope there is {_g(a['ground_slope_deg'])} deg: {_g(g['p5'])} / {_g(g['p50'])} / "
+            f"{_g(g['p95'])} deg (0: along the ground). Angles in the profile's vertical plane "
+            "only (2D: the angle across the slope is not modelled). Kits are tested with "
+            "impacts normal to the net (EAD 340059-00-0106).", ""]
+
+
 def design_markdown(r: dict) -> str:
     """``design.md`` from the record of ``calib.design.__main__``."""
     b, d = r["design_block"], r["design"]
@@ -215,6 +236,7 @@ def design_markdown(r: dict) -> str:
         lines += [f"**{r['kit_chosen_by']}: {kit['kit']}** (MEL {kit['mel_kJ']:g} kJ, "
                   f"nominal height {kit['nominal_height_m']:g} m, max elongation "
                   f"{kit['max_elongation_m']:g} m).", ""]
+    lines += ["## Impact angle", ""] + _angle_lines(r)
     lines += ["## Without partial factors", ""]
     lines += _prob_lines(r)
     lines += ["## Residual hazard behind the barrier", ""]

@@ -36,6 +36,7 @@ from calib.hazard._intensity import (
     intensity_class,
     probability_class,
 )
+from calib.hazard._results import calibration_record, hazard_dataset
 from calib.hazard._run import (
     Barrier,
     HazardCounts,
@@ -59,11 +60,13 @@ __all__ = [
     "DemRun",
     "Draws",
     "HazardCounts",
+    "calibration_record",
     "check_dem_draws",
     "default_release_x_m",
     "dem_alpha",
     "draw_parameters",
     "exceedance_table",
+    "hazard_dataset",
     "hazard_level",
     "hazard_table",
     "hist_exceedance",

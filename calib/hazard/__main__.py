@@ -302,9 +302,9 @@ def main(argv: list[str] | None = None) -> int:
     wall = time.perf_counter() - t0
     bar.close()
     from calib.files.hazard_results import results_writer
-    from calib.hazard._results import hazard_dataset
+    from calib.hazard._results import calibration_record, hazard_dataset
 
-    record = _record(parser.prog, args.seed, cal, args.calibration)
+    record = calibration_record(parser.prog, args.seed, cal, args.calibration)
     record.update(cond.record)
     results = hazard_dataset(counts, profile, seed=args.seed, road_x_m=road_x, road_label=label,
                              release_rate_per_year=rate, record=record,
@@ -490,35 +490,6 @@ def _conditions(args, cal, profile, sizes, release_x: float, zone) -> _Condition
         barrier = Barrier(x, inf if args.barrier_height_m is None else args.barrier_height_m,
                           inf if args.barrier_capacity_kJ is None else args.barrier_capacity_kJ)
     return _Conditions(seeder, barrier, fitted_block_sizes_m(cal), record)
-
-
-def _record(prog: str, seed: int, cal, path: str) -> dict:
-    """What ``hazard.nc`` says about its calibration: the provenance of the run
-    (``calib.files.provenance``), the calibration's own predictive check
-    (``adequacy`` of its model section, ``calib.inference.adequacy``) and the rock
-    density the run simulated, where the calibration file states it (key
-    ``rock_density_kg_m3``; older files fall back on the solvers' default, and
-    ``hazard.nc`` then names no density)."""
-    from calib.files.calibration_file import CalibrationFile
-    from calib.files.provenance import provenance
-    from solvers.profile import default_materials_path
-
-    doc = CalibrationFile.from_json(path)
-    section = doc.models.get(cal.model, {})
-    stated = "rock_density_kg_m3" in doc.record
-    source = doc.record.get("rock_density_source")
-    materials = default_materials_path(cal.profile_csv)
-    return {
-        "calibration": path,
-        "provenance_json": provenance(prog, seed, {
-            "calibration": path, "posterior": cal.posterior_csv, "profile": cal.profile_csv,
-            "materials": materials if os.path.isfile(materials) else None}),
-        "adequacy_json": section.get("adequacy"),
-        "rock_density_kg_m3": float(cal.rock_density_kg_m3) if stated else None,
-        "rock_density_source": (f"{path}: rock_density_kg_m3"
-                                + (f" ({source})" if isinstance(source, str) else ""))
-        if stated else None,
-    }
 
 
 if __name__ == "__main__":

@@ -11,7 +11,8 @@ from calib.hazard._stats import BINS, DRAW_BINS, PERCENTILES
 from solvers.jsonable import json_ready
 from solvers.profile import Profile
 
-__all__ = ["ENERGY_BASIS", "HEIGHT_CONVENTION", "as_results", "hazard_dataset"]
+__all__ = ["ENERGY_BASIS", "HEIGHT_CONVENTION", "as_results", "calibration_record",
+           "hazard_dataset"]
 
 ENERGY_BASIS = {
     "crsp": "kJ per block: the CRSP sphere of diameter D (block_mass_kg)",
@@ -122,3 +123,35 @@ def as_results(results, profile: Profile | None = None):
     if isinstance(results, HazardCounts):
         return hazard_dataset(results, profile)
     return results
+
+
+def calibration_record(prog: str, seed: int, cal, path: str) -> dict:
+    """What ``hazard.nc`` says about its calibration (``hazard_dataset``'s ``record``):
+    the provenance of the run (``calib.files.provenance``), the calibration's own
+    predictive check
+    (``adequacy`` of its model section, ``calib.inference.adequacy``) and the rock
+    density the run simulated, where the calibration file states it (key
+    ``rock_density_kg_m3``; older files fall back on the solvers' default, and
+    ``hazard.nc`` then names no density)."""
+    import os
+
+    from calib.files.calibration_file import CalibrationFile
+    from calib.files.provenance import provenance
+    from solvers.profile import default_materials_path
+
+    doc = CalibrationFile.from_json(path)
+    section = doc.models.get(cal.model, {})
+    stated = "rock_density_kg_m3" in doc.record
+    source = doc.record.get("rock_density_source")
+    materials = default_materials_path(cal.profile_csv)
+    return {
+        "calibration": path,
+        "provenance_json": provenance(prog, seed, {
+            "calibration": path, "posterior": cal.posterior_csv, "profile": cal.profile_csv,
+            "materials": materials if os.path.isfile(materials) else None}),
+        "adequacy_json": section.get("adequacy"),
+        "rock_density_kg_m3": float(cal.rock_density_kg_m3) if stated else None,
+        "rock_density_source": (f"{path}: rock_density_kg_m3"
+                                + (f" ({source})" if isinstance(source, str) else ""))
+        if stated else None,
+    }
