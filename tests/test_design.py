@@ -251,6 +251,34 @@ def test_failed_calibration_check_is_loud(tmp_path, capsys):
     assert "!!! THE CALIBRATION FAILED" in cap.err
 
 
+def test_failed_posterior_diagnostics_are_loud(tmp_path, capsys):
+    """A calibration whose posterior failed its diagnostics (here the GP's
+    realisation check) is said so on the sheet and on stderr, even where its
+    predictive check raised no flag."""
+    path, _ = _hazard(tmp_path, attrs={
+        "adequacy_json": {"ok": True, "problems": []},
+        "posterior_check_json": {"ok": False, "problems": [
+            "the intervals are narrower than the log-likelihood GP's own uncertainty"]}})
+    out = tmp_path / "d"
+    code, cap = _run([path, "--barrier-x-m", "100", "--kits", KITS, "--out", str(out)],
+                     capsys)
+    assert code == 0
+    md = (out / "design.md").read_text()
+    assert "POSTERIOR FAILED ITS DIAGNOSTICS" in md and "GP's own uncertainty" in md
+    assert "POSTERIOR FAILED ITS DIAGNOSTICS" in cap.err
+    assert json.loads((out / "design.json").read_text())["posterior_check"]["ok"] is False
+
+
+def test_the_hazard_record_carries_the_posterior_verdict():
+    """The hazard file's calibration record keeps the posterior's verdict (the
+    design sheet reads it); a fit without a posterior has none."""
+    from calib.hazard._results import _posterior_check
+
+    assert _posterior_check({"ok": False, "problems": ["R-hat"]}) == {
+        "ok": False, "problems": ["R-hat"]}
+    assert _posterior_check(None) is None
+
+
 BARRIER = {"barrier_x_m": 100.0, "barrier_height_m": 3.0, "barrier_capacity_kJ": 500.0}
 
 

@@ -262,6 +262,7 @@ def design_record(ds, design: Design, options: DesignOptions, *, hazard_path: st
         "schema": SCHEMA, "hazard_file": hazard_path, "hazard_sha256": file_sha256(hazard_path),
         "provenance": provenance("python -m calib.design", None, inputs),
         "run": run, "calibration_check": json_attr(ds, "adequacy_json"),
+        "posterior_check": json_attr(ds, "posterior_check_json"),
         "barrier_x_m": dv.x_m, "protected_distance_m": design.protected_distance_m,
         "protected_distance_source": design.protected_distance_source,
         "percentile": dv.percentile, "energy_level": o.energy_level,

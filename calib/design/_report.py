@@ -72,6 +72,20 @@ def _calibration_lines(check: dict | None) -> list[str]:
             f"Coverage of the calibration rows: {_coverage(check)}.", ""]
 
 
+def _posterior_lines(check: dict | None) -> list[str]:
+    """The verdict of the calibration's posterior diagnostics (R-hat, ESS, chains,
+    mass at the bounds, the GP's realisation check), loud where it failed: the
+    bands below are then not to be trusted."""
+    if check is None:
+        return []
+    if check.get("ok"):
+        return ["The calibration's posterior passed its diagnostics (R-hat, ESS, chains, "
+                "mass at the prior bounds, the log-likelihood GP's realisations).", ""]
+    return ["**!!! THE CALIBRATION'S POSTERIOR FAILED ITS DIAGNOSTICS. Its draws, and the "
+            "5-95 % bands and probabilities below, may not represent the parameters' "
+            "uncertainty.**", "", *(f"> {p}" for p in check.get("problems") or []), ""]
+
+
 def _values_table(r: dict) -> list[str]:
     c, d, b, mc = r["characteristic"], r["design"], r["bands"], r["mc"]
     p = f"p{r['percentile']:g}"
@@ -195,6 +209,7 @@ def design_markdown(r: dict) -> str:
              "Replace it by the certified values of the kit chosen before building.", "",
              "## The calibration's own predictive check", ""]
     lines += _calibration_lines(r.get("calibration_check"))
+    lines += _posterior_lines(r.get("posterior_check"))
     run = r["run"]
     lines += ["## The hazard run", "",
               f"{run['model'].upper()}, {run['n_draws']} draw(s) ({run['draws_source']}) x "

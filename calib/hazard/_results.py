@@ -129,7 +129,10 @@ def calibration_record(prog: str, seed: int, cal, path: str) -> dict:
     """What ``hazard.nc`` says about its calibration (``hazard_dataset``'s ``record``):
     the provenance of the run (``calib.files.provenance``), the calibration's own
     predictive check
-    (``adequacy`` of its model section, ``calib.inference.adequacy``) and the rock
+    (``adequacy`` of its model section, ``calib.inference.adequacy``), the verdict
+    of its posterior's diagnostics (``posterior_check_json``: ``ok`` and
+    ``problems`` of the section's ``bayes`` record; None for a fit without a
+    posterior) and the rock
     density the run simulated, where the calibration file states it (key
     ``rock_density_kg_m3``; older files fall back on the solvers' default, and
     ``hazard.nc`` then names no density)."""
@@ -150,8 +153,18 @@ def calibration_record(prog: str, seed: int, cal, path: str) -> dict:
             "calibration": path, "posterior": cal.posterior_csv, "profile": cal.profile_csv,
             "materials": materials if os.path.isfile(materials) else None}),
         "adequacy_json": section.get("adequacy"),
+        "posterior_check_json": _posterior_check(section.get("bayes")),
         "rock_density_kg_m3": float(cal.rock_density_kg_m3) if stated else None,
         "rock_density_source": (f"{path}: rock_density_kg_m3"
                                 + (f" ({source})" if isinstance(source, str) else ""))
         if stated else None,
     }
+
+
+def _posterior_check(bayes: dict | None) -> dict | None:
+    """``ok`` and ``problems`` of a model section's ``bayes`` record (R-hat, ESS,
+    chains, mass at the bounds, the GP's realisation check: ``calib.inference``),
+    or None where the fit has no posterior."""
+    if not isinstance(bayes, dict) or "ok" not in bayes:
+        return None
+    return {"ok": bool(bayes["ok"]), "problems": [str(p) for p in bayes.get("problems", [])]}
