@@ -157,38 +157,46 @@ def _fit_section(f) -> dict:
 
 
 def _run(args) -> int:
-    from calib.discovery.candidate_fit import GAP_METRIC
-    from calib.discovery.candidates import candidate_set
-    from calib.discovery.discovery_warnings import (
-        concentration_warnings,
-        ess_warnings,
-        gap_warnings,
-        noise_warnings,
-        psis_warnings,
-    )
-    from calib.discovery.discrepancy import (
-        MULTIPLE_TESTING,
-        STOPPING_RULE,
-        discover,
-    )
-    from calib.discovery.scores import ELPD_MIN, Z_MIN
-    from calib.files.inputs import InputError, load_inputs
-    from calib.files.provenance import versions
-    from calib.inference.budget import discovery_budget
+    """The command: check the inputs, run the stepwise discovery, write
+    discovery.json and the figures (atomically) and print the summary."""
+    from calib.discovery.discrepancy import discover
     from calib.model.unfinished import UnfinishedBlocksWarning
     from calib.plots import discovery_figures as figs
 
     t0 = time.perf_counter()
+    inputs, velocities, cands, combine, budget = _checked_inputs(args)
+    bar = Progress(not args.no_progress, args.model.upper())
+    with warnings.catch_warnings():  # reported in the summary and discovery.json
+        warnings.simplefilter("ignore", UnfinishedBlocksWarning)
+        d = discover(cands, inputs.obs, inputs.profile, jax.random.key(args.seed), budget, bar,
+                     velocities, args.release_tolerance_m, inputs.release_errors,
+                     combine=combine, max_steps=args.max_steps)
+    bar.close()
+    result = _result(args, inputs, velocities, combine, budget, d, t0)
+    result["warnings"] = _run_warnings(d, budget, inputs.obs, velocities)
+    out_figs = figs.discovery_figures(inputs.obs, d, args.model)
+    text = json.dumps(json_ready(result), indent=1, allow_nan=False) + "\n"
+    write_outputs(args.out, {"discovery.json": text}, out_figs)
+    _print_summary(result, args.out)
+    return 0
+
+
+def _checked_inputs(args):
+    """The run's inputs, every one checked before any fit starts: (inputs,
+    velocities or None, candidates, combine, budget); a bad one is a CliError."""
+    from calib.discovery.candidates import candidate_set
+    from calib.files.inputs import InputError, load_inputs
+    from calib.inference.budget import discovery_budget
+
     try:
         inputs = load_inputs(args.data, args.profile, args.out)
     except InputError as e:
         raise CliError(str(e)) from None
-    obs, profile, profile_path = inputs.obs, inputs.profile, inputs.profile_path
-    velocities = _load_velocities(args.velocities, args.model, profile)
+    velocities = _load_velocities(args.velocities, args.model, inputs.profile)
     if not args.release_tolerance_m >= 0:
         raise CliError(f"--release-tolerance-m must be >= 0, got {args.release_tolerance_m:g}")
     try:
-        cands, combine = candidate_set(args.model, args.effects, profile,
+        cands, combine = candidate_set(args.model, args.effects, inputs.profile,
                                        args.rolling_resistance)
     except ValueError as e:
         raise CliError(str(e)) from None
@@ -198,17 +206,23 @@ def _run(args) -> int:
         budget = discovery_budget(args.model, args.quick, args.n_blocks)
     except ValueError as e:
         raise CliError(f"--n-blocks: {e}") from None
-    bar = Progress(not args.no_progress, args.model.upper())
-    with warnings.catch_warnings():  # reported in the summary and discovery.json
-        warnings.simplefilter("ignore", UnfinishedBlocksWarning)
-        d = discover(cands, obs, profile, jax.random.key(args.seed), budget, bar, velocities,
-                     args.release_tolerance_m, inputs.release_errors,
-                     combine=combine, max_steps=args.max_steps)
-    bar.close()
-    result = {
+    return inputs, velocities, cands, combine, budget
+
+
+def _result(args, inputs, velocities, combine, budget, d, t0: float) -> dict:
+    """discovery.json without its warnings: the run's settings and inputs, the
+    steps and their verdicts, the first step's candidates, the gap before and
+    after, where the baseline fails, each fit, the budget and the timings."""
+    from calib.discovery.candidate_fit import GAP_METRIC
+    from calib.discovery.discrepancy import MULTIPLE_TESTING, STOPPING_RULE
+    from calib.discovery.scores import ELPD_MIN, Z_MIN
+    from calib.files.provenance import versions
+
+    obs = inputs.obs
+    return {
         "schema": "rockfall-discovery/1",
         "command": " ".join([PROG] + sys.argv[1:]),
-        "data_csv": args.data, "profile_csv": profile_path, "model": args.model,
+        "data_csv": args.data, "profile_csv": inputs.profile_path, "model": args.model,
         "seed": args.seed, "quick": bool(args.quick), "n_observations": obs.n_obs,
         "rolling_resistance": args.rolling_resistance if args.model == "crsp" else None,
         "release_groups": _release_record(d.entries, obs.n_obs, args.release_tolerance_m),
@@ -247,6 +261,20 @@ def _run(args) -> int:
         "timings_s": {**d.timings_s, "total_s": time.perf_counter() - t0},
         "versions": versions(),
     }
+
+
+def _run_warnings(d, budget, obs, velocities) -> list[str]:
+    """The run's warnings, in the order discovery.json lists them: the first step's
+    (ESS, PSIS, simulation noise, gap, concentration), each later step's with its
+    own candidates (prefixed with the step), then the fits' unfinished blocks."""
+    from calib.discovery.discovery_warnings import (
+        concentration_warnings,
+        ess_warnings,
+        gap_warnings,
+        noise_warnings,
+        psis_warnings,
+    )
+
     speed_sizes = None if velocities is None else velocities.block_size_m
     later = []  # a later step's warnings: its own candidates, prefixed with the step
     for s in d.steps[1:]:
@@ -255,21 +283,15 @@ def _run(args) -> int:
               + concentration_warnings(s["candidates"], obs.block_size_m, speed_sizes,
                                        s["n_compared"]))
         later += [f"step {s['step']}: {w}" for w in ws]
-    result["warnings"] = (ess_warnings({e: (f.ess, int(f.theta.shape[0]))
-                                        for e, f in d.fits.items()})
-                          + psis_warnings(d.table)
-                          + noise_warnings(d.table, budget.n_blocks, d.steps[0]["n_compared"])
-                          + gap_warnings(d.final_model, d.gap_before, d.gap_after)
-                          + concentration_warnings(d.table, obs.block_size_m, speed_sizes,
-                                                   d.steps[0]["n_compared"])
-                          + later
-                          + [f.unfinished["warning"] for f in d.fits.values()
-                             if f.unfinished and f.unfinished["warning"]])
-    out_figs = figs.discovery_figures(obs, d, args.model)
-    text = json.dumps(json_ready(result), indent=1, allow_nan=False) + "\n"
-    write_outputs(args.out, {"discovery.json": text}, out_figs)
-    _print_summary(result, args.out)
-    return 0
+    return (ess_warnings({e: (f.ess, int(f.theta.shape[0])) for e, f in d.fits.items()})
+            + psis_warnings(d.table)
+            + noise_warnings(d.table, budget.n_blocks, d.steps[0]["n_compared"])
+            + gap_warnings(d.final_model, d.gap_before, d.gap_after)
+            + concentration_warnings(d.table, obs.block_size_m, speed_sizes,
+                                     d.steps[0]["n_compared"])
+            + later
+            + [f.unfinished["warning"] for f in d.fits.values()
+               if f.unfinished and f.unfinished["warning"]])
 
 
 def _release_record(entries, n_runout_rows: int, tol_m: float) -> dict | None:

@@ -221,6 +221,28 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
 
     # step 1 keeps the keys it always had (candidate i: fold_in(key, i))
     fit(candidates[0], "none", jax.random.fold_in(key, 0), None)
+    steps, named = _steps(candidates, fit, fits, key, combine, max_steps, n_run, vel)
+    base = fits["none"]
+    final = fits[model_label(named)]
+    where_before, where_after = _where(obs, profile, row_class, class_sizes, base,
+                                       final if named else None, entries, row_release)
+    return Discovery(steps[0]["named"], fits, steps[0]["candidates"], where_before, where_after,
+                     class_sizes, row_class, base.gap, final.gap, timings, entries, steps, named)
+
+
+def _steps(candidates: list[Candidate], fit: Callable, fits: dict, key: jax.Array,
+           combine, max_steps: int | None, n_run: int, vel):
+    """The steps of ``discover``, once the plain baseline is fitted: each step fits
+    the remaining candidates on top of its baseline (``fit(candidate, label, key,
+    warm)`` stores the fit in ``fits`` under its label), scores them against it
+    (``_step_record``) and names one or none; the loop ends by ``STOPPING_RULE``.
+
+    Keys: step 1's candidate i gets ``fold_in(key, i)``, as it always has; a later
+    step s uses ``fold_in(key, 1000 + s)`` in place of ``key``.
+
+    Returns:
+        (steps, named): the step records and the effects named, in order.
+    """
     base_cand, named = candidates[0], ()
     remaining = {c.effect: c for c in candidates[1:]}
     steps = []
@@ -245,17 +267,22 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
             break
     if steps[-1]["named"] != "none" and steps[-1]["named"] not in named:
         named = named + (steps[-1]["named"],)  # the last step's, when the loop stopped on it
-    base = fits["none"]
-    final = fits[model_label(named)]
+    return steps, named
+
+
+def _where(obs, profile, row_class, class_sizes, base: CandidateFit,
+           final: CandidateFit | None, entries, row_release):
+    """Where the plain baseline disagrees with the rows and where the final model
+    does (None when nothing was named): ``calib.discovery.residuals.locate`` on
+    each one's posterior predictive, each with its own ``default_rng(0)``."""
     rng = np.random.default_rng(0)
     row_entry = None if entries is None else entries.index
     where_before = locate(obs, row_class, class_sizes, base.samples, profile, rng, row_release,
                           row_entry)
-    where_after = None if not named else locate(
+    where_after = None if final is None else locate(
         obs, row_class, class_sizes, final.samples, profile, np.random.default_rng(0),
         row_release, row_entry)
-    return Discovery(steps[0]["named"], fits, steps[0]["candidates"], where_before, where_after,
-                     class_sizes, row_class, base.gap, final.gap, timings, entries, steps, named)
+    return where_before, where_after
 
 
 def _rows(obs, profile, budget: DiscoveryBudget, velocities, release_tolerance_m,

@@ -135,39 +135,54 @@ def score_rows(obs: Observations, predictive: np.ndarray, group_index: np.ndarra
     if clim_all.size < 2:
         raise ValueError("the calibration data have fewer than 2 point rows: no climatology "
                          "baseline can be formed")
-    out = []
-    for i in range(obs.n_obs):
-        ens = observed_ensemble(obs, i, predictive[group_index[i]], rng)
-        d = float(obs.block_size_m[i])
-        same = np.abs(clim_sizes - d) <= 0.01 * d
-        per_size = clim_all[same] if same.sum() >= MIN_ROWS_PER_SIZE else clim_all
-        row = {"row": i + 1, "block_size_m": d, "n_predictive": int(ens.size),
-               "few_blocks": bool(ens.size and few_blocks(ens.size)),
-               "baseline_size": "size" if same.sum() >= MIN_ROWS_PER_SIZE else "overall"}
-        if obs.is_interval[i]:
-            a, b = float(obs.runout_min_m[i]), float(obs.runout_max_m[i])
-            row.update(observed_min_m=a, observed_max_m=b)
-            if ens.size:
-                row.update(in_50=in_band(obs, i, ens, 0.5), in_90=in_band(obs, i, ens, 0.9))
-            out.append(row)
-            continue
-        y, s = float(obs.runout_m[i]), float(obs.runout_sd_m[i])
-        row.update(observed_m=y, observed_sd_m=s)
-        if ens.size == 0:  # no simulated block of this group finished
-            out.append(row)
-            continue
-        q = np.quantile(ens, [0.05, 0.25, 0.5, 0.75, 0.95])
-        row.update(
-            pred_q05_m=q[0], pred_q25_m=q[1], pred_median_m=q[2], pred_q75_m=q[3],
-            pred_q95_m=q[4], pred_mean_m=float(ens.mean()),
-            error_of_mean_m=float(ens.mean() - y),
-            pit=float(np.mean(ens <= y)),
-            in_50=in_band(obs, i, ens, 0.5), in_90=in_band(obs, i, ens, 0.9),
-            crps_m=float(sr.crps_ensemble(y, ens, estimator="qd")),
-            crps_climatology_m=float(sr.crps_ensemble(y, clim_all, estimator="qd")),
-            crps_climatology_size_m=float(sr.crps_ensemble(y, per_size, estimator="qd")))
-        out.append(row)
+    out = [_row_score(obs, i, observed_ensemble(obs, i, predictive[group_index[i]], rng),
+                      clim_all, clim_sizes)
+           for i in range(obs.n_obs)]
     rows = pd.DataFrame(out)
+    return PredictiveCheck(rows, _summary(obs, rows))
+
+
+def _row_score(obs: Observations, i: int, ens: np.ndarray, clim_all: np.ndarray,
+               clim_sizes: np.ndarray) -> dict:
+    """One held-out row's record: its observation, its predictive ensemble
+    ``ens`` (with measurement error) and, for a point row with an ensemble, the
+    predictive quantiles, PIT, band hits and the CRPS of the prediction and of the
+    climatology baselines (all rows, and the rows of its size where there are
+    ``MIN_ROWS_PER_SIZE``). An interval row gets band hits only."""
+    d = float(obs.block_size_m[i])
+    same = np.abs(clim_sizes - d) <= 0.01 * d
+    per_size = clim_all[same] if same.sum() >= MIN_ROWS_PER_SIZE else clim_all
+    row = {"row": i + 1, "block_size_m": d, "n_predictive": int(ens.size),
+           "few_blocks": bool(ens.size and few_blocks(ens.size)),
+           "baseline_size": "size" if same.sum() >= MIN_ROWS_PER_SIZE else "overall"}
+    if obs.is_interval[i]:
+        a, b = float(obs.runout_min_m[i]), float(obs.runout_max_m[i])
+        row.update(observed_min_m=a, observed_max_m=b)
+        if ens.size:
+            row.update(in_50=in_band(obs, i, ens, 0.5), in_90=in_band(obs, i, ens, 0.9))
+        return row
+    y, s = float(obs.runout_m[i]), float(obs.runout_sd_m[i])
+    row.update(observed_m=y, observed_sd_m=s)
+    if ens.size == 0:  # no simulated block of this group finished
+        return row
+    q = np.quantile(ens, [0.05, 0.25, 0.5, 0.75, 0.95])
+    row.update(
+        pred_q05_m=q[0], pred_q25_m=q[1], pred_median_m=q[2], pred_q75_m=q[3],
+        pred_q95_m=q[4], pred_mean_m=float(ens.mean()),
+        error_of_mean_m=float(ens.mean() - y),
+        pit=float(np.mean(ens <= y)),
+        in_50=in_band(obs, i, ens, 0.5), in_90=in_band(obs, i, ens, 0.9),
+        crps_m=float(sr.crps_ensemble(y, ens, estimator="qd")),
+        crps_climatology_m=float(sr.crps_ensemble(y, clim_all, estimator="qd")),
+        crps_climatology_size_m=float(sr.crps_ensemble(y, per_size, estimator="qd")))
+    return row
+
+
+def _summary(obs: Observations, rows: pd.DataFrame) -> dict:
+    """The summary of ``score_rows`` over the scored point rows (those with a
+    CRPS): mean CRPS of the prediction and the baselines, errors of the mean,
+    50 % and 90 % coverage, rows outside the 90 % band, rows with few blocks,
+    and the skill against each climatology (None where nothing was scored)."""
     scored = rows[rows.get("crps_m", pd.Series(dtype=float)).notna()] if "crps_m" in rows \
         else rows.iloc[0:0]
     n = len(scored)
@@ -195,7 +210,7 @@ def score_rows(obs: Observations, predictive: np.ndarray, group_index: np.ndarra
                       ("skill_vs_climatology_size", "mean_crps_climatology_size_m")):
         summary[name] = (1.0 - summary["mean_crps_m"] / summary[ref]
                          if n and summary[ref] > 0 else None)
-    return PredictiveCheck(rows, summary)
+    return summary
 
 
 def stalled_rows(obs: Observations, runouts: np.ndarray, index=None, release_x_m=None,
