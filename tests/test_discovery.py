@@ -629,7 +629,9 @@ def test_discover_command_reports_each_step_and_the_refit_command(tmp_path, caps
     from calib.discovery.discrepancy import MULTIPLE_TESTING, STOPPING_RULE
 
     cands = [_hidden_model(())] + [_hidden_model((e,)) for e in ("slope", "kink", "noise")]
-    monkeypatch.setattr(cmd, "_candidates", lambda *a: (cands, _hidden_model))
+    import calib.discovery.candidates as candidates
+
+    monkeypatch.setattr(candidates, "candidate_set", lambda *a, **k: (cands, _hidden_model))
     import calib.inference.budget as budgets
 
     monkeypatch.setattr(budgets, "discovery_budget", lambda *a: HIDDEN_BUDGET)
