@@ -118,20 +118,33 @@ def _checked(args) -> int:
 
 
 def _main(args) -> int:
-    from calib.design._design import (
-        DesignOptions,
-        best_position,
-        design_at,
-        design_record,
-        scan_rows,
-    )
-    from calib.design._inputs import (
-        design_block,
-        factors_from_args,
-        profile_range,
-        scan_positions,
-    )
-    from calib.design._residual import barrier_of, check_compatible
+    """The design sheet: the inputs read and checked, the barrier's position (given,
+    or the best of a scan), the design there, its record written (``_write``)."""
+    from calib.design._design import design_at, design_record
+
+    ds, with_barrier, pairing, kits = _read_inputs(args)
+    block, options, warnings = _design_options(ds, args, kits, pairing)
+    x, rows = _position(ds, args, block, options, with_barrier)
+    design = design_at(ds, x, block, options)
+    inputs = {"hazard": args.hazard, "kits": args.kits, "with_barrier": args.with_barrier}
+    angle = None
+    if args.calibration is not None:
+        angle, more = _impact_angle(ds, args, x, block.size_m)
+        warnings += more
+        inputs["calibration"] = args.calibration
+    record = design_record(ds, design, options, hazard_path=args.hazard, inputs=inputs,
+                           with_barrier=with_barrier, impact_angle=angle)
+    record["scan"] = rows
+    record["warnings"] = warnings + record["warnings"]
+    _write(ds, record, with_barrier, args)
+    return 0
+
+
+def _read_inputs(args):
+    """The hazard results, the run with the barrier (or None) with the warnings of
+    pairing it with them, and the kit catalogue with ``--kit`` in it (``CliError``
+    naming the file or the option)."""
+    from calib.design._residual import check_compatible
     from calib.files.hazard_results import HazardResultsError, read_hazard_results
 
     try:
@@ -149,6 +162,17 @@ def _main(args) -> int:
     if args.kit is not None and args.kit not in {k.name for k in kits}:
         raise CliError(f"--kit {args.kit}: not in {args.kits} (kits: "
                        f"{', '.join(k.name for k in kits)})")
+    return ds, with_barrier, pairing, kits
+
+
+def _design_options(ds, args, kits, pairing: list[str]):
+    """The design block and the ``DesignOptions`` of the options, checked, with the
+    warnings so far: the partial factors', ``pairing``, a hazard run that had a
+    barrier, the design block's and an extrapolated design class."""
+    from calib.design._design import DesignOptions
+    from calib.design._inputs import design_block, factors_from_args
+    from calib.design._residual import barrier_of
+
     factors, warnings = factors_from_args(args)
     warnings += pairing
     if barrier_of(ds) is not None:
@@ -182,6 +206,17 @@ def _main(args) -> int:
         protected_distance_m=args.protected_distance_m,
         min_residual_category=args.min_residual_category,
         inspection_interval_yr=args.inspection_interval_yr, hazard_name=args.hazard)
+    return block, options, warnings
+
+
+def _position(ds, args, block, options, with_barrier):
+    """The barrier's abscissa: ``--barrier-x-m``, else the best scanned position;
+    with the scan's rows (None without ``--scan-x-m``). The run with the barrier
+    must have it there."""
+    from calib.design._design import best_position, scan_rows
+    from calib.design._inputs import profile_range, scan_positions
+    from calib.design._residual import barrier_of
+
     scan = (scan_positions(ds, args.hazard, parse_stations(args.scan_x_m, profile_range(ds),
                                                            "--scan-x-m"))
             if args.scan_x_m else [])
@@ -196,19 +231,7 @@ def _main(args) -> int:
         raise CliError(f"--with-barrier {args.with_barrier}: its barrier stands at x = "
                        f"{barrier_of(with_barrier)[0]:g} m, the design at x = {x:g} m: rerun "
                        "python -m calib.hazard with --barrier-x-m there, or design there")
-    design = design_at(ds, x, block, options)
-    inputs = {"hazard": args.hazard, "kits": args.kits, "with_barrier": args.with_barrier}
-    angle = None
-    if args.calibration is not None:
-        angle, more = _impact_angle(ds, args, x, block.size_m)
-        warnings += more
-        inputs["calibration"] = args.calibration
-    record = design_record(ds, design, options, hazard_path=args.hazard, inputs=inputs,
-                           with_barrier=with_barrier, impact_angle=angle)
-    record["scan"] = rows
-    record["warnings"] = warnings + record["warnings"]
-    _write(ds, record, with_barrier, args)
-    return 0
+    return x, rows
 
 
 def _impact_angle(ds, args, x_m: float, size_m: float) -> tuple[dict, list[str]]:

@@ -166,167 +166,27 @@ def _positive_int(name: str, v: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The command: options checked, the run prepared from the files, simulated,
+    its results written at once; bad input one line on stderr and exit status 2."""
     parser = build_parser()
     args = parser.parse_args(argv)
     prog = parser.prog
     try:
-        _check_conditions(args)
-        sizes = parse_floats(args.block_sizes_m or DEFAULT_SIZES, "--block-sizes-m")
-        bad = [s for s in sizes if s <= 0]
-        if bad:
-            raise CliError(f"--block-sizes-m: sizes must be positive, got {bad[0]:g}")
-        if len(set(sizes)) != len(sizes):
-            raise CliError("--block-sizes-m: sizes must be distinct")
-        for name in ("n_blocks", "n_posterior"):
-            v = getattr(args, name)
-            if v is not None:
-                _positive_int("--" + name.replace("_", "-"), v)
-        _positive_int("--chunk-blocks", args.chunk_blocks)
-        if args.pool is not None:
-            _positive_int("--pool", args.pool)
-        _positive_int("--max-events", args.max_events)
-        if args.seed < 0:
-            raise CliError(f"--seed: expected a non-negative integer, got {args.seed}")
-        rate = args.release_rate_per_year
-        if rate is not None and not (math.isfinite(rate) and rate > 0):
-            raise CliError(f"--release-rate-per-year: expected a positive rate, got {rate:g}")
-        try:
-            check_run_numerics(args.dem_stiffness_scale, args.dem_max_time_s,
-                               {"stiffness_scale": "--dem-stiffness-scale",
-                                "max_time_s": "--dem-max-time-s"})
-        except ValueError as exc:
-            raise CliError(str(exc)) from None
-        if os.path.exists(args.out) and not os.path.isdir(args.out):
-            raise CliError(f"--out {args.out}: exists and is not a folder")
+        sizes = _checked_options(args)
     except CliError as exc:
         fail(prog, str(exc))
 
-    import numpy as np
-    from tqdm import tqdm
-
-    from calib.files.site import SiteError, load_site, site_path
-    from calib.hazard import (
-        CalibrationError,
-        DemRun,
-        check_dem_draws,
-        default_release_x_m,
-        draw_parameters,
-        exceedance_table,
-        hazard_table,
-        load_calibration,
-        run_hazard,
-        summary_text,
-    )
-    from calib.hazard._figures import plot_envelopes, plot_exceedance
-    from calib.hazard._fragments import fragment_outputs, fragmentation_from_args
-    from solvers import crsp
-    from solvers.profile import ProfileError, load_profile
+    from calib.files.site import SiteError
+    from calib.hazard import CalibrationError
+    from solvers.profile import ProfileError
 
     try:
-        cal = load_calibration(args.calibration, args.model)
-        profile = load_profile(cal.profile_csv)
-        lo, hi = profile.x_range_m
-        stations = parse_stations(args.stations_m or f"{lo:g}:{hi:g}:5", profile.x_range_m)
-        road_x, label = args.road_x_m, "road"
-        site = load_site(cal.profile_csv)
-        cal.check_density(site.rock_density_kg_m3, f"the site file {site.path}"
-                          if site.path else "the solvers' default")
-        if road_x is None:
-            road_x, label = site.station_x_m, site.station_label
-            where = f"{site.path}: station_of_interest.x_m"
-            if road_x is None:
-                road_x, label, where = max(stations), "last station", "the last station"
-                print(f"no station of interest (no --road-x-m, and no site file "
-                      f"{site_path(cal.profile_csv)} giving one): the summary reports at "
-                      f"the last station, x = {road_x:g} m")
-        else:
-            where = "--road-x-m"
-        if not (math.isfinite(road_x) and lo < road_x <= hi):
-            raise CliError(f"{where} {road_x:g}: the station of interest lies outside the "
-                           f"profile ({lo:g}, {hi:g}] m")
-        release_x, release_where = args.release_x_m, "--release-x-m"
-        zone = None
-        if args.release_zone_m is not None:
-            zone = _zone(args.release_zone_m, profile)
-            release_x, release_where = zone.span_m[1], "--release-zone-m"
-        elif release_x is None:
-            release_x = default_release_x_m(cal, profile)
-            release_where = (f"{cal.path}: release_x_m" if cal.release_x_m is not None
-                             else "the profile's first vertex")
-        if not (math.isfinite(release_x) and lo <= release_x < hi):
-            raise CliError(f"{release_where} {release_x:g}: the release lies outside the "
-                           f"profile [{lo:g}, {hi:g}) m")
-        typed = args.release_x_m is not None or zone is not None
-        if road_x <= release_x and typed and args.road_x_m is None:
-            # the release was typed, the station was not: the flag is what to change
-            raise CliError(f"{release_where} {release_x:g}: the release lies at or downslope "
-                           f"of the station of interest at x = {road_x:g} m ({where}), so no "
-                           f"block can pass it; the profile spans [{lo:g}, {hi:g}) m: release "
-                           f"above x = {road_x:g} m, or give --road-x-m")
-        if road_x <= release_x:
-            raise CliError(f"{where} {road_x:g}: the station of interest lies at or above "
-                           f"the release at x = {release_x:g} m ({release_where}): no block "
-                           "can pass it")
-        stations = sorted(set(stations) | {road_x})
-        n_blocks = args.n_blocks or DEFAULTS[cal.model][0]
-        n_post = args.n_posterior or DEFAULTS[cal.model][1]
-        draws = draw_parameters(cal, n_post, args.seed)
-        if cal.model == "dem":
-            check_dem_draws(cal, draws, sizes)
-        cond = _conditions(args, cal, profile, sizes, release_x, zone)
-        fragments = fragmentation_from_args(args, cal, draws, profile)
-        if fragments is not None and cond.seeder is not None:
-            raise CliError("--fragmentation/--fragments break blocks of the fixed sizes "
-                           "(--block-sizes-m); they do not combine with a volume "
-                           "distribution (--volumes-csv, --volume-law)")
+        run = _prepare(args, sizes)
     except (CalibrationError, ProfileError, CliError, SiteError) as exc:
         fail(prog, str(exc))
 
-    fitted = DemRun(**cal.dem_run) if cal.dem_run else DEM_RUN
-    dem_run = dataclasses.replace(fitted, **{
-        k: v for k, v in (("stiffness_scale", args.dem_stiffness_scale),
-                          ("max_time_s", args.dem_max_time_s)) if v is not None})
-    if cal.model == "dem" and dem_run != fitted:
-        print(f"note: the DEM runs with {dem_run}, not the fit's {fitted}: its alpha was "
-              "calibrated with the fit's numerics", file=sys.stderr)
-    n_sets = len(sizes) if cond.seeder is None else len(cond.seeder.classes)
-    total = len(draws.values) * n_sets * n_blocks
-    bar = tqdm(total=total, unit="block", disable=args.no_progress, file=sys.stderr,
-               desc=f"hazard {cal.model}")
-    t0 = time.perf_counter()
-    counts = run_hazard(cal, draws, profile, sizes, np.asarray(stations), n_blocks, args.seed,
-                        chunk_blocks=args.chunk_blocks, pool=args.pool,
-                        settings=crsp.Settings(max_events=args.max_events),
-                        dem_run=dem_run, release_x_m=release_x, release=cond.seeder,
-                        barrier=cond.barrier, progress=bar.update, fragments=fragments)
-    wall = time.perf_counter() - t0
-    bar.close()
-    from calib.files.hazard_results import results_writer
-    from calib.hazard._results import calibration_record, hazard_dataset
-
-    record = calibration_record(parser.prog, args.seed, cal, args.calibration)
-    record.update(cond.record)
-    results = hazard_dataset(counts, profile, seed=args.seed, road_x_m=road_x, road_label=label,
-                             release_rate_per_year=rate, record=record,
-                             fitted=cond.fitted)
-    exc_df = exceedance_table(results)
-    table = hazard_table(results)
-    text = summary_text(results, table, road_x, rate, label, fitted=cond.fitted)
-    title = (f"{cal.model.upper()}: {len(draws.values)} draw(s) ({draws.source}) x "
-             f"{n_blocks} blocks per " + ("size" if cond.seeder is None or
-                                           cond.seeder.law is None else "volume class"))
-
-    def csv_writer(df):
-        return lambda p: df.to_csv(p, index=False)
-
-    writers = {
-        "hazard.nc": results_writer(results),
-        "exceedance.csv": csv_writer(exc_df),
-        "hazard_table.csv": csv_writer(table),
-        "exceedance.png": lambda p: plot_exceedance(exc_df, profile, road_x, p, title, label),
-        "envelopes.png": lambda p: plot_envelopes(table, profile, road_x, p, title),
-    }
-    text = fragment_outputs(counts.fragments, results, writers, text, road_x, label)
+    counts, total, wall = _simulate(args, run, sizes)
+    text, writers = _outputs(prog, args, run, counts)
     try:
         written = write_outputs(args.out, {"summary.txt": text + "\n"}, writers=writers)
     except OSError as exc:
@@ -338,6 +198,228 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{total:,} blocks in {wall:.1f} s ({total / wall:,.0f} blocks/s incl. compile) on "
           f"{len(jax.devices())} device(s); wrote {names} to {args.out}")
     return 0
+
+
+def _checked_options(args) -> list[float]:
+    """The options checked for what needs no file (``CliError`` naming the option);
+    returns the block sizes of ``--block-sizes-m``."""
+    _check_conditions(args)
+    sizes = parse_floats(args.block_sizes_m or DEFAULT_SIZES, "--block-sizes-m")
+    bad = [s for s in sizes if s <= 0]
+    if bad:
+        raise CliError(f"--block-sizes-m: sizes must be positive, got {bad[0]:g}")
+    if len(set(sizes)) != len(sizes):
+        raise CliError("--block-sizes-m: sizes must be distinct")
+    for name in ("n_blocks", "n_posterior"):
+        v = getattr(args, name)
+        if v is not None:
+            _positive_int("--" + name.replace("_", "-"), v)
+    _positive_int("--chunk-blocks", args.chunk_blocks)
+    if args.pool is not None:
+        _positive_int("--pool", args.pool)
+    _positive_int("--max-events", args.max_events)
+    if args.seed < 0:
+        raise CliError(f"--seed: expected a non-negative integer, got {args.seed}")
+    rate = args.release_rate_per_year
+    if rate is not None and not (math.isfinite(rate) and rate > 0):
+        raise CliError(f"--release-rate-per-year: expected a positive rate, got {rate:g}")
+    try:
+        check_run_numerics(args.dem_stiffness_scale, args.dem_max_time_s,
+                           {"stiffness_scale": "--dem-stiffness-scale",
+                            "max_time_s": "--dem-max-time-s"})
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    if os.path.exists(args.out) and not os.path.isdir(args.out):
+        raise CliError(f"--out {args.out}: exists and is not a folder")
+    return sizes
+
+
+class _Run(NamedTuple):
+    """A run prepared from its options and files: the calibration ``cal``, the
+    ``profile``, the ``stations`` (with the station of interest ``road_x``, named
+    ``label``), the ``release_x``, the posterior ``draws``, ``n_blocks`` per draw and
+    size, the release and barrier ``cond`` (``_Conditions``) and the ``fragments``
+    (or None)."""
+
+    cal: object
+    profile: object
+    stations: list
+    road_x: float
+    label: str
+    release_x: float
+    draws: object
+    n_blocks: int
+    cond: _Conditions
+    fragments: object
+
+
+def _prepare(args, sizes) -> _Run:
+    """The ``_Run`` of the options: the calibration and its profile read, the
+    station of interest and the release placed on the profile, the draws made
+    (``CliError`` or the files' errors naming the option or the file)."""
+    from calib.hazard import check_dem_draws, draw_parameters, load_calibration
+    from calib.hazard._fragments import fragmentation_from_args
+    from solvers.profile import load_profile
+
+    cal = load_calibration(args.calibration, args.model)
+    profile = load_profile(cal.profile_csv)
+    lo, hi = profile.x_range_m
+    stations = parse_stations(args.stations_m or f"{lo:g}:{hi:g}:5", profile.x_range_m)
+    road_x, label, where = _station_of_interest(args, cal, profile, stations)
+    release_x, zone = _release(args, cal, profile, road_x, where)
+    stations = sorted(set(stations) | {road_x})
+    n_blocks = args.n_blocks or DEFAULTS[cal.model][0]
+    n_post = args.n_posterior or DEFAULTS[cal.model][1]
+    draws = draw_parameters(cal, n_post, args.seed)
+    if cal.model == "dem":
+        check_dem_draws(cal, draws, sizes)
+    cond = _conditions(args, cal, profile, sizes, release_x, zone)
+    fragments = fragmentation_from_args(args, cal, draws, profile)
+    if fragments is not None and cond.seeder is not None:
+        raise CliError("--fragmentation/--fragments break blocks of the fixed sizes "
+                       "(--block-sizes-m); they do not combine with a volume "
+                       "distribution (--volumes-csv, --volume-law)")
+    return _Run(cal, profile, stations, road_x, label, release_x, draws, n_blocks, cond,
+                fragments)
+
+
+def _station_of_interest(args, cal, profile, stations) -> tuple[float, str, str]:
+    """The station where the summary reports: ``--road-x-m``, else the site file's
+    station of interest, else the last station (said on stdout); with its name and
+    where it came from. Also checks the site's rock density against the calibration's."""
+    from calib.files.site import load_site, site_path
+
+    lo, hi = profile.x_range_m
+    road_x, label = args.road_x_m, "road"
+    site = load_site(cal.profile_csv)
+    cal.check_density(site.rock_density_kg_m3, f"the site file {site.path}"
+                      if site.path else "the solvers' default")
+    if road_x is None:
+        road_x, label = site.station_x_m, site.station_label
+        where = f"{site.path}: station_of_interest.x_m"
+        if road_x is None:
+            road_x, label, where = max(stations), "last station", "the last station"
+            print(f"no station of interest (no --road-x-m, and no site file "
+                  f"{site_path(cal.profile_csv)} giving one): the summary reports at "
+                  f"the last station, x = {road_x:g} m")
+    else:
+        where = "--road-x-m"
+    if not (math.isfinite(road_x) and lo < road_x <= hi):
+        raise CliError(f"{where} {road_x:g}: the station of interest lies outside the "
+                       f"profile ({lo:g}, {hi:g}] m")
+    return road_x, label, where
+
+
+def _release(args, cal, profile, road_x: float, where: str):
+    """The release abscissa and the release zone (or None) of the options, checked
+    against the profile and upslope of the station of interest (from ``where``)."""
+    from calib.hazard import default_release_x_m
+
+    lo, hi = profile.x_range_m
+    release_x, release_where = args.release_x_m, "--release-x-m"
+    zone = None
+    if args.release_zone_m is not None:
+        zone = _zone(args.release_zone_m, profile)
+        release_x, release_where = zone.span_m[1], "--release-zone-m"
+    elif release_x is None:
+        release_x = default_release_x_m(cal, profile)
+        release_where = (f"{cal.path}: release_x_m" if cal.release_x_m is not None
+                         else "the profile's first vertex")
+    if not (math.isfinite(release_x) and lo <= release_x < hi):
+        raise CliError(f"{release_where} {release_x:g}: the release lies outside the "
+                       f"profile [{lo:g}, {hi:g}) m")
+    typed = args.release_x_m is not None or zone is not None
+    if road_x <= release_x and typed and args.road_x_m is None:
+        # the release was typed, the station was not: the flag is what to change
+        raise CliError(f"{release_where} {release_x:g}: the release lies at or downslope "
+                       f"of the station of interest at x = {road_x:g} m ({where}), so no "
+                       f"block can pass it; the profile spans [{lo:g}, {hi:g}) m: release "
+                       f"above x = {road_x:g} m, or give --road-x-m")
+    if road_x <= release_x:
+        raise CliError(f"{where} {road_x:g}: the station of interest lies at or above "
+                       f"the release at x = {release_x:g} m ({release_where}): no block "
+                       "can pass it")
+    return release_x, zone
+
+
+def _dem_run(args, cal):
+    """The DEM numerics of the run: the fit's (``DEM_RUN`` for files without them)
+    with the options' overrides; a note on stderr where a DEM run departs from the fit's."""
+    from calib.hazard import DemRun
+
+    fitted = DemRun(**cal.dem_run) if cal.dem_run else DEM_RUN
+    dem_run = dataclasses.replace(fitted, **{
+        k: v for k, v in (("stiffness_scale", args.dem_stiffness_scale),
+                          ("max_time_s", args.dem_max_time_s)) if v is not None})
+    if cal.model == "dem" and dem_run != fitted:
+        print(f"note: the DEM runs with {dem_run}, not the fit's {fitted}: its alpha was "
+              "calibrated with the fit's numerics", file=sys.stderr)
+    return dem_run
+
+
+def _simulate(args, run: _Run, sizes):
+    """The Monte Carlo run (``run_hazard``) with a progress bar on stderr: its counts,
+    the number of blocks simulated and the wall time, s."""
+    import numpy as np
+    from tqdm import tqdm
+
+    from calib.hazard import run_hazard
+    from solvers import crsp
+
+    cal, cond = run.cal, run.cond
+    dem_run = _dem_run(args, cal)
+    n_sets = len(sizes) if cond.seeder is None else len(cond.seeder.classes)
+    total = len(run.draws.values) * n_sets * run.n_blocks
+    bar = tqdm(total=total, unit="block", disable=args.no_progress, file=sys.stderr,
+               desc=f"hazard {cal.model}")
+    t0 = time.perf_counter()
+    counts = run_hazard(cal, run.draws, run.profile, sizes, np.asarray(run.stations),
+                        run.n_blocks, args.seed, chunk_blocks=args.chunk_blocks, pool=args.pool,
+                        settings=crsp.Settings(max_events=args.max_events),
+                        dem_run=dem_run, release_x_m=run.release_x, release=cond.seeder,
+                        barrier=cond.barrier, progress=bar.update, fragments=run.fragments)
+    wall = time.perf_counter() - t0
+    bar.close()
+    return counts, total, wall
+
+
+def _outputs(prog: str, args, run: _Run, counts) -> tuple[str, dict]:
+    """The summary text and the writers of the output files (``write_outputs``):
+    hazard.nc, the tables, the figures (and the fragments' outputs), all from the
+    results Dataset."""
+    from calib.files.hazard_results import results_writer
+    from calib.hazard import exceedance_table, hazard_table, summary_text
+    from calib.hazard._figures import plot_envelopes, plot_exceedance
+    from calib.hazard._fragments import fragment_outputs
+    from calib.hazard._results import calibration_record, hazard_dataset
+
+    cal, cond, profile, road_x, label = run.cal, run.cond, run.profile, run.road_x, run.label
+    rate = args.release_rate_per_year
+    record = calibration_record(prog, args.seed, cal, args.calibration)
+    record.update(cond.record)
+    results = hazard_dataset(counts, profile, seed=args.seed, road_x_m=road_x, road_label=label,
+                             release_rate_per_year=rate, record=record,
+                             fitted=cond.fitted)
+    exc_df = exceedance_table(results)
+    table = hazard_table(results)
+    text = summary_text(results, table, road_x, rate, label, fitted=cond.fitted)
+    title = (f"{cal.model.upper()}: {len(run.draws.values)} draw(s) ({run.draws.source}) x "
+             f"{run.n_blocks} blocks per " + ("size" if cond.seeder is None or
+                                               cond.seeder.law is None else "volume class"))
+    writers = {
+        "hazard.nc": results_writer(results),
+        "exceedance.csv": _csv_writer(exc_df),
+        "hazard_table.csv": _csv_writer(table),
+        "exceedance.png": lambda p: plot_exceedance(exc_df, profile, road_x, p, title, label),
+        "envelopes.png": lambda p: plot_envelopes(table, profile, road_x, p, title),
+    }
+    text = fragment_outputs(counts.fragments, results, writers, text, road_x, label)
+    return text, writers
+
+
+def _csv_writer(df):
+    """A ``write_outputs`` writer of ``df`` as CSV without its index."""
+    return lambda p: df.to_csv(p, index=False)
 
 
 def _check_conditions(args) -> None:

@@ -59,6 +59,32 @@ def hazard_dataset(c: HazardCounts, profile: Profile | None = None, *, seed: int
     Returns:
         ``xarray.Dataset`` of schema ``calib.files.hazard_results.SCHEMA``.
     """
+    data, bins = _count_variables(c, profile)
+    coords = {"draw": np.arange(len(c.draws.values)), "block_size_m": c.sizes_m,
+              "x_m": c.stations_x_m, "percentile": np.asarray(PERCENTILES),
+              "parameter": np.asarray(c.draws.names, dtype=object),
+              "vertex": np.arange(len(data["profile_x_m"]))}
+    attrs = {"model": c.model, "n_blocks_per_draw": int(c.n_blocks),
+             "release_x_m": float(c.release_x_m), "seed": -1 if seed is None else int(seed),
+             "draws_source": c.draws.source, "energy_basis": ENERGY_BASIS[c.model],
+             "height_convention": HEIGHT_CONVENTION,
+             "percentile_interval": "distribution-free 95 % interval of order statistics "
+                                    "(calib.hazard._stats.percentile_interval)",
+             "provenance_json": {}, "road_x_m": road_x_m, "road_label": road_label,
+             "release_rate_per_year": release_rate_per_year}
+    if c.release is not None:
+        _add_release(c, fitted, data, attrs)
+    if c.barrier is not None:
+        attrs.update(barrier_x_m=float(c.barrier.x_m), barrier_height_m=float(c.barrier.height_m),
+                     barrier_capacity_kJ=float(c.barrier.capacity_kJ))
+    attrs.update(record or {})
+    return hazard_results(data, coords, attrs, bins)
+
+
+def _count_variables(c: HazardCounts, profile: Profile | None) -> tuple[dict, dict]:
+    """The variables every run has (``calib.files.hazard_results.VARIABLES``): the
+    counts, the histograms and the percentiles with their intervals, the draws, the
+    stations' zones and the profile's vertices; and the bin edges of each histogram."""
     data = {
         "n_exceed": c.exceed, "n_reach": c.reach, "n_reach_E_gt_30kJ": c.e30,
         "n_reach_E_gt_300kJ": c.e300, "n_unfinished": c.n_unfinished,
@@ -82,39 +108,29 @@ def hazard_dataset(c: HazardCounts, profile: Profile | None = None, *, seed: int
     for q, counts in c.draw_hist.items():
         data[f"draw_hist_{q}"] = counts
         bins[f"draw_hist_{q}"] = DRAW_BINS[q]
-    coords = {"draw": np.arange(len(c.draws.values)), "block_size_m": c.sizes_m,
-              "x_m": c.stations_x_m, "percentile": np.asarray(PERCENTILES),
-              "parameter": np.asarray(c.draws.names, dtype=object),
-              "vertex": np.arange(len(data["profile_x_m"]))}
-    attrs = {"model": c.model, "n_blocks_per_draw": int(c.n_blocks),
-             "release_x_m": float(c.release_x_m), "seed": -1 if seed is None else int(seed),
-             "draws_source": c.draws.source, "energy_basis": ENERGY_BASIS[c.model],
-             "height_convention": HEIGHT_CONVENTION,
-             "percentile_interval": "distribution-free 95 % interval of order statistics "
-                                    "(calib.hazard._stats.percentile_interval)",
-             "provenance_json": {}, "road_x_m": road_x_m, "road_label": road_label,
-             "release_rate_per_year": release_rate_per_year}
-    if c.release is not None:
-        attrs["release_json"] = json_ready(c.release.record())  # unbounded classes: null
-        if fitted is not None:
-            attrs.update(fitted_block_size_min_m=float(np.min(fitted[0])),
-                         fitted_block_size_max_m=float(np.max(fitted[0])),
-                         fitted_block_sizes_source=str(fitted[1]))
-        if c.release.law is not None:
-            cls = c.release.classes
-            data.update(
-                class_label=np.asarray([k.label for k in cls], dtype=object),
-                class_volume_min_m3=np.asarray([k.volume_min_m3 for k in cls]),
-                class_volume_max_m3=np.asarray([k.volume_max_m3 for k in cls]),
-                class_volume_m3=np.asarray([k.volume_m3 for k in cls]),
-                class_probability=np.asarray([k.probability for k in cls]),
-                extrapolated_fraction=(np.full(len(cls), np.nan) if fitted is None
-                                       else c.release.extrapolated_fraction(fitted[0])))
-    if c.barrier is not None:
-        attrs.update(barrier_x_m=float(c.barrier.x_m), barrier_height_m=float(c.barrier.height_m),
-                     barrier_capacity_kJ=float(c.barrier.capacity_kJ))
-    attrs.update(record or {})
-    return hazard_results(data, coords, attrs, bins)
+    return data, bins
+
+
+def _add_release(c: HazardCounts, fitted: tuple | None, data: dict, attrs: dict) -> None:
+    """Into ``data`` and ``attrs``, what a run with release conditions adds:
+    ``release_json``, the range of the calibration's fitted sizes and, over volume
+    classes, the class variables (``OPTIONAL_VARIABLES``) with the fraction of each
+    class outside the fitted sizes (NaN without them)."""
+    attrs["release_json"] = json_ready(c.release.record())  # unbounded classes: null
+    if fitted is not None:
+        attrs.update(fitted_block_size_min_m=float(np.min(fitted[0])),
+                     fitted_block_size_max_m=float(np.max(fitted[0])),
+                     fitted_block_sizes_source=str(fitted[1]))
+    if c.release.law is not None:
+        cls = c.release.classes
+        data.update(
+            class_label=np.asarray([k.label for k in cls], dtype=object),
+            class_volume_min_m3=np.asarray([k.volume_min_m3 for k in cls]),
+            class_volume_max_m3=np.asarray([k.volume_max_m3 for k in cls]),
+            class_volume_m3=np.asarray([k.volume_m3 for k in cls]),
+            class_probability=np.asarray([k.probability for k in cls]),
+            extrapolated_fraction=(np.full(len(cls), np.nan) if fitted is None
+                                   else c.release.extrapolated_fraction(fitted[0])))
 
 
 def as_results(results, profile: Profile | None = None):
