@@ -199,6 +199,17 @@ def _angle_lines(r: dict) -> list[str]:
             "impacts normal to the net (EAD 340059-00-0106).", ""]
 
 
+def _scan_lines(scan: list | None) -> list[str]:
+    """The scan's table (one row per position), or nothing without a scan."""
+    if not scan:
+        return []
+    return (["## Scan of barrier positions", "",
+             "| x (m) | P(reach) | E_sd (kJ) | design height (m) | smallest passing kit |",
+             "|---|---|---|---|---|"]
+            + [f"| {s['x_m']:g} | {_g(s['reach_prob_mean'])} | {_g(s['E_sd_kJ'], 4)} | "
+               f"{_g(s['design_height_m'], 3)} | {s['kit'] or 'none'} |" for s in scan] + [""])
+
+
 def design_markdown(r: dict) -> str:
     """``design.md`` from the record of ``calib.design.__main__``."""
     b, d = r["design_block"], r["design"]
@@ -260,13 +271,7 @@ def design_markdown(r: dict) -> str:
               ["Not available: no hazard run with the barrier element was given "
                "(--with-barrier); the exceedance at the road is that of the run without it.",
                ""])
-    if r.get("scan"):
-        lines += ["## Scan of barrier positions", "",
-                  "| x (m) | P(reach) | E_sd (kJ) | design height (m) | smallest passing kit |",
-                  "|---|---|---|---|---|"]
-        lines += [f"| {s['x_m']:g} | {_g(s['reach_prob_mean'])} | {_g(s['E_sd_kJ'], 4)} | "
-                  f"{_g(s['design_height_m'], 3)} | {s['kit'] or 'none'} |" for s in r["scan"]]
-        lines += [""]
+    lines += _scan_lines(r.get("scan"))
     lines += ["## Limits", ""] + [f"* {x}" for x in LIMITS]
     if r.get("warnings"):
         lines += ["", "## Warnings", ""] + [f"* {w}" for w in r["warnings"]]
