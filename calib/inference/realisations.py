@@ -19,7 +19,7 @@ Huggins 2026, "Propagating surrogate uncertainty in Bayesian inverse
 problems", arXiv 2601.03532; "E-Post" in Reiser, Aguilar, Guthke & Buerkner
 2023, arXiv 2312.05153).
 
-Why not report that mixture (measured at this stop, default budget): each
+Why not report that mixture (measured on 2026-11-25, default budget): each
 realisation's posterior is rough, with narrow peaks wherever the GP is
 unsure between its design points. One NUTS run on the product of 8
 realisations' posteriors (2 chains, 500 draws each) left one realisation in
