@@ -258,7 +258,7 @@ def _prepare(args, sizes) -> _Run:
     station of interest and the release placed on the profile, the draws made
     (``CliError`` or the files' errors naming the option or the file)."""
     from calib.hazard import check_dem_draws, draw_parameters, load_calibration
-    from calib.hazard._fragments import fragmentation_from_args
+    from calib.hazard._fragments import FragmentationError, fragmentation_from_args
     from solvers.profile import load_profile
 
     cal = load_calibration(args.calibration, args.model)
@@ -274,7 +274,10 @@ def _prepare(args, sizes) -> _Run:
     if cal.model == "dem":
         check_dem_draws(cal, draws, sizes)
     cond = _conditions(args, cal, profile, sizes, release_x, zone)
-    fragments = fragmentation_from_args(args, cal, draws, profile)
+    try:
+        fragments = fragmentation_from_args(args, cal, draws, profile)
+    except FragmentationError as e:
+        raise CliError(str(e)) from None
     if fragments is not None and cond.seeder is not None:
         raise CliError("--fragmentation/--fragments break blocks of the fixed sizes "
                        "(--block-sizes-m); they do not combine with a volume "

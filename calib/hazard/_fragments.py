@@ -59,7 +59,6 @@ import pandas as pd
 
 from calib.hazard._stats import ChunkStats, reduce_chunk
 from solvers import crsp, dem
-from solvers.cli import CliError
 from solvers.status import (
     BUDGET,
     INVALID,
@@ -126,6 +125,10 @@ FRAGMENT_COLUMNS = {
 
 
 # ------------------------------------------------------------------ the options
+
+class FragmentationError(ValueError):
+    """A fragmentation option the run cannot take (one line naming the option)."""
+
 
 def add_options(parser) -> None:
     """The command's option group for fragmentation (``python -m calib.hazard``)."""
@@ -228,21 +231,24 @@ def fragmentation_from_args(args, cal, draws, profile) -> Fragmentation | None:
     """The run's ``Fragmentation`` from the options of ``add_options``, or None.
 
     Raises:
-        CliError: one line naming the option and what was expected.
+        FragmentationError: one line naming the option and what was expected.
     """
     crsp_only = [f for f, v in (("--frag-energy-kJ", args.frag_energy_kJ),
                                 ("--frag-radius-ratio", args.frag_radius_ratio)) if v is not None]
     if args.fragments is not None:
         if cal.model != "dem":
-            raise CliError(f"--fragments {args.fragments}: bonded fragments are the DEM's "
-                           "(--model dem); CRSP breaks its blocks with --fragmentation crsp")
+            raise FragmentationError(
+                f"--fragments {args.fragments}: bonded fragments are the DEM's "
+                "(--model dem); CRSP breaks its blocks with --fragmentation crsp")
         n = math.isqrt(max(args.fragments, 0))
         if args.fragments < 4 or n * n != args.fragments:
-            raise CliError(f"--fragments: expected a perfect square of at least 4 (4, 16, "
-                           f"64, ...), got {args.fragments}")
+            raise FragmentationError(
+                f"--fragments: expected a perfect square of at least 4 (4, 16, "
+                f"64, ...), got {args.fragments}")
         if args.fragmentation or crsp_only:
-            raise CliError(f"{args.fragmentation and '--fragmentation' or crsp_only[0]}: the "
-                           "CRSP break rule; the DEM breaks its --fragments by its joints")
+            raise FragmentationError(
+                f"{args.fragmentation and '--fragmentation' or crsp_only[0]}: the "
+                "CRSP break rule; the DEM breaks its --fragments by its joints")
         strength = dem.Params._field_defaults
         return Fragmentation("dem", args.fragments, description=(
             f"DEM: each block is {args.fragments} bonded square fragments ({n} x {n}) whose "
@@ -252,11 +258,13 @@ def fragmentation_from_args(args, cal, draws, profile) -> Fragmentation | None:
             f"calibration's law at the fragment's side"))
     if args.fragmentation is None:
         if crsp_only:
-            raise CliError(f"{crsp_only[0]}: give --fragmentation crsp to break the blocks")
+            raise FragmentationError(
+                f"{crsp_only[0]}: give --fragmentation crsp to break the blocks")
         return None
     if cal.model != "crsp":
-        raise CliError("--fragmentation crsp: the CRSP break rule, and this run is the DEM's; "
-                       "the DEM breaks bonded fragments: --fragments N")
+        raise FragmentationError(
+            "--fragmentation crsp: the CRSP break rule, and this run is the DEM's; "
+            "the DEM breaks bonded fragments: --fragments N")
     return _crsp_fragmentation(args, cal, draws, profile)
 
 
@@ -267,21 +275,23 @@ def _crsp_fragmentation(args, cal, draws, profile) -> Fragmentation:
     rho0, speed = solver_defaults()
     rho = rho0 if args.frag_radius_ratio is None else args.frag_radius_ratio
     if not (math.isfinite(rho) and 0.0 < rho < 1.0):
-        raise CliError(f"--frag-radius-ratio: expected a ratio in (0, 1), got {rho:g}")
+        raise FragmentationError(f"--frag-radius-ratio: expected a ratio in (0, 1), got {rho:g}")
     n = round(rho ** -3.0)
     if abs(rho ** -3.0 - n) > 0.01 * n:
-        raise CliError(f"--frag-radius-ratio {rho:g}: 1/rho^3 = {rho ** -3.0:.4g} is not a "
-                       f"whole number of fragments (within 1 %); e.g. 0.5 (8 fragments), "
-                       f"{16 ** (-1 / 3):.5f} (16), 0.25 (64)")
+        raise FragmentationError(
+            f"--frag-radius-ratio {rho:g}: 1/rho^3 = {rho ** -3.0:.4g} is not a "
+            f"whole number of fragments (within 1 %); e.g. 0.5 (8 fragments), "
+            f"{16 ** (-1 / 3):.5f} (16), 0.25 (64)")
     e = args.frag_energy_kJ
     if e is not None and not (math.isfinite(e) and e > 0.0):
-        raise CliError(f"--frag-energy-kJ: expected a positive energy in kJ, got {e:g}")
+        raise FragmentationError(f"--frag-energy-kJ: expected a positive energy in kJ, got {e:g}")
     column = effect_box("fragmentation", profile).names[0]
     fitted = column in draws.names
     if e is None and not fitted:
-        raise CliError(f"--fragmentation crsp: {cal.path} has no fitted fragmentation effect "
-                       f"(crsp.effects does not list it: python -m calib.fit --effect "
-                       "fragmentation fits it); give --frag-energy-kJ E for a what-if")
+        raise FragmentationError(
+            f"--fragmentation crsp: {cal.path} has no fitted fragmentation effect "
+            f"(crsp.effects does not list it: python -m calib.fit --effect "
+            "fragmentation fits it); give --frag-energy-kJ E for a what-if")
     what_if = e is not None or args.frag_radius_ratio is not None and rho != rho0
     if e is None:
         col = np.asarray(draws.values)[:, list(draws.names).index(column)]
