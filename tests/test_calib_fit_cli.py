@@ -6,7 +6,7 @@ import json
 import os
 
 import pytest
-from cli_run import run_module
+from cli_run import run_cli, run_module
 
 DATA = "data/postignano.csv"
 PROFILE = "data/postignano_profile.csv"
@@ -102,16 +102,22 @@ def test_help_explains():
     ("block_size_m,runout_m,runout_sd_m\n0.5,100,10\n1.0,450,10\n",
      "line 3, column 'runout_m': runout 450 m lies beyond the end of the profile"),
 ])
-def test_bad_input_one_line_exit_2_nothing_written(tmp_path, content, needle):
+def test_bad_input_one_line_exit_2_nothing_written(tmp_path, content, needle, capsys):
+    """The command's ``main`` in this process (a fresh interpreter per case would
+    cost a JAX import each); test_missing_default_profile_is_explained runs the
+    command as a process."""
+    from calib.fit import main
+
     data = tmp_path / "site.csv"
     if content is not None:
         data.write_text(content)
     out = tmp_path / "out"
-    proc = run(str(data), "--profile", os.path.abspath(PROFILE), "--out", str(out), "--quick")
-    assert proc.returncode == 2, proc.stderr
-    assert needle in proc.stderr, proc.stderr
-    assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
-    assert "Traceback" not in proc.stderr
+    rc, _, err = run_cli(main, [str(data), "--profile", os.path.abspath(PROFILE), "--out",
+                                str(out), "--quick"], capsys)
+    assert rc == 2, err
+    assert needle in err, err
+    assert len(err.strip().splitlines()) == 1, err
+    assert "Traceback" not in err
     assert not out.exists()
 
 

@@ -46,6 +46,7 @@ def _objective(obs, forward):
     return f
 
 
+@pytest.mark.slow  # 23 s
 def test_smoothed_gradient_agrees_with_central_differences(crsp_data):
     """The optimiser minimises J_sigma(u) = E_eps J(u + sigma eps), the Gaussian
     smoothing of the common-random-number objective J. Its gradient estimator must

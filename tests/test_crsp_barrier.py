@@ -89,7 +89,8 @@ def _identical(a, b, rows=slice(None)):
     np.testing.assert_array_equal(a.stations.energy_kJ[rows], b.stations.energy_kJ[rows])
 
 
-@pytest.mark.parametrize("name", SITES)
+@pytest.mark.parametrize("name", [
+    "postignano", pytest.param("tschamut", marks=pytest.mark.slow)])  # 23 s each
 def test_a_barrier_that_catches_nothing_changes_nothing(name):
     """Height 0, a barrier at +inf, beyond the profile's end or behind the
     release: every runout, status, event count and station record is
@@ -320,6 +321,7 @@ def test_a_rolling_block_meets_the_barrier_at_its_rolling_speed():
                                rtol=1e-10)
 
 
+@pytest.mark.slow  # 12 s
 def test_barriers_vary_per_task_in_one_compiled_pool():
     """The barrier's parameters are per task like the others: tasks with
     different barriers in one ``simulate_tasks`` call (common random numbers)

@@ -40,7 +40,8 @@ def _median_se(x, seed=0, n_boot=200):
     return float(np.std(np.median(np.asarray(x)[idx], axis=1)))
 
 
-@pytest.mark.parametrize("step_m", [0.5, 2.0, 5.0])
+@pytest.mark.parametrize("step_m", [  # 2 and 5 m: a compilation each, 13 s (slow)
+    0.5, pytest.param(2.0, marks=pytest.mark.slow), pytest.param(5.0, marks=pytest.mark.slow)])
 @pytest.mark.parametrize("setting", [
     dict(radius_m=0.1, Kn=0.44, Kt=0.96, roughness_m=0.37),   # a Postignano calibration
     dict(radius_m=0.5, roughness_m=0.0),                        # smooth: rolls to 153 m
@@ -116,6 +117,7 @@ def test_roughness_limit_s_to_zero_equals_s_zero():
         assert abs(np.median(rs) - np.median(r0)) < 0.05, (s, np.median(rs), np.median(r0))
 
 
+@pytest.mark.slow  # two sizes x 1000 blocks, 11 s
 def test_small_roughness_adds_no_size_effect():
     """Dissipation that does not come through S / R: with S = 1e-4 m a 0.1 m and
     a 2 m block run out alike (no loss that scales as 1/R whatever S)."""
@@ -179,6 +181,9 @@ def test_median_runout_does_not_increase_with_roughness_paper_rolling_resistance
     _assert_non_increasing(meds, ses)
 
 
+# slow: a 150-vertex profile's compilation, 19 s; the default run keeps collinear vertices at 0.5
+# m
+@pytest.mark.slow
 def test_survey_noise_does_not_change_a_smooth_run():
     """A rolling block crossing hundreds of small kinks (1 cm noise every 2 m)
     keeps its runout. Before: 173.5 m on 3 segments, 117.0 m with the noise."""
@@ -197,6 +202,8 @@ def _curve(n_seg, phi_deg=20.0):
     return make_profile(x, z, ["z"] * n_seg, mats)
 
 
+# slow: four profiles' compilations, 37 s; the default run keeps collinear vertices at 0.5 m
+@pytest.mark.slow
 def test_refining_a_smooth_curve_converges():
     """A smooth concave curve with a convex hump, sampled ever more finely: the
     median runout settles (S = 0.3 m: within 0.3 m from 100 segments on)."""

@@ -231,6 +231,7 @@ def test_loglik_noise_sd_is_the_spread_of_the_summed_rows():
     assert loglik_noise_sd(reps) == pytest.approx(np.std([-6.0, -7.0, -3.0], ddof=1))
 
 
+@pytest.mark.slow  # 32 s
 def test_crsp_replicates_are_independent_block_sets_of_the_fit_size():
     from calib.model.forward import CrspForward
 
@@ -336,11 +337,15 @@ def test_concentration_warning_names_the_sizes_that_carry_an_unnamed_gain():
     (["data/postignano.csv", "--model", "dem", "--rolling-resistance", "fit"],
      "--rolling-resistance fit"),
 ])
-def test_discover_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, needle):
+def test_discover_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, needle, capsys):
+    """``main`` in this process (the command as a process: test_discover_help_explains
+    and the runs above)."""
+    from calib.discover import main
+
     out = tmp_path / "d"
-    proc = _cli("calib.discover", *args, "--out", str(out), "--no-progress")
-    assert proc.returncode == 2
-    assert needle in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    rc, _, err = run_cli(main, [*args, "--out", str(out), "--no-progress"], capsys)
+    assert rc == 2
+    assert needle in err and len(err.strip().splitlines()) == 1, err
     assert not out.exists()
 
 

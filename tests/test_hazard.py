@@ -216,6 +216,7 @@ def test_chunk_counts_read_the_status():
 
 # ---------------------------------------------------------------- 1/sqrt(N) bands
 
+@pytest.mark.slow  # three run sizes, 14 s
 def test_bands_shrink_as_one_over_sqrt_n(tmp_path):
     """No posterior sample: every draw is the point estimate with its own random
     numbers, so the spread over draws is Monte Carlo noise only, sd =

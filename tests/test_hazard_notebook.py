@@ -12,6 +12,7 @@ from test_hazard_fixtures import posterior_rows, write_calibration
 NOTEBOOK = os.path.join("notebooks", "02_hazard.py")
 
 
+@pytest.mark.slow  # the notebook end to end, 16 s; tests/test_hazard_cli.py runs the command
 def test_hazard_notebook_runs_small(tmp_path, monkeypatch):
     cal = write_calibration(tmp_path, crsp_posterior=posterior_rows(20))
     out = tmp_path / "nb"

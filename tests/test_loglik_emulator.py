@@ -7,6 +7,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from scipy.stats import qmc
 
 from calib.inference.bayes import keep_chains
@@ -48,6 +49,7 @@ def test_the_emulator_finds_the_peak_and_caps_the_wall():
     assert abs(far - emu.cap) < 30.0, (far, emu.cap)
 
 
+@pytest.mark.slow  # 11 s
 def test_points_added_at_the_posterior_do_not_raise_the_level_far_from_them():
     """A refinement wave adds the best points of a design (where the chains
     sat). Counted in the GP's mean they raise the level it reverts to away

@@ -144,6 +144,9 @@ def tschamut_discover(tmp_path_factory):
     return proc, out
 
 
+# slow: a quick `calib.discover` on the 62 Tschamut runs, 70 s; the default run keeps
+# test_discover_simulates_each_row_from_its_own_release
+@pytest.mark.slow
 def test_discover_on_a_field_campaign_releases_each_run_from_its_point(tschamut_discover):
     """On the Tschamut runs (62 rows, 3 blocks, releases spread along the slope)
     the candidates simulate one group per (block, release within 1 m), each

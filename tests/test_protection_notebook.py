@@ -44,6 +44,9 @@ def _tschamut_calibration(folder) -> str:
     return path
 
 
+# slow: the notebook end to end at its small budget, 50 s; the default run keeps its import check
+# and tests/test_design.py
+@pytest.mark.slow
 def test_protection_notebook_runs_small(tmp_path, monkeypatch):
     (tmp_path / "p").mkdir()
     (tmp_path / "t").mkdir()

@@ -8,6 +8,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from scipy.stats import qmc
 
 from calib.inference.bayes import run_nuts
@@ -75,6 +76,7 @@ def test_a_gp_that_knows_the_peak_keeps_its_realisations_inside_the_interval():
     assert problems == [] and record["outside"] == [], record
 
 
+@pytest.mark.slow  # two quick fits, 22 s
 def test_the_spread_between_two_fits_is_flagged():
     """The defect (Tschamut, all 62 runs: Kt 0.960-0.964 and
     0.973-0.978 from two seeds, both passing their diagnostics): two fits of
@@ -110,6 +112,7 @@ def test_realisations_put_no_weight_outside_the_prior_box():
     assert np.all(med <= box.hi) and np.all(med >= box.lo), med.max(axis=0)
 
 
+@pytest.mark.slow  # a fit and its repair, 43 s; the default run keeps the realisations' own checks
 def test_simulating_at_the_realisations_draws_repairs_the_spread():
     """The repair, in ``calib.inference.bayes_stage``'s order: while NUTS fails its
     diagnostics (chains started as the fit starts them,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import jax
 import numpy as np
+import pytest
 from test_hazard_fixtures import write_calibration
 
 from calib.files.calibration_file import load_calibration
@@ -29,6 +30,7 @@ def test_fourth_parameter_at_the_profile_value_changes_nothing_and_orders_runout
     assert four.input_box.dim == 4 and four.input_box.names[3] == "tan(phi_r)"
 
 
+@pytest.mark.slow  # 14 s
 def test_hazard_reads_a_fitted_rolling_angle(tmp_path):
     """A calibration with rolling_friction_deg: the reader returns four names and the
     hazard run uses the angle: on smooth ground (S = 0.25 m, where rolling matters)

@@ -9,7 +9,7 @@ import os
 import jax
 import numpy as np
 import pytest
-from cli_run import run_module
+from cli_run import run_cli, run_module
 
 from calib.files.observations import ObservationError, load_velocities
 from calib.inference.likelihood import V_MAX_M_S, VELOCITY_EPS, velocity_log_likelihood
@@ -66,6 +66,7 @@ def test_velocity_likelihood_by_hand_conditional_on_passing():
     assert none == pytest.approx(np.log(VELOCITY_EPS / V_MAX_M_S))
 
 
+@pytest.mark.slow  # 31 s
 def test_crsp_simulate_gives_the_runouts_and_speeds_of_blocks_that_pass():
     fw = CrspForward(PROFILE, np.array([0.2, 2.0]), 24, jax.random.key(3),
                      stations_x_m=(60.0, 200.0))
@@ -121,6 +122,7 @@ def test_synth_bad_velocity_input_is_one_line_exit_2(tmp_path, args, needle):
     assert os.listdir(tmp_path) == []
 
 
+@pytest.mark.slow  # a quick `calib.discover` with speeds, 31 s
 def test_discover_scores_the_speeds_with_every_candidate(belt_with_speeds):
     _, out = belt_with_speeds
     proc = _cli("calib.discover", str(out / "s.csv"), "--quick", "--velocities",
@@ -140,14 +142,17 @@ def test_discover_scores_the_speeds_with_every_candidate(belt_with_speeds):
     ([], HEADER + "110,1,10,-1,a\n", "column 'velocity_sd_m_s'"),
     (["--model", "dem"], HEADER + "110,1,10,1,a\n", "crsp model only"),
 ])
-def test_discover_bad_velocities_is_one_line_exit_2(tmp_path, extra, body, needle):
+def test_discover_bad_velocities_is_one_line_exit_2(tmp_path, extra, body, needle, capsys):
+    """``main`` in this process: a refusal costs no interpreter start."""
+    from calib.discover import main
+
     p = tmp_path / "v.csv"
     p.write_text(body)
     out = tmp_path / "d"
-    proc = _cli("calib.discover", "data/postignano.csv", "--velocities", str(p), *extra,
-                "--out", str(out), "--no-progress")
-    assert proc.returncode == 2
-    assert needle in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    rc, _, err = run_cli(main, ["data/postignano.csv", "--velocities", str(p), *extra,
+                                "--out", str(out), "--no-progress"], capsys)
+    assert rc == 2
+    assert needle in err and len(err.strip().splitlines()) == 1, err
     assert not out.exists()
 
 

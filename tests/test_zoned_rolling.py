@@ -25,6 +25,7 @@ def _forward(box, n_blocks=256):
     return CrspForward(TSCHAMUT, RELEASE, n_blocks, jax.random.key(3), box=box)
 
 
+@pytest.mark.slow  # 14 s
 def test_equal_zone_angles_are_the_slope_wide_angle():
     """Continuity with the one-angle model: every zone at phi_r gives the same
     blocks, to the last bit, as rolling_friction_deg = phi_r."""
