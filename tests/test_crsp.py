@@ -170,6 +170,9 @@ def test_vmap_equals_loop_and_same_key_same_result():
     np.testing.assert_array_equal(np.asarray(again.runout_m), np.asarray(batch.runout_m))
 
 
+# slow: 21 s; tests/test_hazard.py::test_counts_do_not_depend_on_chunking_or_pool keeps chunking
+# in the default run
+@pytest.mark.slow
 def test_chunking_does_not_change_results():
     prof = load_profile(POSTIGNANO)
     params = crsp.params_from_profile(prof)

@@ -45,6 +45,8 @@ SITES = {
                      params=dict(release_x_m=41.0, release_height_m=1.3, release_vx_m_s=1.5,
                                  roughness_m=0.3)),
 }
+# the Tschamut cases compile programs of their own (about 24 s): -m slow
+CASES = ["postignano", pytest.param("tschamut", marks=pytest.mark.slow)]
 
 
 def _stations(site):
@@ -89,8 +91,7 @@ def _identical(a, b, rows=slice(None)):
     np.testing.assert_array_equal(a.stations.energy_kJ[rows], b.stations.energy_kJ[rows])
 
 
-@pytest.mark.parametrize("name", [
-    "postignano", pytest.param("tschamut", marks=pytest.mark.slow)])  # 23 s each
+@pytest.mark.parametrize("name", CASES)
 def test_a_barrier_that_catches_nothing_changes_nothing(name):
     """Height 0, a barrier at +inf, beyond the profile's end or behind the
     release: every runout, status, event count and station record is
@@ -113,7 +114,7 @@ def test_a_barrier_that_catches_nothing_changes_nothing(name):
     assert not behind_run.barrier.reached.any()
 
 
-@pytest.mark.parametrize("name", SITES)
+@pytest.mark.parametrize("name", CASES)
 def test_an_unlimited_barrier_stops_every_block_that_reaches_it(name):
     """Unlimited height and capacity: a block reaches the barrier exactly when,
     without it, it passes a station there; each one stops at the barrier
@@ -141,7 +142,7 @@ def test_an_unlimited_barrier_stops_every_block_that_reaches_it(name):
     assert np.all(np.abs(rec.angle_deg[m]) <= 90.0) and np.all(rec.energy_after_kJ[m] == 0.0)
 
 
-@pytest.mark.parametrize("name", SITES)
+@pytest.mark.parametrize("name", CASES)
 def test_a_barrier_never_lets_more_blocks_past_the_stations_beyond_it(name):
     """Common random numbers (same key): blocks that do not reach the barrier
     or fly over it are untouched, bit for bit; stopped blocks pass nothing
@@ -165,7 +166,7 @@ def test_a_barrier_never_lets_more_blocks_past_the_stations_beyond_it(name):
         assert d.mean() <= 2.0 * se, (site["downslope_m"][j - 2], d.mean(), se)
 
 
-@pytest.mark.parametrize("name", SITES)
+@pytest.mark.parametrize("name", CASES)
 def test_the_energy_kept_is_never_more_than_the_energy_brought(name):
     """At the crossing: E_after = E over the barrier, 0 stopped, E - E_cap
     through it, never more than E; and just past the barrier (a station 1 um
@@ -194,8 +195,7 @@ def test_the_energy_kept_is_never_more_than_the_energy_brought(name):
     assert np.all((gap <= 1.01 * work + 1e-9 * after)[past]), np.max((gap - work)[past])
 
 
-@pytest.mark.parametrize("name", [
-    "postignano", pytest.param("tschamut", marks=pytest.mark.slow)])  # a compilation each
+@pytest.mark.parametrize("name", CASES)
 def test_no_block_below_the_ground_and_collinear_vertices_change_nothing(name):
     """With a barrier, no block ends below the ground or INVALID, and inserting
     collinear vertices (every 2 m on Postignano, one of them at the barrier;
@@ -215,7 +215,7 @@ def test_no_block_below_the_ground_and_collinear_vertices_change_nothing(name):
                                equal_nan=True)
 
 
-@pytest.mark.parametrize("name", SITES)
+@pytest.mark.parametrize("name", CASES)
 def test_as_the_capacity_goes_to_zero_the_barrier_vanishes(name):
     """E_cap -> 0: blocks in the net break through keeping almost all their
     energy (they lose E_cap = 1e-9 kJ of at least 0.08 kJ), and the runs

@@ -66,6 +66,9 @@ def runs(cal_path):
     return run
 
 
+# slow: 17 s; the solver's own case (tests/test_crsp_barrier.py, postignano) keeps height 0 in the
+# default run
+@pytest.mark.slow
 def test_height_zero_gives_the_tables_of_the_run_without(runs):
     """Every block flies over a barrier of height 0: the tables are those of the run
     without it, value for value; hazard.nc records the barrier."""

@@ -58,6 +58,8 @@ def test_an_entry_runs_on_its_own_profile_alone():
     np.testing.assert_array_equal(same.runouts(THETA)[:, 0], r[:, 0])
 
 
+# slow: the DEM on two profiles, 21 s; the default run keeps the CRSP case
+@pytest.mark.slow
 def test_dem_entries_on_their_own_profiles():
     """The DEM forward splits the same way: the entry on the spot's profile is
     that profile's forward alone."""

@@ -59,6 +59,8 @@ def _mean_gp_posterior(seed, n_design=24):
     return emu, post
 
 
+# slow: 20 s; the default run keeps the realisations' draws and prior-box checks
+@pytest.mark.slow
 def test_a_gp_that_knows_the_peak_keeps_its_realisations_inside_the_interval():
     """256 design points, 64 of them near the peak: the GP is sure there, the
     32 realisations' posterior medians lie inside the mean-GP posterior's 90 %
