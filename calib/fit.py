@@ -126,7 +126,8 @@ class FitRun:
     """What one calibration run (``run_fit``) produced, typed.
 
     Attributes:
-        calibration: the calibration file written, read back
+        calibration: the calibration file written, as the typed document
+            it was written from, its ``path`` set
             (``calib.files.calibration_file.CalibrationFile``; one model's
             ``Calibration`` is ``calibration.calibration(model)``).
         fits: model -> its ``calib.inference.calibrate.ModelRun`` (the
@@ -177,7 +178,7 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
         CliError: bad input (one line naming the file, row and column) or a
             fit the alpha-law check refuses; nothing is written.
     """
-    from calib.files.calibration_file import CalibrationFile, fit_document
+    from calib.files.calibration_file import fit_document
     from calib.inference.calibrate import fit_model
     from calib.model.alpha_law import check_fit
 
@@ -221,7 +222,9 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
     files["calibration.json"] = cal.to_json()
     figs, writers = _fit_outputs(fits, inputs, files)
     write_outputs(out, files, figs, writers)
-    return FitRun(CalibrationFile.from_json(os.path.join(out, "calibration.json")), fits,
+    # the document written, with the path its relative paths resolve against
+    # (not read back: it is the typed results just written)
+    return FitRun(dataclasses.replace(cal, path=os.path.join(out, "calibration.json")), fits,
                   inputs, entries, out,
                   os.path.join(out, "heldout_rows.csv") if holdout_fraction else None)
 
