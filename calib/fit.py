@@ -286,7 +286,7 @@ def _inputs(data, profile, out, tol_m, holdout_fraction, seed, say):
         raise CliError(str(e)) from None
     files, data_csv = {}, data
     if holdout_fraction:
-        obs, data_csv = _split(data, out, holdout_fraction, seed, inputs.obs, files, say)
+        obs, data_csv = _split(out, holdout_fraction, seed, inputs.obs, files, say)
         inputs = dataclasses.replace(inputs, obs=obs)
     return inputs, data_csv, files
 
@@ -346,22 +346,18 @@ def _entries_lines(inputs, entries, tol_m: float) -> list[str]:
     return lines
 
 
-def _split(data, out, fraction, seed, obs, files, say):
+def _split(out, fraction, seed, obs, files, say):
     """Split the rows (``calib.files.split``): the fit's observations, and the path its
-    calibration rows will have; both row files join the outputs."""
-
-    from calib.files.observations import read_table
-    from calib.files.split import holdout_rows, subset
+    calibration rows will have; both row files, written from the rows as read, join
+    the outputs."""
+    from calib.files.split import holdout_rows, rows_csv, subset
 
     try:
         fit_rows, held_rows = holdout_rows(obs.n_obs, fraction, seed)
     except ValueError as e:
         raise CliError(str(e)) from None
-    table = read_table(data, "block_size_m,...")
-    if "profile" in table.columns:  # the row files live in --out: paths relative to it
-        table["profile"] = [os.path.relpath(p, out) if p else "" for p in obs.profile]
-    files["calibration_rows.csv"] = table.iloc[fit_rows].to_csv(index=False)
-    files["heldout_rows.csv"] = table.iloc[held_rows].to_csv(index=False)
+    files["calibration_rows.csv"] = rows_csv(obs, fit_rows, out)
+    files["heldout_rows.csv"] = rows_csv(obs, held_rows, out)
     say(f"holding out {len(held_rows)} of {obs.n_obs} rows (seed {seed}): "
         f"{os.path.join(out, 'heldout_rows.csv')}")
     return subset(obs, fit_rows), os.path.join(out, "calibration_rows.csv")

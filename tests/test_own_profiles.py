@@ -202,18 +202,36 @@ def test_split_rows_keep_their_profiles(tmp_path, capsys):
     """``calib.fit --holdout-fraction`` writes the row files into --out: their
     profile column is rewritten relative to it, so that the held-out rows
     (``calib.validate``) and the calibration rows still name the same files."""
-    from calib.fit import _split
+    from calib.files.split import holdout_rows, rows_csv, subset
 
     out = tmp_path / "results"
     out.mkdir()
     obs = load_observations(f"{DATA}/observations.csv")
-    files = {}
-    fit_obs, _ = _split(f"{DATA}/observations.csv", str(out), 0.3, 1, obs, files, print)
-    for name in ("calibration_rows.csv", "heldout_rows.csv"):
-        (out / name).write_text(files[name])
+    fit_rows, held_rows = holdout_rows(obs.n_obs, 0.3, 1)
+    fit_obs = subset(obs, fit_rows)
+    (out / "calibration_rows.csv").write_text(rows_csv(obs, fit_rows, str(out)))
+    (out / "heldout_rows.csv").write_text(rows_csv(obs, held_rows, str(out)))
     held = load_observations(out / "heldout_rows.csv")
     back = load_observations(out / "calibration_rows.csv")
     absolute = lambda o: [os.path.abspath(p) for p in o.profile]  # noqa: E731
     assert absolute(back) == absolute(fit_obs)
     assert set(absolute(held)) <= set(absolute(obs)) and len(held.profile) == 19
     assert sum(p.endswith("east_spot_profile.csv") for p in back.profile) == 11
+
+
+def test_row_files_are_the_rows_as_validated(tmp_path):
+    """The split's row files come from the rows read and validated, not from a
+    second read of the file: a file changed after loading does not leak in, and
+    the subset's cells are those of its rows."""
+    from calib.files.split import rows_csv, subset
+
+    src = tmp_path / "rows.csv"
+    src.write_text("block_size_m,runout_m,runout_sd_m,source\n0.5,100,10,a\n1.0,150,10,b\n"
+                   "2.0,200,10,c\n3.0,250,10,d\n")  # as many rows as columns
+    obs = load_observations(src)
+    src.write_text("block_size_m,runout_m,runout_sd_m,source\n9,9,9,x\n")
+    rows = np.array([0, 2])
+    assert rows_csv(obs, rows, str(tmp_path)) == ("block_size_m,runout_m,runout_sd_m,source\n"
+                                                  "0.5,100,10,a\n2.0,200,10,c\n")
+    assert subset(obs, rows).cells == (("0.5", "100", "10", "a"), ("2.0", "200", "10", "c"))
+    assert subset(obs, rows).columns == obs.columns

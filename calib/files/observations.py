@@ -94,6 +94,9 @@ class Observations:
             given: on the ground).
         profile: profile file of each row, resolved against the observation
             file's folder ("" where not given: the command's profile), str array.
+        columns, cells: the file's header and each row's cells as read (text),
+            so that a subset of the rows is written back exactly as they were
+            validated (``calib.files.split``); None for rows built in memory.
     """
 
     block_size_m: np.ndarray
@@ -110,6 +113,8 @@ class Observations:
     shape: np.ndarray | None = None
     release_height_m: np.ndarray | None = None
     profile: np.ndarray | None = None
+    columns: tuple[str, ...] | None = None
+    cells: tuple[tuple[str, ...], ...] | None = None
 
     def __post_init__(self):
         n = int(np.shape(self.block_size_m)[0])
@@ -272,7 +277,8 @@ def load_observations(path: str | os.PathLike) -> Observations:
     src = tuple(df["source"].tolist()) if "source" in df.columns else ("",) * len(df)
     x0, speed, run_id, shape, height, prof = _field_columns(df, path)
     return Observations(d, np.where(is_int, np.nan, y), np.where(is_int, np.nan, sd),
-                        lo, hi, is_int, src, path, x0, speed, run_id, shape, height, prof)
+                        lo, hi, is_int, src, path, x0, speed, run_id, shape, height, prof,
+                        tuple(df.columns), tuple(map(tuple, df.itertuples(index=False))))
 
 
 def _field_columns(df: pd.DataFrame, path: str):

@@ -11,12 +11,14 @@ that a split never depends on how sizes were rounded.
 from __future__ import annotations
 
 import dataclasses
+import os
 
 import numpy as np
+import pandas as pd
 
 from calib.files.observations import Observations
 
-__all__ = ["holdout_rows", "subset"]
+__all__ = ["holdout_rows", "rows_csv", "subset"]
 
 
 def holdout_rows(n_rows: int, fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -42,9 +44,23 @@ def subset(obs: Observations, rows: np.ndarray) -> Observations:
     n = obs.n_obs
     upd = {}
     for f in dataclasses.fields(obs):
+        if f.name == "columns":  # per column, not per row
+            continue
         v = getattr(obs, f.name)
         if isinstance(v, np.ndarray) and v.shape[:1] == (n,):
             upd[f.name] = v[rows]
         elif isinstance(v, tuple) and len(v) == n:
             upd[f.name] = tuple(v[i] for i in rows)
     return dataclasses.replace(obs, **upd)
+
+
+def rows_csv(obs: Observations, rows: np.ndarray, out: str) -> str:
+    """The CSV text of ``rows`` as they were read (``Observations.cells``), for a
+    file in the folder ``out``: a ``profile`` cell is rewritten relative to
+    ``out`` (the rows' profiles stay found from there)."""
+    if obs.cells is None:
+        raise ValueError("rows built in memory have no cells to write")
+    table = pd.DataFrame(list(obs.cells), columns=list(obs.columns), dtype=str)
+    if "profile" in table.columns:
+        table["profile"] = [os.path.relpath(p, out) if p else "" for p in obs.profile]
+    return table.iloc[rows].to_csv(index=False)
