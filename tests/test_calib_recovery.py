@@ -15,6 +15,7 @@ import pytest
 
 import calib  # noqa: F401  (x64)
 from calib.discovery.synthetic import synthesize
+from calib.files.split import subset
 from calib.inference.calibrate import calibrate, presets
 from calib.inference.gradient import smoothed_gradient, theta_of_u, u_of_theta
 from calib.inference.likelihood import log_likelihood
@@ -60,11 +61,7 @@ def test_smoothed_gradient_agrees_with_central_differences(crsp_data):
     numbers J still jumps when a block's event sequence changes, and its differences
     scatter by a factor of several and change sign for steps below 0.1 in u (measured
     while writing this test). That is why the optimiser smooths."""
-    keep = crsp_data.block_size_m >= 1.6
-    obs = dataclasses.replace(
-        crsp_data, **{f.name: getattr(crsp_data, f.name)[keep] for f in
-                      dataclasses.fields(crsp_data) if f.name not in ("source", "path")},
-        source=tuple(np.array(crsp_data.source)[keep]))
+    obs = subset(crsp_data, np.flatnonzero(crsp_data.block_size_m >= 1.6))
     fw = CrspForward(PROFILE, obs.sizes_m, 64, jax.random.key(7))
     obj = _objective(obs, fw)
     u0 = u_of_theta(CRSP_BOX, np.array([0.35, 0.85, 1.6]))
