@@ -178,7 +178,7 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
         CliError: bad input (one line naming the file, row and column) or a
             fit the alpha-law check refuses; nothing is written.
     """
-    from calib.files.calibration_file import fit_document
+    from calib.files.fit_record import fit_document
     from calib.inference.calibrate import fit_model
     from calib.model.alpha_law import check_fit
 

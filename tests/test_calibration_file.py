@@ -1,7 +1,7 @@
 """Every calibration ``calib.fit`` can write is one ``calib.hazard`` accepts, and
 the hazard run simulates the parameters (DEM: the alpha per size) that the fit
 simulated. Property test over each prior box: its corners and uniform draws
-from it, written through the fit's own writers (``calib.files.calibration_file.model_section``,
+from it, written through the fit's own writers (``calib.files.fit_record.model_section``,
 ``calib.files.calibration_file.posterior_csv_text``), read back by
 ``load_calibration``, and taken through the hazard run's acceptance check and
 the set-up of its work units (no simulation: seconds)."""
@@ -22,9 +22,9 @@ from calib.files.calibration_file import (
     CalibrationError,
     draw_parameters,
     load_calibration,
-    model_section,
     posterior_csv_text,
 )
+from calib.files.fit_record import model_section
 from calib.hazard._run import _crsp_units, _dem_units, check_dem_draws
 from calib.model.dem_run import DEM_RUN, DemRun
 from calib.model.entries import Entries

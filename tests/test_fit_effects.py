@@ -269,7 +269,8 @@ def test_fit_with_effects_writes_and_reads_them(tmp_path, capsys, monkeypatch):
 def test_model_section_writes_the_effects_and_the_posterior_columns():
     """The writer's half (posterior CSV and section) from a fit object: the
     effects' columns sit in ``parameters``, as keys and as CSV columns."""
-    from calib.files.calibration_file import model_section, posterior_csv_text
+    from calib.files.calibration_file import posterior_csv_text
+    from calib.files.fit_record import model_section
 
     effects = ("vegetation_belt",)
     fw = CrspForward(PROFILE, np.array([1.0]), 4, jax.random.key(0), effect=effects)

@@ -1,5 +1,6 @@
 """The calibration file: ``results/calibration.json``, its one reader, and
-drawing parameter sets from it.
+drawing parameter sets from it. The document a fit writes is assembled from its
+typed results in ``calib.files.fit_record``; ``CalibrationFile.to_json`` writes it.
 
 ``python -m calib.fit`` writes it (``SCHEMA``); every consumer reads it through
 ``load_calibration`` (``python -m calib.hazard``, ``python -m calib.validate``,
@@ -56,10 +57,9 @@ from calib.model.priors import base_name, rolling_zone
 from solvers.dem import check_run_numerics
 from solvers.material import ROCK_DENSITY_KG_M3
 
-__all__ = ["ALPHA_AT_L", "SCHEMA", "Calibration", "CalibrationError", "CalibrationFile", "Draws",
-           "ModelSummary", "ParameterSummary", "dem_alpha_section", "draw_parameters",
-           "fit_document", "fitted_block_sizes_m", "load_calibration",
-           "model_section", "posterior_csv_text", "summary_stats"]
+__all__ = ["SCHEMA", "Calibration", "CalibrationError", "CalibrationFile", "Draws",
+           "ModelSummary", "ParameterSummary", "draw_parameters", "fitted_block_sizes_m",
+           "load_calibration", "posterior_csv_text"]
 
 SCHEMA = "rockfall-calibration/1"
 
@@ -633,141 +633,3 @@ class CalibrationFile:
             raise CalibrationError("a calibration built in memory has no file to resolve "
                                    "its paths against; write it with to_json first")
         return _model_from_doc(self.path, self.doc, model)
-
-
-def summary_stats(values: np.ndarray | None, point: float) -> dict:
-    """``map`` (the point estimate), ``mean``, ``q05``, ``q95`` of one parameter's
-    posterior draws ``values`` (None: the point estimate only)."""
-    if values is None:
-        return {"map": float(point), "mean": None, "q05": None, "q95": None}
-    return {"map": float(point), "mean": float(np.mean(values)),
-            "q05": float(np.quantile(values, 0.05)), "q95": float(np.quantile(values, 0.95))}
-
-
-def _finite(v) -> float | None:
-    """A float for JSON; None for a non-finite value (an objective of +inf where
-    some size had no finished block)."""
-    return float(v) if np.isfinite(v) else None
-
-
-def model_section(name: str, fit, forward, law_form: str | None = None) -> dict:
-    """The section of one model (``calib.inference.calibrate.ModelFit`` ``fit`` of
-    ``forward``) as ``calib.fit`` writes it: parameters with map/mean/q05/q95
-    (DEM: under ``alpha_law``, with the DEM numerics under ``run``), prior,
-    gradient and Bayes records with their diagnostics, fit quality, adequacy,
-    unfinished blocks, budgets and timings; CRSP: ``effects``, the effects
-    ``forward`` switches on (their columns are among the parameters); ``posterior_csv`` and
-    ``posterior_netcdf`` name the files written next to it."""
-    post = fit.posterior
-    sec = {"parameters": list(fit.names), "estimate_source": fit.estimate_source,
-           "fit_quality": fit.quality, "unfinished_blocks": fit.unfinished,
-           "adequacy": fit.adequacy,
-           "timings_s": fit.timings_s,
-           "budget": {k: v for k, v in vars(fit.budget).items()},
-           "n_blocks_check": int(fit.check_runouts.shape[-1]),
-           "common_random_numbers": True,
-           "prior": {n: [float(lo), float(hi)] for n, lo, hi in
-                     zip(fit.names, forward.box.lo, forward.box.hi)}}
-    stats = {n: summary_stats(None if post is None else post.samples[:, i], fit.estimate[i])
-             for i, n in enumerate(fit.names)}
-    if fit.gradient is not None:
-        g = fit.gradient
-        sec["gradient"] = {
-            "estimate": dict(zip(fit.names, map(float, g.theta))),
-            "starts_final": [dict(zip(fit.names, map(float, t))) for t in g.theta_starts],
-            "objective_final": [_finite(v) for v in g.objective_final],
-            "objective_history": [[_finite(v) for v in row] for row in g.history]}
-    if post is not None:
-        sec["bayes"] = {
-            "summary": post.summary(), "ok": post.ok, "problems": post.problems,
-            "divergences": post.divergences, "accept_prob": post.accept_prob,
-            "n_draws": int(post.samples.shape[0]), "n_chains": post.n_chains,
-            "diagnostics": post.criteria,
-            "emulator": fit.emulator_check, "focus": fit.focus,
-            "chain_screen": fit.chain_screen}
-        sec["posterior_csv"] = f"{name}_posterior.csv"
-        sec["posterior_netcdf"] = f"{name}_posterior.nc"
-    else:
-        sec["posterior_csv"] = sec["posterior_netcdf"] = None
-    if law_form is None:
-        sec["effects"] = list(effect_names(getattr(forward, "effect", "none")))
-        sec.update(stats)
-    else:
-        sec["run"] = dataclasses.asdict(forward.run)  # the DEM numerics (calib.model.dem_run)
-        sec["alpha_law"] = {"form": law_form,
-                            "expression": "a*L**-b" if law_form == "power" else "alpha",
-                            **stats}
-    return sec
-
-
-ALPHA_AT_L = (0.2, 0.9, 1.8)  # DEM square sides at which alpha(L) is reported by default, m
-
-BLOCK_SIZE_MAPPING = {"crsp_radius_m": "block_size_m / 2", "dem_side_m": "block_size_m",
-                      "crsp_mass_kg": "rock_density_kg_m3 * pi * block_size_m**3 / 6",
-                      "dem_mass_kg_per_m": "rock_density_kg_m3 * block_size_m**2"}
-
-
-def dem_alpha_section(form: str, fit, site, sizes_m) -> dict:
-    """alpha(L) of a DEM fit at the site's reference sides (``site.alpha_reference``)
-    or at ``ALPHA_AT_L``: ``map``/``mean``/``q05``/``q95`` per side, with the
-    published value beside it where the site gives one."""
-    from calib.model.alpha_law import alpha_of
-
-    ref = dict(site.alpha_reference)
-    ls = np.asarray(sorted(ref) if ref else ALPHA_AT_L)
-    at = np.asarray(alpha_of(form, fit.estimate, ls))
-    post = fit.posterior
-    samp = None if post is None else np.asarray(alpha_of(form, post.samples, ls))
-    sec = {"alpha_at_L": {f"{L:g}": {**summary_stats(None if samp is None else samp[:, i], at[i]),
-                                     **({"reference": ref[L]} if ref else {})}
-                          for i, L in enumerate(ls)}}
-    if ref:
-        sec["alpha_reference"] = {"label": site.alpha_reference_label, "site_file": site.path}
-    return sec
-
-
-def fit_document(header: dict, inputs, entries, fits: dict, grouped: bool,
-                 tolerance_m: float, total_s: float) -> CalibrationFile:
-    """The calibration file of one ``calib.fit`` run, from its typed results.
-
-    Args:
-        header: ``command``, ``data_csv``, ``seed``, ``quick``, ``methods``,
-            ``inputs`` (provenance), ``versions`` as the command ran.
-        inputs: ``calib.files.inputs.Inputs`` (profile, site, rows).
-        entries: the rows' ``calib.model.entries.Entries``.
-        fits: model -> (``ModelFit``, forward model, alpha-law form or None).
-        grouped: True where each row was released from its own point (the
-            ``release_groups`` record is written).
-        tolerance_m: the grouping tolerance, m.
-        total_s: the run's wall time, s.
-    """
-    models = list(fits)
-    doc = {"schema": SCHEMA, "command": header["command"], "data_csv": header["data_csv"],
-           "profile_csv": inputs.profile_path, "seed": header["seed"],
-           "release_x_m": inputs.release_x_m,
-           "release_groups": None if not grouped else {
-               "tolerance_m": tolerance_m, "models": models,
-               "speed_and_height_models": models,
-               "groups": [{k: v for k, v in g.items()}
-                          for g in entries.record(inputs.profile_path)]},
-           "quick": header["quick"], "methods": list(header["methods"]),
-           "versions": header["versions"], "inputs": header["inputs"],
-           "rock_density_kg_m3": entries.density_kg_m3,
-           "rock_density_source": inputs.site.density_source,
-           "release_height_sd_m": inputs.site.release_height_sd_m,
-           "release_height_source": inputs.site.release_height_source or None,
-           "release_speed_sd_m_s": inputs.site.release_speed_sd_m_s,
-           "release_speed_source": inputs.site.release_speed_source or None,
-           "block_size_mapping": BLOCK_SIZE_MAPPING,
-           "likelihood": "point: (1/n) sum_j N(y; r_j, sd^2 + v_j); interval: (1/n) sum_j "
-                         "[Phi((b-r_j)/w_j) - Phi((a-r_j)/w_j)] (calib/inference/likelihood.py)",
-           "n_observations": inputs.obs.n_obs, "fit_quality": {}, "timings_s": {}}
-    for model, (fit, forward, form) in fits.items():
-        sec = model_section(model, fit, forward, form)
-        if form is not None:
-            sec.update(dem_alpha_section(form, fit, inputs.site, inputs.obs.sizes_m))
-        doc[model] = sec
-        doc["fit_quality"][model] = fit.quality
-        doc["timings_s"][model] = fit.timings_s
-    doc["timings_s"]["total_s"] = total_s
-    return CalibrationFile.from_dict(doc)

@@ -74,8 +74,8 @@ def alpha_law(sizes_m: np.ndarray, alpha_map: np.ndarray, alpha_samples: np.ndar
 def fitted_alpha_law(form: str, fit, site, sizes_m) -> plt.Figure:
     """``alpha_law`` of a DEM fit (``calib.inference.calibrate.ModelFit``) over the
     fitted sizes and the site's reference sides (or the default sides of
-    ``calib.files.calibration_file.ALPHA_AT_L``), 25 % beyond both ends."""
-    from calib.files.calibration_file import ALPHA_AT_L
+    ``calib.files.fit_record.ALPHA_AT_L``), 25 % beyond both ends."""
+    from calib.files.fit_record import ALPHA_AT_L
     from calib.model.alpha_law import alpha_of
 
     ls = np.asarray(sorted(dict(site.alpha_reference)) or ALPHA_AT_L, float)
