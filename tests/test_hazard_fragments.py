@@ -22,6 +22,8 @@ import pytest
 from test_hazard_fixtures import write_calibration
 
 import solvers.crsp as crsp
+from calib.hazard import _fragment_options as opts
+from calib.hazard import _fragment_tables as tables
 from calib.hazard import _fragments as fr
 from calib.hazard import draw_parameters, load_calibration, run_hazard
 from calib.hazard.__main__ import main
@@ -160,7 +162,7 @@ def _calibration(tmp_path):
 
 
 def _spec(n=8, energy=E_BREAK_KJ):
-    return fr.Fragmentation("crsp", n, energy_kJ=energy, what_if=True, description="test")
+    return opts.Fragmentation("crsp", n, energy_kJ=energy, what_if=True, description="test")
 
 
 def _hazard(path, chunk_blocks, spec, sizes=(2.0,)):
@@ -226,7 +228,7 @@ def test_command_writes_fragment_tables(tmp_path):
     summary = (out / "summary.txt").read_text()
     assert "WHAT-IF" in summary and "n = 8 fragments" in summary
     table = pd.read_csv(out / "fragments.csv")
-    assert list(table.columns) == ["model"] + list(fr.FRAGMENT_COLUMNS)
+    assert list(table.columns) == ["model"] + list(tables.FRAGMENT_COLUMNS)
     with xr.open_dataset(out / "hazard.nc", engine="h5netcdf") as ds:
         assert set(fr.VARIABLES) <= set(ds.data_vars)
         assert int(ds.attrs["fragmentation_what_if"]) == 1
@@ -284,7 +286,7 @@ def test_fitted_fragmentation_runs_each_draws_break_energy(tmp_path):
     draws = draw_parameters(cal, 1, 0)
     args = argparse.Namespace(fragmentation="crsp", frag_energy_kJ=None, frag_radius_ratio=None,
                               fragments=None)
-    spec = fr.fragmentation_from_args(args, cal, draws, PROFILE)
+    spec = opts.fragmentation_from_args(args, cal, draws, PROFILE)
     assert spec.energy_kJ is None and not spec.what_if and spec.n_per_break == 8
     assert "WHAT-IF" not in spec.description and "fitted" in spec.description
     fitted = _hazard(path, N_CHUNK, spec)
@@ -293,7 +295,7 @@ def test_fitted_fragmentation_runs_each_draws_break_energy(tmp_path):
     for k, v in fitted.fragments.counts.items():
         np.testing.assert_array_equal(v, what_if.fragments.counts[k], err_msg=k)
     args.frag_radius_ratio = 0.25
-    spec = fr.fragmentation_from_args(args, cal, draws, PROFILE)
+    spec = opts.fragmentation_from_args(args, cal, draws, PROFILE)
     assert spec.what_if and spec.n_per_break == 64
 
 
@@ -305,7 +307,7 @@ def test_dem_bonded_fragments_are_counted_per_fragment(tmp_path):
     path = write_calibration(tmp_path, crsp=None)
     cal = load_calibration(path, "dem")
     draws = draw_parameters(cal, 1, 0)
-    spec = fr.Fragmentation("dem", 4, description="test")
+    spec = opts.Fragmentation("dem", 4, description="test")
     run = dataclasses.replace(DEM_RUN, max_time_s=4.0)
     c = run_hazard(cal, draws, PROFILE, np.array([0.8]), STATIONS, 2, 0, dem_run=run,
                    fragments=spec)
@@ -340,7 +342,7 @@ def test_fragment_runouts_of_a_1_8_m_block_against_the_paper(tmp_path, n_fragmen
     cal = load_calibration(path, "dem")
     draws = draw_parameters(cal, 1, 0)
     stations = np.arange(1.0, 300.0, 1.0)
-    spec = fr.Fragmentation("dem", n_fragments, description="paper")
+    spec = opts.Fragmentation("dem", n_fragments, description="paper")
     c = run_hazard(cal, draws, PROFILE, np.array([1.8]), stations, 4, 0,
                    dem_run=dataclasses.replace(DEM_RUN, max_time_s=400.0), fragments=spec)
     f = c.fragments.counts

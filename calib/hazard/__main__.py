@@ -18,7 +18,7 @@ import sys
 import time
 from typing import NamedTuple
 
-from calib.hazard._fragments import add_options as add_fragment_options
+from calib.hazard._fragment_options import add_options as add_fragment_options
 from calib.model.dem_run import DEM_RUN
 from solvers.cli import (
     CliError,
@@ -258,7 +258,7 @@ def _prepare(args, sizes) -> _Run:
     station of interest and the release placed on the profile, the draws made
     (``CliError`` or the files' errors naming the option or the file)."""
     from calib.hazard import check_dem_draws, draw_parameters, load_calibration
-    from calib.hazard._fragments import FragmentationError, fragmentation_from_args
+    from calib.hazard._fragment_options import FragmentationError, fragmentation_from_args
     from solvers.profile import load_profile
 
     cal = load_calibration(args.calibration, args.model)
@@ -393,7 +393,7 @@ def _outputs(prog: str, args, run: _Run, counts) -> tuple[str, dict]:
     from calib.files.hazard_results import results_writer
     from calib.hazard import exceedance_table, hazard_table, summary_text
     from calib.hazard._figures import plot_envelopes, plot_exceedance
-    from calib.hazard._fragments import fragment_outputs
+    from calib.hazard._fragment_tables import fragment_outputs
     from calib.hazard._results import calibration_record, hazard_dataset
 
     cal, cond, profile, road_x, label = run.cal, run.cond, run.profile, run.road_x, run.label

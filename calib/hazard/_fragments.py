@@ -42,20 +42,19 @@ the worst of its pieces' (invalid, then unfinished, then left the profile,
 then stopped), so a block with an unfinished fragment is unfinished.
 
 Per fragment: the ``frag_*`` variables of ``hazard.nc`` (``VARIABLES``) and
-``fragments.csv`` (``fragment_table``: ``FRAGMENT_COLUMNS``).
+``fragments.csv`` (``calib.hazard._fragment_tables``). The command's options and
+the ``Fragmentation`` they make are ``calib.hazard._fragment_options``.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-import math
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-import pandas as pd
 
 from calib.hazard._stats import ChunkStats, reduce_chunk
 from solvers import crsp, dem
@@ -68,8 +67,12 @@ from solvers.status import (
     finished,
 )
 
-__all__ = ["FRAGMENT_COLUMNS", "VARIABLES", "FragmentCounts", "Fragmentation",
-           "add_options", "fragment_outputs", "fragment_table", "fragmentation_from_args"]
+if TYPE_CHECKING:
+    from calib.hazard._fragment_options import Fragmentation
+
+__all__ = ["FRAGMENT_BATCH", "VARIABLES", "FragmentCounts", "FragmentStats",
+           "crsp_fragment_chunk", "dem_fragment_chunk", "dem_fragment_status", "dem_units",
+           "fragment_keys"]
 
 # fragments run side by side in one vmapped call: at most this many (a power of
 # two, at least 16: XLA:CPU's vector loop and scalar tail round differently)
@@ -99,214 +102,6 @@ VARIABLES = {
                                             "DEM: square side D / sqrt(N))"),
 }
 
-FRAGMENT_COLUMNS = {
-    "fragmentation": "how the blocks broke (hazard.nc attribute fragmentation)",
-    "block_size_m": "parent block size D, m",
-    "fragment_size_m": "fragment size, m (frag_size_m)",
-    "n_fragments_per_break": "fragments per broken block",
-    "x_m": "station, m",
-    "p_break_mean": "fraction of blocks that broke, mean over draws",
-    "p_exceed_parent_mean": "fraction of blocks with a piece beyond x (a parent exceeds x "
-                            "when any of its fragments does), mean over draws",
-    "p_exceed_parent_q05": "its 5 % quantile over draws",
-    "p_exceed_parent_q95": "its 95 % quantile over draws",
-    "p_exceed_fragment": "fraction of the fragments that end beyond x, all draws pooled",
-    "fragments_beyond_per_block_mean": "fragments beyond x per released block, mean over "
-                                       "draws",
-    "mass_fraction_beyond_mean": "fraction of the released mass that ends beyond x "
-                                 "(whole blocks and fragments), mean over draws",
-    "fragments_reach_per_block_mean": "fragments passing x per released block, mean over "
-                                      "draws",
-    "p_E_gt_30kJ_given_fragment_reach": "of the fragments passing x, the fraction with "
-                                        "E > 30 kJ, pooled",
-    "p_E_gt_300kJ_given_fragment_reach": "the same with E > 300 kJ",
-    "p_fragment_unfinished": "fraction of the fragments that did not finish, pooled",
-}
-
-
-# ------------------------------------------------------------------ the options
-
-class FragmentationError(ValueError):
-    """A fragmentation option the run cannot take (one line naming the option)."""
-
-
-def add_options(parser) -> None:
-    """The command's option group for fragmentation (``python -m calib.hazard``)."""
-    g = parser.add_argument_group(
-        "fragmentation", "break the blocks and run every fragment as its own block; tables "
-        "per parent block (a block exceeds x when any of its fragments does) and per "
-        "fragment (fragments.csv, the frag_* variables of hazard.nc)")
-    g.add_argument("--fragmentation", choices=("crsp",), default=None,
-                   help="crsp: the CRSP break rule (at the first impact whose normal kinetic "
-                        "energy exceeds E_f the block breaks into n = 1/rho^3 fragments of "
-                        "radius rho r). E_f: each draw's fitted value where the calibration "
-                        "fitted the fragmentation effect (crsp.effects), else "
-                        "--frag-energy-kJ (default: off)")
-    g.add_argument("--frag-energy-kJ", type=float, default=None,
-                   help="CRSP what-if: break energy E_f, kJ per block (replaces a fitted "
-                        "one; the summary says it is a what-if)")
-    g.add_argument("--frag-radius-ratio", type=float, default=None,
-                   help="CRSP: fragment radius / block radius rho in (0, 1), taken as "
-                        "n^(-1/3) for the nearest whole n = 1/rho^3 (0.5: 8 fragments, "
-                        "0.25: 64); a value other than the solver's makes the run a what-if "
-                        f"(default: the solver's, {solver_defaults()[0]:g})")
-    g.add_argument("--fragments", type=int, default=None,
-                   help="DEM (--model dem): N bonded square fragments per block (4, 16, "
-                        "64, ...), whose joints break by the DEM's joint strengths (default: "
-                        "one unbroken block)")
-
-
-@functools.cache
-def solver_defaults() -> tuple[float, float]:
-    """The CRSP solver's fragment radius ratio rho and speed ratio s (the defaults of
-    ``solvers.crsp.params_from_profile``, which a fit of the effect runs with)."""
-    from solvers.profile import MATERIAL_COLUMNS, make_profile
-
-    flat = make_profile([0.0, 1.0], [1.0, 0.0], ["z"], {"z": dict.fromkeys(MATERIAL_COLUMNS,
-                                                                          0.5)})
-    p = crsp.params_from_profile(flat)
-    return float(p.frag_radius_ratio), float(p.frag_speed_ratio)
-
-
-@dataclasses.dataclass(frozen=True)
-class Fragmentation:
-    """How a hazard run breaks its blocks (``fragmentation_from_args``).
-
-    Attributes:
-        model: "crsp" (the CRSP break rule, every fragment run on) or "dem"
-            (bonded fragments).
-        n_per_break: fragments per broken block: n = 1 / rho^3 (CRSP), N (DEM).
-        energy_kJ: CRSP: the what-if break energy E_f, kJ; None: each draw's fitted
-            one (the calibration's ``log10_frag_energy_kJ``).
-        what_if: the break is not the calibration's (stated in the summary).
-        description: one line for the summary and ``hazard.nc``.
-    """
-
-    model: str
-    n_per_break: int
-    energy_kJ: float | None = None
-    what_if: bool = False
-    description: str = ""
-
-    @property
-    def size_ratio(self) -> float:
-        """Fragment size / block size: rho = n^(-1/3) (CRSP), 1 / sqrt(N) (DEM)."""
-        if self.model == "crsp":
-            return float(self.n_per_break) ** (-1.0 / 3.0)
-        return 1.0 / math.isqrt(self.n_per_break)
-
-    def plan(self, units, on_result, cal, draws, sizes_m, stations_x_m, dem_run):
-        """The run's work units turned into fragment units, and ``on_result`` that
-        also keeps the fragment counts (the hook of ``_run.run_hazard``).
-
-        Args:
-            units: the plain units of ``_run`` (``(tag, make_args, fn)``; ``fn`` a
-                ``functools.partial`` of ``_units.crsp_chunk`` or ``dem_chunk``,
-                whose arguments and static sizes the fragment units take).
-            on_result: the run's ``on_result(tag, ChunkStats)``.
-            cal, draws: the calibration and the draws (the DEM's alpha law).
-            sizes_m, stations_x_m: (T,), (S,) the run's sizes and stations, m.
-            dem_run: the DEM numerics (``calib.model.dem_run.DemRun``).
-
-        Returns:
-            (units, on_result, ``FragmentCounts`` filled as the units finish).
-        """
-        counts = FragmentCounts.empty(self, len(draws.values), len(sizes_m),
-                                      len(stations_x_m), sizes_m)
-        if self.model == "crsp":
-            new = ((tag, make_args, functools.partial(crsp_fragment_chunk, spec=self,
-                                                      **fn.keywords))
-                   for tag, make_args, fn in units)
-        else:
-            new = _dem_units(self, units, cal, draws, sizes_m, dem_run)
-
-        def collect(tag, out):
-            on_result(tag, out)
-            counts.add(tag, out)
-
-        return new, collect, counts
-
-
-def fragmentation_from_args(args, cal, draws, profile) -> Fragmentation | None:
-    """The run's ``Fragmentation`` from the options of ``add_options``, or None.
-
-    Raises:
-        FragmentationError: one line naming the option and what was expected.
-    """
-    crsp_only = [f for f, v in (("--frag-energy-kJ", args.frag_energy_kJ),
-                                ("--frag-radius-ratio", args.frag_radius_ratio)) if v is not None]
-    if args.fragments is not None:
-        if cal.model != "dem":
-            raise FragmentationError(
-                f"--fragments {args.fragments}: bonded fragments are the DEM's "
-                "(--model dem); CRSP breaks its blocks with --fragmentation crsp")
-        n = math.isqrt(max(args.fragments, 0))
-        if args.fragments < 4 or n * n != args.fragments:
-            raise FragmentationError(
-                f"--fragments: expected a perfect square of at least 4 (4, 16, "
-                f"64, ...), got {args.fragments}")
-        if args.fragmentation or crsp_only:
-            raise FragmentationError(
-                f"{args.fragmentation and '--fragmentation' or crsp_only[0]}: the "
-                "CRSP break rule; the DEM breaks its --fragments by its joints")
-        strength = dem.Params._field_defaults
-        return Fragmentation("dem", args.fragments, description=(
-            f"DEM: each block is {args.fragments} bonded square fragments ({n} x {n}) whose "
-            f"joints break at the DEM's joint strengths (solvers.dem.Params: cohesion "
-            f"{strength['c_joint_pa'] / 1e6:g} MPa, tension {strength['t_joint_pa'] / 1e6:g} "
-            f"MPa, x sqrt of the stiffness scale); alpha of each fragment from the "
-            f"calibration's law at the fragment's side"))
-    if args.fragmentation is None:
-        if crsp_only:
-            raise FragmentationError(
-                f"{crsp_only[0]}: give --fragmentation crsp to break the blocks")
-        return None
-    if cal.model != "crsp":
-        raise FragmentationError(
-            "--fragmentation crsp: the CRSP break rule, and this run is the DEM's; "
-            "the DEM breaks bonded fragments: --fragments N")
-    return _crsp_fragmentation(args, cal, draws, profile)
-
-
-def _crsp_fragmentation(args, cal, draws, profile) -> Fragmentation:
-    """``fragmentation_from_args`` for ``--fragmentation crsp``."""
-    from calib.model.effects import effect_box
-
-    rho0, speed = solver_defaults()
-    rho = rho0 if args.frag_radius_ratio is None else args.frag_radius_ratio
-    if not (math.isfinite(rho) and 0.0 < rho < 1.0):
-        raise FragmentationError(f"--frag-radius-ratio: expected a ratio in (0, 1), got {rho:g}")
-    n = round(rho ** -3.0)
-    if abs(rho ** -3.0 - n) > 0.01 * n:
-        raise FragmentationError(
-            f"--frag-radius-ratio {rho:g}: 1/rho^3 = {rho ** -3.0:.4g} is not a "
-            f"whole number of fragments (within 1 %); e.g. 0.5 (8 fragments), "
-            f"{16 ** (-1 / 3):.5f} (16), 0.25 (64)")
-    e = args.frag_energy_kJ
-    if e is not None and not (math.isfinite(e) and e > 0.0):
-        raise FragmentationError(f"--frag-energy-kJ: expected a positive energy in kJ, got {e:g}")
-    column = effect_box("fragmentation", profile).names[0]
-    fitted = column in draws.names
-    if e is None and not fitted:
-        raise FragmentationError(
-            f"--fragmentation crsp: {cal.path} has no fitted fragmentation effect "
-            f"(crsp.effects does not list it: python -m calib.fit --effect "
-            "fragmentation fits it); give --frag-energy-kJ E for a what-if")
-    what_if = e is not None or args.frag_radius_ratio is not None and rho != rho0
-    if e is None:
-        col = np.asarray(draws.values)[:, list(draws.names).index(column)]
-        energy = (f"E_f fitted (median over the draws {10.0 ** float(np.median(col)):.4g} kJ, "
-                  f"{cal.path}: crsp.{column})")
-    else:
-        energy = f"E_f = {e:g} kJ (--frag-energy-kJ)"
-    rho_used = n ** (-1.0 / 3.0)
-    text = (f"CRSP{' WHAT-IF' if what_if else ''}: {energy}; at the first impact whose normal "
-            f"kinetic energy exceeds E_f a block breaks into n = {n} fragments of radius "
-            f"{rho_used:.4g} r (rho {rho:g} taken as n^(-1/3)), which leave the impact at "
-            f"{speed:g} x the rebound speed; every fragment runs on as its own block")
-    if what_if:
-        text += " (a what-if: not the calibration's fitted break)"
-    return Fragmentation("crsp", n, energy_kJ=e, what_if=what_if, description=text)
 
 
 # ------------------------------------------------------------------- the counts
@@ -570,7 +365,7 @@ def _take(tree, t, j=None):
 
 # ---------------------------------------------------------------------------- DEM
 
-def _dem_units(spec: Fragmentation, units, cal, draws, sizes_m, dem_run):
+def dem_units(spec: Fragmentation, units, cal, draws, sizes_m, dem_run):
     """The plain DEM units (one size each) with every block split into N bonded
     fragments, each damped by the calibration's alpha law at the fragment's side
     (``_run.dem_alpha``), and the DEM numerics for fragments of the run's sizes
@@ -650,111 +445,3 @@ def dem_fragment_chunk(params, block, key, offset, n_valid, *, n_chunk: int,
 
 
 # ------------------------------------------------------------ hazard.nc and tables
-
-PER_PARENT = ("per parent block: n_exceed, n_reach, the energy / speed / clearance variables "
-              "and the tables built from them count released blocks; a block exceeds "
-              "(reaches) x when any of its pieces ends beyond (passes) x, and its values at x "
-              "are the largest among its pieces that pass x (calib.hazard._fragments)")
-_ENERGY = {"crsp": "kJ per fragment (mass rho^3 m)",
-           "dem": "the 2D DEM's kJ per metre of width times the block's side D: kJ per "
-                  "fragment taken as a prism D wide (a slice of the block's cube)"}
-
-
-def add_variables(ds, counts: FragmentCounts) -> None:
-    """Add the ``VARIABLES`` and the fragmentation attributes to a results Dataset
-    (in place): ``fragmentation`` (how the blocks broke), ``fragmentation_what_if``
-    (1 where not the calibration's break), ``fragmentation_per_parent``,
-    ``fragment_energy_basis``."""
-    import xarray as xr
-
-    values = counts.variables()
-    for name, (dims, units, meaning) in VARIABLES.items():
-        ds[name] = xr.Variable(dims, np.asarray(values[name]),
-                               attrs={"units": units, "long_name": meaning})
-    spec = counts.spec
-    ds.attrs.update(fragmentation=spec.description, fragmentation_what_if=int(spec.what_if),
-                    fragmentation_per_parent=PER_PARENT,
-                    fragment_energy_basis=_ENERGY[spec.model])
-
-
-def fragment_table(ds) -> pd.DataFrame:
-    """``fragments.csv``: one row per block size and station, ``FRAGMENT_COLUMNS``
-    (from a results Dataset with ``add_variables``' variables)."""
-    n = int(ds.attrs["n_blocks_per_draw"])
-    x = ds["x_m"].values
-    c = {k: ds[k].values.astype(np.float64) for k in VARIABLES if k.startswith("frag_n")}
-    p_parent = ds["n_exceed"].values / n                      # (D, T, S)
-    q = np.quantile(p_parent, [0.05, 0.95], axis=0)
-    per = c["frag_n_per_break"][None, :, None]
-    mass = (c["frag_n_exceed_whole"] + c["frag_n_exceed"] / per) / n
-    with np.errstate(invalid="ignore", divide="ignore"):
-        pooled_frag = c["frag_n_fragments"].sum(axis=0)[:, None]
-        p_frag = c["frag_n_exceed"].sum(axis=0) / pooled_frag
-        reach = c["frag_n_reach"].sum(axis=0)
-        p30 = c["frag_n_reach_E_gt_30kJ"].sum(axis=0) / reach
-        p300 = c["frag_n_reach_E_gt_300kJ"].sum(axis=0) / reach
-        unfinished = c["frag_n_unfinished"].sum(axis=0) / c["frag_n_fragments"].sum(axis=0)
-    rows = []
-    for t, size in enumerate(ds["block_size_m"].values):
-        for s, xs in enumerate(x):
-            rows.append({
-                "model": str(ds.attrs["model"]),
-                "fragmentation": str(ds.attrs["fragmentation"]),
-                "block_size_m": float(size),
-                "fragment_size_m": float(ds["frag_size_m"].values[t]),
-                "n_fragments_per_break": int(ds["frag_n_per_break"].values[t]),
-                "x_m": float(xs),
-                "p_break_mean": float(np.mean(c["frag_n_broken"][:, t]) / n),
-                "p_exceed_parent_mean": float(p_parent[:, t, s].mean()),
-                "p_exceed_parent_q05": float(q[0, t, s]),
-                "p_exceed_parent_q95": float(q[1, t, s]),
-                "p_exceed_fragment": float(p_frag[t, s]),
-                "fragments_beyond_per_block_mean": float(c["frag_n_exceed"][:, t, s].mean()
-                                                         / n),
-                "mass_fraction_beyond_mean": float(mass[:, t, s].mean()),
-                "fragments_reach_per_block_mean": float(c["frag_n_reach"][:, t, s].mean() / n),
-                "p_E_gt_30kJ_given_fragment_reach": float(p30[t, s]),
-                "p_E_gt_300kJ_given_fragment_reach": float(p300[t, s]),
-                "p_fragment_unfinished": float(unfinished[t]),
-            })
-    return pd.DataFrame(rows, columns=["model"] + list(FRAGMENT_COLUMNS))
-
-
-def fragment_summary(ds, table: pd.DataFrame, road_x_m: float, label: str = "road") -> str:
-    """The summary's fragmentation lines: how the blocks broke, and at the station of
-    interest per size: P(break), the parent exceedance, fragments and mass beyond."""
-    lines = [f"fragmentation: {ds.attrs['fragmentation']}",
-             "  the lines above, exceedance.csv and hazard_table.csv are per parent block: a "
-             "block exceeds (reaches) x when any of its pieces ends beyond (passes) x "
-             "(hazard.nc attribute fragmentation_per_parent)",
-             f"  per fragment (fragments.csv, frag_* of hazard.nc), energies "
-             f"{ds.attrs['fragment_energy_basis']}:"]
-    at = table[np.isclose(table["x_m"], road_x_m)]
-    for r in at.itertuples():
-        line = (f"  D = {r.block_size_m:g} m ({r.n_fragments_per_break} fragments of "
-                f"{r.fragment_size_m:.3g} m): P(break) = {r.p_break_mean:.3g}; P(a piece "
-                f"beyond the {label} at x = {road_x_m:g} m) = {r.p_exceed_parent_mean:.3g} "
-                f"[5-95 %: {r.p_exceed_parent_q05:.3g}-{r.p_exceed_parent_q95:.3g}]; "
-                f"fragments beyond it per block {r.fragments_beyond_per_block_mean:.3g}")
-        if np.isfinite(r.p_exceed_fragment):
-            line += f" ({r.p_exceed_fragment:.3g} of the fragments)"
-        line += f"; share of the released mass beyond it {r.mass_fraction_beyond_mean:.3g}"
-        if r.p_fragment_unfinished > 0:
-            line += (f"; {r.p_fragment_unfinished:.2%} of the fragments unfinished, not "
-                     "counted as runouts")
-        lines.append(line)
-    return "\n".join(lines)
-
-
-def fragment_outputs(counts: FragmentCounts | None, results, writers: dict, text: str,
-                     road_x_m: float, label: str = "road") -> str:
-    """A fragment run's outputs (the command's one call): ``add_variables`` on
-    ``results`` (written as ``hazard.nc``), ``fragments.csv`` added to ``writers``,
-    the summary ``text`` with ``fragment_summary``'s lines. Without fragments
-    (``counts`` None) nothing changes."""
-    if counts is None:
-        return text
-    add_variables(results, counts)
-    table = fragment_table(results)
-    writers["fragments.csv"] = lambda p: table.to_csv(p, index=False)
-    return text + "\n" + fragment_summary(results, table, road_x_m, label)

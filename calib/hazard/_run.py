@@ -207,7 +207,7 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
         barrier: a protection barrier (CRSP only), or None.
         progress: called with the number of blocks finished after each unit.
         devices: JAX devices (default all).
-        fragments: a ``_fragments.Fragmentation``: every block broken and every
+        fragments: a ``_fragment_options.Fragmentation``: every block broken and every
             fragment run as its own block (None: unbroken blocks).
 
     Returns:
