@@ -100,11 +100,9 @@ def calibration(env: str, data_csv: str, folder: str) -> str:
     path = os.environ.get(env)
     if path:
         return path
-    from calib.fit import main as fit
+    from calib.fit import run_fit
 
-    fit([data_csv, "--model", "crsp", "--quick", "--seed", "1", "--no-progress",
-         "--out", folder])
-    return os.path.join(folder, "calibration.json")
+    return run_fit(data_csv, folder, models=("crsp",), quick=True, seed=1).calibration.path
 
 
 def show(fig, name: str) -> None:
