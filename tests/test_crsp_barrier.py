@@ -369,6 +369,8 @@ def test_a_negative_or_nan_barrier_parameter_is_refused_by_name(field, value):
         crsp.params_from_profile(_flat(), barrier_height_m=3.0)
 
 
+# slow: a count of compiled programs, 14 s
+@pytest.mark.slow
 def test_a_run_without_a_barrier_compiles_none_of_its_code():
     """No barrier (the default): the parameters carry None and the event step's
     compiled program has none of the barrier's work, which a barrier at +inf

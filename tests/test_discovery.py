@@ -152,6 +152,9 @@ def discover_run(synth_files):
     return proc, out / "disc"
 
 
+# slow: a quick `calib.discover` on synthetic rows, 48 s; the default run keeps the command's
+# report of each step (tests/test_discovery_sequence.py) and the synthetic data it reads
+@pytest.mark.slow
 def test_discover_names_a_strong_hidden_effect_and_shrinks_the_gap(discover_run):
     proc, out = discover_run
     print(proc.stdout)

@@ -39,6 +39,9 @@ def _text(path) -> str:
 
 
 
+# slow: 21 s; the hold-out fit of tests/test_validate.py runs the Tschamut rows on their own
+# profiles in the default run
+@pytest.mark.slow
 def test_an_entry_runs_on_its_own_profile_alone():
     """An entry on its own profile gets exactly the runouts of a forward on that
     profile alone, whatever the other entries are (common random numbers: same

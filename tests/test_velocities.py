@@ -95,6 +95,8 @@ def belt_with_speeds(tmp_path_factory):
     return proc, out
 
 
+# slow: synthetic rows with speeds, 23 s; the default run keeps the speeds' bad-input refusals
+@pytest.mark.slow
 def test_synth_writes_speeds_that_hide_the_effect(belt_with_speeds):
     proc, out = belt_with_speeds
     assert proc.returncode == 0, proc.stderr
