@@ -104,7 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="results", help="output folder (default: results/)")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed (default 0)")
     p.add_argument("--quick", action="store_true",
-                   help="small budgets (about 1.5 min on 2 cores; for tests and a first look; "
+                   help="small budgets (about 4.5 min on 2 cores; for tests and a first look; "
                         "its posterior diagnostics usually fail and say so)")
     p.add_argument("--holdout-fraction", type=float, default=0.0,
                    help="keep this fraction of the rows aside (split by --seed), fit the "
