@@ -34,8 +34,9 @@
 #
 # Calibrations: `PROTECTION_CALIBRATION` (Postignano) and
 # `PROTECTION_TSCHAMUT_CALIBRATION` name `calibration.json` files; without them
-# the notebook runs a `--quick` CRSP fit of each site first (about 1.5 and 3
-# minutes on 2 cores; its diagnostics usually fail, and say so).
+# the notebook runs a `--quick` CRSP fit of each site first (their diagnostics
+# usually fail, and say so). Run so on 2 cores shared with one other job
+# (2026-11-27): the fits took 5 and 13 minutes, the whole notebook 23.
 # `PROTECTION_NOTEBOOK_SMALL=1` runs tiny Monte Carlo sizes (the tests);
 # `PROTECTION_NOTEBOOK_OUT` is the output folder.
 
