@@ -106,6 +106,24 @@ def calibration(env: str, data_csv: str, folder: str) -> str:
     return run_fit(data_csv, folder, models=("crsp",), quick=True, seed=1).calibration.path
 
 
+def calibration_checks(record: dict) -> str:
+    """The calibration's own predictive check and its posterior's diagnostics
+    (R-hat, ESS, chains, mass at the bounds, the log-likelihood GP's realisations),
+    as the hazard record holds them: a design on a posterior that failed says so
+    loudly, as ``calib.design``'s sheet does."""
+    check, post = record["adequacy_json"], record["posterior_check_json"]
+    text = "the calibration's own predictive check: " + (
+        "none recorded" if check is None else "passed" if check.get("ok")
+        else f"FAILED ({check.get('message')})")
+    if post is None:
+        return text + "; no posterior diagnostics recorded"
+    if post.get("ok"):
+        return text + "; its posterior passed its diagnostics"
+    return (text + "\n!!! THE CALIBRATION'S POSTERIOR FAILED ITS DIAGNOSTICS: the 5-95 % "
+            "bands and probabilities below may not represent the parameters' uncertainty: "
+            + "; ".join(post.get("problems") or []))
+
+
 def show(fig, name: str) -> None:
     path = os.path.join(OUT, name)
     fig.savefig(path, dpi=100)
@@ -154,11 +172,8 @@ ds = hazard_dataset(counts, profile, seed=SEED, road_x_m=ROAD_M,
                     release_rate_per_year=RELEASE_RATE_PER_YEAR, record=record)
 hazard_nc = os.path.join(OUT, "postignano_hazard.nc")
 write_hazard_results(ds, hazard_nc)
-check = record["adequacy_json"]
-print(f"{len(draws.values)} draw(s) from the {draws.source} x {N_BLOCKS} blocks; the "
-      "calibration's own predictive check: "
-      + ("none recorded" if check is None else "passed" if check.get("ok")
-         else f"FAILED ({check.get('message')})"))
+print(f"{len(draws.values)} draw(s) from the {draws.source} x {N_BLOCKS} blocks; "
+      + calibration_checks(record))
 
 # %% [markdown]
 # ## The design along the lower slope
@@ -286,10 +301,13 @@ positions_t = list(np.arange(FOOT_T_M, PROTECTED_M, 2 * STEP_M))
 stations_t = np.union1d(np.arange(0.0, float(profile_t.x_m[-1]), 10.0),
                         positions_t + [PROTECTED_M])
 draws_t = draw_parameters(cal_t, N_POSTERIOR, SEED)
+record_t = calibration_record("notebooks/05_protection.py", SEED, cal_t, cal_t.path)
 ds_t = hazard_dataset(
     run_hazard(cal_t, draws_t, profile_t, sizes_t, stations_t, N_BLOCKS_T, SEED), profile_t,
     seed=SEED, road_x_m=PROTECTED_M, road_label="illustrative protected line",
-    record=calibration_record("notebooks/05_protection.py", SEED, cal_t, cal_t.path))
+    record=record_t)
+print(f"{len(draws_t.values)} draw(s) from the {draws_t.source} x {N_BLOCKS_T} blocks; "
+      + calibration_checks(record_t))
 reach_foot = float(ds_t["n_reach"].sel(block_size_m=sizes_t[-1], x_m=FOOT_T_M).mean())
 print(f"released at x = {default_release_x_m(cal_t, profile_t):g} m; P(reach) of the "
       f"heaviest block at {FOOT_T_M:g} m = {reach_foot / N_BLOCKS_T:.3g}")
