@@ -61,6 +61,7 @@ from calib.design import (  # noqa: E402
     exceedance_figure,
     impact_angles,
     load_kits,
+    posterior_warning,
     profile_figure,
     residual_exceedance,
     scan_figure,
@@ -117,11 +118,11 @@ def calibration_checks(record: dict) -> str:
         else f"FAILED ({check.get('message')})")
     if post is None:
         return text + "; no posterior diagnostics recorded"
-    if post.get("ok"):
+    warning = posterior_warning(post)
+    if warning is None:
         return text + "; its posterior passed its diagnostics"
-    return (text + "\n!!! THE CALIBRATION'S POSTERIOR FAILED ITS DIAGNOSTICS: the 5-95 % "
-            "bands and probabilities below may not represent the parameters' uncertainty: "
-            + "; ".join(post.get("problems") or []))
+    return (text + "\n" + warning + " (the 5-95 % bands and probabilities below may not "
+            "represent the parameters' uncertainty)")
 
 
 def show(fig, name: str) -> None:

@@ -40,10 +40,12 @@ from calib.design._figures import (
 )
 from calib.design._inputs import DesignError, design_block
 from calib.design._kits import Kit, KitError, load_kits
+from calib.design._report import posterior_warning
 from calib.design._residual import residual_exceedance
 from calib.design._values import DesignBlock, DesignValues, design_values
 
 __all__ = [
+    "posterior_warning",
     "DEFAULTS",
     "GAMMA_E",
     "SOURCES",

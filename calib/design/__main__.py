@@ -17,6 +17,7 @@ import sys
 
 from calib.design._factors import DEFAULTS, GAMMA_E, free_board_m
 from calib.design._kits import CATEGORIES, KitError, load_kits
+from calib.design._report import posterior_warning
 from solvers.cli import (
     CliError,
     DefaultsHelpFormatter,
@@ -314,10 +315,9 @@ def _print(r: dict, written: list[str], out: str) -> None:
     if check is not None and not check.get("ok"):
         print(f"!!! THE CALIBRATION FAILED ITS OWN PREDICTIVE CHECK: {check.get('message')}",
               file=sys.stderr)
-    post = r.get("posterior_check")
-    if post is not None and not post.get("ok"):
-        print("!!! THE CALIBRATION'S POSTERIOR FAILED ITS DIAGNOSTICS: "
-              + "; ".join(post.get("problems") or []), file=sys.stderr)
+    post = posterior_warning(r.get("posterior_check"))
+    if post is not None:
+        print(post, file=sys.stderr)
     for w in r["warnings"]:
         print(w, file=sys.stderr)
     d, kit = r["design"], r.get("kit_checked")

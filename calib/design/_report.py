@@ -72,6 +72,17 @@ def _calibration_lines(check: dict | None) -> list[str]:
             f"Coverage of the calibration rows: {_coverage(check)}.", ""]
 
 
+def posterior_warning(check: dict | None) -> str | None:
+    """The one loud line for a calibration whose posterior failed its diagnostics
+    (``posterior_check``: ``ok`` and ``problems``), or None where it passed or
+    none is recorded: printed by ``python -m calib.design`` and the protection
+    notebook beside a design."""
+    if check is None or check.get("ok"):
+        return None
+    return ("!!! THE CALIBRATION'S POSTERIOR FAILED ITS DIAGNOSTICS: "
+            + "; ".join(check.get("problems") or []))
+
+
 def _posterior_lines(check: dict | None) -> list[str]:
     """The verdict of the calibration's posterior diagnostics (R-hat, ESS, chains,
     mass at the bounds, the GP's realisation check), loud where it failed: the
