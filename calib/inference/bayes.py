@@ -48,7 +48,7 @@ from numpyro.infer import MCMC, NUTS
 
 from calib.model.priors import Box
 
-__all__ = ["ESS_MIN", "Posterior", "RHAT_MAX", "chain_diagnostics", "keep_chains",
+__all__ = ["ESS_MIN", "Posterior", "RHAT_MAX", "chain_diagnostics", "diagnosed", "keep_chains",
            "run_nuts"]
 
 RHAT_MAX = 1.01
@@ -185,10 +185,10 @@ def run_nuts(pointwise_loglik: Callable[[jax.Array], jax.Array], box: Box, key: 
     samples = by_chain.reshape(-1, box.dim)
     pw = np.asarray(jax.jit(jax.vmap(pointwise_loglik))(jnp.asarray(samples)))
     logd = pw.sum(axis=1)  # + log prior, constant inside the box
-    return _diagnosed(tuple(box.names), by_chain, logd, pw, extra, loglik_kind)
+    return diagnosed(tuple(box.names), by_chain, logd, pw, extra, loglik_kind)
 
 
-def _diagnosed(names: tuple[str, ...], by_chain: np.ndarray, log_density: np.ndarray,
+def diagnosed(names: tuple[str, ...], by_chain: np.ndarray, log_density: np.ndarray,
                pointwise: np.ndarray, sample_stats: dict, loglik_kind: str) -> Posterior:
     """A ``Posterior`` of chains (C, N, d), with its diagnostics and problems."""
     rhat, ess_bulk, ess_tail = chain_diagnostics(by_chain)
@@ -214,7 +214,7 @@ def keep_chains(post: Posterior, keep) -> Posterior:
     keep = np.asarray(keep, bool)
     n = post.samples.shape[0] // post.n_chains
     rows = np.repeat(keep, n)
-    return _diagnosed(post.names,
+    return diagnosed(post.names,
                       post.samples.reshape(post.n_chains, n, -1)[keep],
                       post.log_density[rows], post.pointwise_loglik[rows],
                       {k: np.asarray(v)[keep] for k, v in post.sample_stats.items()},

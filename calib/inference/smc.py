@@ -50,7 +50,7 @@ from blackjax.smc import resampling
 from blackjax.smc import tempered as tempered_smc
 from blackjax.smc.adaptive_tempered import build_kernel as adaptive_kernel
 
-from calib.inference.bayes import Posterior, _diagnosed
+from calib.inference.bayes import Posterior, diagnosed
 from calib.model.priors import Box
 
 __all__ = ["N_LEAPFROG", "N_MCMC_STEPS", "TARGET_ESS", "run_smc"]
@@ -147,7 +147,7 @@ def run_smc(pointwise_loglik: Callable[[jax.Array], jax.Array], box: Box, key: j
     pw = np.asarray(jax.jit(jax.vmap(pointwise_loglik))(jnp.asarray(samples)))
     stats = {"diverging": np.zeros(by_chain.shape[:2], bool),
              "acceptance_rate": np.asarray(acc)}
-    post = _diagnosed(tuple(box.names), by_chain, pw.sum(axis=1), pw, stats, loglik_kind)
+    post = diagnosed(tuple(box.names), by_chain, pw.sum(axis=1), pw, stats, loglik_kind)
     post.sample_stats["tempering_steps"] = np.repeat(np.asarray(n_steps)[:, None],
                                                      by_chain.shape[1], axis=1)
     unfinished = int(np.sum(np.asarray(lam) < 1.0))
