@@ -45,7 +45,6 @@ from calib.design._residual import residual_exceedance
 from calib.design._values import DesignBlock, DesignValues, design_values
 
 __all__ = [
-    "posterior_warning",
     "DEFAULTS",
     "GAMMA_E",
     "SOURCES",
@@ -72,6 +71,7 @@ __all__ = [
     "kit_probabilities",
     "load_kits",
     "profile_figure",
+    "posterior_warning",
     "residual_exceedance",
     "scan_figure",
     "scan_rows",

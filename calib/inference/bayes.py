@@ -189,7 +189,7 @@ def run_nuts(pointwise_loglik: Callable[[jax.Array], jax.Array], box: Box, key: 
 
 
 def diagnosed(names: tuple[str, ...], by_chain: np.ndarray, log_density: np.ndarray,
-               pointwise: np.ndarray, sample_stats: dict, loglik_kind: str) -> Posterior:
+              pointwise: np.ndarray, sample_stats: dict, loglik_kind: str) -> Posterior:
     """A ``Posterior`` of chains (C, N, d), with its diagnostics and problems."""
     rhat, ess_bulk, ess_tail = chain_diagnostics(by_chain)
     div = int(np.sum(sample_stats["diverging"]))
@@ -215,7 +215,7 @@ def keep_chains(post: Posterior, keep) -> Posterior:
     n = post.samples.shape[0] // post.n_chains
     rows = np.repeat(keep, n)
     return diagnosed(post.names,
-                      post.samples.reshape(post.n_chains, n, -1)[keep],
-                      post.log_density[rows], post.pointwise_loglik[rows],
-                      {k: np.asarray(v)[keep] for k, v in post.sample_stats.items()},
-                      post.loglik_kind)
+                     post.samples.reshape(post.n_chains, n, -1)[keep],
+                     post.log_density[rows], post.pointwise_loglik[rows],
+                     {k: np.asarray(v)[keep] for k, v in post.sample_stats.items()},
+                     post.loglik_kind)
