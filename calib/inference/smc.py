@@ -63,16 +63,17 @@ _ACCEPT_TARGET = 0.65
 
 
 def _transform(box: Box):
-    lo, hi = jnp.asarray(box.lo), jnp.asarray(box.hi)
+    """theta = ``box.from_unit(sigmoid(z))``, the uniform prior's log density
+    in z, and the inverse (``box.to_unit``, clipped inside the box)."""
 
     def theta_of(z):
-        return lo + (hi - lo) * jax.nn.sigmoid(z)
+        return box.from_unit(jax.nn.sigmoid(z))
 
     def log_prior(z):  # uniform on the box, in z: the sigmoid's Jacobian
         return jnp.sum(jax.nn.log_sigmoid(z) + jax.nn.log_sigmoid(-z))
 
     def z_of(theta):
-        u = jnp.clip((theta - lo) / (hi - lo), 1e-9, 1 - 1e-9)
+        u = jnp.clip(box.to_unit(theta), 1e-9, 1 - 1e-9)
         return jnp.log(u) - jnp.log1p(-u)
 
     return theta_of, log_prior, z_of
@@ -139,7 +140,7 @@ def run_smc(pointwise_loglik: Callable[[jax.Array], jax.Array], box: Box, key: j
 
     k_init, k_run = jax.random.split(key)
     u = jax.random.uniform(k_init, (n_runs, n_particles, box.dim))
-    z0 = z_of(jnp.asarray(box.lo) + (jnp.asarray(box.hi) - jnp.asarray(box.lo)) * u)
+    z0 = z_of(box.from_unit(u))
     run = jax.jit(jax.vmap(partial(_population, loglik_z, log_prior, n_leapfrog=n_leapfrog)))
     z, acc, n_steps, lam = run(z0, jax.random.split(k_run, n_runs))
     by_chain = np.asarray(jax.vmap(jax.vmap(theta_of))(z))  # (C, N, d)
