@@ -119,3 +119,31 @@ def test_a_row_no_block_reaches_costs_a_bounded_amount():
     assert ll[0] == pytest.approx(-13.8155, abs=1e-4)
     assert 0.0 < kde_near - ll[1] <= -np.log1p(-RUNOUT_EPS) + 1e-12
     assert ll[2] == pytest.approx(np.log(RUNOUT_EPS * 20.0 / R_MAX_M), abs=1e-9)
+
+
+@pytest.mark.slow  # a study script's check, about 30 s of compilation: run with -m slow
+def test_loglik_noise_script_measures_the_spread_over_block_sets():
+    """``scripts/loglik_noise.py`` (docs/studies.md): independent block sets give
+    different summed log-likelihoods (sd > 0), the same key gives the same value,
+    and more blocks per entry shrink the bootstrap sd of one set."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("loglik_noise", "scripts/loglik_noise.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    theta = np.array([[0.41, 0.87, 0.25, 30.0], [0.30, 0.80, 0.10, 20.0]])
+    few = mod.loglik_spread("data/postignano.csv", theta, 32, 3)
+    again = mod.loglik_spread("data/postignano.csv", theta, 32, 3)
+    more = mod.loglik_spread("data/postignano.csv", theta, 512, 3)
+    np.testing.assert_array_equal(few["summed"], again["summed"])
+    assert few["summed"].shape == (3, 2) and np.all(np.isfinite(few["summed"]))
+    assert np.all(few["sd"] > 0)
+    assert np.all(more["bootstrap_sd"] < few["bootstrap_sd"])
+    assert _exit_code(mod, ["data/postignano.csv", "--theta", "0.5,0.9"]) == 2
+
+
+def _exit_code(mod, argv) -> int:
+    try:
+        return mod.main(argv)
+    except SystemExit as e:
+        return e.code
