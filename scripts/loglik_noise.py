@@ -23,11 +23,18 @@ Usage (the figures of docs/studies.md)::
 A theta is Kn, Kt, roughness_m, rolling_friction_deg (``CRSP_ROLLING_BOX``).
 Rows are grouped into simulated releases as ``calib.fit`` groups them
 (``--release-tolerance-m``, its default 1 m), with the site file's release errors.
+
+``--extra-sd-m E`` (comma-separated values) scores the point rows with the
+tolerance sqrt(sd^2 + E^2) in place of their own sd: a what-if on the
+observation model (a wider kernel averages over more simulated blocks, so the
+score is less noisy, and the likelihood is flatter), not what ``calib.fit``
+does; E = 0 is its score.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 
@@ -39,14 +46,19 @@ jax.config.update("jax_enable_x64", True)
 
 def loglik_spread(data: str, thetas: np.ndarray, n_blocks: int, replicates: int,
                   release_tolerance_m: float = 1.0, profile: str | None = None,
-                  out: str = ".") -> dict:
+                  out: str = ".", extra_sd_m: float = 0.0) -> dict:
     """Summed log-likelihood of the rows of ``data`` at ``thetas`` (P, 4) under
-    ``replicates`` block sets of ``n_blocks`` blocks per simulated entry.
+    ``replicates`` block sets of ``n_blocks`` blocks per simulated entry, the
+    point rows' tolerance widened to sqrt(sd^2 + ``extra_sd_m``^2).
 
     Returns:
         dict with ``summed`` (R, P) nats, ``mean`` and ``sd`` (P,) over the sets
         (sd with ddof 1), ``bootstrap_sd`` (P,) of the first set
-        (``RowLikelihood.noise_var``) and ``seconds``.
+        (``RowLikelihood.noise_var``), ``pointwise`` (R, P, n_rows) each row's
+        log-likelihood, ``entry_quantiles_m`` (3, P, E) the 5/50/95 % quantiles
+        of each simulated entry's runouts in the first set, ``row_entry``
+        (n_rows,), ``row_label`` (n_rows,) the run id or the file's line, the
+        observed ``runout_m`` (n_rows,) and ``seconds``.
     """
     from calib.files.inputs import load_inputs
     from calib.inference.likelihood import RowLikelihood
@@ -55,18 +67,27 @@ def loglik_spread(data: str, thetas: np.ndarray, n_blocks: int, replicates: int,
 
     inputs = load_inputs(data, profile, out)
     entries = inputs.entries(release_tolerance_m)
-    rows = RowLikelihood(inputs.obs, entries.index)
+    obs = inputs.obs
+    if extra_sd_m:
+        obs = dataclasses.replace(obs, runout_sd_m=np.hypot(obs.runout_sd_m, extra_sd_m))
+    rows = RowLikelihood(obs, entries.index)
     t0 = time.perf_counter()
-    summed, boot = [], None
+    summed, pointwise, boot, quantiles = [], [], None, None
     for r in range(replicates):
         fw = CrspForward(inputs.profile, entries, n_blocks, jax.random.key(100 + r),
                          box=CRSP_ROLLING_BOX)
         runs = fw.runouts(np.asarray(thetas, float))
         summed.append(rows.summed(runs))
+        pointwise.append(np.asarray(rows.pointwise(runs)))
         if boot is None:
             boot = np.sqrt(rows.noise_var(runs))
+            quantiles = np.nanquantile(runs, [0.05, 0.5, 0.95], axis=-1)
     summed = np.array(summed)
-    return {"summed": summed, "mean": summed.mean(0),
+    ids = obs.run_id if obs.run_id is not None else np.full(obs.n_obs, "")
+    labels = np.array([str(i) if i else f"line {k + 2}" for k, i in enumerate(ids)])
+    return {"summed": summed, "pointwise": np.array(pointwise), "entry_quantiles_m": quantiles,
+            "row_entry": np.asarray(entries.index), "row_label": labels,
+            "runout_m": np.asarray(obs.runout_m, float), "mean": summed.mean(0),
             "sd": summed.std(0, ddof=1) if replicates > 1 else np.full(summed.shape[1], np.nan),
             "bootstrap_sd": boot, "seconds": time.perf_counter() - t0}
 
@@ -80,6 +101,16 @@ def _theta(text: str) -> np.ndarray:
     if v.size != 4:
         raise argparse.ArgumentTypeError(f"{text!r}: expected 4 numbers, got {v.size}")
     return v
+
+
+def _widths(text: str) -> list[float]:
+    try:
+        e = [float(s) for s in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected numbers (m)") from None
+    if min(e) < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: every width must be >= 0")
+    return e
 
 
 def _counts(text: str) -> list[int]:
@@ -103,6 +134,13 @@ def main(argv=None) -> int:
     p.add_argument("--n-blocks", type=_counts, default=[256, 1024],
                    help="blocks per simulated entry, comma-separated")
     p.add_argument("--replicates", type=int, default=8, help="independent block sets")
+    p.add_argument("--extra-sd-m", type=_widths, default=[0.0],
+                   help="widen the point rows' tolerance to sqrt(sd^2 + E^2), comma-"
+                        "separated E values in m (a what-if; 0 is calib.fit's score)")
+    p.add_argument("--rows", type=int, default=0,
+                   help="also print, per point, the rows whose log-likelihood varies most "
+                        "between block sets, with their release's simulated 5/50/95 %% "
+                        "runouts (first set)")
     p.add_argument("--release-tolerance-m", type=float, default=1.0,
                    help="as calib.fit's option of the same name")
     p.add_argument("--profile", help="profile CSV (default: as calib.fit finds it)")
@@ -112,17 +150,28 @@ def main(argv=None) -> int:
     from calib.files.inputs import InputError
 
     thetas = np.array(a.theta)
-    for n in a.n_blocks:
-        try:
-            s = loglik_spread(a.data, thetas, n, a.replicates, a.release_tolerance_m,
-                              a.profile)
-        except InputError as e:
-            print(f"error: {e}", file=sys.stderr)
-            return 2
-        print(f"{n} blocks per entry, {a.replicates} block sets ({s['seconds']:.0f} s)")
-        for j, t in enumerate(thetas):
-            print(f"  theta {','.join(f'{v:g}' for v in t):28s} mean {s['mean'][j]:9.1f}"
-                  f"  sd {s['sd'][j]:5.2f}  bootstrap sd of one set {s['bootstrap_sd'][j]:5.2f}")
+    for extra in a.extra_sd_m:
+        for n in a.n_blocks:
+            try:
+                s = loglik_spread(a.data, thetas, n, a.replicates, a.release_tolerance_m,
+                                  a.profile, extra_sd_m=extra)
+            except InputError as e:
+                print(f"error: {e}", file=sys.stderr)
+                return 2
+            print(f"{n} blocks per entry, {a.replicates} block sets, extra sd {extra:g} m "
+                  f"({s['seconds']:.0f} s)")
+            for j, t in enumerate(thetas):
+                print(f"  theta {','.join(f'{v:g}' for v in t):28s} mean "
+                      f"{s['mean'][j]:9.1f}  sd {s['sd'][j]:5.2f}  bootstrap sd of one set "
+                      f"{s['bootstrap_sd'][j]:5.2f}")
+                row_sd = s["pointwise"][:, j].std(axis=0, ddof=1)
+                for i in np.argsort(row_sd)[::-1][:a.rows]:
+                    e = s["row_entry"][i]
+                    q = s["entry_quantiles_m"][:, j, e]
+                    print(f"    row {s['row_label'][i]:8s} observed {s['runout_m'][i]:6.1f} m"
+                          f"  log-lik mean {s['pointwise'][:, j, i].mean():7.2f} sd "
+                          f"{row_sd[i]:4.2f}  its release simulated {q[0]:.0f} / {q[1]:.0f} / "
+                          f"{q[2]:.0f} m")
     return 0
 
 

@@ -4,6 +4,8 @@ same rows identically, and both are the model ``docs/calibration.md`` documents.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.special import logsumexp, ndtr
@@ -122,10 +124,11 @@ def test_a_row_no_block_reaches_costs_a_bounded_amount():
 
 
 @pytest.mark.slow  # a study script's check, about 30 s of compilation: run with -m slow
-def test_loglik_noise_script_measures_the_spread_over_block_sets():
+def test_loglik_noise_script_measures_the_spread_over_block_sets(tmp_path):
     """``scripts/loglik_noise.py`` (docs/studies.md): independent block sets give
     different summed log-likelihoods (sd > 0), the same key gives the same value,
-    and more blocks per entry shrink the bootstrap sd of one set."""
+    more blocks per entry shrink the bootstrap sd of one set, and a widened
+    tolerance is the score of rows with that tolerance."""
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("loglik_noise", "scripts/loglik_noise.py")
@@ -138,8 +141,22 @@ def test_loglik_noise_script_measures_the_spread_over_block_sets():
     np.testing.assert_array_equal(few["summed"], again["summed"])
     assert few["summed"].shape == (3, 2) and np.all(np.isfinite(few["summed"]))
     assert np.all(few["sd"] > 0)
+    np.testing.assert_allclose(few["pointwise"].sum(-1), few["summed"], rtol=1e-12)
+    assert few["entry_quantiles_m"].shape[:2] == (3, 2)
     assert np.all(more["bootstrap_sd"] < few["bootstrap_sd"])
     assert _exit_code(mod, ["data/postignano.csv", "--theta", "0.5,0.9"]) == 2
+    # --extra-sd-m E scores the rows as a file whose tolerances are sqrt(sd^2 + E^2)
+    wide = tmp_path / "wide.csv"
+    rows = Path("data/postignano.csv").read_text().splitlines()
+    sd_wide = float(np.hypot(15.0, 20.0))
+    wide.write_text("\n".join([rows[0]] + [r.replace(",15.0,", f",{sd_wide!r},")
+                                             for r in rows[1:]]) + "\n")
+    profile = "data/postignano_profile.csv"
+    widened = mod.loglik_spread("data/postignano.csv", theta, 32, 2, profile=profile,
+                                extra_sd_m=20.0)
+    direct = mod.loglik_spread(str(wide), theta, 32, 2, profile=profile)
+    np.testing.assert_allclose(widened["summed"], direct["summed"], rtol=1e-12)
+    assert not np.allclose(widened["summed"], few["summed"][:2])
 
 
 def _exit_code(mod, argv) -> int:
