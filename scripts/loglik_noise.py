@@ -103,24 +103,19 @@ def _theta(text: str) -> np.ndarray:
     return v
 
 
-def _widths(text: str) -> list[float]:
-    try:
-        e = [float(s) for s in text.split(",")]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected numbers (m)") from None
-    if min(e) < 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: every width must be >= 0")
-    return e
+def _comma_list(cast, lowest, what: str):
+    """An argparse type: comma-separated values of ``cast``, each >= ``lowest``."""
+    def parse(text: str) -> list:
+        try:
+            values = [cast(s) for s in text.split(",")]
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{text!r}: expected comma-separated values, each a {what}") from None
+        if min(values) < lowest:
+            raise argparse.ArgumentTypeError(f"{text!r}: every {what} must be >= {lowest:g}")
+        return values
 
-
-def _counts(text: str) -> list[int]:
-    try:
-        n = [int(s) for s in text.split(",")]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected integers") from None
-    if min(n) < 2:
-        raise argparse.ArgumentTypeError(f"{text!r}: every block count must be >= 2")
-    return n
+    return parse
 
 
 def main(argv=None) -> int:
@@ -131,10 +126,10 @@ def main(argv=None) -> int:
     p.add_argument("data", help="observations CSV (as calib.fit takes it)")
     p.add_argument("--theta", type=_theta, action="append", required=True,
                    help="Kn,Kt,roughness_m,rolling_friction_deg (repeat for several points)")
-    p.add_argument("--n-blocks", type=_counts, default=[256, 1024],
+    p.add_argument("--n-blocks", type=_comma_list(int, 2, "block count"), default=[256, 1024],
                    help="blocks per simulated entry, comma-separated")
     p.add_argument("--replicates", type=int, default=8, help="independent block sets")
-    p.add_argument("--extra-sd-m", type=_widths, default=[0.0],
+    p.add_argument("--extra-sd-m", type=_comma_list(float, 0.0, "width (m)"), default=[0.0],
                    help="widen the point rows' tolerance to sqrt(sd^2 + E^2), comma-"
                         "separated E values in m (a what-if; 0 is calib.fit's score)")
     p.add_argument("--rows", type=int, default=0,
