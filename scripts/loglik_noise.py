@@ -58,7 +58,7 @@ def loglik_spread(data: str, thetas: np.ndarray, n_blocks: int, replicates: int,
         log-likelihood, ``entry_quantiles_m`` (3, P, E) the 5/50/95 % quantiles
         of each simulated entry's runouts in the first set, ``row_entry``
         (n_rows,), ``row_label`` (n_rows,) the run id or the file's line, the
-        observed ``runout_m`` (n_rows,) and ``seconds``.
+        observed ``runout_m`` (n_rows,), ``n_blocks`` and ``seconds``.
     """
     from calib.files.inputs import load_inputs
     from calib.inference.likelihood import RowLikelihood
@@ -86,10 +86,45 @@ def loglik_spread(data: str, thetas: np.ndarray, n_blocks: int, replicates: int,
     ids = obs.run_id if obs.run_id is not None else np.full(obs.n_obs, "")
     labels = np.array([str(i) if i else f"line {k + 2}" for k, i in enumerate(ids)])
     return {"summed": summed, "pointwise": np.array(pointwise), "entry_quantiles_m": quantiles,
+            "n_blocks": n_blocks,
             "row_entry": np.asarray(entries.index), "row_label": labels,
             "runout_m": np.asarray(obs.runout_m, float), "mean": summed.mean(0),
             "sd": summed.std(0, ddof=1) if replicates > 1 else np.full(summed.shape[1], np.nan),
             "bootstrap_sd": boot, "seconds": time.perf_counter() - t0}
+
+
+def tail_mixture(base: dict, more: dict) -> dict:
+    """The score with more blocks only where the rows lie in their release's tails.
+
+    ``base`` and ``more``: ``loglik_spread`` at two block counts (same data,
+    points and replicates). A simulated entry is a tail entry at a point when
+    one of its rows' observed runout lies outside that entry's simulated 5-95 %
+    range in ``base``'s first set; its rows take their log-likelihood from
+    ``more``, the other rows from ``base``.
+
+    Returns:
+        dict with ``summed`` (R, P), ``mean`` and ``sd`` (P,), ``n_tail_entries``
+        (P,) and ``cost`` (P,): the blocks simulated relative to ``base``
+        alone, (n_base (E - T) + n_more T) / (n_base E).
+    """
+    q05, q95 = base["entry_quantiles_m"][0], base["entry_quantiles_m"][2]  # (P, E)
+    e_of, y = base["row_entry"], base["runout_m"]
+    n_entries = q05.shape[1]
+    n_base = base["n_blocks"]
+    summed, n_tail, cost = [], [], []
+    for j in range(q05.shape[0]):
+        outside = np.isfinite(y) & ((y < q05[j, e_of]) | (y > q95[j, e_of]))
+        tail = np.zeros(n_entries, bool)
+        tail[e_of[outside]] = True
+        from_more = tail[e_of]
+        summed.append(np.where(from_more, more["pointwise"][:, j], base["pointwise"][:, j])
+                      .sum(axis=1))
+        n_tail.append(int(tail.sum()))
+        cost.append((n_base * (n_entries - tail.sum()) + more["n_blocks"] * tail.sum())
+                    / (n_base * n_entries))
+    summed = np.array(summed).T
+    return {"summed": summed, "mean": summed.mean(0), "sd": summed.std(0, ddof=1),
+            "n_tail_entries": np.array(n_tail), "cost": np.array(cost)}
 
 
 def _theta(text: str) -> np.ndarray:
@@ -136,12 +171,19 @@ def main(argv=None) -> int:
                    help="also print, per point, the rows whose log-likelihood varies most "
                         "between block sets, with their release's simulated 5/50/95 %% "
                         "runouts (first set)")
+    p.add_argument("--tail-blocks", type=int, default=0,
+                   help="also score each block count's rows with this many blocks for the "
+                        "releases whose rows lie outside their simulated 5-95 %% range "
+                        "(the others keep the block count): the spread and the cost of that "
+                        "allocation (0: not done)")
     p.add_argument("--release-tolerance-m", type=float, default=1.0,
                    help="as calib.fit's option of the same name")
     p.add_argument("--profile", help="profile CSV (default: as calib.fit finds it)")
     a = p.parse_args(argv)
     if a.replicates < 2:
         p.error("--replicates must be >= 2")
+    if a.tail_blocks and a.tail_blocks < 2:
+        p.error("--tail-blocks must be 0 or >= 2")
     from calib.files.inputs import InputError
 
     thetas = np.array(a.theta)
@@ -167,6 +209,16 @@ def main(argv=None) -> int:
                           f"  log-lik mean {s['pointwise'][:, j, i].mean():7.2f} sd "
                           f"{row_sd[i]:4.2f}  its release simulated {q[0]:.0f} / {q[1]:.0f} / "
                           f"{q[2]:.0f} m")
+            if a.tail_blocks:
+                more = loglik_spread(a.data, thetas, a.tail_blocks, a.replicates,
+                                     a.release_tolerance_m, a.profile, extra_sd_m=extra)
+                mix = tail_mixture(s, more)
+                print(f"  with {a.tail_blocks} blocks for the tail releases "
+                      f"({more['seconds']:.0f} s):")
+                for j, t in enumerate(thetas):
+                    print(f"  theta {','.join(f'{v:g}' for v in t):28s} mean "
+                          f"{mix['mean'][j]:9.1f}  sd {mix['sd'][j]:5.2f}  tail releases "
+                          f"{mix['n_tail_entries'][j]}  blocks x{mix['cost'][j]:.2f}")
     return 0
 
 

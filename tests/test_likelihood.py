@@ -142,6 +142,13 @@ def test_loglik_noise_script_measures_the_spread_over_block_sets(tmp_path):
     assert few["summed"].shape == (3, 2) and np.all(np.isfinite(few["summed"]))
     assert np.all(few["sd"] > 0)
     np.testing.assert_allclose(few["pointwise"].sum(-1), few["summed"], rtol=1e-12)
+    # the tail allocation: with the same block count it is the plain score at no extra cost
+    same = mod.tail_mixture(few, few)
+    np.testing.assert_allclose(same["summed"], few["summed"], rtol=1e-12)
+    np.testing.assert_allclose(same["cost"], 1.0)
+    mixed = mod.tail_mixture(few, more)
+    assert np.all((mixed["cost"] == 1.0) == (mixed["n_tail_entries"] == 0))
+    assert np.all(mixed["cost"] <= 512 / 32)
     assert few["entry_quantiles_m"].shape[:2] == (3, 2)
     assert np.all(more["bootstrap_sd"] < few["bootstrap_sd"])
     assert _exit_code(mod, ["data/postignano.csv", "--theta", "0.5,0.9"]) == 2
