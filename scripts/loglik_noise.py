@@ -138,6 +138,11 @@ def _theta(text: str) -> np.ndarray:
     return v
 
 
+def _label(theta: np.ndarray) -> str:
+    """A parameter point as typed: Kn,Kt,roughness_m,rolling_friction_deg."""
+    return ",".join(f"{v:g}" for v in theta)
+
+
 def _comma_list(cast, lowest, what: str):
     """An argparse type: comma-separated values of ``cast``, each >= ``lowest``."""
     def parse(text: str) -> list:
@@ -198,7 +203,7 @@ def main(argv=None) -> int:
             print(f"{n} blocks per entry, {a.replicates} block sets, extra sd {extra:g} m "
                   f"({s['seconds']:.0f} s)")
             for j, t in enumerate(thetas):
-                print(f"  theta {','.join(f'{v:g}' for v in t):28s} mean "
+                print(f"  theta {_label(t):28s} mean "
                       f"{s['mean'][j]:9.1f}  sd {s['sd'][j]:5.2f}  bootstrap sd of one set "
                       f"{s['bootstrap_sd'][j]:5.2f}")
                 row_sd = s["pointwise"][:, j].std(axis=0, ddof=1)
@@ -216,7 +221,7 @@ def main(argv=None) -> int:
                 print(f"  with {a.tail_blocks} blocks for the tail releases "
                       f"({more['seconds']:.0f} s):")
                 for j, t in enumerate(thetas):
-                    print(f"  theta {','.join(f'{v:g}' for v in t):28s} mean "
+                    print(f"  theta {_label(t):28s} mean "
                           f"{mix['mean'][j]:9.1f}  sd {mix['sd'][j]:5.2f}  tail releases "
                           f"{mix['n_tail_entries'][j]}  blocks x{mix['cost'][j]:.2f}")
     return 0

@@ -123,13 +123,15 @@ def test_a_row_no_block_reaches_costs_a_bounded_amount():
     assert ll[2] == pytest.approx(np.log(RUNOUT_EPS * 20.0 / R_MAX_M), abs=1e-9)
 
 
-@pytest.mark.slow  # a study script's check, about 30 s of compilation: run with -m slow
-def test_loglik_noise_script_measures_the_spread_over_block_sets(tmp_path):
+@pytest.mark.slow  # a study script's check, about 20 s of compilation: run with -m slow
+def test_loglik_noise_script_measures_the_spread_over_block_sets(tmp_path, capsys):
     """``scripts/loglik_noise.py`` (docs/studies.md): independent block sets give
     different summed log-likelihoods (sd > 0), the same key gives the same value,
     more blocks per entry shrink the bootstrap sd of one set, and a widened
     tolerance is the score of rows with that tolerance."""
     import importlib.util
+
+    from cli_run import run_cli
 
     spec = importlib.util.spec_from_file_location("loglik_noise", "scripts/loglik_noise.py")
     mod = importlib.util.module_from_spec(spec)
@@ -151,7 +153,7 @@ def test_loglik_noise_script_measures_the_spread_over_block_sets(tmp_path):
     assert np.all(mixed["cost"] <= 512 / 32)
     assert few["entry_quantiles_m"].shape[:2] == (3, 2)
     assert np.all(more["bootstrap_sd"] < few["bootstrap_sd"])
-    assert _exit_code(mod, ["data/postignano.csv", "--theta", "0.5,0.9"]) == 2
+    assert run_cli(mod.main, ["data/postignano.csv", "--theta", "0.5,0.9"], capsys)[0] == 2
     # --extra-sd-m E scores the rows as a file whose tolerances are sqrt(sd^2 + E^2)
     wide = tmp_path / "wide.csv"
     rows = Path("data/postignano.csv").read_text().splitlines()
@@ -164,10 +166,3 @@ def test_loglik_noise_script_measures_the_spread_over_block_sets(tmp_path):
     direct = mod.loglik_spread(str(wide), theta, 32, 2, profile=profile)
     np.testing.assert_allclose(widened["summed"], direct["summed"], rtol=1e-12)
     assert not np.allclose(widened["summed"], few["summed"][:2])
-
-
-def _exit_code(mod, argv) -> int:
-    try:
-        return mod.main(argv)
-    except SystemExit as e:
-        return e.code
