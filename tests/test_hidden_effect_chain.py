@@ -4,7 +4,8 @@ scores better than the baseline on rows of the same site that no fit saw, and
 its hazard exceedance lies closer to the truth's.
 
 The chains themselves are slow (``pytest -m slow tests/test_hidden_effect_chain.py``:
-12-15 minutes per effect on 2 cores, 180 rows, the default budgets); the
+12-14 minutes per effect on 2 cores, 180 rows, the default budgets; the vegetation belt
+is left out: discovery names it only with passage speeds, which ``calib.fit`` does not fit); the
 script's own bookkeeping is checked in the default run.
 """
 
@@ -53,8 +54,20 @@ def test_exceedance_comparison_counts_live_stations_and_the_band():
     json.dumps(out, allow_nan=False)  # what chain.json holds
 
 
+_SHORT = {
+    # measured with this test's chain (2026-11-27, docs/studies.md, "The loop closed on
+    # a known truth"): everything else held; the requirement stays
+    "fragmentation": "0.2 m blocks: mean |P - P_truth| 0.010 with the effect against "
+                     "0.009 for the baseline over 33 stations (0.5-2.0 m: 0.013-0.016 "
+                     "against 0.021-0.119); small blocks seldom break, so the two fits "
+                     "differ there by Monte Carlo error",
+}
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("effect", ["size_dissipation"])
+@pytest.mark.parametrize("effect", [
+    pytest.param(e, marks=pytest.mark.xfail(reason=_SHORT[e], strict=True)) if e in _SHORT
+    else e for e in ("size_dissipation", "rolling_resistance", "fragmentation")])
 def test_the_named_effect_refits_scores_better_and_moves_the_hazard_to_the_truth(
         effect, tmp_path):
     assert chain.main(["--effect", effect, "--out", str(tmp_path)]) == 0
