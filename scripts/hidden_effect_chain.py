@@ -46,7 +46,7 @@ import time
 
 import numpy as np
 
-SIZES_M = (0.2, 0.5, 1.0, 2.0)  # calib.hazard's default block sizes
+SIZES_M = (0.2, 0.5, 1.0, 2.0)  # block sizes of the hazard runs and the truth, m
 
 
 def run_command(args: list[str], log: str) -> float:
@@ -143,9 +143,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help="road abscissa for calib.hazard, m")
     p.add_argument("--truth-blocks", type=int, default=20000,
                    help="blocks per size of the truth's exceedance")
-    p.add_argument("--quick", action="store_true",
-                   help="--quick for discover and fit, 2000 blocks and 10 draws for the "
-                        "hazard runs (a test of the chain, not a study)")
     p.add_argument("--out", required=True, help="output folder")
     return p
 
@@ -156,11 +153,10 @@ def main(argv=None) -> int:
 
     os.makedirs(args.out, exist_ok=True)
     o = lambda *p: os.path.join(args.out, *p)  # noqa: E731
-    quick = ["--quick"] if args.quick else []
     times, record = {}, {"effect": args.effect, "strength": args.strength,
                          "n_obs": args.n_obs, "seed": args.seed,
                          "heldout_n_obs": args.heldout_n_obs,
-                         "heldout_seed": args.heldout_seed, "quick": args.quick}
+                         "heldout_seed": args.heldout_seed}
     data, held = o("data.csv"), o("heldout.csv")
     for csv, n, seed in ((data, args.n_obs, args.seed),
                          (held, args.heldout_n_obs, args.heldout_seed)):
@@ -171,7 +167,7 @@ def main(argv=None) -> int:
     truth = json.load(open(o("data.truth.json")))
 
     times["discover"] = run_command(["-m", "calib.discover", data, "--out", o("discover"),
-                                     "--no-progress", *quick], o("discover.log"))
+                                     "--no-progress"], o("discover.log"))
     disc = json.load(open(o("discover", "discovery.json")))
     record["named_effects"] = disc["named_effects"]
     record["gap_m"] = [disc["gap_before"], disc["gap_after"]]
@@ -183,12 +179,11 @@ def main(argv=None) -> int:
         fits["baseline"] = ["-m", "calib.fit", data, "--model", "crsp"]
     record["fit_commands"] = {}
     for k, cmd in fits.items():
-        cmd = [*cmd, "--out", o(f"fit_{k}"), "--no-progress", *quick]
+        cmd = [*cmd, "--out", o(f"fit_{k}"), "--no-progress"]
         record["fit_commands"][k] = "python " + shlex.join(cmd)
         times[f"fit {k}"] = run_command(cmd, o(f"fit_{k}.log"))
 
     record["validation"], tables = {}, {}
-    hazard_extra = ["--n-blocks", "2000", "--n-posterior", "10"] if args.quick else []
     for k in fits:
         cal = o(f"fit_{k}", "calibration.json")
         times[f"validate {k}"] = run_command(
@@ -200,7 +195,8 @@ def main(argv=None) -> int:
             "skill_vs_climatology_size", "coverage_50", "coverage_90")}
         times[f"hazard {k}"] = run_command(
             ["-m", "calib.hazard", cal, "--road-x-m", str(args.road_x_m), "--no-progress",
-             "--out", o(f"hazard_{k}"), *hazard_extra], o(f"hazard_{k}.log"))
+             "--block-sizes-m", ",".join(f"{d:g}" for d in SIZES_M),
+             "--out", o(f"hazard_{k}")], o(f"hazard_{k}.log"))
         tables[k] = pd.read_csv(o(f"hazard_{k}", "exceedance.csv"))
     stations = np.sort(tables["baseline"]["x_m"].unique())
     t0 = time.perf_counter()
