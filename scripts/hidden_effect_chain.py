@@ -62,6 +62,12 @@ def run_command(args: list[str], log: str) -> float:
     return time.perf_counter() - t0
 
 
+def read_json(path: str) -> dict:
+    """A command's JSON output."""
+    with open(path) as f:
+        return json.load(f)
+
+
 def without_effects(command: str) -> list[str]:
     """The arguments of a ``python -m calib.fit ...`` command line without its
     ``--effect NAME`` options."""
@@ -164,11 +170,11 @@ def main(argv=None) -> int:
             ["-m", "calib.synth", "--effect", args.effect, "--strength", str(args.strength),
              "--n-obs", str(n), "--seed", str(seed), "--profile", args.profile, "--out", csv],
             csv + ".log")
-    truth = json.load(open(o("data.truth.json")))
+    truth = read_json(o("data.truth.json"))
 
     times["discover"] = run_command(["-m", "calib.discover", data, "--out", o("discover"),
                                      "--no-progress"], o("discover.log"))
-    disc = json.load(open(o("discover", "discovery.json")))
+    disc = read_json(o("discover", "discovery.json"))
     record["named_effects"] = disc["named_effects"]
     record["gap_m"] = [disc["gap_before"], disc["gap_after"]]
     fits = {}
@@ -189,7 +195,7 @@ def main(argv=None) -> int:
         times[f"validate {k}"] = run_command(
             ["-m", "calib.validate", cal, held, "--out", o(f"validate_{k}")],
             o(f"validate_{k}.log"))
-        v = json.load(open(o(f"validate_{k}", "validation.json")))
+        v = read_json(o(f"validate_{k}", "validation.json"))
         record["validation"][k] = {key: v[key] for key in (
             "mean_crps_m", "mean_crps_climatology_m", "skill_vs_climatology",
             "skill_vs_climatology_size", "coverage_50", "coverage_90")}
