@@ -61,8 +61,9 @@ def one_run(profile, effect, strength, n_obs, seed, sd_m, fit_seed, budget,
             "loglik_noise_sd_nats": {r["effect"]: float(r["loglik_noise_sd_nats"])
                                      for r in d.table},
             "khat": {r["effect"]: float(r["khat"]) for r in d.table},
-            "khat_by_fold": {r["effect"]: r["khat_by_fold"] for r in d.table},
-            "psis_flagged_folds": {r["effect"]: r["psis_flagged_folds"] for r in d.table},
+            "khat_by_row": {r["effect"]: r["khat_by_row"] for r in d.table},
+            "khat_threshold": {r["effect"]: r["khat_threshold"] for r in d.table},
+            "loo_reliable_share": {r["effect"]: r["loo_reliable_share"] for r in d.table},
             "warnings": [f.unfinished["warning"] for f in d.fits.values()
                          if f.unfinished and f.unfinished["warning"]],
             "seconds": time.perf_counter() - t0,
