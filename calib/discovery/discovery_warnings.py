@@ -54,14 +54,23 @@ def psis_warnings(candidates: list[dict]) -> list[str]:
                and not c["loo_reliable_share"] >= LOO_RELIABLE_SHARE]
     if not flagged:
         return []
-    listing = "; ".join(
-        f"{c['effect']}: {len(c['psis_flagged_rows'])} of {len(c['khat_by_row'])} rows above "
-        f"{c['khat_threshold']:.3f}, worst "
-        f"{_khat_text(np.nanmax(np.asarray(c['khat_by_row'], float), initial=-np.inf))}"
-        for c in flagged)
-    return [f"Pareto k-hat of the leave-one-out scores above the bar in more than "
-            f"{1 - LOO_RELIABLE_SHARE:.0%} of the rows ({listing}): those scores are unreliable; "
-            f"treat the gains that involve them with care, or rerun with a larger budget."]
+    listing = "; ".join(_flagged_text(c) for c in flagged)
+    return [f"leave-one-out scores not reliable in more than {1 - LOO_RELIABLE_SHARE:.0%} of "
+            f"the rows ({listing}): treat the gains that involve them with care, or rerun "
+            f"with a larger budget."]
+
+
+def _flagged_text(c: dict) -> str:
+    """'effect: n of N rows with Pareto k-hat above B[, m not estimated], worst k'."""
+    k = np.array([np.nan if v is None else v for v in c["khat_by_row"]], float)
+    bar = c["khat_threshold"]
+    above, unknown = int(np.sum(k >= bar)), int(np.sum(np.isnan(k)))
+    text = f"{c['effect']}: {above} of {k.size} rows with Pareto k-hat above {bar:.3f}"
+    if unknown:
+        text += f", {unknown} not estimated (too few draws for a tail fit)"
+    if above:
+        text += f", worst {_khat_text(np.nanmax(k))}"
+    return text
 
 
 def _khat_text(k) -> str:
