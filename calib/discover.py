@@ -29,8 +29,7 @@ Writes into ``--out`` (atomically; nothing on error):
   gap_after, candidates}], stopping_rule, multiple_testing, refit_command (the
   calib.fit command of the final model; null where calib.fit cannot fit it),
   candidates (the first step's) [{effect, model, score, gap, ...,
-  khat, khat_by_row, khat_threshold, psis_flagged_rows, loo_reliable_share}],
-  gap_metric, gap_before, gap_after,
+  khat, khat_by_fold, psis_flagged_folds}], gap_metric, gap_before, gap_after,
   where (the baseline's disagreement), each candidate's fit (with its
   unfinished blocks, ``calib.model.unfinished``, and the Pareto k-hats of its
   importance weights, ``calib.inference.importance``), warnings, budgets, timings, seed;
@@ -144,15 +143,13 @@ def refit_command(args, named: tuple[str, ...]) -> str | None:
 
 
 def _fit_section(f) -> dict:
-    from calib.discovery.discrepancy import loo_record
-
     return {"parameters": list(f.names),
             "estimate": dict(zip(f.names, map(float, f.estimate))),
             "q05": dict(zip(f.names, map(float, f.q05))),
             "q95": dict(zip(f.names, map(float, f.q95))),
             "best_design_point": dict(zip(f.names, map(float, f.best))),
             "ess": f.ess, "n_design": int(f.theta.shape[0]),
-            "khat": f.khat, **loo_record(f),
+            "khat": f.khat, "khat_by_fold": [float(k) for k in f.khat_folds],
             "loglik_noise_sd_nats": f.loglik_noise_sd_nats,
             "unfinished_blocks": f.unfinished,
             "gap_by_size_class_m": [None if not np.isfinite(g) else float(g)
@@ -249,10 +246,8 @@ def _result(args, inputs, velocities, combine, budget, d, t0: float) -> dict:
         "multiple_testing": MULTIPLE_TESTING,
         "max_steps": args.max_steps,
         "steps": d.steps,
-        "score": ("leave-one-out log predictive density (PSIS-LOO on "
-                  + (f"{budget.n_score_draws} re-simulated posterior draws"
-                     if budget.n_score_draws else "the design points, importance-weighted")
-                  + "), summed over rows (higher is better)"),
+        "score": f"{budget.k_folds}-fold (leave-one-out below {budget.k_folds} rows) held-out "
+                 f"log predictive density, summed over rows (higher is better)",
         "candidates": d.table,
         "gap_metric": GAP_METRIC,
         "gap_before": d.gap_before, "gap_after": d.gap_after,
@@ -388,7 +383,7 @@ def _print_step(st: dict, n_velocity: int, several: bool) -> None:
               f"{'s' if st['n_compared'] > 1 else ''}; named if the gain exceeds 4 nats and "
               f"{st['z']:.2f} se)")
     print(f"{'' if several else chr(10)}{'candidate':20} {'score':>9} {'gain':>8} {'± se':>6} "
-          f"{'gap m':>7} {'sim sd':>7} {'LOO ok':>7}")
+          f"{'gap m':>7} {'sim sd':>7} {'k-hat':>7}")
     rows = st["candidates"]
     noise = [c.get("loglik_noise_sd_nats") for c in rows]
     noise = ["-" if v is None or not np.isfinite(v) else f"{v:.1f}" for v in noise]
@@ -396,17 +391,13 @@ def _print_step(st: dict, n_velocity: int, several: bool) -> None:
         se = "-" if c["effect"] == "none" or c["se_delta"] is None else f"{c['se_delta']:.1f}"
         name = c["effect"] if st["step"] == 1 or c["effect"] != "none" else "(baseline)"
         print(f"{name:20} {c['score']:9.1f} {c['delta_vs_none']:+8.1f} {se:>6} "
-              f"{c['gap']:7.2f} {sim:>7} {_loo_ok(c):>7}")
+              f"{c['gap']:7.2f} {sim:>7} {_worst_fold(c):>7}")
     if st["step"] == 1:
         if set(noise) != {"-"}:
             print("(sim sd: Monte Carlo sd of the summed log-likelihood, nats, over "
                   "independent block sets)")
-        from calib.discovery.scores import LOO_RELIABLE_SHARE
-
-        bar = next((c["khat_threshold"] for c in rows if c.get("khat_threshold")), None)
-        print("(LOO ok: share of rows whose leave-one-out Pareto k-hat is below "
-              + ("the bar" if bar is None else f"{bar:.3f}")
-              + f"; ! marks a share under {LOO_RELIABLE_SHARE:.0%}, an unreliable score)")
+        print("(k-hat: the largest Pareto k-hat of the folds' importance weights; ! marks one "
+              "above 0.7, an unreliable held-out score)")
     if n_velocity:
         parts = ", ".join(f"{c['effect']} {c['delta_velocity_rows']:+.1f}"
                           for c in rows if c["effect"] != "none")
@@ -420,15 +411,14 @@ def _print_step(st: dict, n_velocity: int, several: bool) -> None:
               f"{st['gap_after']:.2f} m")
 
 
-def _loo_ok(c: dict) -> str:
-    """The share of a candidate's rows with a reliable leave-one-out score ('-':
-    not known), with '!' under ``LOO_RELIABLE_SHARE``."""
-    from calib.discovery.scores import LOO_RELIABLE_SHARE
-
-    share = c.get("loo_reliable_share")
-    if share is None or not np.isfinite(share):
+def _worst_fold(c: dict) -> str:
+    """The largest fold k-hat of a candidate row ('-': none estimated), with '!'
+    when some fold is flagged."""
+    ks = np.array([np.nan if k is None else k for k in c.get("khat_by_fold") or []], float)
+    ks = ks[~np.isnan(ks)]
+    if not ks.size:
         return "-"
-    return f"{share:.0%}" + ("!" if share < LOO_RELIABLE_SHARE else "")
+    return f"{ks.max():.2f}" + ("!" if c.get("psis_flagged_folds") else "")
 
 
 def main(argv=None) -> int:

@@ -252,21 +252,17 @@ def _summarise(args, runs: list[dict], budget_name: str, speeds) -> None:
                         "decision_rule": "calib.discover's: gain > 4 nats and > 2 se",
                         "cells": table, "runs": runs})
     print(f"\n{'effect':18} {'strength':>8} {'rows':>5} {'named right':>12} "
-          f"{'90 % interval':>14} {'median gain':>12} {'sim sd':>6} {'LOO ok':>6}  named")
+          f"{'90 % interval':>14} {'median gain':>12} {'sim sd':>6}  named")
     for c in table:
         g = "-" if c["median_gain_nats"] is None else \
             f"{c['median_gain_nats']:+.1f} ({c['median_gain_se'] or 0:.1f} se)"
         sd = c["median_loglik_noise_sd_none_nats"]
         noise = "-" if sd is None else f"{sd:.1f}"
-        ok = c["min_loo_reliable_share"]
-        ok = "-" if ok is None else f"{ok:.0%}"
         print(f"{c['effect']:18} {c['strength']:8g} {c['n_obs']:5d} "
               f"{c['named_right']:>5d} of {c['runs']:<4d} "
-              f"{c['rate_q05']:6.2f}-{c['rate_q95']:<6.2f} {g:>12} {noise:>6} {ok:>6}  "
+              f"{c['rate_q05']:6.2f}-{c['rate_q95']:<6.2f} {g:>12} {noise:>6}  "
               + ", ".join(f"{k} {v}" for k, v in c["named"].items()))
-    print("(sim sd: median Monte Carlo sd of the baseline's summed log-likelihood, nats; "
-          "LOO ok: the smallest share of rows with a reliable leave-one-out score, over "
-          "every candidate of every run)")
+    print("(sim sd: median Monte Carlo sd of the baseline's summed log-likelihood, nats)")
     print(f"wrote {os.path.join(args.out, 'power.csv')} and power.json")
 
 

@@ -102,6 +102,7 @@ def test_discrepancy_fit_counts_unfinished_blocks_and_warns(budget_case):
     are counted in the design and the predictive, one warning, and every design
     point keeps a finite likelihood and the gap a finite value (finished blocks)."""
     from calib.discovery.candidate_fit import Candidate, fit_candidate
+    from calib.discovery.scores import folds
     from calib.inference.budget import DiscoveryBudget as FitBudget
     from calib.model.priors import CRSP_BOX
 
@@ -115,9 +116,10 @@ def test_discrepancy_fit_counts_unfinished_blocks_and_warns(budget_case):
     obs = Observations.points(np.full(6, 2.0), np.linspace(105.0, 125.0, 6), 5.0)
     row_class = np.zeros(6, int)
     budget = FitBudget(n_sobol=0, n_warm=0, n_refine=(), n_blocks=N, n_draws=2,
-                       n_blocks_check=N, noise_reps=0)
+                       n_blocks_check=N, k_folds=2, noise_reps=0)
     with pytest.warns(UnfinishedBlocksWarning, match="candidate 'none'"):
-        fit = fit_candidate(cand, obs, np.array([2.0]), row_class, jax.random.key(3), budget)
+        fit = fit_candidate(cand, obs, np.array([2.0]), row_class, jax.random.key(3), budget,
+                            folds(row_class, 2, seed=0))
     stages = fit.unfinished["stages"]
     assert stages["design"]["n_blocks"] == len(design) * N
     assert 0 < stages["design"]["n_unfinished"] < len(design) * N

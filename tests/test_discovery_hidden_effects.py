@@ -4,9 +4,7 @@ For each effect (and the null), 5 synthetic data sets (CRSP, 60 rows over six
 sizes 0.2-2.0 m, sd 5 m, strength 1 = "moderate", seeds 1001-1005, which no
 development run used) go through the default workflow. Required: the
 effect is named in at least 4 of 5 seeds; on null data ``none`` in at least
-4 of 5; whenever an effect is named, gap_after < gap_before; in every run,
-every candidate's leave-one-out scores are reliable (Pareto k-hat below
-min(0.7, 1 - 1/log10 S)) in at least 90 % of the rows.
+4 of 5; whenever an effect is named, gap_after < gap_before.
 
 Run: ``pytest -m slow -s tests/test_discovery_hidden_effects.py`` (17 minutes
 on 2 cores on 2026-11-24); it prints the confusion matrix.
@@ -56,8 +54,7 @@ def _run(effect: str) -> list[dict]:
         row = {"seed": seed, "named": d.named_effect, "gap_before": d.gap_before,
                "gap_after": d.gap_after,
                "gains": {r["effect"]: (round(r["delta_vs_none"], 1), round(r["se_delta"], 1))
-                         for r in d.table},
-               "loo_reliable_share": {r["effect"]: r["loo_reliable_share"] for r in d.table}}
+                         for r in d.table}}
         print(f"{effect} seed {seed}: named {row['named']}, gap {d.gap_before:.2f} -> "
               f"{d.gap_after:.2f} m, gains {row['gains']}", flush=True)
         out.append(row)
@@ -93,7 +90,6 @@ def test_hidden_effect_is_named_in_4_of_5_seeds(effect):
     for r in rows:
         if r["named"] != "none":
             assert r["gap_after"] < r["gap_before"], r
-        assert min(r["loo_reliable_share"].values()) >= 0.9, r
     assert hits >= 4, f"{effect}: named in {hits} of 5 seeds: {[r['named'] for r in rows]}"
 
 

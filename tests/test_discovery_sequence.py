@@ -47,8 +47,7 @@ def _hidden_budget():
     from calib.inference.budget import DiscoveryBudget as Budget
 
     return Budget(n_sobol=64, n_warm=32, n_refine=(32, 32, 32), n_blocks=32, n_draws=8,
-                  n_blocks_check=32, noise_reps=0, n_score_draws=256,
-                  score_block_sets=4)
+                  n_blocks_check=32, k_folds=5, noise_reps=0)
 
 
 HIDDEN_BUDGET = _hidden_budget()
@@ -214,7 +213,7 @@ def test_the_naming_bar_is_raised_for_the_candidates_compared():
     def fit(elpd, gap=1.0):
         return SimpleNamespace(elpd=elpd, gap=gap, names=("a",), ess=50.0,
                                loglik_noise_sd_nats=float("nan"), khat=0.1,
-                               khat_rows=np.zeros(n), n_score_draws=256)
+                               khat_folds=np.zeros(5))
 
     base = fit(np.zeros(n))
     one = _step_record(1, (), {"e": fit(d)}, base, n, None)

@@ -47,8 +47,6 @@ def test_detection_table_counts_rates_and_exact_intervals():
              "named": named, "gains": {"fragmentation": [g, 2.0], "vegetation_belt": [0.0, 1.0]}}
             for k, (named, g) in enumerate([("fragmentation", 10.0), ("none", 2.0),
                                             ("fragmentation", 12.0), ("vegetation_belt", 1.0)])]
-    runs[1]["loo_reliable_share"] = {"none": 0.97, "fragmentation": 0.93}
-    runs[2]["loo_reliable_share"] = {"none": 1.0, "fragmentation": 0.95}
     runs += [{"effect": "none", "strength": 1.0, "n_obs": 60, "seed": 9, "named": "none",
               "gains": {"fragmentation": [0.5, 1.0]}}]
     table = {c["effect"]: c for c in detection_table(runs)}
@@ -57,7 +55,6 @@ def test_detection_table_counts_rates_and_exact_intervals():
     assert f["named"] == {"none": 1, "fragmentation": 2, "vegetation_belt": 1}
     assert f["median_gain_nats"] == pytest.approx(6.0)  # median of 10, 2, 12, 1
     assert f["median_gain_se"] == pytest.approx(3.0)
-    assert f["min_loo_reliable_share"] == 0.93  # over every candidate of every run
     # Clopper-Pearson 90 % for 2 of 4: the 5 % and 95 % beta quantiles
     from scipy.stats import beta
 
@@ -65,7 +62,6 @@ def test_detection_table_counts_rates_and_exact_intervals():
     assert f["rate_q95"] == pytest.approx(beta.ppf(0.95, 3, 2))
     n = table["none"]
     assert (n["named_right"], n["rate"], n["median_gain_nats"]) == (1, 1.0, None)
-    assert n["min_loo_reliable_share"] is None  # its run did not record the shares
 
 
 @pytest.mark.slow  # a whole quick power study, 23 s: run with -m slow
@@ -84,9 +80,6 @@ def test_power_quick_run_writes_table_and_resumes(tmp_path):
     assert set(noise) == set(doc["runs"][0]["ess"]) and all(v > 0 for v in noise.values())
     assert doc["cells"][0]["median_loglik_noise_sd_none_nats"] == noise["none"]
     assert set(doc["runs"][0]["effective_rows"]) == set(doc["runs"][0]["gains"])
-    shares = doc["runs"][0]["loo_reliable_share"]
-    assert set(shares) == set(noise) and doc["cells"][0]["min_loo_reliable_share"] == min(
-        shares.values())
     assert doc["budget"] == "crsp-quick"  # the preset's own blocks: no suffix
     (rec,) = os.listdir(out / "runs")
     # a second call finds the finished run and does not redo it

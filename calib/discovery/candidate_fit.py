@@ -16,41 +16,11 @@ coordinates, truncated to the box). All stages are one deterministic-mixture pro
 (Owen & Zhou 2000, "Safe and effective importance sampling", JASA 95,
 135-143), so the self-normalised weights ``w_k ~ L(theta_k) p(theta_k) /
 q_mix(theta_k)`` target the posterior under the uniform prior. Every set of
-weights (each stage's fit, the posterior) is Pareto-smoothed
-(``calib.inference.importance.psis_weights``); the posterior's k-hat is reported
-per candidate (``khat``).
-
-The held-out score is PSIS leave-one-out (``calib.discovery.scores.loo_elpd``)
-on ``n_score_draws`` = 512 fresh draws of the candidate's posterior, each
-simulated again (draw s with block set s mod ``score_block_sets``, the sets
-shared by every candidate of a run, so that gains compare like with like).
-Why not the design's own weights (our choice, measured): at 180 rows they rest
-on 2-15 design points, and the K-fold scores built on them had Pareto k-hat
-0.38-3.7, above 0.7 in 72 of 75 folds of three synthetic runs
-(``docs/studies.md``); the leave-one-out ratios 1 / p(y_i | theta_s) of real
-posterior draws are light-tailed, each row being a small part of the data.
-The draws come from a Gaussian in the unit coordinates (``posterior_gaussian``),
-truncated to the cube: centred on the importance-weighted posterior mean, its
-covariance matched by tempering, i.e. that of the weights L(theta)^beta
-p(theta) / q(theta) with the largest beta <= 1 whose ESS reaches
-``TEMPER_ESS`` = 32 design points, times beta (exact for a Gaussian likelihood
-under a flat prior, whose tempered posterior has covariance Sigma / beta; the
-tempered weights also average over the roughness of the simulated
-likelihood, which the untempered ones follow). The score is then that of
-this Gaussian posterior; the other summaries (estimate, intervals, the
-predictive and its gap) keep the importance-weighted design. Our choice,
-after two that failed on null data (180 rows, seed 7103): a second
-importance stage of 256 draws from this Gaussian reached an ESS of only 2-13
-(the simulated likelihood is too rough for importance weights at this
-scale), and a Laplace fit (a quadratic by least squares to the simulated
-log-likelihood of such draws) moved the size-dissipation candidate's
-Gaussian off its posterior (score -1396) and let rolling resistance be
-named on null data.
-Each row's k-hat is reported (``khat_by_row``); a row above
-``calib.inference.importance.khat_threshold(S)`` (0.631 for S = 512) is flagged.
-Fixed designs (``Candidate.design``, the DEM's grids) and budgets with
-``n_score_draws`` = 0 score the design points themselves, with their
-importance weights as the draws' weights. Runouts are
+weights (each stage's fit, the posterior, each fold's training weights of
+step 3) is Pareto-smoothed (``calib.inference.importance.psis_weights``); its k-hat
+is reported per candidate (``khat``) and per fold (``khat_by_fold``), and a
+fold above ``calib.inference.importance.KHAT_MAX`` = 0.7 is flagged
+(``psis_flagged_folds``): its held-out scores are unreliable. Runouts are
 simulated with common random numbers (``calib.model.forward``), and the
 likelihood is ``calib.inference.likelihood``'s, the one ``calib.fit`` uses (points:
 the tolerance as kernel; intervals: the Silverman width). Optional passage
@@ -73,7 +43,7 @@ from scipy.special import logsumexp
 from scipy.stats import qmc
 
 from calib.discovery.residuals import point_view
-from calib.discovery.scores import crps_ensemble, loo_elpd
+from calib.discovery.scores import crps_ensemble, cv_elpd
 from calib.inference.budget import DiscoveryBudget
 from calib.inference.importance import ess, psis_weights, weighted_quantile
 from calib.inference.likelihood import log_likelihood, observed_rows, velocity_log_likelihood
@@ -83,14 +53,12 @@ from calib.model.priors import Box
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
 from calib.model.warp import unit_coordinates
 
-__all__ = ["GAP_METRIC", "TEMPER_ESS", "Candidate", "CandidateFit", "VelocityRows",
-           "class_samples", "fit_candidate", "gap", "gaussian_fit", "loglik_noise_sd",
-           "posterior_gaussian"]
+__all__ = ["GAP_METRIC", "Candidate", "CandidateFit", "VelocityRows", "class_samples",
+           "fit_candidate", "gap", "gaussian_fit", "loglik_noise_sd"]
 
 GAP_METRIC = ("mean CRPS (m) of the observed runouts under the model's posterior predictive "
               "(simulated runout + the row's measurement noise), averaged over the rows of "
               "each size class, then over the size classes")
-TEMPER_ESS = 32.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -127,12 +95,10 @@ class CandidateFit:
             runout rows, then the passage-velocity rows (if any).
         weights: (N,) posterior weights (all rows), Pareto-smoothed.
         ess: effective sample size of the weights.
-        elpd: (n_rows,) leave-one-out log predictive density of each row (same
-            order; ``calib.discovery.scores.loo_elpd``).
-        khat: Pareto k-hat of the posterior weights; khat_rows: (n_rows,) that of
-            each row's leave-one-out ratios; NaN where not estimated
-            (``calib.inference.importance``).
-        n_score_draws: the draws the score rests on (S of ``khat_threshold(S)``).
+        elpd: (n_rows,) held-out log predictive density of each row (same order).
+        khat: Pareto k-hat of the posterior weights; khat_folds: (K,) that of
+            each fold's training weights (``calib.discovery.scores.cv_elpd``); NaN where
+            not estimated (``calib.inference.importance``).
         estimate, q05, q95: weighted posterior mean and 90 % interval per parameter;
             best: the design point of highest weight.
         samples: (E, M) posterior-predictive runouts per simulated entry (a size
@@ -167,9 +133,8 @@ class CandidateFit:
     seconds: float
     unfinished: dict | None = None
     khat: float = float("nan")
-    khat_rows: np.ndarray | None = None
+    khat_folds: np.ndarray | None = None
     class_samples: np.ndarray | None = None
-    n_score_draws: int = 0
 
 
 @jax.jit
@@ -281,22 +246,19 @@ def _crps_finished(samples: np.ndarray, y: float) -> float:
 
 
 def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array,
-                  budget: DiscoveryBudget, progress=None,
+                  budget: DiscoveryBudget, fold: np.ndarray, progress=None,
                   warm: tuple[np.ndarray, np.ndarray] | None = None,
                   velocities: VelocityRows | None = None,
-                  entries: Entries | None = None,
-                  score_key: jax.Array | None = None) -> CandidateFit:
+                  entries: Entries | None = None) -> CandidateFit:
     """Fit one candidate by adaptive importance sampling; score it (see module doc).
 
     ``warm``: (mean, cov) in unit coordinates of the first parameters (the
     baseline's posterior), used for the warm stage. ``velocities``: passage-
-    velocity rows scored with the runout rows (each its own left-out row; their
+    velocity rows scored with the runout rows (``fold`` then covers both; their
     ``size_class`` indexes the entries). ``entries``: what the forward model
     simulates, (size, release) groups with the entry of each runout row
     (``index``); None: one entry per size class ``class_sizes_m``, released at
     the profile's first vertex (``calib.model.forward.as_entries``).
-    ``score_key``: the block sets of the held-out score's draws; pass one key to
-    every candidate of a comparison (None: one drawn from ``key``).
     """
     t0 = time.perf_counter()
     box = cand.box
@@ -326,6 +288,7 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     est = w @ theta
     q05 = np.array([weighted_quantile(theta[:, j], w, 0.05) for j in range(dim)])
     q95 = np.array([weighted_quantile(theta[:, j], w, 0.95) for j in range(dim)])
+    elpd, khat_folds = cv_elpd(ll, log_q, fold)
     samples = _predictive(cand, fw, theta, w, simulated, key, budget, rng, tallies)
     if entries is None:
         gap_c, gap_m = gap(samples, obs, row_class, rng)
@@ -341,69 +304,11 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
         tallies["noise"].add(reps[0], np.broadcast_to(best, (budget.noise_reps, dim)),
                              box.names)
         noise = loglik_noise_sd(loglik(*reps))
-    if cand.design is not None or budget.n_score_draws == 0:  # the design's own points
-        elpd, khat_rows = loo_elpd(ll, ll.sum(axis=1) - log_q)
-        n_score = ll.shape[0]
-    else:
-        srng = np.random.default_rng(
-            np.asarray(jax.random.key_data(jax.random.fold_in(key, 4))).ravel())
-        draws, _ = _proposal(*posterior_gaussian(z, ll.sum(axis=1), log_q), srng,
-                             budget.n_score_draws, dim)
-        skey = jax.random.fold_in(key, 5) if score_key is None else score_key
-        tallies["score"] = UnfinishedTally(tuple(map(float, entry_sizes)))
-        ll_s = _score_loglik(cand, simulated, to_theta(draws), cand.n_blocks or budget.n_blocks,
-                             budget.score_block_sets, skey, st_kw, vel, loglik,
-                             tallies["score"])
-        elpd, khat_rows = loo_elpd(ll_s)
-        n_score = budget.n_score_draws
     record = unfinished_record(tallies, f"candidate {cand.effect!r}")
     warn_unfinished(record)
     return CandidateFit(cand.effect, box.names, theta, log_q, ll, w, ess(w),
                         elpd, est, q05, q95, best, samples, gap_c, gap_m, noise,
-                        time.perf_counter() - t0, record, khat, khat_rows, per_class, n_score)
-
-
-def posterior_gaussian(z: np.ndarray, loglik_total: np.ndarray, log_q: np.ndarray,
-                       min_ess: float = TEMPER_ESS) -> tuple[np.ndarray, np.ndarray]:
-    """(mean, covariance) of a Gaussian matched to the posterior (module docstring):
-    z (N, p) design points in unit coordinates, their summed log-likelihood and
-    log proposal density relative to the prior.
-
-    Mean: the posterior mean under the Pareto-smoothed importance weights.
-    Covariance: beta times that of the tempered weights L^beta p / q, beta the
-    first of 80 values from 1 down to 1e-4 (geometric) whose weights reach
-    ``min_ess`` (1e-4 when none does); 1e-8 is added to the variances (sd 1e-4
-    in unit coordinates) to keep it invertible. The mean is not the tempered
-    one: where beta is small the tempered weights spread over the whole
-    design, and their mean drifts toward the cube's centre (measured on null
-    data, 180 rows: the size-dissipation candidate's draws fell 390 nats below
-    the design's best point and its score to -1240 against the baseline's -759).
-    """
-    for beta in np.geomspace(1.0, 1e-4, 80):
-        w, _ = psis_weights(beta * loglik_total - log_q)
-        if ess(w) >= min_ess:
-            break
-    centre = w @ z
-    cov = beta * ((z - centre).T @ ((z - centre) * w[:, None]))
-    mean = psis_weights(loglik_total - log_q)[0] @ z
-    return mean, cov + 1e-8 * np.eye(z.shape[1])
-
-
-def _score_loglik(cand: Candidate, simulated, theta: np.ndarray, n_blocks: int, n_sets: int,
-                  key: jax.Array, st_kw: dict, vel, loglik, tally) -> np.ndarray:
-    """(S, n_rows) pointwise log-likelihood of the score's S draws ``theta``,
-    draw s simulated with block set s mod ``n_sets`` (``fold_in(key, set)``)."""
-    parts = {}
-    for b in range(min(n_sets, theta.shape[0])):
-        idx = np.arange(b, theta.shape[0], n_sets)
-        fw = cand.forward(simulated, n_blocks, jax.random.fold_in(key, b), **st_kw)
-        runs, speeds = fw.simulate(theta[idx]) if vel else (fw.runouts(theta[idx]), None)
-        tally.add(runs, theta[idx], cand.box.names)
-        parts[b] = (idx, loglik(runs, speeds))
-    out = np.empty((theta.shape[0], parts[0][1].shape[1]))
-    for idx, part in parts.values():
-        out[idx] = part
-    return out
+                        time.perf_counter() - t0, record, khat, khat_folds, per_class)
 
 
 def _row_loglik(obs, row_entry, vel: VelocityRows | None):

@@ -1,6 +1,6 @@
 """The discrepancy workflow's warnings: when a verdict of ``calib.discover``
-rests on too little (few effective design points, unreliable leave-one-out
-scores, simulation noise near the naming threshold, a gain carried by few
+rests on too little (few effective design points, heavy-tailed importance
+weights, simulation noise near the naming threshold, a gain carried by few
 rows). Each rule takes the ranked candidate table (``discovery.json``'s
 ``candidates``) and returns the warning lines, empty where none applies; the
 command prints them and records them in ``discovery.json``.
@@ -22,55 +22,39 @@ def ess_warnings(ess: dict, min_ess: float = MIN_ESS) -> list[str]:
     """Warnings for fits whose importance weights rest on few design points.
 
     ``ess``: effect -> (effective sample size, design points). With few
-    effective points the posterior intervals read from them understate the
-    uncertainty. The held-out scores come from fresh draws of a Gaussian matched
-    to the posterior (``calib.discovery.candidate_fit``); their reliability is
-    the leave-one-out k-hat's (``psis_warnings``).
+    effective points the posterior intervals understate the uncertainty and the
+    held-out score carries Monte Carlo error that its standard error omits.
     """
     low = {e: v for e, v in ess.items() if v[0] < min_ess}
     if not low:
         return []
     listing = ", ".join(f"{e} {v[0]:.1f} of {v[1]}" for e, v in low.items())
     return [f"few effective design points (importance-sampling ESS < {min_ess:g}): {listing}. "
-            f"Their 90 % intervals, read from those points, understate the uncertainty: rerun "
-            f"with a larger budget before quoting them. (The held-out scores come from fresh "
-            f"posterior draws; the LOO k-hat says how far to trust them.)"]
+            f"Their 90 % intervals understate the uncertainty, and their held-out scores carry "
+            f"Monte Carlo error that the reported se omits: treat gains near the naming "
+            f"threshold with care, or rerun with a larger budget."]
 
 
 def psis_warnings(candidates: list[dict]) -> list[str]:
-    """A warning naming the candidates whose leave-one-out scores are reliable
-    (Pareto k-hat below ``khat_threshold`` of their draws) in fewer than
-    ``calib.discovery.scores.LOO_RELIABLE_SHARE`` of their rows
-    (``loo_reliable_share``, ``psis_flagged_rows`` of each candidate row).
+    """A warning naming the folds whose training weights have a Pareto k-hat above
+    ``calib.inference.importance.KHAT_MAX`` (``psis_flagged_folds`` of each candidate row).
 
-    There the left-out rows change the posterior more than its draws can
-    represent, and the scores, so the gains and their se, are unreliable
-    (Vehtari et al. 2024); more score draws or design points help.
+    There the smoothed weights rest on a few design points and the folds'
+    held-out scores (so the gains and their se) are unreliable (Vehtari et al.
+    2024); more design points where the posterior lives help.
     """
-    from calib.discovery.scores import LOO_RELIABLE_SHARE
+    from calib.inference.importance import KHAT_MAX
 
-    flagged = [c for c in candidates
-               if c.get("loo_reliable_share") is not None
-               and not c["loo_reliable_share"] >= LOO_RELIABLE_SHARE]
+    flagged = [c for c in candidates if c.get("psis_flagged_folds")]
     if not flagged:
         return []
-    listing = "; ".join(_flagged_text(c) for c in flagged)
-    return [f"leave-one-out scores not reliable in more than {1 - LOO_RELIABLE_SHARE:.0%} of "
-            f"the rows ({listing}): treat the gains that involve them with care, or rerun "
-            f"with a larger budget."]
-
-
-def _flagged_text(c: dict) -> str:
-    """'effect: n of N rows with Pareto k-hat above B[, m not estimated], worst k'."""
-    k = np.array([np.nan if v is None else v for v in c["khat_by_row"]], float)
-    bar = c["khat_threshold"]
-    above, unknown = int(np.sum(k >= bar)), int(np.sum(np.isnan(k)))
-    text = f"{c['effect']}: {above} of {k.size} rows with Pareto k-hat above {bar:.3f}"
-    if unknown:
-        text += f", {unknown} not estimated (too few draws for a tail fit)"
-    if above:
-        text += f", worst {_khat_text(np.nanmax(k))}"
-    return text
+    listing = "; ".join(
+        f"{c['effect']} fold{'s' if len(c['psis_flagged_folds']) > 1 else ''} "
+        + ", ".join(f"{j} ({_khat_text(c['khat_by_fold'][j])})" for j in c["psis_flagged_folds"])
+        for c in flagged)
+    return [f"Pareto k-hat above {KHAT_MAX:g} in the held-out folds' importance weights "
+            f"({listing}): those folds' scores rest on few design points and are unreliable; "
+            f"treat the gains that involve them with care, or rerun with a larger budget."]
 
 
 def _khat_text(k) -> str:

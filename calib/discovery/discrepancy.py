@@ -9,10 +9,8 @@ shrink; then add it to the baseline and search again.
 2. The baseline's posterior predictive (``n_draws`` posterior draws re-simulated
    with fresh blocks) gives quantile residuals, tested against block size and
    stop position (``calib.discovery.residuals``): WHERE it fails, with p-values.
-3. The candidates are compared by their leave-one-out log predictive density
-   (PSIS-LOO on re-simulated posterior draws, ``calib.discovery.candidate_fit``,
-   ``calib.discovery.scores``; every fit's draws share the run's block sets,
-   ``fold_in(key, 500)``); the best is named only when its gain over the
+3. The candidates are compared by their K-fold held-out log predictive density
+   (``calib.discovery.scores``); the best is named only when its gain over the
    baseline exceeds ``ELPD_MIN`` = 4 nats and z standard errors, else ``none``:
    z = ``Z_MIN`` = 2 at the first step (its false-positive rate over the whole
    candidate set measured on null data, ``docs/studies.md``), raised
@@ -49,7 +47,7 @@ shrink; then add it to the baseline and search again.
 
 Unfinished blocks (NaN runouts and speeds from the forward models,
 ``calib.model.unfinished``) are left out of the likelihood, the predictive and the
-gap; each fit counts them (design, predictive, noise and score simulations,
+gap; each fit counts them (design, predictive and noise simulations,
 ``CandidateFit.unfinished``) and warns once (``UnfinishedBlocksWarning``) when
 some (design point, size class) has more than 1 % of them.
 """
@@ -75,18 +73,18 @@ from calib.discovery.scores import (
     carrying_rows,
     effective_rows,
     elpd_difference,
-    loo_reliable_share,
+    folds,
     naming_threshold,
     naming_z,
 )
 from calib.files.inputs import own_profile
 from calib.inference.budget import DiscoveryBudget
-from calib.inference.importance import khat_threshold
+from calib.inference.importance import KHAT_MAX
 from calib.model.entries import Entries
 from calib.model.warp import unit_coordinates
 
-__all__ = ["MULTIPLE_TESTING", "STOPPING_RULE", "Discovery", "discover", "loo_record",
-           "model_label", "size_classes"]
+__all__ = ["MULTIPLE_TESTING", "STOPPING_RULE", "Discovery", "discover", "model_label",
+           "size_classes"]
 
 
 def size_classes(sizes_m: np.ndarray, max_classes: int = 8):
@@ -212,15 +210,13 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
     if max_steps is not None and max_steps < 1:
         raise ValueError(f"max_steps: expected at least 1, got {max_steps}")
     n_run = obs.n_obs
-    class_sizes, row_class, entries, vel, row_release = _rows(
-        obs, profile, velocities, release_tolerance_m, release_errors)
+    class_sizes, row_class, fold, entries, vel, row_release = _rows(
+        obs, profile, budget, velocities, release_tolerance_m, release_errors)
     fits, timings = {}, {}
-    score_key = jax.random.fold_in(key, 500)
 
     def fit(cand, label, k, warm):
-        fits[label] = fit_candidate(cand, obs, class_sizes, row_class, k, budget,
-                                    progress, warm=warm, velocities=vel, entries=entries,
-                                    score_key=score_key)
+        fits[label] = fit_candidate(cand, obs, class_sizes, row_class, k, budget, fold,
+                                    progress, warm=warm, velocities=vel, entries=entries)
         timings[label] = fits[label].seconds
 
     # step 1 keeps the keys it always had (candidate i: fold_in(key, i))
@@ -289,8 +285,9 @@ def _where(obs, profile, row_class, class_sizes, base: CandidateFit,
     return where_before, where_after
 
 
-def _rows(obs, profile, velocities, release_tolerance_m, release_errors):
-    """The rows as the candidates see them: size classes, the simulated
+def _rows(obs, profile, budget: DiscoveryBudget, velocities, release_tolerance_m,
+          release_errors):
+    """The rows as the candidates see them: size classes, folds, the simulated
     entries (``_entries``), the passage-velocity rows, and each runout row's release."""
     n_run = obs.n_obs
     vel = None
@@ -299,9 +296,14 @@ def _rows(obs, profile, velocities, release_tolerance_m, release_errors):
                                                               velocities.block_size_m]))
         row_class = all_class[:n_run]
         vel_class = all_class[n_run:]
+        # velocity rows are their own fold strata (after the runout rows' strata,
+        # so the runout rows keep the folds they have without velocities)
+        fold = folds(np.concatenate([all_class[:n_run], all_class[n_run:] + class_sizes.size]),
+                     budget.k_folds, seed=0)
     else:
         class_sizes, row_class = size_classes(obs.block_size_m)
         vel_class = None
+        fold = folds(row_class, budget.k_folds, seed=0)
     entries = _entries(obs, profile, class_sizes, row_class, vel_class, release_tolerance_m,
                        release_errors)
     row_release = None
@@ -313,20 +315,7 @@ def _rows(obs, profile, velocities, release_tolerance_m, release_errors):
     if vel_class is not None:
         vel = VelocityRows(velocities.stations_m, velocities.station_index, vel_class,
                            velocities.velocity_m_s, velocities.velocity_sd_m_s)
-    return class_sizes, row_class, entries, vel, row_release
-
-
-def loo_record(f: CandidateFit) -> dict:
-    """A fit's leave-one-out diagnostics for discovery.json: ``khat_by_row`` (runout
-    rows in file order, then speed rows), ``khat_threshold`` (``khat_threshold(S)``
-    of its S score draws), ``psis_flagged_rows`` (the rows above it or not
-    estimated) and ``loo_reliable_share`` (the share below it)."""
-    k = np.asarray(f.khat_rows, float)
-    bar = khat_threshold(f.n_score_draws)
-    return {"khat_by_row": [float(v) for v in k], "khat_threshold": bar,
-            "psis_flagged_rows": [int(j) for j in np.flatnonzero(~(k < bar))],
-            "loo_reliable_share": loo_reliable_share(k, f.n_score_draws),
-            "n_score_draws": int(f.n_score_draws)}
+    return class_sizes, row_class, fold, entries, vel, row_release
 
 
 def _step_record(step: int, named: tuple[str, ...], cand_fits: dict, base: CandidateFit,
@@ -351,7 +340,9 @@ def _step_record(step: int, named: tuple[str, ...], cand_fits: dict, base: Candi
                       "score": float(f.elpd.sum()), "delta_vs_none": d,
                       "se_delta": se, "gap": f.gap, "n_params": len(f.names),
                       "ess": f.ess, "loglik_noise_sd_nats": f.loglik_noise_sd_nats,
-                      "khat": f.khat, **loo_record(f)})
+                      "khat": f.khat, "khat_by_fold": [float(k) for k in f.khat_folds],
+                      "psis_flagged_folds": [int(j) for j in
+                                             np.flatnonzero(f.khat_folds > KHAT_MAX)]})
         if eff != "none":  # how many rows carry the gain (the se rule is a bar on it)
             table[-1]["effective_rows"] = effective_rows(gains)
             table[-1]["carrying_rows"] = [int(i) for i in carrying_rows(gains)]

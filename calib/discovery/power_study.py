@@ -61,9 +61,8 @@ def one_run(profile, effect, strength, n_obs, seed, sd_m, fit_seed, budget,
             "loglik_noise_sd_nats": {r["effect"]: float(r["loglik_noise_sd_nats"])
                                      for r in d.table},
             "khat": {r["effect"]: float(r["khat"]) for r in d.table},
-            "khat_by_row": {r["effect"]: r["khat_by_row"] for r in d.table},
-            "khat_threshold": {r["effect"]: r["khat_threshold"] for r in d.table},
-            "loo_reliable_share": {r["effect"]: r["loo_reliable_share"] for r in d.table},
+            "khat_by_fold": {r["effect"]: r["khat_by_fold"] for r in d.table},
+            "psis_flagged_folds": {r["effect"]: r["psis_flagged_folds"] for r in d.table},
             "warnings": [f.unfinished["warning"] for f in d.fits.values()
                          if f.unfinished and f.unfinished["warning"]],
             "seconds": time.perf_counter() - t0,
@@ -74,10 +73,7 @@ def detection_table(runs: list[dict], effects=None) -> list[dict]:
     """Per (effect, strength, n_obs): detection rate, exact 90 % interval, what was named.
 
     ``runs``: records with keys effect, strength, n_obs, named, gains
-    ({effect: [gain, se]}), and optionally loglik_noise_sd_nats and
-    loo_reliable_share ({effect: value}): the cell's median noise of the
-    baseline and its smallest share of reliable leave-one-out rows over every
-    candidate of every run.
+    ({effect: [gain, se]}).
     """
     from scipy.stats import binomtest
 
@@ -103,16 +99,8 @@ def detection_table(runs: list[dict], effects=None) -> list[dict]:
                                        if x[1] is not None and x[1] > 0]),
             "median_loglik_noise_sd_none_nats": _median(
                 [r.get("loglik_noise_sd_nats", {}).get("none") for r in rows]),
-            "min_loo_reliable_share": _min([v for r in rows
-                                            for v in r.get("loo_reliable_share", {}).values()]),
             "seeds": [r["seed"] for r in rows]})
     return table
-
-
-def _min(values) -> float | None:
-    v = np.array([x for x in values if x is not None], float)
-    v = v[np.isfinite(v)]
-    return float(v.min()) if v.size else None
 
 
 def _median(values) -> float | None:

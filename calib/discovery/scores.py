@@ -1,25 +1,20 @@
 """Scores of a calibrated model against observations: held-out log predictive
 density (model comparison) and CRPS (the gap metric). NumPy, no simulation.
 
-Held-out predictive score: Pareto-smoothed importance-sampling leave-one-out
-(PSIS-LOO; Vehtari, Gelman & Gabry 2017, "Practical Bayesian model evaluation
-using leave-one-out cross-validation and WAIC", Stat. Comput. 27, 1413-1432,
-eqs. 10-11). With S draws theta_s of the model's posterior, each carrying a
-posterior weight v_s (1 for plain posterior draws; the importance weight of a
-design point otherwise), row i's score is
+Held-out predictive score (Vehtari, Gelman & Gabry 2017, "Practical Bayesian
+model evaluation using leave-one-out cross-validation and WAIC", Stat. Comput.
+27, 1413-1432; K-fold when LOO is too costly, their Sect. 2.5): with the
+observations split into K folds, row i's score is
 
-    elpd_i = log p(y_i | y_(-i)) = log sum_s wbar_s^(-i) p(y_i | theta_s),
+    elpd_i = log p(y_i | y_(-fold(i))) = log sum_k wbar_k^(-f) p(y_i | theta_k)
 
-    wbar^(-i) = PSIS-smoothed, self-normalised ratios r_s^(-i) = v_s / p(y_i | theta_s)
-
-(``calib.inference.importance.psis_weights``; Vehtari et al. 2024). Each row's
-k-hat is returned with the scores; above ``khat_threshold(S)`` = min(0.7, 1 -
-1/log10 S) that row's score is not reliable, and a candidate whose scores are
-reliable in fewer than ``LOO_RELIABLE_SHARE`` = 90 % of its rows is flagged
-(our bar). Where the draws come from is the caller's
-(``calib.discovery.candidate_fit``: draws of each candidate's posterior,
-re-simulated). Extra parameters are penalised automatically: a model that
-over-fits predicts each left-out row worse.
+where theta_k are the design points of the model's fit and wbar^(-f) their
+self-normalised importance weights computed WITHOUT the rows of i's fold,
+Pareto-smoothed (``calib.inference.importance.psis_weights``; Vehtari et al. 2024): each
+fold's k-hat is returned with the scores, and a fold above 0.7 has a held-out
+score the design cannot be trusted to estimate.
+Extra parameters are penalised automatically: a model that over-fits the
+training folds predicts the held-out fold worse.
 
 Comparison (same paper, Sect. 5; Sivula, Magnusson & Vehtari 2022, "Uncertainty
 in Bayesian leave-one-out cross-validation based model comparison"): the
@@ -55,27 +50,25 @@ import numpy as np
 from scipy.special import logsumexp
 from scipy.stats import norm
 
-from calib.inference.importance import khat_threshold, psis_weights
+from calib.inference.importance import psis_weights
 
 __all__ = [
     "ALPHA",
     "ELPD_MIN",
     "Z_MIN",
     "best_effect",
-    "LOO_RELIABLE_SHARE",
     "carrying_rows",
     "crps_ensemble",
+    "cv_elpd",
     "effective_rows",
     "elpd_difference",
-    "loo_elpd",
-    "loo_reliable_share",
+    "folds",
     "naming_threshold",
     "naming_z",
     "rows_needed",
 ]
 
 ELPD_MIN = 4.0
-LOO_RELIABLE_SHARE = 0.9
 Z_MIN = 2.0
 ALPHA = float(norm.sf(Z_MIN))  # one-sided level of the Z_MIN bar for one candidate
 
@@ -89,46 +82,59 @@ def crps_ensemble(samples: np.ndarray, y: float) -> float:
     return float(np.mean(np.abs(x - y)) - 0.5 * spread)
 
 
-def loo_elpd(loglik: np.ndarray, log_weights: np.ndarray | None = None
-             ) -> tuple[np.ndarray, np.ndarray]:
-    """PSIS leave-one-out log predictive density of each row, and each row's k-hat.
+def folds(groups: np.ndarray, k: int, seed: int) -> np.ndarray:
+    """Fold index of each row: K folds, balanced within each group (e.g. size class).
+
+    With K >= the number of rows this is leave-one-out.
+    """
+    groups = np.asarray(groups)
+    n = groups.size
+    if k >= n:
+        return np.arange(n)
+    rng = np.random.default_rng(seed)
+    out = np.empty(n, int)
+    start = 0
+    for g in np.unique(groups):
+        idx = np.flatnonzero(groups == g)
+        rng.shuffle(idx)
+        out[idx] = (start + np.arange(idx.size)) % k
+        start += idx.size
+    return out
+
+
+def cv_elpd(loglik: np.ndarray, log_q: np.ndarray, fold: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Held-out log predictive density of each row, and the k-hat of each fold.
 
     Args:
-        loglik: (S, n_obs) log p(y_i | theta_s) at S posterior draws.
-        log_weights: (S,) log posterior weight of each draw, any additive
-            constant (None: equal weights, plain posterior draws); -inf: weight 0.
+        loglik: (N, n_obs) log p(y_i | theta_k) at the N design points.
+        log_q: (N,) log of the design's sampling density relative to the prior
+            (importance weight = prior / proposal = exp(-log_q) times the likelihood).
+        fold: (n_obs,) fold of each row.
 
     Returns:
-        (elpd (n_obs,), khat (n_obs,)), module docstring. A draw at which row i
-        has log p = -inf (no finished block of its size,
-        ``calib.inference.likelihood``) has an infinite leave-one-out ratio that
-        no finite set of draws estimates: row i's score then comes from its
-        other draws and its k-hat is +inf (unreliable); with no finite draw the
-        score is -inf.
+        (elpd (n_obs,), khat (F,)): elpd_i, and the Pareto k-hat of the training
+        weights of each fold, in the order of ``np.unique(fold)``.
+
+    A design point where some row has log p = -inf (no finished block of its
+    size, ``calib.inference.likelihood``) gets its training weight from the training rows
+    directly, so -inf on a held-out row does not make the weight undefined.
     """
-    ll = np.asarray(loglik, float)
-    lw = np.zeros(ll.shape[0]) if log_weights is None else np.asarray(log_weights, float)
-    elpd = np.empty(ll.shape[1])
-    khat = np.empty(ll.shape[1])
-    for i in range(ll.shape[1]):
-        li = ll[:, i]
-        ok = np.isfinite(li) & np.isfinite(lw)
-        if not ok.any():
-            elpd[i], khat[i] = -np.inf, np.inf
-            continue
-        w, khat[i] = psis_weights(np.where(ok, lw - li, -np.inf))
-        if not np.isfinite(li[np.isfinite(lw)]).all():
-            khat[i] = np.inf
+    out = np.empty(loglik.shape[1])
+    total = loglik.sum(axis=1)
+    fin = np.isfinite(total)
+    ids = np.unique(fold)
+    khat = np.empty(ids.size)
+    for j, f in enumerate(ids):
+        held = fold == f
+        train = np.empty_like(total)
+        train[fin] = total[fin] - loglik[fin][:, held].sum(axis=1)
+        train[~fin] = loglik[~fin][:, ~held].sum(axis=1)
+        w, khat[j] = psis_weights(train - log_q)
         with np.errstate(divide="ignore"):  # weight 0: log 0 = -inf, as meant
-            elpd[i] = logsumexp(np.log(w[ok]) + li[ok])
-    return elpd, khat
-
-
-def loo_reliable_share(khat: np.ndarray, n_draws: int) -> float:
-    """Share of rows whose k-hat lies below ``khat_threshold(n_draws)`` (NaN, not
-    estimated, counts as not reliable)."""
-    k = np.asarray(khat, float)
-    return float(np.mean(k < khat_threshold(n_draws))) if k.size else float("nan")
+            logw = np.log(w)
+        out[held] = logsumexp(logw[:, None] + loglik[:, held], axis=0)
+    return out, khat
 
 
 def elpd_difference(elpd_a: np.ndarray, elpd_b: np.ndarray) -> tuple[float, float]:

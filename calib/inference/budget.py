@@ -80,13 +80,7 @@ class DiscoveryBudget:
         n_blocks: blocks per (design point, size class), common random numbers.
         n_draws: posterior draws re-simulated for the predictive (fresh blocks).
         n_blocks_check: blocks per (draw, size class) of that predictive.
-        n_score_draws: posterior draws re-simulated for the held-out score
-            (PSIS leave-one-out, ``calib.discovery.candidate_fit``); 0: the score
-            is computed on the design points with their importance weights
-            (fixed designs, e.g. the DEM's grids, that cannot afford more runs).
-        score_block_sets: independent block sets the score's draws are spread
-            over (draw s uses set s mod this), so the blocks' Monte Carlo error
-            averages out across draws instead of being shared by all of them.
+        k_folds: folds of the held-out score (leave-one-out below this many rows).
         noise_reps: independent block sets at the best design point that measure
             the Monte Carlo sd of the summed log-likelihood (``loglik_noise_sd``);
             below 2 it is skipped, as it is for forward models without
@@ -99,8 +93,7 @@ class DiscoveryBudget:
     n_blocks: int = 128
     n_draws: int = 16
     n_blocks_check: int = 128
-    n_score_draws: int = 512
-    score_block_sets: int = 8
+    k_folds: int = 5
     noise_reps: int = 8
 
     @property
@@ -111,12 +104,11 @@ class DiscoveryBudget:
 DISCOVERY_PRESETS = {
     "crsp": DiscoveryBudget(),
     "crsp-quick": DiscoveryBudget(n_sobol=32, n_warm=32, n_refine=(32, 32), n_blocks=32,
-                                  n_draws=8, n_blocks_check=64, n_score_draws=128,
-                                  score_block_sets=4),
+                                  n_draws=8, n_blocks_check=64),
     "dem": DiscoveryBudget(n_sobol=0, n_warm=0, n_refine=(), n_blocks=8, n_draws=8,
-                           n_blocks_check=0, noise_reps=0, n_score_draws=0),
+                           n_blocks_check=0, noise_reps=0),
     "dem-quick": DiscoveryBudget(n_sobol=0, n_warm=0, n_refine=(), n_blocks=4, n_draws=8,
-                                 n_blocks_check=0, noise_reps=0, n_score_draws=0),
+                                 n_blocks_check=0, noise_reps=0),
 }
 
 

@@ -12,10 +12,7 @@ says how far the estimate can be trusted (same paper): below 0.5
 the raw weights have finite variance; up to 0.7 PSIS is reliable with a
 practical number of points; above ``KHAT_MAX`` = 0.7 the weighted estimates
 (here: the posterior summaries and the held-out scores built on them) are
-unreliable, and the design needs more points where the posterior lives. With
-few points the bar is lower (same paper, Sect. 3.2; the threshold of the R package
-loo since 2.7.0): ``khat_threshold(S)`` =
-min(0.7, 1 - 1 / log10 S) for S points (0.585 for 256, 0.631 for 512).
+unreliable, and the design needs more points where the posterior lives.
 
 Not estimated (k-hat NaN, raw weights returned) with fewer than
 ``MIN_POINTS`` = 25 points of finite weight, since the tail fit needs at least
@@ -29,21 +26,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import logsumexp
 
-__all__ = ["KHAT_MAX", "MIN_POINTS", "ess", "khat_threshold", "psis_weights",
-           "weighted_quantile"]
+__all__ = ["KHAT_MAX", "MIN_POINTS", "ess", "psis_weights", "weighted_quantile"]
 
 KHAT_MAX = 0.7
 MIN_POINTS = 25
 _EXP_RANGE = 700.0  # nats; exp(-745) underflows to 0 in float64
-
-
-def khat_threshold(n_points: int) -> float:
-    """The sample-size dependent k-hat bar of PSIS with ``n_points`` points,
-    min(``KHAT_MAX``, 1 - 1 / log10 S) (Vehtari et al. 2024, Sect. 3.2): above
-    it the Pareto-smoothed estimate is not reliable with that many points."""
-    if n_points < 2:
-        return float("nan")
-    return float(min(KHAT_MAX, 1.0 - 1.0 / np.log10(n_points)))
 
 
 def _tail_size(n: int) -> int:
