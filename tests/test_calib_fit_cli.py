@@ -1,12 +1,18 @@
-"""The main job, ``python -m calib.fit``, end to end (--quick) and its bad-input errors."""
+"""The main job, ``python -m calib.fit``, end to end (small stage sizes; --quick in the
+slow run) and its bad-input errors."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
+import subprocess
 
 import pytest
 from cli_run import run_cli, run_module
+
+from calib.inference.budget import Budget
 
 DATA = "data/postignano.csv"
 PROFILE = "data/postignano_profile.csv"
@@ -16,15 +22,42 @@ def run(*args, cwd=None):
     return run_module("calib.fit", *args, cwd=cwd)
 
 
+# Stage sizes for the end-to-end run of the default test run: every stage of both
+# models runs and writes its outputs, on a few points and blocks (one block count per
+# model: one compiled solver program each). The --quick budget, whose run takes about
+# 4 minutes on 2 cores, is the slow test below; its figures are not these.
+SMALL = {"crsp": Budget(n_design=16, n_design2=8, n_design3=8, n_blocks_design=32,
+                        nuts_warmup=100, nuts_samples=100, nuts_chains=2, n_realisations=8,
+                        realisation_waves=1, grad_starts=1, grad_steps=2, grad_k=1,
+                        n_blocks_grad=32, n_check=32, n_predictive_draws=4,
+                        n_blocks_predictive=32),
+         "dem": Budget(n_design=6, n_design2=0, n_design3=0, n_blocks_design=2,
+                       nuts_warmup=100, nuts_samples=100, nuts_chains=2, grad_starts=1,
+                       grad_steps=1, grad_k=1, n_blocks_grad=2, n_check=2,
+                       n_predictive_draws=2, n_blocks_predictive=2)}
+
+
 @pytest.fixture(scope="module")
-def quick_run(tmp_path_factory):
+def small_run(tmp_path_factory):
+    """The main job's ``main`` in this process on data/postignano.csv with the
+    ``SMALL`` stage sizes: (exit status, stdout, stderr) and the output folder."""
+    import calib.inference.calibrate as calibrate
+    from calib.fit import main
+
     out = tmp_path_factory.mktemp("results")
-    proc = run(DATA, "--quick", "--out", str(out), "--no-progress")
-    return proc, out
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(stdout), \
+            contextlib.redirect_stderr(stderr):
+        mp.setattr(calibrate, "presets", lambda model, quick: SMALL[model])
+        try:
+            rc = main([DATA, "--out", str(out), "--no-progress"])
+        except SystemExit as e:
+            rc = e.code
+    return subprocess.CompletedProcess([], rc, stdout.getvalue(), stderr.getvalue()), out
 
 
-def test_quick_run_writes_every_output(quick_run):
-    proc, out = quick_run
+def _check_every_output(proc, out, n_draws_min):
+    """What one run of the main job must write, whatever its budget."""
     print(proc.stdout[-3000:], proc.stderr[-3000:])
     assert proc.returncode == 0, proc.stderr
     names = set(os.listdir(out))
@@ -59,7 +92,7 @@ def test_quick_run_writes_every_output(quick_run):
         assert post.sizes["chain"] * post.sizes["draw"] == cal[m]["bayes"]["n_draws"]
         if m == "crsp":  # emulated as the rows' sum inside the focus region
             assert cal[m]["bayes"]["focus"] is not None
-            assert len(cal[m]["bayes"]["focus"]["realisation_waves"]) <= 1  # --quick
+            assert len(cal[m]["bayes"]["focus"]["realisation_waves"]) <= 1  # both budgets
             assert "median_range" in cal[m]["bayes"]["focus"]["realisations"]
             assert idata["log_likelihood"]["total"].sizes["draw"] == post.sizes["draw"]
         else:
@@ -72,7 +105,7 @@ def test_quick_run_writes_every_output(quick_run):
         if not cal[m]["bayes"]["ok"]:
             assert f"{m.upper()} POSTERIOR DIAGNOSTICS FAILED" in proc.stderr
     rows = (out / "crsp_posterior.csv").read_text().splitlines()
-    assert rows[0] == "Kn,Kt,roughness_m,rolling_friction_deg" and len(rows) > 100
+    assert rows[0] == "Kn,Kt,roughness_m,rolling_friction_deg" and len(rows) > n_draws_min
     assert 5.0 <= cal["crsp"]["rolling_friction_deg"]["map"] <= 40.0
     # the fit says whether it can fit: bound mass and predictive coverage
     for m in ("crsp", "dem"):
@@ -83,6 +116,21 @@ def test_quick_run_writes_every_output(quick_run):
         if not a["ok"]:
             assert f"{m.upper()} CALIBRATION: the model may not" in proc.stderr
     assert "inside their predictive bands" in proc.stdout
+    return cal
+
+
+def test_main_job_writes_every_output(small_run):
+    proc, out = small_run
+    cal = _check_every_output(proc, out, n_draws_min=50)
+    assert cal["crsp"]["bayes"]["n_draws"] == 200  # the SMALL budget reached the job
+
+
+@pytest.mark.slow
+def test_quick_run_writes_every_output(tmp_path):
+    """The --quick budget as a user runs it (a fresh process, about 4 minutes)."""
+    out = tmp_path / "results"
+    proc = run(DATA, "--quick", "--out", str(out), "--no-progress")
+    _check_every_output(proc, out, n_draws_min=100)
 
 
 def test_help_explains():
@@ -129,12 +177,13 @@ def test_missing_default_profile_is_explained(tmp_path):
     assert "elsewhere_profile.csv: no such profile file (give --profile)" in proc.stderr
 
 
-def test_notebook_01_calibration_runs(quick_run, tmp_path):
-    """notebooks/01_calibration.py (jupytext) executes top to bottom on the quick run."""
+def test_notebook_01_calibration_runs(small_run, tmp_path):
+    """notebooks/01_calibration.py (jupytext) executes top to bottom on the main job's
+    outputs."""
     import jupytext
     import nbclient
 
-    proc, out = quick_run
+    proc, out = small_run
     assert proc.returncode == 0
     nb = jupytext.read("notebooks/01_calibration.py")
     os.environ["NOTEBOOK_RESULTS"] = str(out)
