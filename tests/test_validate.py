@@ -183,32 +183,39 @@ def test_holdout_split_is_reproducible_disjoint_and_complete():
         holdout_rows(10, 1.0, 0)
 
 
-def test_fit_with_holdout_fraction_writes_the_split_and_validates(tmp_path):
+def test_fit_with_holdout_fraction_writes_the_split_and_validates(tmp_path, capsys,
+                                                                  monkeypatch):
     """calib.fit --holdout-fraction: the held-out rows are not fitted, the
-    calibration records its own rows as its data, and the check runs at the end."""
-    import subprocess
-    import sys
-
+    calibration records its own rows as its data, and the check runs at the end
+    (the command's main in this process, on small stage sizes with one block count:
+    one compiled solver program)."""
     import pandas as pd
+    from cli_run import run_cli
 
+    import calib.inference.calibrate as calibrate
+    from calib.fit import main as fit_main
+
+    small = calibrate.Budget(n_design=12, n_design2=0, n_design3=0, n_blocks_design=16,
+                             grad_starts=1, grad_steps=2, grad_k=1, n_blocks_grad=16,
+                             n_check=16, n_predictive_draws=2, n_blocks_predictive=16)
+    monkeypatch.setattr(calibrate, "presets", lambda model, quick: small)
     data = tmp_path / "site.csv"
     pd.DataFrame({"block_size_m": [0.2, 0.2, 0.5, 1.0, 1.0, 2.0, 2.0, 2.0],
                   "runout_m": [110, 112, 115, 120, 135, 150, 210, 230],
                   "runout_sd_m": [5] * 8, "source": ["test"] * 8}).to_csv(data, index=False)
     out = tmp_path / "res"
-    proc = subprocess.run(
-        [sys.executable, "-m", "calib.fit", str(data), "--profile",
-         "data/postignano_profile.csv", "--model", "crsp", "--method", "gradient", "--quick",
-         "--holdout-fraction", "0.25", "--seed", "3", "--out", str(out), "--no-progress"],
-        capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-2000:]
+    rc, text, err = run_cli(fit_main, [
+        str(data), "--profile", "data/postignano_profile.csv", "--model", "crsp", "--method",
+        "gradient", "--holdout-fraction", "0.25", "--seed", "3", "--out", str(out),
+        "--no-progress"], capsys)
+    assert rc == 0, err[-2000:]
     cal = json.loads((out / "calibration.json").read_text())
     fit_rows = pd.read_csv(out / "calibration_rows.csv")
     held = pd.read_csv(out / "heldout_rows.csv")
     assert len(fit_rows) == 6 and len(held) == 2 and cal["n_observations"] == 6
     assert cal["data_csv"] == str(out / "calibration_rows.csv")
     s = json.loads((out / "validation" / "validation.json").read_text())
-    assert s["n_scored"] == 2 and "mean CRPS" in proc.stdout
+    assert s["n_scored"] == 2 and "mean CRPS" in text
 
 
 def test_validate_simulates_with_the_fitted_rolling_angle(tmp_path):
