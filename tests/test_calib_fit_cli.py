@@ -4,6 +4,7 @@ slow run) and its bad-input errors."""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import io
 import json
@@ -53,7 +54,7 @@ def small_run(tmp_path_factory):
         mp.setattr(calibrate, "presets", lambda model, quick: SMALL[model])
         # 8 DEM blocks per compiled call, not 32: this budget's stages simulate 4-24
         # blocks at a time, and a call costs in proportion to its lanes, padding
-        # included (the stages' DEM time 80 s -> 40 s). Vectorised over fewer lanes,
+        # included (the DEM's stage times summed 80 s -> 48 s). Vectorised over fewer lanes,
         # the runouts differ in their last bits, which this test does not read.
         mp.setattr(forward, "DemForward", functools.partial(forward.DemForward, lane_batch=8))
         try:
@@ -129,7 +130,8 @@ def _check_every_output(proc, out, n_draws_min):
 def test_main_job_writes_every_output(small_run):
     proc, out = small_run
     cal = _check_every_output(proc, out, n_draws_min=50)
-    assert cal["crsp"]["bayes"]["n_draws"] == 200  # the SMALL budget reached the job
+    for m in ("crsp", "dem"):  # the SMALL stage sizes reached the job and its record
+        assert cal[m]["budget"] == dataclasses.asdict(SMALL[m])
 
 
 @pytest.mark.slow
