@@ -361,10 +361,11 @@ def test_discover_help_explains():
 
 @pytest.mark.slow
 def test_notebook_03_discrepancy_runs_at_small_size(tmp_path):
-    """notebooks/03_discrepancy.py (jupytext) executes top to bottom (quick budgets).
+    """notebooks/03_discrepancy.py (jupytext) executes top to bottom (quick budgets),
+    its closing section fitting, scoring and running the hazard of the baseline and of
+    the baseline with the effect.
 
-    Slow (144 s on 2 cores, 2026-11-24): the default suite had reached 16 min 22 s
-    against its 15-minute budget; run with ``pytest -m slow``."""
+    Slow (645 s on 2 cores, 2026-11-28); run with ``pytest -m slow``."""
     import jupytext
     import nbclient
 
@@ -380,6 +381,9 @@ def test_notebook_03_discrepancy_runs_at_small_size(tmp_path):
     assert "hidden: rolling_resistance | named:" in text
     assert "of which from the speeds" in text  # section 2: runouts and passage speeds
     assert "size_dissipation" in text and "named:" in text
+    print(text[-2500:])  # the closing sections' figures, shown with -rP or on failure
+    # section 4: the named effect fitted, scored on held-back rows and run for the hazard
+    assert text.count("held-out CRPS") == 2 and "mean |P - P_truth|" in text  # both fits
 
 
 def test_stop_positions_are_measured_from_the_release():
