@@ -51,14 +51,16 @@ from IPython.display import Image, display
 from calib.discovery.candidates import candidate_set
 from calib.discovery.discrepancy import discover
 from calib.discovery.synthetic import (
-    SYNTH_SIZES_M,
+    compare_exceedance,
     observations_csv_text,
     synthesize_effect,
     synthesize_velocities,
+    truth_exceedance,
     velocities_csv_text,
 )
 from calib.files.inputs import load_inputs
 from calib.files.observations import load_velocities
+from calib.files.site import load_site
 from calib.fit import run_fit, validate_heldout
 from calib.hazard import draw_parameters, exceedance_table, load_calibration, run_hazard
 from calib.inference.budget import discovery_budget
@@ -261,16 +263,14 @@ for label, (out, val) in fits.items():
 # %% [markdown]
 # **The hazard, with and without the effect.** Exceedance: the fraction of blocks
 # released at the top that pass each station, posterior mean and 90 % band over the
-# calibration's draws, against the truth's (the hidden model, no observation noise).
+# calibration's draws, against the truth's (`truth_exceedance`: the hidden model, no
+# observation noise). `compare_exceedance` measures the distance over the stations
+# that any of them reaches with probability above 0.005.
 
 # %%
 HAZARD_SIZES_M = [0.2, 1.0, 2.0]
+ROAD_X_M = load_site(PROFILE_CSV).station_x_m  # the road (data/postignano_site.json)
 stations = np.arange(0.0, float(slope.x_m[-1]) + 1.0, 10.0)
-n_truth = 60 if SMALL else 600
-truth_obs, _ = synthesize_effect(slope, truth["effect"], truth["strength"],
-                                 n_truth * len(SYNTH_SIZES_M), 23, sd_m=0.0)
-truth_x = float(slope.x_m[0]) + np.asarray(truth_obs.runout_m)
-fig, axes = plt.subplots(1, len(HAZARD_SIZES_M), figsize=(12, 3.6), sharey=True)
 tables = {}
 for label, (out, _) in fits.items():
     cal = load_calibration(os.path.join(out, "calibration.json"), "crsp")
@@ -278,18 +278,25 @@ for label, (out, _) in fits.items():
                         HAZARD_SIZES_M, stations, 100 if SMALL else 2000, 0,
                         release_x_m=float(slope.x_m[0]))
     tables[label] = exceedance_table(counts)
-for ax, size in zip(axes, HAZARD_SIZES_M):
-    sel = np.isclose(truth_obs.block_size_m, size)
-    p_truth = np.array([np.mean(truth_x[sel] >= x) for x in stations])
-    ax.plot(stations, p_truth, "k-", lw=2, label="truth")
+truth_p = truth_exceedance(slope, truth["effect"], truth["strength"], HAZARD_SIZES_M,
+                           stations, 200 if SMALL else 5000, 1)
+close = compare_exceedance(tables, truth_p, HAZARD_SIZES_M, stations, ROAD_X_M)
+fig, axes = plt.subplots(1, len(HAZARD_SIZES_M), figsize=(12, 3.6), sharey=True)
+for s, (ax, size) in enumerate(zip(axes, HAZARD_SIZES_M)):
+    ax.plot(stations, truth_p[s], "k-", lw=2, label="truth")
     for (label, exc), colour in zip(tables.items(), ("tab:red", "tab:blue")):
         g = exc[np.isclose(exc.block_size_m, size)].sort_values("x_m")
         ax.plot(g.x_m, g.p_exceed_mean, color=colour, label=label)
         ax.fill_between(g.x_m, g.p_exceed_q05, g.p_exceed_q95, color=colour, alpha=0.2)
-        live = (p_truth > 0) | (g.p_exceed_mean.to_numpy() > 0)
-        err = np.abs(g.p_exceed_mean.to_numpy() - p_truth)[live].mean()
-        print(f"D = {size:g} m, {label:34} mean |P - P_truth| {err:.3f} over {live.sum()} "
-              "stations")
+        c = close[str(size)]
+        if c[label]["mean_abs_error"] is not None:
+            print(f"D = {size:g} m, {label:34} mean |P - P_truth| "
+                  f"{c[label]['mean_abs_error']:.3f} over {c['n_stations']} stations, truth "
+                  f"inside the 90 % band at {c[label]['truth_in_band']:.0%} of them")
+    road = close[str(size)]["road"]
+    print(f"D = {size:g} m at the road (x = {road['x_m']:g} m): truth {road['truth']:.3f}; "
+          + "; ".join(f"{k} {road[k][0]:.3f} [{road[k][1]:.3f}, {road[k][2]:.3f}]"
+                      for k in tables))
     ax.set_title(f"D = {size:g} m")
     ax.set_xlabel("x (m)")
 axes[0].set_ylabel("P(block passes x)")

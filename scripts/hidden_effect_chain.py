@@ -83,53 +83,6 @@ def without_effects(command: str) -> list[str]:
     return out
 
 
-def truth_exceedance(truth: dict, stations_x_m: np.ndarray, n_blocks: int,
-                     seed: int) -> np.ndarray:
-    """P(runout > x) of the true model, (sizes, stations), from ``n_blocks``
-    blocks per size of the true parameters (the simulator ``calib.synth`` made
-    the rows with)."""
-    import jax
-
-    from calib.model import effects
-    from calib.model.forward import CrspForward
-    from solvers.profile import load_profile
-
-    profile = load_profile(truth["profile_csv"])
-    theta = effects.truth(truth["effect"], truth["strength"], profile, "crsp")
-    fw = CrspForward(profile, list(SIZES_M), n_blocks, jax.random.key(seed),
-                     effect=None if truth["effect"] == "none" else truth["effect"])
-    run = np.asarray(fw.runouts(np.atleast_2d(theta)))[0]  # (S, n), NaN: unfinished
-    return np.array([[np.mean(r[np.isfinite(r)] > x) for x in stations_x_m] for r in run])
-
-
-def compare_exceedance(tables: dict, truth_p: np.ndarray, stations_x_m: np.ndarray,
-                       road_x_m: float) -> dict:
-    """Per size: the mean |P_fit - P_truth| over the stations where any of them
-    exceeds 0.005, the share of those stations whose truth lies inside the
-    fit's 5-95 % band, and the three values at the road."""
-    out = {}
-    for s, d in enumerate(SIZES_M):
-        rows = {k: t[np.isclose(t["block_size_m"], d)].set_index("x_m").loc[stations_x_m]
-                for k, t in tables.items()}
-        p_t = truth_p[s]
-        live = p_t > 0.005
-        for r in rows.values():
-            live |= r["p_exceed_mean"].to_numpy() > 0.005
-        entry = {"n_stations": int(live.sum())}
-        i_road = int(np.argmin(np.abs(stations_x_m - road_x_m)))
-        entry["road"] = {"x_m": float(stations_x_m[i_road]), "truth": float(p_t[i_road])}
-        for k, r in rows.items():
-            p, lo, hi = (r[c].to_numpy() for c in ("p_exceed_mean", "p_exceed_q05",
-                                                   "p_exceed_q95"))
-            inside = (lo <= p_t) & (p_t <= hi)
-            entry[k] = {  # None where no station is live (nothing passes any)
-                "mean_abs_error": float(np.abs(p - p_t)[live].mean()) if live.any() else None,
-                "truth_in_band": float(inside[live].mean()) if live.any() else None}
-            entry["road"][k] = [float(p[i_road]), float(lo[i_road]), float(hi[i_road])]
-        out[str(d)] = entry
-    return out
-
-
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="python scripts/hidden_effect_chain.py",
@@ -156,6 +109,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     import pandas as pd
+
+    from calib.discovery.synthetic import compare_exceedance, truth_exceedance
+    from solvers.profile import load_profile
 
     os.makedirs(args.out, exist_ok=True)
     o = lambda *p: os.path.join(args.out, *p)  # noqa: E731
@@ -206,9 +162,12 @@ def main(argv=None) -> int:
         tables[k] = pd.read_csv(o(f"hazard_{k}", "exceedance.csv"))
     stations = np.sort(tables["baseline"]["x_m"].unique())
     t0 = time.perf_counter()
-    truth_p = truth_exceedance(truth, stations, args.truth_blocks, args.seed + 1)
+    truth_p = truth_exceedance(load_profile(truth["profile_csv"]), truth["effect"],
+                               truth["strength"], SIZES_M, stations, args.truth_blocks,
+                               args.seed + 1)
     times["truth exceedance"] = time.perf_counter() - t0
-    record["exceedance"] = compare_exceedance(tables, truth_p, stations, args.road_x_m)
+    record["exceedance"] = compare_exceedance(tables, truth_p, SIZES_M, stations,
+                                              args.road_x_m)
     record["times_s"] = {k: round(v, 1) for k, v in times.items()}
     with open(o("chain.json"), "w") as f:
         json.dump(record, f, indent=1, allow_nan=False)

@@ -18,6 +18,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from calib.discovery.synthetic import compare_exceedance
+
 _spec = importlib.util.spec_from_file_location("hidden_effect_chain",
                                                "scripts/hidden_effect_chain.py")
 chain = importlib.util.module_from_spec(_spec)
@@ -43,7 +45,7 @@ def test_exceedance_comparison_counts_live_stations_and_the_band():
         return pd.DataFrame(rows)
     base = table([0.3, 0.2, 0.0, 0.0], [0.2, 0.15, 0, 0], [0.4, 0.3, 0, 0])
     eff = table([0.5, 0.1, 0.0, 0.0], [0.4, 0.05, 0, 0], [0.6, 0.2, 0, 0])
-    out = chain.compare_exceedance({"baseline": base, "effect": eff}, truth, x, 200.0)
+    out = compare_exceedance({"baseline": base, "effect": eff}, truth, chain.SIZES_M, x, 200.0)
     e = out["0.2"]
     assert e["n_stations"] == 2  # the two stations where anything passes
     assert e["baseline"]["mean_abs_error"] == pytest.approx(0.15)

@@ -20,8 +20,9 @@ import numpy as np
 from calib.files.observations import Observations, Velocities
 from calib.model.forward import CrspForward, DemForward
 
-__all__ = ["SYNTH_SIZES_M", "observations_csv_text", "synthesize", "synthesize_effect",
-           "synthesize_velocities", "velocities_csv_text"]
+__all__ = ["SYNTH_SIZES_M", "compare_exceedance", "observations_csv_text", "synthesize",
+           "synthesize_effect", "synthesize_velocities", "truth_exceedance",
+           "velocities_csv_text"]
 
 # size classes of synthetic data with hidden effects (0.2-2.0 m, the paper's range)
 SYNTH_SIZES_M = (0.2, 0.4, 0.7, 1.0, 1.4, 2.0)
@@ -190,3 +191,63 @@ def velocities_csv_text(vel: Velocities, seed: int) -> str:
               for x, d, v, s in zip(vel.station_x_m, vel.block_size_m, vel.velocity_m_s,
                                     vel.velocity_sd_m_s)]
     return "\n".join(lines) + "\n"
+
+
+def truth_exceedance(profile, effect: str, strength: float, sizes_m, stations_x_m,
+                     n_blocks: int, seed: int) -> np.ndarray:
+    """The true model's exceedance on a synthetic site, (sizes, stations): the
+    fraction of ``n_blocks`` CRSP blocks per size, released at the profile's first
+    vertex with the parameters ``synthesize_effect`` makes rows with
+    (``calib.model.effects.truth``), whose stop lies beyond each station
+    (x0 + runout > x; unfinished blocks left out). No observation noise: this is
+    the exceedance a calibration's hazard run should find."""
+    from calib.model import effects
+
+    theta = effects.truth(effect, strength, profile, "crsp")
+    fw = CrspForward(profile, [float(d) for d in sizes_m], n_blocks, jax.random.key(seed),
+                     effect=None if effect == "none" else effect)
+    stop = float(profile.x_m[0]) + np.asarray(fw.runouts(np.atleast_2d(theta)))[0]
+    return np.array([[np.mean(r[np.isfinite(r)] > x) for x in np.asarray(stations_x_m)]
+                     for r in stop])
+
+
+def compare_exceedance(tables: dict, truth_p: np.ndarray, sizes_m, stations_x_m,
+                       road_x_m: float) -> dict:
+    """How close fitted hazard runs come to the truth's exceedance (``truth_exceedance``).
+
+    Args:
+        tables: {label: exceedance table} (``calib.hazard.exceedance_table``: columns
+            block_size_m, x_m, p_exceed_mean, p_exceed_q05, p_exceed_q95), each with
+            ``sizes_m`` and ``stations_x_m``.
+        truth_p: (sizes, stations) the truth's exceedance.
+        road_x_m: the station of interest (the nearest station is reported).
+
+    Returns:
+        {str(size): {"n_stations": stations where the truth or a fit exceeds 0.005,
+        label: {"mean_abs_error": mean |P_fit - P_truth| over those stations,
+        "truth_in_band": share of them whose truth lies in the fit's 5-95 % band}
+        (None where no station is live), "road": {"x_m", "truth", label: [mean, q05,
+        q95]}}}.
+    """
+    stations_x_m = np.asarray(stations_x_m, float)
+    out = {}
+    for s, d in enumerate(sizes_m):
+        rows = {k: t[np.isclose(t["block_size_m"], d)].set_index("x_m").loc[stations_x_m]
+                for k, t in tables.items()}
+        p_t = truth_p[s]
+        live = p_t > 0.005
+        for r in rows.values():
+            live |= r["p_exceed_mean"].to_numpy() > 0.005
+        entry = {"n_stations": int(live.sum())}
+        i_road = int(np.argmin(np.abs(stations_x_m - road_x_m)))
+        entry["road"] = {"x_m": float(stations_x_m[i_road]), "truth": float(p_t[i_road])}
+        for k, r in rows.items():
+            p, lo, hi = (r[c].to_numpy() for c in ("p_exceed_mean", "p_exceed_q05",
+                                                   "p_exceed_q95"))
+            inside = (lo <= p_t) & (p_t <= hi)
+            entry[k] = {
+                "mean_abs_error": float(np.abs(p - p_t)[live].mean()) if live.any() else None,
+                "truth_in_band": float(inside[live].mean()) if live.any() else None}
+            entry["road"][k] = [float(p[i_road]), float(lo[i_road]), float(hi[i_road])]
+        out[str(d)] = entry
+    return out
