@@ -35,7 +35,9 @@
 #    class, before and after the named effect is added.
 #
 # First we prove it on data where we hid an effect ourselves, then we apply it
-# to Postignano.
+# to Postignano. Last, back on the data with the hidden effect, the named effect
+# joins the model that is calibrated, checked on rows it never saw and run for
+# the hazard (section 4).
 
 # %%
 import io
