@@ -246,11 +246,12 @@ loop_csv = os.path.join(work, "loop.csv")
 loop_obs, _ = synthesize_effect(slope, truth["effect"], truth["strength"],
                                 45 if SMALL else 90, 22)
 write(loop_csv, observations_csv_text(loop_obs, 22))
+models = {"baseline": ()}  # label: effects; nothing named: the baseline is the final model
+if named:
+    models["baseline + " + ", ".join(named)] = named
 fits = {}
-for label, effects in (("baseline", ()), ("baseline + " + ", ".join(named), named)):
-    if effects == () and label != "baseline":
-        continue  # nothing named: the baseline is the final model
-    out = os.path.join(work, "loop_" + ("effect" if effects else "baseline"))
+for label, effects in models.items():
+    out = os.path.join(work, "loop_effect" if effects else "loop_baseline")
     with warnings.catch_warnings():  # counted in the calibration file instead
         warnings.simplefilter("ignore", UnfinishedBlocksWarning)
         run_fit(loop_csv, out, profile=PROFILE_CSV, models=("crsp",),
