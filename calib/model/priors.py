@@ -15,6 +15,10 @@ CRSP (restitution coefficients are velocity ratios, dimensionless):
 * Kt in [0.60, 0.98]. Same sources: tangential 0.78-0.87 (0.87-0.92 for smooth
   hard surfaces, recalled); the paper uses 0.87. Widened below to 0.60 so that
   soft ground is admitted (assumption); 1.0 (no tangential loss) excluded.
+  The Tschamut runs bound Kt from below only: scored by the simulator alone,
+  their likelihood rises to Kt ~ 0.92 and is flat to 0.98 (docs/studies.md, "The
+  simulator's own posterior at Tschamut"), so the box's upper bound, not the
+  data, sets how much of that posterior lies near it.
 * roughness_m S in [0.25, 4.0] m. The paper: "2 m, which is typical for talus
   and firm soil slopes (Jones et al., 2000)". The box spans smooth rock
   (S ~ 0.3 m) to very blocky talus (assumption; CRSP's surface roughness is the
