@@ -44,7 +44,7 @@ with the site file's release errors.
 Usage (the figures of docs/studies.md, on one NVIDIA H100)::
 
     python scripts/reference_posterior.py data/tschamut2014/observations.csv \\
-        --budget-s 420 --out reference.npz
+        --budget-s 360 --chunk 128 --pool 65536 --task-chunk 384 --out reference.npz
 """
 
 from __future__ import annotations
@@ -286,6 +286,10 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     if a.block_sets < 1 or a.rounds < 1 or a.chunk < 1:
         p.error("--block-sets, --rounds and --chunk must be >= 1")
+    if not 0 < a.coarse_share < 1 or a.budget_s <= 0:
+        p.error("--coarse-share must lie in (0, 1) and --budget-s be > 0")
+    if min(a.coarse_blocks, a.fine_blocks) < 2:
+        p.error("--coarse-blocks and --fine-blocks must be >= 2")
     start_box = None
     if a.start_box:
         try:

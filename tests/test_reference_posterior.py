@@ -73,3 +73,6 @@ def test_a_malformed_start_box_is_refused_before_simulating(script, capsys):
         rc, _, err = run_cli(script.main, ["data/tschamut2014/observations.csv",
                                            "--start-box", bad], capsys)
         assert rc == 2 and "--start-box" in err
+    for bad in (["--coarse-share", "1.5"], ["--fine-blocks", "1"], ["--budget-s", "0"]):
+        rc, _, err = run_cli(script.main, ["data/tschamut2014/observations.csv", *bad], capsys)
+        assert rc == 2 and bad[0] in err
