@@ -110,13 +110,6 @@ class Scorer:
         return np.concatenate(out)
 
 
-def weighted_quantiles(x: np.ndarray, w: np.ndarray, qs) -> np.ndarray:
-    order = np.argsort(x)
-    cw = np.cumsum(w[order])
-    cw /= cw[-1]
-    return np.interp(qs, cw, x[order])
-
-
 def mixture_log_density(thetas: np.ndarray, boxes: list, counts: list) -> np.ndarray:
     """log q(theta) of the defensive mixture of uniform sub-boxes (module docstring)."""
     q = np.zeros(len(thetas))
@@ -130,21 +123,25 @@ def summarise(thetas, ll, log_q, box, boxes, n_draws: int = 4000, seed: int = 0)
     """Posterior summaries of one block set's scores ``ll`` (N,) at ``thetas`` (N, d).
 
     The mass at the prior bounds is ``calib.inference.adequacy.bound_mass`` (the
-    main job's rule) on ``n_draws`` draws resampled with the weights."""
+    main job's rule) on ``n_draws`` draws resampled with the weights; ``khat`` is
+    the Pareto k-hat of the weights' tail (``calib.inference.importance``: above
+    0.7 the estimate is not to be trusted), the weights themselves are not smoothed."""
     from calib.inference.adequacy import bound_mass
+    from calib.inference.importance import ess, psis_weights, weighted_quantile
 
     lw = ll - log_q
     lw = np.where(np.isfinite(lw), lw, -np.inf)
     w = np.exp(lw - lw.max())
     w /= w.sum()
     draws = thetas[np.random.default_rng(seed).choice(len(w), n_draws, p=w)]
-    out = {"ess": 1.0 / np.sum(w ** 2), "best_ll": float(ll.max()),
+    out = {"ess": ess(w), "khat": psis_weights(lw)[1], "best_ll": float(ll.max()),
            "best_theta": thetas[np.argmax(ll)], "quantiles": [],
            "bound_mass": bound_mass(draws, box), "edge_mass": []}
     lo, hi = np.asarray(box.lower), np.asarray(box.upper)
     last_lo, last_hi = boxes[-1]
     for j in range(thetas.shape[1]):
-        out["quantiles"].append(weighted_quantiles(thetas[:, j], w, [0.05, 0.5, 0.95]))
+        out["quantiles"].append(np.array([weighted_quantile(thetas[:, j], w, q)
+                                          for q in (0.05, 0.5, 0.95)]))
         # weight within 5 % of a face of the last sub-box that is not a prior bound
         bw = last_hi[j] - last_lo[j]
         e_lo = w[thetas[:, j] <= last_lo[j] + 0.05 * bw].sum() if last_lo[j] > lo[j] else 0.0
@@ -235,7 +232,8 @@ def run(data: str, budget_s: float, coarse_blocks: int, fine_blocks: int, block_
 def report(res: dict, log=print) -> None:
     names = res["names"]
     for k, s in enumerate(res["sets"]):
-        log(f"block set {k + 1}: ESS {s['ess']:.0f} of {len(res['thetas'])} points, best "
+        log(f"block set {k + 1}: ESS {s['ess']:.0f} of {len(res['thetas'])} points (k-hat "
+            f"{s['khat']:.2f}), best "
             f"{s['best_ll']:.1f} nats at {np.round(s['best_theta'], 3)}")
         for j, n in enumerate(names):
             q = s["quantiles"][j]
