@@ -111,7 +111,8 @@ class Scorer:
 
 
 def mixture_log_density(thetas: np.ndarray, boxes: list, counts: list) -> np.ndarray:
-    """log q(theta) of the defensive mixture of uniform sub-boxes (module docstring)."""
+    """log q(theta), the density of the points drawn: the mixture of the uniform
+    sub-boxes ``boxes`` [(lo, hi)] with ``counts`` points each (module docstring)."""
     q = np.zeros(len(thetas))
     for (lo, hi), n in zip(boxes, counts):
         inside = np.all((thetas >= lo) & (thetas <= hi), axis=1)
@@ -155,6 +156,15 @@ def run(data: str, budget_s: float, coarse_blocks: int, fine_blocks: int, block_
         coarse_share: float = 0.2, release_tolerance_m: float = 1.0, pool: int | None = None,
         task_chunk: int | None = None, max_points: int = 1 << 20, start_box=None,
         log=print) -> dict:
+    """Stage 0 and ``rounds`` sub-box rounds (module docstring) within ``budget_s``.
+
+    Returns:
+        dict with the fine points ``thetas`` (N, 4), their scores ``ll`` (block
+        sets, N) nats, ``log_q`` (N,), the sub-``boxes`` and their point
+        ``counts``, stage 0's ``coarse_theta`` and ``coarse_ll``, one summary per
+        block set (``sets``, ``summarise``), ``seconds``, the simulator's
+        ``blocks_per_s`` and ``blocks_per_point`` of a fine point.
+    """
     t_start = time.perf_counter()
     sc = Scorer(data, release_tolerance_m, chunk, pool, task_chunk)
     box = sc.box
