@@ -110,6 +110,21 @@ class Scorer:
         return np.concatenate(out)
 
 
+MIN_WIDTH = 1e-3  # a sub-box grows by at least this fraction of the prior box width
+
+
+def sub_box(thetas: np.ndarray, scores: np.ndarray, keep_nats: float, pad: float,
+            lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The bounding box of the points scored within ``keep_nats`` of the best,
+    widened by ``pad`` of its width on each side (at least ``MIN_WIDTH`` of the
+    prior box's width, so that one point alone, or points on a line, still span
+    a box of positive volume) and clipped to the prior box [lo, hi]."""
+    keep = thetas[scores >= np.max(scores) - keep_nats]
+    b_lo, b_hi = keep.min(0), keep.max(0)
+    grow = np.maximum(pad * (b_hi - b_lo), MIN_WIDTH * (hi - lo))
+    return np.maximum(lo, b_lo - grow), np.minimum(hi, b_hi + grow)
+
+
 def mixture_log_density(thetas: np.ndarray, boxes: list, counts: list) -> np.ndarray:
     """log q(theta), the density of the points drawn: the mixture of the uniform
     sub-boxes ``boxes`` [(lo, hi)] with ``counts`` points each (module docstring)."""
@@ -121,7 +136,8 @@ def mixture_log_density(thetas: np.ndarray, boxes: list, counts: list) -> np.nda
 
 
 def summarise(thetas, ll, log_q, box, boxes, n_draws: int = 4000, seed: int = 0) -> dict:
-    """Posterior summaries of one block set's scores ``ll`` (N,) at ``thetas`` (N, d).
+    """Posterior summaries of one block set's scores ``ll`` (N,) at ``thetas`` (N, d);
+    None where no point has a finite score (a row got no simulated block at all).
 
     The mass at the prior bounds is ``calib.inference.adequacy.bound_mass`` (the
     main job's rule) on ``n_draws`` draws resampled with the weights; ``khat`` is
@@ -132,6 +148,8 @@ def summarise(thetas, ll, log_q, box, boxes, n_draws: int = 4000, seed: int = 0)
 
     lw = ll - log_q
     lw = np.where(np.isfinite(lw), lw, -np.inf)
+    if not np.isfinite(lw).any():
+        return None
     w = np.exp(lw - lw.max())
     w /= w.sum()
     draws = thetas[np.random.default_rng(seed).choice(len(w), n_draws, p=w)]
@@ -199,13 +217,10 @@ def run(data: str, budget_s: float, coarse_blocks: int, fine_blocks: int, block_
     ref_theta, ref_ll = coarse_theta, coarse_ll
     boxes, counts, thetas, lls = [], [], [], []
     for r in range(rounds):
-        keep = ref_theta[ref_ll >= np.max(ref_ll) - keep_nats]
-        b_lo, b_hi = keep.min(0), keep.max(0)
-        w_ = b_hi - b_lo
-        b_lo = np.maximum(lo, b_lo - pad * w_)
-        b_hi = np.minimum(hi, b_hi + pad * w_)
         if r == 0 and start_box is not None:
             b_lo, b_hi = b0
+        else:
+            b_lo, b_hi = sub_box(ref_theta, ref_ll, keep_nats, pad, lo, hi)
         u = _sobol(box.dim, max_points, seed + 100 + r)
         pts = b_lo + u * (b_hi - b_lo)
         t0 = time.perf_counter()
@@ -242,6 +257,10 @@ def run(data: str, budget_s: float, coarse_blocks: int, fine_blocks: int, block_
 def report(res: dict, log=print) -> None:
     names = res["names"]
     for k, s in enumerate(res["sets"]):
+        if s is None:
+            log(f"block set {k + 1}: no point has a finite score (at every point some row "
+                "got no finished block near it): raise --fine-blocks")
+            continue
         log(f"block set {k + 1}: ESS {s['ess']:.0f} of {len(res['thetas'])} points (k-hat "
             f"{s['khat']:.2f}), best "
             f"{s['best_ll']:.1f} nats at {np.round(s['best_theta'], 3)}")

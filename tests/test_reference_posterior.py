@@ -76,3 +76,22 @@ def test_a_malformed_start_box_is_refused_before_simulating(script, capsys):
     for bad in (["--coarse-share", "1.5"], ["--fine-blocks", "1"], ["--budget-s", "0"]):
         rc, _, err = run_cli(script.main, ["data/tschamut2014/observations.csv", *bad], capsys)
         assert rc == 2 and bad[0] in err
+
+
+def test_one_point_within_the_kept_nats_still_spans_a_box(script):
+    """A single best point (or points on a line) gives a sub-box of positive
+    volume inside the prior box, so the mixture density stays finite."""
+    lo, hi = np.asarray(CRSP_ROLLING_BOX.lower), np.asarray(CRSP_ROLLING_BOX.upper)
+    thetas = np.array([[0.40, 0.93, 0.165, 34.4], [0.20, 0.70, 2.0, 10.0]])
+    b_lo, b_hi = script.sub_box(thetas, np.array([-300.0, -400.0]), 15.0, 0.15, lo, hi)
+    assert np.all(b_hi > b_lo) and np.all(b_lo >= lo) and np.all(b_hi <= hi)
+    assert np.all((thetas[0] > b_lo) & (thetas[0] < b_hi))
+    assert np.isfinite(script.mixture_log_density(thetas[:1], [(b_lo, b_hi)], [1])).all()
+
+
+def test_a_block_set_with_no_finite_score_is_reported_not_raised(script):
+    thetas = np.array([[0.4, 0.9, 0.1, 30.0], [0.41, 0.91, 0.11, 31.0]])
+    box = (thetas.min(0) - 0.01, thetas.max(0) + 0.01)
+    log_q = script.mixture_log_density(thetas, [box], [2])
+    assert script.summarise(thetas, np.full(2, -np.inf), log_q, CRSP_ROLLING_BOX,
+                            [box]) is None
