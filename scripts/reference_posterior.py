@@ -96,17 +96,16 @@ class Scorer:
                            box=self.box, **extra)
 
     def score(self, fw, thetas: np.ndarray) -> np.ndarray:
-        """(P,) summed log-likelihood at thetas (P, 4); the last chunk padded."""
+        """(P,) summed log-likelihood at thetas (P, 4). ``CrspForward`` pads each
+        call's tasks to whole task chunks itself, so a short last chunk of
+        points reuses the compiled program."""
         out = []
         for c0 in range(0, len(thetas), self.chunk):
-            part = thetas[c0:c0 + self.chunk]
-            pad = self.chunk - len(part)
-            full = np.concatenate([part, np.repeat(part[-1:], pad, axis=0)]) if pad else part
             t0 = time.perf_counter()
-            runs = fw.runouts(full)
+            runs = fw.runouts(thetas[c0:c0 + self.chunk])
             self.sim_seconds += time.perf_counter() - t0
             self.blocks_simulated += runs.size
-            out.append(self.rows.summed(runs)[:len(part)])
+            out.append(self.rows.summed(runs))
         return np.concatenate(out)
 
 
@@ -195,12 +194,14 @@ def run(data: str, budget_s: float, coarse_blocks: int, fine_blocks: int, block_
     if start_box is not None:  # the first round's sub-box given: no stage 0
         b0 = np.clip(np.asarray(start_box, float), lo, hi)
         coarse_share = 0.0
-    z = _sobol(box.dim, max_points, seed)
-    x0 = np.clip(coarse_fw.from_input(coarse_fw.input_box.from_unit(z)), lo, hi)
+        x0 = np.empty((0, box.dim))
+    else:
+        z = _sobol(box.dim, max_points, seed)
+        x0 = np.clip(coarse_fw.from_input(coarse_fw.input_box.from_unit(z)), lo, hi)
     share = coarse_share * budget_s
     coarse_ll, coarse_theta = [], []
     t0 = time.perf_counter()
-    for c0 in range(0, len(x0) if start_box is None else 0, chunk):
+    for c0 in range(0, len(x0), chunk):
         coarse_theta.append(x0[c0:c0 + chunk])
         coarse_ll.append(sc.score(coarse_fw, coarse_theta[-1]))
         if time.perf_counter() - t0 > share:
