@@ -4,7 +4,7 @@ import os
 
 import pandas as pd
 import pytest
-from cli_run import run_module
+from cli_run import run_cli, run_module
 
 from solvers.cli import RUN_COLUMNS, station_column_names
 
@@ -54,10 +54,23 @@ def test_radius_is_read_as_the_diameter(capsys):
     (["--profile", PROFILE, "--release-x-m", "300"], "--release-x-m"),
     (["--profile", PROFILE, "--bogus"], "unrecognized arguments"),
 ])
-def test_cli_bad_arguments_one_line_exit_2(tmp_path, args, needle):
+def test_cli_bad_arguments_one_line_exit_2(tmp_path, args, needle, capsys):
+    """``main`` in this process (a real process's exit status:
+    ``test_bad_arguments_exit_2_in_a_real_process``)."""
+    from solvers.crsp.__main__ import main
+
     out = tmp_path / "o.csv"
-    r = _run(*args, "--out", str(out))
+    rc, _, err = run_cli(main, ["--no-progress", *args, "--out", str(out)], capsys)
+    assert rc == 2
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and needle in lines[0], err
+    assert not os.path.exists(out)
+
+
+def test_bad_arguments_exit_2_in_a_real_process(tmp_path):
+    out = tmp_path / "o.csv"
+    r = _run("--profile", PROFILE, "--n-blocks", "0", "--out", str(out))
     assert r.returncode == 2
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1 and needle in lines[0], r.stderr
+    assert len(lines) == 1 and "--n-blocks must be positive" in lines[0], r.stderr
     assert not os.path.exists(out)

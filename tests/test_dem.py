@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import subprocess
 import sys
 
@@ -10,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from cli_run import run_cli
 
 import solvers  # noqa: F401  (x64)
 from solvers.dem import (
@@ -30,6 +32,7 @@ from solvers.status import BUDGET
 
 G = 9.81
 PROFILE_CSV = "data/postignano_profile.csv"
+PROFILE_ABS = os.path.abspath(PROFILE_CSV)  # for commands run in another folder
 
 
 def _mat(phi):
@@ -538,12 +541,26 @@ BAD_ARGS = [
 
 
 @pytest.mark.parametrize("args", BAD_ARGS)
-def test_cli_bad_arguments(args, tmp_path):
-    p = subprocess.run([sys.executable, "-m", "solvers.dem", *args], capture_output=True,
-                       text=True, cwd=str(tmp_path.parent.parent) if False else None)
+def test_cli_bad_arguments(args, tmp_path, monkeypatch, capsys):
+    """One line on stderr, exit 2, no file (``main`` in this process; the exit
+    status of a real process: ``test_cli_bad_arguments_in_a_real_process``)."""
+    from solvers.dem.__main__ import main
+
+    monkeypatch.chdir(tmp_path)  # the relative --out x.csv lands here, if anywhere
+    rc, _, err = run_cli(main, [PROFILE_ABS if a == PROFILE_CSV else a for a in args], capsys)
+    assert rc == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "error" in lines[0], err
+    assert not (tmp_path / "x.csv").exists()
+
+
+def test_cli_bad_arguments_in_a_real_process(tmp_path):
+    p = subprocess.run([sys.executable, "-m", "solvers.dem", *BAD_ARGS[2][:-1],
+                        str(tmp_path / "x.csv")], capture_output=True, text=True)
     assert p.returncode == 2
     lines = p.stderr.strip().splitlines()
-    assert len(lines) == 1 and "error" in lines[0]
+    assert len(lines) == 1 and "error" in lines[0], p.stderr
+    assert not (tmp_path / "x.csv").exists()
 
 
 def test_cli_writes_rows(tmp_path):

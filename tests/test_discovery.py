@@ -137,10 +137,23 @@ def test_synth_writes_data_truth_and_profile_but_hides_the_effect(synth_files):
     (["--effect", "bogus"], "invalid choice"),
     (["--effect", "none", "--sd-m", "0"], "--sd-m: expected a positive number of metres"),
 ])
-def test_synth_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, needle):
-    proc = _cli("calib.synth", "--profile", PROFILE_CSV, *args, "--out", str(tmp_path / "s.csv"))
+def test_synth_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, needle, capsys):
+    """``main`` in this process (a real process's exit status:
+    ``test_synth_bad_input_exit_2_in_a_real_process``)."""
+    from calib.synth import main
+
+    rc, _, err = run_cli(main, ["--profile", PROFILE_CSV, *args,
+                                "--out", str(tmp_path / "s.csv")], capsys)
+    assert rc == 2
+    assert needle in err and len(err.strip().splitlines()) == 1, err
+    assert os.listdir(tmp_path) == []
+
+
+def test_synth_bad_input_exit_2_in_a_real_process(tmp_path):
+    proc = _cli("calib.synth", "--profile", PROFILE_CSV, "--effect", "none", "--n-obs", "0",
+                "--out", str(tmp_path / "s.csv"))
     assert proc.returncode == 2
-    assert needle in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert "--n-obs" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
     assert os.listdir(tmp_path) == []
 
 

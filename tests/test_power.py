@@ -102,11 +102,15 @@ def test_power_quick_run_writes_table_and_resumes(tmp_path):
     (["--scheduler", "nowhere"], "--scheduler: no Dask scheduler answers at 'nowhere'"),
     (["--scheduler", "tcp://127.0.0.1:8786", "--serial"], "--scheduler: the cluster has"),
 ])
-def test_power_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, needle):
+def test_power_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, needle, capsys):
+    """``main`` in this process; ``test_power_needs_a_profile`` runs a real one."""
+    from calib.power import main
+
     out = tmp_path / "pw"
-    r = _cli("--profile", PROFILE, *args, "--out", str(out), "--no-progress")
-    assert r.returncode == 2
-    lines = r.stderr.strip().splitlines()
+    rc, _, err = run_cli(main, ["--profile", PROFILE, *args, "--out", str(out),
+                                "--no-progress"], capsys)
+    assert rc == 2
+    lines = err.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0] and lines[0].startswith("python -m calib.power")
     assert not out.exists()
 

@@ -116,11 +116,13 @@ def test_synth_writes_speeds_that_hide_the_effect(belt_with_speeds):
     (["--velocity-stations-m", "110", "--model", "dem"], "CRSP only"),
     (["--velocity-stations-m", "110", "--velocity-sd-m-s", "0"], "--velocity-sd-m-s"),
 ])
-def test_synth_bad_velocity_input_is_one_line_exit_2(tmp_path, args, needle):
-    proc = _cli("calib.synth", "--effect", "none", "--profile", PROFILE_CSV, *args,
-                "--out", str(tmp_path / "s.csv"))
-    assert proc.returncode == 2
-    assert needle in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+def test_synth_bad_velocity_input_is_one_line_exit_2(tmp_path, args, needle, capsys):
+    from calib.synth import main
+
+    rc, _, err = run_cli(main, ["--effect", "none", "--profile", PROFILE_CSV, *args,
+                                "--out", str(tmp_path / "s.csv")], capsys)
+    assert rc == 2
+    assert needle in err and len(err.strip().splitlines()) == 1, err
     assert os.listdir(tmp_path) == []
 
 
