@@ -47,6 +47,7 @@ as docs/distributed.md says):
 from __future__ import annotations
 
 import contextlib
+import copy
 import dataclasses
 import json
 import os
@@ -224,9 +225,14 @@ def _client(scheduler: str | None, workers: int):
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
+        # a Client that fails to connect has already made itself the process's Dask
+        # scheduler (dask.config "scheduler"), and nothing undoes that: put it back
+        saved = copy.deepcopy(dask.config.config)
         try:
             client = Client(scheduler)
         except (ValueError, TypeError, OSError) as e:  # OSError: also the timeout
+            dask.config.config.clear()
+            dask.config.config.update(saved)
             raise ClusterUnreachable(f"no Dask scheduler answers at {scheduler!r} "
                                      f"({type(e).__name__}: {e})") from None
         with client:

@@ -103,9 +103,15 @@ def test_power_quick_run_writes_table_and_resumes(tmp_path):
     (["--scheduler", "tcp://127.0.0.1:8786", "--serial"], "--scheduler: the cluster has"),
 ])
 def test_power_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, needle, capsys):
-    """``main`` in this process; ``test_power_needs_a_profile`` runs a real one."""
+    """``main`` in this process; ``test_power_needs_a_profile`` runs a real one. A
+    scheduler that does not answer leaves the process's Dask settings as they were
+    (a Client that failed to connect had made itself the scheduler of every later
+    Dask computation in the process)."""
+    import dask
+
     from calib.power import main
 
+    before = dask.config.get("scheduler", None)
     out = tmp_path / "pw"
     rc, _, err = run_cli(main, ["--profile", PROFILE, *args, "--out", str(out),
                                 "--no-progress"], capsys)
@@ -113,6 +119,7 @@ def test_power_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, need
     lines = err.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0] and lines[0].startswith("python -m calib.power")
     assert not out.exists()
+    assert dask.config.get("scheduler", None) == before
 
 
 # ------------------------------------------------ runs dispatched to worker processes
