@@ -14,7 +14,7 @@ c. emulate (``calib.inference.loglik_emulator`` inside the focus region,
 d. CRSP, until settled: widen a focus face the posterior piles against (at
    most ``focus.MAX_WIDEN`` times); while the diagnostics fail or the GP is
    wrong at the screened draws, add those draws to the GP's design and sample
-   again (at most ``MAX_REFINE`` times); then, while the GP's realisations
+   again (at most ``Budget.refinements`` times); then, while the GP's realisations
    move the posterior beyond its intervals, simulate one point per
    realisation and sample again (``calib.inference.realisations``).
 
@@ -41,9 +41,7 @@ from calib.inference.focus import MAX_WIDEN, FocusRegion
 from calib.inference.loglik_emulator import at_posterior, fit_loglik_emulator, loglik_holdout
 from calib.inference.realisations import realisation_check
 
-__all__ = ["MAX_REFINE", "bayes_stage"]
-
-MAX_REFINE = 2  # refinement waves: screened draws added to the log-likelihood GP
+__all__ = ["bayes_stage"]
 
 
 class _Stage:
@@ -175,7 +173,7 @@ class _Stage:
             return False
         wrong_there = emu_there is not None and not emu_there["ok"]
         if ((self.posterior.ok and not wrong_there) or self.screened is None
-                or len(self.region.record["refined"]) == MAX_REFINE):
+                or len(self.region.record["refined"]) >= self.budget.refinements):
             return self.budget.n_realisations == 0 or self._realisation_wave()
         # the chains do not agree (or mix too slowly), or the GP is wrong where
         # they sit: it is taught the simulated log-likelihood there

@@ -21,7 +21,12 @@ __all__ = ["DISCOVERY_PRESETS", "Budget", "DiscoveryBudget", "discovery_budget",
 
 @dataclasses.dataclass(frozen=True)
 class Budget:
-    """Sizes of every stage (blocks are per parameter point and block size)."""
+    """Sizes of every stage (blocks are per parameter point and block size).
+
+    ``refinements``: how many times, at most, NUTS runs again after draws of a
+    run that failed its diagnostics (or where the log-likelihood GP was wrong)
+    were simulated and joined the GP's design (``calib.inference.bayes_stage``).
+    """
 
     n_design: int = 96
     n_design2: int = 64
@@ -31,6 +36,7 @@ class Budget:
     nuts_warmup: int = 500
     nuts_samples: int = 1000
     nuts_chains: int = 4
+    refinements: int = 2
     n_realisations: int = 32
     realisation_waves: int = 3
     grad_starts: int = 3

@@ -30,7 +30,7 @@ Stages (each timed; ``Budget`` sets the sizes, ``QUICK`` / ``DEFAULT`` the prese
       the GP's predictions at those draws disagree with the simulator
       (``loglik_emulator.at_posterior``), the re-simulated draws join the
       log-likelihood GP's design and NUTS runs again (at most
-      ``MAX_REFINE`` times): the GP learns the simulator where the chains
+      ``Budget.refinements`` times): the GP learns the simulator where the chains
       sat, which is where it was wrong (sequential design at the emulated
       posterior, as in Gaussian-process ABC: Wilkinson 2014;
       Jarvenpaa et al. 2019, Bayesian Analysis 14(2), 595-622).
