@@ -555,8 +555,9 @@ def test_cli_bad_arguments(args, tmp_path, monkeypatch, capsys):
 
 
 def test_cli_bad_arguments_in_a_real_process(tmp_path):
-    p = subprocess.run([sys.executable, "-m", "solvers.dem", *BAD_ARGS[2][:-1],
-                        str(tmp_path / "x.csv")], capture_output=True, text=True)
+    p = subprocess.run([sys.executable, "-m", "solvers.dem", "--profile", PROFILE_CSV,
+                        "--block-size-m", "-1", "--out", str(tmp_path / "x.csv")],
+                       capture_output=True, text=True)
     assert p.returncode == 2
     lines = p.stderr.strip().splitlines()
     assert len(lines) == 1 and "error" in lines[0], p.stderr

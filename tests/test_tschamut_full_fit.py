@@ -8,7 +8,7 @@ ESS >= ``ESS_MIN``), at least 4 chains and every one kept by the chain
 screening, the log-likelihood GP's realisation check, and no parameter with
 more than ``calib.inference.adequacy.BOUND_FLAG`` of its posterior within
 ``BOUND_BAND`` of a prior bound (``bayes.ok`` and the adequacy record of
-``calibration.json``). Each fit takes 9-12 minutes on 2 cores: ``-m slow``.
+``calibration.json``). Each fit took 9-11 minutes on 2 cores: ``-m slow``.
 """
 
 from __future__ import annotations
