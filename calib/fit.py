@@ -44,7 +44,6 @@ import time
 import warnings
 
 import jax
-import numpy as np
 
 from calib.files.provenance import provenance, versions
 from calib.model.effects import CRSP_EFFECTS
@@ -178,19 +177,34 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
         CliError: bad input (one line naming the file, row and column) or a
             fit the alpha-law check refuses; nothing is written.
     """
-    from calib.files.fit_record import fit_document
+    from calib.files.fit_record import fit_document, posterior_files
+    from calib.files.inputs import InputError, load_inputs
+    from calib.files.split import hold_out
     from calib.inference.calibrate import fit_model
     from calib.model.alpha_law import check_fit
+    from calib.plots.figures import fit_figures
 
     t_start = time.perf_counter()
     say = report or (lambda line: None)
     _check_effects(models, rolling_resistance, effects)
-    inputs, data_csv, files = _inputs(data, profile, out, release_tolerance_m,
-                                      holdout_fraction, seed, say)
+    if not release_tolerance_m >= 0:
+        raise CliError(f"--release-tolerance-m must be >= 0, got {release_tolerance_m:g}")
+    try:
+        inputs = load_inputs(data, profile, out)
+    except InputError as e:
+        raise CliError(str(e)) from None
+    files, data_csv = {}, data
+    if holdout_fraction:
+        try:
+            split = hold_out(inputs, holdout_fraction, seed, out)
+        except ValueError as e:
+            raise CliError(str(e)) from None
+        inputs, data_csv, files = split.inputs, split.rows_path, dict(split.files)
+        say(split.message)
     entries = inputs.entries(release_tolerance_m)
     grouped = inputs.own_releases
     if grouped:
-        for line in _entries_lines(inputs, entries, release_tolerance_m):
+        for line in inputs.grouping_lines(entries, release_tolerance_m):
             say(line)
     models, methods = tuple(models), tuple(methods)
     key = jax.random.key(seed)
@@ -220,37 +234,14 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
     cal = fit_document(header, inputs, entries, fits, grouped, release_tolerance_m,
                        time.perf_counter() - t_start)
     files["calibration.json"] = cal.to_json()
-    figs, writers = _fit_outputs(fits, inputs, files)
-    write_outputs(out, files, figs, writers)
+    texts, writers = posterior_files(fits, inputs.obs)
+    files.update(texts)
+    write_outputs(out, files, fit_figures(fits, inputs), writers)
     # the document written, with the path its relative paths resolve against
     # (not read back: it is the typed results just written)
     return FitRun(dataclasses.replace(cal, path=os.path.join(out, "calibration.json")), fits,
                   inputs, entries, out,
                   os.path.join(out, "heldout_rows.csv") if holdout_fraction else None)
-
-
-def _fit_outputs(fits, inputs, files):
-    """The posterior CSVs (added to ``files``), NetCDF writers and figures of a fit."""
-    from calib.files.calibration_file import posterior_csv_text
-    from calib.files.inference_data import inference_data, netcdf_writer
-    from calib.plots import figures
-
-    figs, writers = {}, {}
-    for model, (fit, _, form) in fits.items():
-        post = fit.posterior
-        if post is not None:
-            files[f"{model}_posterior.csv"] = posterior_csv_text(fit.names, post.samples)
-            writers[f"{model}_posterior.nc"] = netcdf_writer(inference_data(post, inputs.obs,
-                                                                            model))
-            figs[f"{model}_pairs.png"] = figures.pairs(
-                post.samples, fit.names, title=f"{model.upper()} posterior "
-                f"({post.samples.shape[0]} draws{'' if post.ok else ', DIAGNOSTICS FAILED'})")
-        if form is not None:
-            figs["alpha_law.png"] = figures.fitted_alpha_law(form, fit, inputs.site,
-                                                             inputs.obs.sizes_m)
-    figs["runout_vs_size.png"] = figures.runout_vs_size(
-        inputs.obs, {m: (r.fit.check_sizes_m, r.fit.check_runouts) for m, r in fits.items()})
-    return figs, writers
 
 
 def _run(args) -> int:
@@ -271,26 +262,6 @@ def _run(args) -> int:
     return 0
 
 
-def _inputs(data, profile, out, tol_m, holdout_fraction, seed, say):
-    """The checked inputs (``calib.files.inputs.Inputs``), with the rows of the
-    hold-out split's fit part under ``holdout_fraction``; the path of the
-    rows fitted; the row files the split adds to the outputs. The options that
-    can be refused without the files are checked first."""
-    from calib.files.inputs import InputError, load_inputs
-
-    if not tol_m >= 0:
-        raise CliError(f"--release-tolerance-m must be >= 0, got {tol_m:g}")
-    try:
-        inputs = load_inputs(data, profile, out)
-    except InputError as e:
-        raise CliError(str(e)) from None
-    files, data_csv = {}, data
-    if holdout_fraction:
-        obs, data_csv = _split(out, holdout_fraction, seed, inputs.obs, files, say)
-        inputs = dataclasses.replace(inputs, obs=obs)
-    return inputs, data_csv, files
-
-
 def _check_effects(models, rolling_resistance, effects) -> None:
     """Refuse, in one line, ``--effect`` with a model or baseline it cannot join."""
     if not effects:
@@ -309,58 +280,6 @@ def _check_effects(models, rolling_resistance, effects) -> None:
                              "--rolling-resistance profile with it")
     except ValueError as e:
         raise CliError(f"--effect: {e}") from None
-
-
-def _entries_lines(inputs, entries, tol_m: float) -> list[str]:
-    """How the rows' own releases were grouped into simulated entries."""
-    obs, x0 = inputs.obs, float(inputs.profile.x_m[0])
-    rel = np.asarray(obs.release_x_m, float)
-    err = np.abs(entries.release_x_m[entries.index] - np.where(np.isfinite(rel), rel, x0))
-    lines = [f"each row released from its own point, rows of one size within {tol_m:g} m "
-             f"grouped: {entries.n} simulated releases for {obs.n_obs} rows (largest release "
-             f"shift {err.max():.2f} m)"]
-    own = [p for p in dict.fromkeys(obs.profile) if p]
-    if own:
-        lines.append("rows on their own profiles: " + "; ".join(
-            f"{int(np.sum(obs.profile == p))} on {p}" for p in own)
-            + f"; {int(np.sum(obs.profile == ''))} on {inputs.profile_path}")
-    speed, height = (np.asarray(v, float) for v in (obs.release_speed_m_s,
-                                                     obs.release_height_m))
-    gspeed, gheight = (v[entries.index] for v in (entries.release_speed_m_s,
-                                                  entries.release_height_m))
-    known = np.isfinite(speed) & np.isfinite(gspeed)
-    if known.any():
-        lines.append(f"each group released at its rows' mean tracked speed (largest "
-                     f"release-speed shift {np.abs(gspeed - speed)[known].max():.2f} m/s)")
-    site = inputs.site
-    if site.release_height_sd_m or site.release_speed_sd_m_s:
-        lines.append(f"CRSP draws each block's release height and speed about its group's, sd "
-                     f"{site.release_height_sd_m:g} m and {site.release_speed_sd_m_s:g} m/s "
-                     f"(the site file {site.path}); the DEM releases at the means")
-    high = np.isfinite(height)
-    if high.any():
-        lines.append(f"each group released at its rows' mean height above the ground, "
-                     f"{np.nanmin(entries.release_height_m):.2f} to "
-                     f"{np.nanmax(entries.release_height_m):.2f} m (largest release-height "
-                     f"shift {np.abs(gheight - height)[high].max():.2f} m)")
-    return lines
-
-
-def _split(out, fraction, seed, obs, files, say):
-    """Split the rows (``calib.files.split``): the fit's observations, and the path its
-    calibration rows will have; both row files, written from the rows as read, join
-    the outputs."""
-    from calib.files.split import holdout_rows, rows_csv, subset
-
-    try:
-        fit_rows, held_rows = holdout_rows(obs.n_obs, fraction, seed)
-    except ValueError as e:
-        raise CliError(str(e)) from None
-    files["calibration_rows.csv"] = rows_csv(obs, fit_rows, out)
-    files["heldout_rows.csv"] = rows_csv(obs, held_rows, out)
-    say(f"holding out {len(held_rows)} of {obs.n_obs} rows (seed {seed}): "
-        f"{os.path.join(out, 'heldout_rows.csv')}")
-    return subset(obs, fit_rows), os.path.join(out, "calibration_rows.csv")
 
 
 def validate_heldout(out: str, model: str, seed: int = 0,

@@ -3,7 +3,7 @@ its typed results (``calib.inference.calibrate.ModelFit`` per model, the inputs
 and their simulated entries): ``fit_document`` builds the
 ``calib.files.calibration_file.CalibrationFile`` that the fit writes with
 ``to_json``; ``model_section`` and ``dem_alpha_section`` are its model
-sections. The schema, its reader and every consumer's checks are in
+sections; ``posterior_files`` are the posterior draws' own files. The schema, its reader and every consumer's checks are in
 ``calib.files.calibration_file``.
 """
 
@@ -17,7 +17,7 @@ from calib.files.calibration_file import SCHEMA, CalibrationFile
 from calib.model.effects import effect_names
 
 __all__ = ["ALPHA_AT_L", "BLOCK_SIZE_MAPPING", "dem_alpha_section", "fit_document",
-           "model_section", "summary_stats"]
+           "model_section", "posterior_files", "summary_stats"]
 
 
 def summary_stats(values: np.ndarray | None, point: float) -> dict:
@@ -156,3 +156,25 @@ def fit_document(header: dict, inputs, entries, fits: dict, grouped: bool,
         doc["timings_s"][model] = fit.timings_s
     doc["timings_s"]["total_s"] = total_s
     return CalibrationFile.from_dict(doc)
+
+
+def posterior_files(fits: dict, obs) -> tuple[dict, dict]:
+    """The posterior draws' files of one ``calib.fit`` run: (name -> CSV text,
+    name -> NetCDF writer), ``<model>_posterior.csv`` (``posterior_csv_text``) and
+    ``<model>_posterior.nc`` (ArviZ InferenceData with the rows ``obs``,
+    ``calib.files.inference_data``) for every model fitted with a posterior.
+
+    Args:
+        fits: model -> (``ModelFit``, forward model, alpha-law form or None).
+        obs: the rows fitted (``calib.files.observations.Observations``).
+    """
+    from calib.files.calibration_file import posterior_csv_text
+    from calib.files.inference_data import inference_data, netcdf_writer
+
+    texts, writers = {}, {}
+    for model, (fit, _, _) in fits.items():
+        post = fit.posterior
+        if post is not None:
+            texts[f"{model}_posterior.csv"] = posterior_csv_text(fit.names, post.samples)
+            writers[f"{model}_posterior.nc"] = netcdf_writer(inference_data(post, obs, model))
+    return texts, writers

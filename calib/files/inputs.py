@@ -153,6 +153,45 @@ class Inputs:
             self.site.release_height_sd_m, self.site.release_speed_sd_m_s)
 
 
+    def grouping_lines(self, entries, tol_m: float) -> list[str]:
+        """How the rows' own releases were grouped into ``entries``
+        (``Inputs.entries(tol_m)``), in lines for a command to print: the number
+        of simulated releases and the largest shift of a row's release point,
+        speed and height to its group's; the rows on their own profiles; the
+        site's release errors."""
+        obs, x0 = self.obs, float(self.profile.x_m[0])
+        rel = np.asarray(obs.release_x_m, float)
+        err = np.abs(entries.release_x_m[entries.index] - np.where(np.isfinite(rel), rel, x0))
+        lines = [f"each row released from its own point, rows of one size within {tol_m:g} m "
+                 f"grouped: {entries.n} simulated releases for {obs.n_obs} rows (largest "
+                 f"release shift {err.max():.2f} m)"]
+        own = [p for p in dict.fromkeys(obs.profile) if p]
+        if own:
+            lines.append("rows on their own profiles: " + "; ".join(
+                f"{int(np.sum(obs.profile == p))} on {p}" for p in own)
+                + f"; {int(np.sum(obs.profile == ''))} on {self.profile_path}")
+        speed, height = (np.asarray(v, float) for v in (obs.release_speed_m_s,
+                                                         obs.release_height_m))
+        gspeed, gheight = (v[entries.index] for v in (entries.release_speed_m_s,
+                                                      entries.release_height_m))
+        known = np.isfinite(speed) & np.isfinite(gspeed)
+        if known.any():
+            lines.append(f"each group released at its rows' mean tracked speed (largest "
+                         f"release-speed shift {np.abs(gspeed - speed)[known].max():.2f} m/s)")
+        site = self.site
+        if site.release_height_sd_m or site.release_speed_sd_m_s:
+            lines.append(f"CRSP draws each block's release height and speed about its group's, "
+                         f"sd {site.release_height_sd_m:g} m and {site.release_speed_sd_m_s:g} "
+                         f"m/s (the site file {site.path}); the DEM releases at the means")
+        high = np.isfinite(height)
+        if high.any():
+            lines.append(f"each group released at its rows' mean height above the ground, "
+                         f"{np.nanmin(entries.release_height_m):.2f} to "
+                         f"{np.nanmax(entries.release_height_m):.2f} m (largest release-height "
+                         f"shift {np.abs(gheight - height)[high].max():.2f} m)")
+        return lines
+
+
 def load_inputs(data: str, profile_arg: str | None, out: str) -> Inputs:
     """Observations, profile, its path and its site, checked for a command
     (``InputError`` on bad input): the files exist and parse, every runout

@@ -18,7 +18,7 @@ import pandas as pd
 
 from calib.files.observations import Observations
 
-__all__ = ["holdout_rows", "rows_csv", "subset"]
+__all__ = ["Holdout", "hold_out", "holdout_rows", "rows_csv", "subset"]
 
 
 def holdout_rows(n_rows: int, fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -64,3 +64,38 @@ def rows_csv(obs: Observations, rows: np.ndarray, out: str) -> str:
     if "profile" in table.columns:
         table["profile"] = [os.path.relpath(p, out) if p else "" for p in obs.profile]
     return table.iloc[rows].to_csv(index=False)
+
+
+@dataclasses.dataclass(frozen=True)
+class Holdout:
+    """A command's inputs split for a hold-out check (``hold_out``).
+
+    Attributes:
+        inputs: the inputs with only the rows to fit (``calib.files.inputs.Inputs``).
+        rows_path: the path the fitted rows' file will have in the output folder.
+        files: output file name -> CSV text: ``calibration_rows.csv`` and
+            ``heldout_rows.csv``, the rows as they were read.
+        message: one line saying how many rows were held out and where they go.
+    """
+
+    inputs: object
+    rows_path: str
+    files: dict
+    message: str
+
+
+def hold_out(inputs, fraction: float, seed: int, out: str) -> Holdout:
+    """Hold ``fraction`` of ``inputs``' rows out of a fit (``holdout_rows``); both
+    row files are for the folder ``out``.
+
+    Raises:
+        ValueError: the fraction cannot split the rows (``holdout_rows``).
+    """
+    obs = inputs.obs
+    fit_rows, held_rows = holdout_rows(obs.n_obs, fraction, seed)
+    files = {"calibration_rows.csv": rows_csv(obs, fit_rows, out),
+             "heldout_rows.csv": rows_csv(obs, held_rows, out)}
+    message = (f"holding out {len(held_rows)} of {obs.n_obs} rows (seed {seed}): "
+               f"{os.path.join(out, 'heldout_rows.csv')}")
+    return Holdout(dataclasses.replace(inputs, obs=subset(obs, fit_rows)),
+                   os.path.join(out, "calibration_rows.csv"), files, message)

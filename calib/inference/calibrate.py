@@ -75,7 +75,6 @@ from collections.abc import Callable
 from typing import NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from calib.files.observations import Observations
@@ -84,7 +83,7 @@ from calib.inference.bayes import Posterior
 from calib.inference.bayes_stage import bayes_stage
 from calib.inference.budget import Budget, presets
 from calib.inference.fit_check import check_estimate
-from calib.inference.gradient import GradientFit, fit_gradient
+from calib.inference.gradient import GradientFit, gradient_stage
 from calib.inference.likelihood import RowLikelihood
 from calib.model.entries import Entries
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
@@ -173,7 +172,7 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
 
     if "gradient" in methods:
         t0 = time.perf_counter()
-        gfit = _gradient_stage(forward, rows, budget, k_grad, tick, tally, design)
+        gfit = gradient_stage(forward, rows, budget, k_grad, tick, tally, design)
         timings["gradient_s"] = time.perf_counter() - t0
 
     if gfit is not None:
@@ -196,36 +195,6 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     return ModelFit(tuple(box.names), np.asarray(estimate), source, posterior, gfit, emu_check,
                     check.quality, sizes, check.runouts, timings, budget, record, adequacy,
                     focus_record, chain_screen)
-
-
-def _gradient_stage(forward, rows: RowLikelihood, budget: Budget, key: jax.Array, tick, tally,
-                    design) -> GradientFit:
-    """Stage 2 of the module docstring: Adam on the smoothed CRN objective of the
-    simulator from the box's centre, ``grad_starts - 1`` quasi-random points and
-    (after a design) the design's best simulated point."""
-    from scipy.stats import qmc
-
-    box = forward.box
-    grad_forward = dataclasses.replace(forward, n_blocks=budget.n_blocks_grad, key=key)
-
-    def objective(theta):
-        runs = grad_forward.runouts(theta)
-        tally("gradient", runs, theta)
-        return -np.asarray(rows.pointwise(jnp.asarray(runs))).sum(1)
-
-    starts = [0.5 * (box.lo + box.hi)]
-    if budget.grad_starts > 1:
-        z = qmc.Halton(box.dim, scramble=True, seed=1).random(budget.grad_starts - 1)
-        starts += list(box.from_unit(0.15 + 0.7 * z))
-    if design is not None and hasattr(forward, "from_input") and np.isfinite(design.ll).any():
-        # one more start at the design's best simulated point: where the
-        # likelihood is peaked in a thin part of the box, the box's centre and
-        # a few quasi-random starts may all lie on its flat part
-        starts.append(np.clip(forward.from_input(design.x[int(np.argmax(design.ll))]),
-                              box.lo, box.hi))
-    return fit_gradient(objective, box, np.array(starts), key, n_steps=budget.grad_steps,
-                        k=budget.grad_k,
-                        progress=lambda i: tick("gradient", i + 1, budget.grad_steps))
 
 
 class ModelRun(NamedTuple):

@@ -37,7 +37,8 @@ import optax
 
 from calib.model.priors import Box
 
-__all__ = ["GradientFit", "fit_gradient", "smoothed_gradient", "theta_of_u", "u_of_theta"]
+__all__ = ["GradientFit", "fit_gradient", "gradient_stage", "smoothed_gradient", "theta_of_u",
+           "u_of_theta"]
 
 
 def theta_of_u(box: Box, u):
@@ -153,3 +154,43 @@ def fit_gradient(objective_theta: Callable[[np.ndarray], np.ndarray], box: Box,
     best = int(np.argmin(j_final))
     thetas = theta_of_u(box, u)
     return GradientFit(thetas[best], thetas, u, hist, j_final)
+
+
+def gradient_stage(forward, rows, budget, key: jax.Array, tick, tally, design) -> GradientFit:
+    """The gradient stage of a calibration (``calib.inference.calibrate``, stage 2):
+    ``fit_gradient`` on J(theta) = -sum_i log p(y_i | theta) of the rows
+    (``calib.inference.likelihood.RowLikelihood.pointwise``), each point simulated
+    by ``forward`` with ``budget.n_blocks_grad`` common-random-number blocks, from
+    the box's centre, ``budget.grad_starts - 1`` quasi-random points and (after a
+    CRSP design) the design's best simulated point.
+
+    Args:
+        forward: ``CrspForward`` or ``DemForward``; rows: ``RowLikelihood``;
+        budget: ``calib.inference.budget.Budget``; key: the stage's PRNG key.
+        tick: callable(stage, done, total) for progress; tally: callable(stage,
+            runouts, theta) counting unfinished blocks.
+        design: the Bayesian stage's first design (``theta``, ``x``, ``ll``), or None.
+    """
+    from scipy.stats import qmc
+
+    box = forward.box
+    grad_forward = dataclasses.replace(forward, n_blocks=budget.n_blocks_grad, key=key)
+
+    def objective(theta):
+        runs = grad_forward.runouts(theta)
+        tally("gradient", runs, theta)
+        return -np.asarray(rows.pointwise(jnp.asarray(runs))).sum(1)
+
+    starts = [0.5 * (box.lo + box.hi)]
+    if budget.grad_starts > 1:
+        z = qmc.Halton(box.dim, scramble=True, seed=1).random(budget.grad_starts - 1)
+        starts += list(box.from_unit(0.15 + 0.7 * z))
+    if design is not None and hasattr(forward, "from_input") and np.isfinite(design.ll).any():
+        # one more start at the design's best simulated point: where the
+        # likelihood is peaked in a thin part of the box, the box's centre and
+        # a few quasi-random starts may all lie on its flat part
+        starts.append(np.clip(forward.from_input(design.x[int(np.argmax(design.ll))]),
+                              box.lo, box.hi))
+    return fit_gradient(objective, box, np.array(starts), key, n_steps=budget.grad_steps,
+                        k=budget.grad_k,
+                        progress=lambda i: tick("gradient", i + 1, budget.grad_steps))

@@ -8,6 +8,7 @@
   (``calib.files.site``; Postignano: the paper's Table 1).
 * ``validation_figures``: the predictive check's PIT histogram and intervals.
 * ``pairs``: posterior pair plot (scatter below the diagonal, histograms on it).
+* ``fit_figures``: the figures ``python -m calib.fit`` writes.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import numpy as np  # noqa: E402
 from calib.files.observations import Observations  # noqa: E402
 from calib.model.unfinished import nan_quantile  # noqa: E402
 
-__all__ = ["alpha_law", "pairs", "runout_vs_size", "validation_figures"]
+__all__ = ["alpha_law", "fit_figures", "pairs", "runout_vs_size", "validation_figures"]
 
 _COLORS = {"crsp": "tab:blue", "dem": "tab:red"}
 
@@ -115,6 +116,30 @@ def pairs(samples: np.ndarray, names: tuple[str, ...], truth=None, title: str = 
         fig.suptitle(title)
     fig.tight_layout()
     return fig
+
+
+def fit_figures(fits: dict, inputs) -> dict:
+    """The figures of one ``calib.fit`` run, file name -> Figure: each model's
+    posterior ``pairs`` (``<model>_pairs.png``), the DEM's ``fitted_alpha_law``
+    (``alpha_law.png``) and ``runout_vs_size`` of every model's check.
+
+    Args:
+        fits: model -> (``ModelFit``, forward model, alpha-law form or None).
+        inputs: the data set fitted (``calib.files.inputs.Inputs``: rows and site).
+    """
+    figs = {}
+    for model, (fit, _, form) in fits.items():
+        post = fit.posterior
+        if post is not None:
+            figs[f"{model}_pairs.png"] = pairs(
+                post.samples, fit.names, title=f"{model.upper()} posterior "
+                f"({post.samples.shape[0]} draws{'' if post.ok else ', DIAGNOSTICS FAILED'})")
+        if form is not None:
+            figs["alpha_law.png"] = fitted_alpha_law(form, fit, inputs.site,
+                                                     inputs.obs.sizes_m)
+    figs["runout_vs_size.png"] = runout_vs_size(
+        inputs.obs, {m: (r.fit.check_sizes_m, r.fit.check_runouts) for m, r in fits.items()})
+    return figs
 
 
 def validation_figures(check) -> dict:
