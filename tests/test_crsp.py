@@ -150,6 +150,36 @@ def test_postignano_blocks_never_end_below_ground_and_stop_where_possible():
         assert np.all(res.stop_x_m[res.stopped] >= 110.0 - 1e-9)
 
 
+def test_task_slots_hold_the_blocks_with_at_most_half_again_as_many_rows():
+    n = np.arange(1, 70_000)
+    slots = np.array([crsp.task_slots(int(k)) for k in n])
+    assert np.all(slots >= n) and np.all(np.diff(slots) >= 0)
+    assert np.all(slots <= np.maximum(256, 1.5 * n))
+    assert len(np.unique(slots)) == 18  # 256, 384, 512, 768, ..., 65536, 98304
+    with pytest.raises(ValueError, match="positive"):
+        crsp.task_slots(0)
+
+
+def test_block_counts_that_share_slots_share_one_program_and_the_same_blocks():
+    """A pool compiled for 768 rows serves 752 blocks (``run_blocks``' chunk in the
+    test above) and 600: no second program, and the 600 are the first 600 of the 752."""
+    from solvers.crsp._batch import _tasks_in_slots
+
+    prof = load_profile(POSTIGNANO)
+    params = crsp.params_from_profile(prof)
+    block = crsp.make_block(0.25)
+    none = jnp.zeros((0,), jnp.float64)
+    assert crsp.task_slots(752) == crsp.task_slots(600) == 768
+    full = crsp.simulate_pooled(params, block, jax.random.key(7), prof, none, n_blocks=752,
+                                pool=crsp.default_pool())
+    n_programs = _tasks_in_slots._cache_size()
+    part = crsp.simulate_pooled(params, block, jax.random.key(7), prof, none, n_blocks=600,
+                                pool=crsp.default_pool())
+    assert _tasks_in_slots._cache_size() == n_programs
+    assert part.runout_m.shape == (600,)
+    _same_results(part, jax.tree_util.tree_map(lambda a: a[:600], full))
+
+
 def test_vmap_equals_loop_and_same_key_same_result():
     prof = load_profile(POSTIGNANO)
     params = crsp.params_from_profile(prof)

@@ -311,7 +311,9 @@ class CrspForward:
         Tasks (theta, size) run in chunks of ``task_chunk`` divided among the
         worker threads (``solvers.parallel``: 48 tasks per chunk on 2 CPU
         cores, chunks side by side; the last one padded by repeating a task),
-        so every call with the same ``n_blocks`` reuses one compiled program.
+        so every call reuses one compiled program, whatever its ``n_blocks`` up to
+        256 (``crsp.task_slots``: block counts are traced; the pool is not cut to
+        the block count, which would compile it again).
         """
         theta = np.atleast_2d(np.asarray(theta, float))
         n_t, n_s = theta.shape[0], len(self.sizes_m)
@@ -348,7 +350,8 @@ class CrspForward:
                                   for r in radius[c0:c0 + chunk]])
             res = crsp.simulate_tasks(params, blocks, self.key, self.profile, stations,
                                       n_per_task=self.n_blocks,
-                                      pool=min(self.pool, chunk * self.n_blocks),
+                                      pool=min(self.pool,
+                                               chunk * crsp.task_slots(self.n_blocks)),
                                       settings=self.settings)
             status = np.asarray(res.status)  # (chunk, n)
             v = np.where(np.asarray(res.stations.passed), res.stations.velocity_m_s, np.nan)

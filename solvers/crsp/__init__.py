@@ -20,6 +20,7 @@ from solvers.crsp._batch import (
     simulate_batch,
     simulate_pooled,
     simulate_tasks,
+    task_slots,
 )
 from solvers.crsp._break import BreakRecord, fragment_key, simulate_fragment, simulate_fragments
 from solvers.crsp._impact import ImpactOut, crsp_impact, roughness_tilt
@@ -70,4 +71,5 @@ __all__ = [
     "simulate_fragments",
     "simulate_pooled",
     "simulate_tasks",
+    "task_slots",
 ]

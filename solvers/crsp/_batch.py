@@ -35,7 +35,7 @@ from solvers.parallel import default_workers, map_ordered
 from solvers.profile import Profile
 
 __all__ = ["block_keys", "chunk_plan", "default_pool", "run_blocks", "simulate_batch",
-           "simulate_pooled", "simulate_tasks"]
+           "simulate_pooled", "simulate_tasks", "task_slots"]
 
 
 def default_pool() -> int:
@@ -74,7 +74,29 @@ def simulate_batch(params: Params, block: Block, keys: jax.Array, profile: Profi
     return jax.vmap(fn, in_axes=(None, None, 0))(params, block, keys)
 
 
-@functools.partial(jax.jit, static_argnames=("n_blocks", "pool", "settings", "refill_every"))
+def task_slots(n_per_task: int) -> int:
+    """Output rows per task that one compiled pool holds for ``n_per_task`` blocks.
+
+    The block count of a call is traced, not compiled in: calls whose counts
+    share a slot count (256, then 384, 512, 768, 1024, ...: each at most 1.5x
+    the count above 256) share one program. Compiling a pool takes 8-15 s on
+    2 CPU cores, so a calibration's stages (design, gradient, checks, each with
+    its own block count) and runs of different sizes reuse one program instead
+    of compiling one each. The lanes' arithmetic does not depend on the slots,
+    so neither do the results (our choice of rounding; the output memory grows
+    by at most the same 1.5x).
+    """
+    if n_per_task <= 0:
+        raise ValueError(f"n_per_task must be positive, got {n_per_task}")
+    slots = _MIN_SLOTS
+    while slots < n_per_task:
+        slots = slots * 3 // 2 if slots & (slots - 1) == 0 else slots * 4 // 3
+    return slots
+
+
+_MIN_SLOTS = 256
+
+
 def simulate_pooled(params: Params, block: Block, key: jax.Array, profile: Profile,
                     stations_x_m: jax.Array, n_blocks: int, pool: int | None = None,
                     settings: Settings = Settings(), refill_every: int = 8,
@@ -83,19 +105,18 @@ def simulate_pooled(params: Params, block: Block, key: jax.Array, profile: Profi
     pool of lanes (``pool``; None: ``default_pool()``).
 
     Each block i follows exactly the event sequence of ``simulate`` with key
-    ``fold_in(key, i)``; only the scheduling differs.
+    ``fold_in(key, i)``; only the scheduling differs. Calls whose ``n_blocks``
+    share ``task_slots`` share one compiled program.
 
     Returns:
         ``Result`` with leading dimension ``n_blocks``.
     """
     one = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], (params, block))
-    res = _pooled(one[0], one[1], key, profile, stations_x_m, n_blocks, pool, settings,
-                  refill_every, offset)
+    res = simulate_tasks(one[0], one[1], key, profile, stations_x_m, n_blocks, pool=pool,
+                         settings=settings, refill_every=refill_every, offset=offset)
     return jax.tree_util.tree_map(lambda a: a[0], res)
 
 
-@functools.partial(jax.jit, static_argnames=("n_per_task", "pool", "settings",
-                                             "refill_every"))
 def simulate_tasks(params: Params, block: Block, key: jax.Array, profile: Profile,
                    stations_x_m: jax.Array, n_per_task: int, pool: int | None = None,
                    settings: Settings = Settings(), refill_every: int = 8,
@@ -120,24 +141,51 @@ def simulate_tasks(params: Params, block: Block, key: jax.Array, profile: Profil
     release), each as random as in a run of one block set, whatever the chunk
     (``calib.hazard._units.seeded_chunk``).
 
+    ``n_per_task`` is a Python int; the compiled program depends on it only
+    through ``task_slots(n_per_task)``. Jit-able (inside a jit it is inlined).
+
     Returns:
         ``Result`` with leading dimensions (T, n_per_task).
     """
-    return _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, settings,
-                   refill_every, offset, task_offsets)
+    n_slots = task_slots(n_per_task)
+    res = _tasks_in_slots(params, block, key, profile, stations_x_m,
+                          jnp.asarray(n_per_task, jnp.int32), offset, task_offsets,
+                          n_slots=n_slots, pool=pool, settings=settings,
+                          refill_every=refill_every)
+    return _first_blocks(res, n_per_task)
 
 
-def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, settings,
+@functools.partial(jax.jit, static_argnames=("n_slots", "pool", "settings", "refill_every"))
+def _tasks_in_slots(params, block, key, profile, stations_x_m, n_per_task, offset,
+                    task_offsets, *, n_slots, pool, settings, refill_every):
+    """``_pooled`` compiled for ``n_slots`` rows per task, ``n_per_task`` traced."""
+    return _pooled(params, block, key, profile, stations_x_m, n_per_task, n_slots, pool,
+                   settings, refill_every, offset, task_offsets)
+
+
+@functools.partial(jax.jit, static_argnames=("n",))
+def _first_blocks(res, n):
+    """The first ``n`` rows of every task of a pool's (T, n_slots, ...) result."""
+    return jax.tree_util.tree_map(lambda a: a[:, :n], res)
+
+
+def _pooled(params, block, key, profile, stations_x_m, n_per_task, n_slots, pool, settings,
             refill_every, offset, task_offsets=None):
     """Pool of lanes over T tasks x ``n_per_task`` blocks (traced, not jitted).
 
     Work item i is block ``j = i % n_per_task`` of task ``t = i // n_per_task``
     (key index ``offset + task_offsets[t] + j``); every ``refill_every`` events the
     lanes whose block finished write its result and take the next item, so the
-    cost follows the mean event count.
+    cost follows the mean event count. Item i's result goes to row ``t *
+    n_slots + j`` of the output (``n_slots >= n_per_task`` static, ``n_per_task``
+    may be traced); rows no item fills stay zero.
+
+    Returns:
+        ``Result`` with leading dimensions (T, n_slots).
     """
     n_tasks = jax.tree_util.tree_leaves(params)[0].shape[0]
     n_items = n_tasks * n_per_task
+    n_rows = n_tasks * n_slots
     pool = default_pool() if pool is None else pool
     stations_x_m, stations_z_m, order = sorted_stations(profile, stations_x_m)
     params, block, tables = _padded_tasks(params, block, profile, n_tasks)
@@ -152,15 +200,16 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
     reached = first_beyond(stations_x_m, x0)  # stations passed so far, per lane
     proto = jax.eval_shape(finalize, jax.tree_util.tree_map(lambda a: a[0], states), x0[0],
                            reached[0])
-    out = jax.tree_util.tree_map(lambda a: jnp.zeros((n_items,) + a.shape, a.dtype), proto)
+    out = jax.tree_util.tree_map(lambda a: jnp.zeros((n_rows,) + a.shape, a.dtype), proto)
     # station passages go from the events' buffer straight into the output (one
-    # (n_items, n_stations) array per quantity), never through the lanes' state
-    values = empty_values((n_items, stations_x_m.shape[0]))
+    # (n_rows, n_stations) array per quantity), never through the lanes' state
+    values = empty_values((n_rows, stations_x_m.shape[0]))
     proto_passage = jax.eval_shape(lambda s, w, t: lane_step(s, w, t)[1],
                                    jax.tree_util.tree_map(lambda a: a[0], states), words[0],
                                    jnp.int32(0))
     body = _pool_body(lane_init, lane_step, finalize, proto_passage, stations_x_m,
-                      stations_z_m, order, n_per_task, n_items, pool, refill_every, settings)
+                      stations_z_m, order, n_per_task, n_slots, n_items, n_rows, pool,
+                      refill_every, settings)
 
     def cond(carry):
         return jnp.any(carry[4])
@@ -170,7 +219,7 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, pool, setting
     _, _, _, _, _, _, (res, first, last), values, _ = jax.lax.while_loop(cond, body, carry)
     out = res._replace(stations=record(first, last, values, order))
     return jax.tree_util.tree_map(
-        lambda a: a.reshape((n_tasks, n_per_task) + a.shape[1:]), out)
+        lambda a: a.reshape((n_tasks, n_slots) + a.shape[1:]), out)
 
 
 def _padded_tasks(params, block, profile, n_tasks):
@@ -234,7 +283,7 @@ def _finalize(stations_x_m, s, x0, reached):
 
 
 def _pool_body(lane_init, lane_step, finalize, proto_passage, stations_x_m, stations_z_m,
-               order, n_per_task, n_items, pool, refill_every, settings):
+               order, n_per_task, n_slots, n_items, n_rows, pool, refill_every, settings):
     """The pool loop's body: ``refill_every`` events on every lane, then the
     stations they passed written, finished lanes' results stored and those
     lanes refilled with the next work items (``_refill``)."""
@@ -242,7 +291,8 @@ def _pool_body(lane_init, lane_step, finalize, proto_passage, stations_x_m, stat
     def body(carry):
         states, words, x0, idx, active, nxt, out, values, reached = carry
         task = idx // n_per_task
-        item = jnp.where(active, idx, n_items)  # inactive lanes: dropped
+        row = task * n_slots + idx % n_per_task  # the item's output row
+        item = jnp.where(active, row, n_rows)  # inactive lanes: dropped
 
         def steps(k, c):
             s, buf = c
@@ -258,7 +308,7 @@ def _pool_body(lane_init, lane_step, finalize, proto_passage, stations_x_m, stat
                                 settings.g_m_s2, settings.station_slots * pool)
         done = active & ~jax.vmap(running)(states)
         res = jax.vmap(finalize)(states, x0, reached)
-        target = jnp.where(done, idx, n_items)  # out of bounds: dropped
+        target = jnp.where(done, row, n_rows)  # out of bounds: dropped
         out = jax.tree_util.tree_map(lambda o, r: o.at[target].set(r, mode="drop"), out, res)
         states, words, x0, reached, idx, active, nxt = _refill(
             lane_init, stations_x_m, n_items, done, states, words, x0, reached, idx, active,
