@@ -112,9 +112,11 @@ def simulate_pooled(params: Params, block: Block, key: jax.Array, profile: Profi
         ``Result`` with leading dimension ``n_blocks``.
     """
     one = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], (params, block))
-    res = simulate_tasks(one[0], one[1], key, profile, stations_x_m, n_blocks, pool=pool,
-                         settings=settings, refill_every=refill_every, offset=offset)
-    return jax.tree_util.tree_map(lambda a: a[0], res)
+    res = _tasks_in_slots(one[0], one[1], key, profile, stations_x_m,
+                          jnp.asarray(n_blocks, jnp.int32), offset, None,
+                          n_slots=task_slots(n_blocks), pool=pool, settings=settings,
+                          refill_every=refill_every)
+    return _first_blocks(res, n_blocks, one_task=True)
 
 
 def simulate_tasks(params: Params, block: Block, key: jax.Array, profile: Profile,
@@ -163,10 +165,11 @@ def _tasks_in_slots(params, block, key, profile, stations_x_m, n_per_task, offse
                    settings, refill_every, offset, task_offsets)
 
 
-@functools.partial(jax.jit, static_argnames=("n",))
-def _first_blocks(res, n):
-    """The first ``n`` rows of every task of a pool's (T, n_slots, ...) result."""
-    return jax.tree_util.tree_map(lambda a: a[:, :n], res)
+@functools.partial(jax.jit, static_argnames=("n", "one_task"))
+def _first_blocks(res, n, one_task=False):
+    """The first ``n`` rows of every task of a pool's (T, n_slots, ...) result
+    (``one_task``: of its only task, without the task axis), in one program."""
+    return jax.tree_util.tree_map(lambda a: a[0, :n] if one_task else a[:, :n], res)
 
 
 def _pooled(params, block, key, profile, stations_x_m, n_per_task, n_slots, pool, settings,
