@@ -180,6 +180,21 @@ def test_block_counts_that_share_slots_share_one_program_and_the_same_blocks():
     _same_results(part, jax.tree_util.tree_map(lambda a: a[:600], full))
 
 
+def test_runs_of_fewer_than_256_blocks_per_chunk_share_one_program():
+    """``run_blocks`` of 40 and of 100 blocks on two workers (chunks of 32 and 64,
+    both 256 slots) run on one compiled pool, and 40 blocks are the first 40 of 100."""
+    from solvers.crsp._batch import _tasks_in_slots
+
+    prof = load_profile(POSTIGNANO)
+    params = crsp.params_from_profile(prof)
+    block = crsp.make_block(0.25)
+    many = crsp.run_blocks(params, block, jax.random.key(8), 100, prof, workers=2)
+    n_programs = _tasks_in_slots._cache_size()
+    few = crsp.run_blocks(params, block, jax.random.key(8), 40, prof, workers=2)
+    assert _tasks_in_slots._cache_size() == n_programs
+    _same_results(few, jax.tree_util.tree_map(lambda a: a[:40], many))
+
+
 def test_vmap_equals_loop_and_same_key_same_result():
     prof = load_profile(POSTIGNANO)
     params = crsp.params_from_profile(prof)

@@ -122,8 +122,8 @@ def simulate_pooled(params: Params, block: Block, key: jax.Array, profile: Profi
 def simulate_tasks(params: Params, block: Block, key: jax.Array, profile: Profile,
                    stations_x_m: jax.Array, n_per_task: int, pool: int | None = None,
                    settings: Settings = Settings(), refill_every: int = 8,
-                   offset: jax.Array | int = 0, task_offsets: jax.Array | None = None
-                   ) -> Result:
+                   offset: jax.Array | int = 0, task_offsets: jax.Array | None = None,
+                   n_slots: int | None = None) -> Result:
     """Many (parameter set, block) tasks in one pool, with common random numbers.
 
     ``params`` and ``block`` carry a leading task axis T (every leaf). Block j of
@@ -145,16 +145,20 @@ def simulate_tasks(params: Params, block: Block, key: jax.Array, profile: Profil
 
     ``n_per_task`` is a Python int; the compiled program depends on it only
     through ``task_slots(n_per_task)``. Jit-able (inside a jit it is inlined).
+    With ``n_slots`` (a Python int) given, ``n_per_task`` may be traced (at most
+    ``n_slots``; one program serves every count) and the result keeps ``n_slots``
+    rows per task, the rows from ``n_per_task`` on zero.
 
     Returns:
-        ``Result`` with leading dimensions (T, n_per_task).
+        ``Result`` with leading dimensions (T, n_per_task), or (T, n_slots) when
+        ``n_slots`` is given.
     """
-    n_slots = task_slots(n_per_task)
+    slots = task_slots(n_per_task) if n_slots is None else n_slots
     res = _tasks_in_slots(params, block, key, profile, stations_x_m,
                           jnp.asarray(n_per_task, jnp.int32), offset, task_offsets,
-                          n_slots=n_slots, pool=pool, settings=settings,
+                          n_slots=slots, pool=pool, settings=settings,
                           refill_every=refill_every)
-    return _first_blocks(res, n_per_task)
+    return res if n_slots is not None else _first_blocks(res, n_per_task)
 
 
 @functools.partial(jax.jit, static_argnames=("n_slots", "pool", "settings", "refill_every"))
@@ -397,7 +401,7 @@ def run_blocks(
             and with ``workers``).
         progress: optional callable ``progress(n_done)`` called after each chunk,
             in block order.
-        pool: lanes of ``simulate_pooled`` (at most the chunk size; None:
+        pool: lanes of ``simulate_pooled`` (at most ``task_slots(chunk)``; None:
             ``default_pool()``).
         workers: threads (default ``solvers.parallel.default_workers()``).
 
@@ -408,7 +412,10 @@ def run_blocks(
         stations_x_m, jnp.float64)
     workers = default_workers() if workers is None else workers
     chunk, starts = chunk_plan(n_blocks, chunk_size, workers)
-    lanes = min(default_pool() if pool is None else pool, chunk)
+    # the pool is cut to the chunk's slots, not to the chunk: chunks of fewer than
+    # 256 blocks then share one program whatever their size (a lane beyond the
+    # last block idles; each lane's arithmetic is its own, so results are unchanged)
+    lanes = min(default_pool() if pool is None else pool, task_slots(chunk))
 
     def one(start: int):
         res = simulate_pooled(params, block, key, profile, st, n_blocks=chunk, pool=lanes,
