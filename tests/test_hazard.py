@@ -249,13 +249,23 @@ def test_bands_shrink_as_one_over_sqrt_n(tmp_path):
 # ------------------------------------------------------------- reproducibility
 
 def test_counts_do_not_depend_on_chunking_or_pool(small_run):
-    cal, profile, a = small_run  # one chunk of 400 blocks, 800 lanes
+    """The same counts in one chunk of 400 blocks (256 lanes), in 3 chunks of 134
+    (the last one 132 blocks) and in 2 of 200 (64 lanes each); chunks of 134 and
+    200 share 256 slots (``solvers.crsp.task_slots``) and so one compiled program."""
+    from calib.hazard._units import _slotted_chunk
+
+    cal, profile, a = small_run
     b = run_hazard(cal, a.draws, profile, a.sizes_m, a.stations_x_m, a.n_blocks, 3,
-                   chunk_blocks=150, pool=64)  # 3 chunks of 134, the last one padded
-    for k in ("exceed", "reach", "e30", "e300", "n_unfinished"):
-        np.testing.assert_array_equal(getattr(a, k), getattr(b, k), err_msg=k)
-    for q in a.hist:
-        np.testing.assert_array_equal(a.hist[q], b.hist[q], err_msg=q)
+                   chunk_blocks=150, pool=64)
+    n_programs = _slotted_chunk._cache_size()
+    c = run_hazard(cal, a.draws, profile, a.sizes_m, a.stations_x_m, a.n_blocks, 3,
+                   chunk_blocks=200, pool=64)
+    assert _slotted_chunk._cache_size() == n_programs
+    for other in (b, c):
+        for k in ("exceed", "reach", "e30", "e300", "n_unfinished"):
+            np.testing.assert_array_equal(getattr(a, k), getattr(other, k), err_msg=k)
+        for q in a.hist:
+            np.testing.assert_array_equal(a.hist[q], other.hist[q], err_msg=q)
 
 
 def test_draws_are_seeded_rows_of_the_posterior(tmp_path):

@@ -36,7 +36,7 @@ import jax.numpy as jnp
 
 from calib.hazard._stats import ChunkStats, reduce_chunk
 from calib.model.release import SeedArrays, sample_release
-from solvers.crsp import Block, Settings, make_block, simulate_tasks
+from solvers.crsp import Block, Settings, make_block, simulate_tasks, task_slots
 from solvers.dem import simulate as dem_simulate
 
 __all__ = ["crsp_chunk", "dem_chunk", "draw_key", "seeded_chunk"]
@@ -47,10 +47,14 @@ def draw_key(seed: int, draw: int) -> jax.Array:
     return jax.random.fold_in(jax.random.key(seed), draw)
 
 
-@functools.partial(jax.jit, static_argnames=("n_chunk", "pool", "settings"))
 def crsp_chunk(params, blocks, key, profile, stations_x_m, offset, n_valid, *, n_chunk: int,
                pool: int, settings: Settings = Settings()) -> ChunkStats:
-    """Blocks ``offset .. offset + n_chunk - 1`` of every task, reduced.
+    """Blocks ``offset .. offset + n_valid - 1`` of every task, reduced.
+
+    Compiled once per ``solvers.crsp.task_slots(n_chunk)`` (``_slotted_chunk``):
+    runs whose chunk sizes share a slot count share one program, and only the
+    chunk's ``n_valid`` blocks are simulated (a block's result does not depend
+    on how many run with it: ``solvers.crsp.simulate_tasks``).
 
     Args:
         params, blocks: CRSP ``Params`` / ``Block`` with a leading task axis T.
@@ -58,17 +62,26 @@ def crsp_chunk(params, blocks, key, profile, stations_x_m, offset, n_valid, *, n
         profile: the slope.
         stations_x_m: (S,) stations, m.
         offset: index of the chunk's first block (traced: no recompilation).
-        n_valid: blocks of the chunk that belong to the run (the rest pad the
-            last chunk to the compiled size and are not counted).
-        n_chunk, pool, settings: static sizes and solver settings.
+        n_valid: blocks of the chunk that belong to the run (at most ``n_chunk``;
+            traced).
+        n_chunk, pool, settings: the run's chunk size, the solver's lanes and
+            its settings (static).
 
     Returns:
         ``ChunkStats`` with T tasks.
     """
-    res = simulate_tasks(params, blocks, key, profile, stations_x_m, n_per_task=n_chunk,
-                         pool=pool, settings=settings, offset=offset)
+    return _slotted_chunk(params, blocks, key, profile, stations_x_m, offset, n_valid,
+                          n_slots=task_slots(n_chunk), pool=pool, settings=settings)
+
+
+@functools.partial(jax.jit, static_argnames=("n_slots", "pool", "settings"))
+def _slotted_chunk(params, blocks, key, profile, stations_x_m, offset, n_valid, *,
+                   n_slots: int, pool: int, settings: Settings) -> ChunkStats:
+    """``crsp_chunk`` compiled for ``n_slots`` rows per task."""
+    res = simulate_tasks(params, blocks, key, profile, stations_x_m, n_per_task=n_valid,
+                         pool=pool, settings=settings, offset=offset, n_slots=n_slots)
     st = res.stations
-    valid = jnp.arange(n_chunk) < n_valid
+    valid = jnp.arange(n_slots) < n_valid
     return reduce_chunk(res.stop_x_m, res.status, st.passed, st.energy_kJ,
                         st.velocity_m_s, st.bounce_height_m, valid, stations_x_m)
 
