@@ -351,10 +351,7 @@ def _crsp_units(draws, profile, entries: Entries, stations, n_blocks, seed, chun
     blocks = stack_trees([crsp.make_block(float(r), density_kg_m3=entries.density_kg_m3)
                           for r in entries.crsp_radius_m])
     pool = crsp.default_pool() if pool is None else pool
-    # lanes up to the chunk's slots (crsp.task_slots): runs of other chunk sizes share
-    # the program, and a lane beyond the last block idles
-    fn = functools.partial(crsp_chunk, n_chunk=chunk,
-                           pool=min(pool, n_sizes * crsp.task_slots(chunk)), settings=settings)
+    fn = functools.partial(crsp_chunk, n_chunk=chunk, pool=pool, settings=settings)
     for d, values in enumerate(draws.values):
         # the fitted model: the baseline's parameters and the effects' (Calibration.effects)
         p = crsp.params_from_profile(profile, release_x_m=release_x, **extra,

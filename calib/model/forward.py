@@ -350,9 +350,7 @@ class CrspForward:
                                   for r in radius[c0:c0 + chunk]])
             res = crsp.simulate_tasks(params, blocks, self.key, self.profile, stations,
                                       n_per_task=self.n_blocks,
-                                      pool=min(self.pool,
-                                               chunk * crsp.task_slots(self.n_blocks)),
-                                      settings=self.settings)
+                                      pool=self.pool, settings=self.settings)
             status = np.asarray(res.status)  # (chunk, n)
             v = np.where(np.asarray(res.stations.passed), res.stations.velocity_m_s, np.nan)
             return mask_unfinished(res.runout_m, status), mask_unfinished(v, status)

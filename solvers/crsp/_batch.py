@@ -112,10 +112,9 @@ def simulate_pooled(params: Params, block: Block, key: jax.Array, profile: Profi
         ``Result`` with leading dimension ``n_blocks``.
     """
     one = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], (params, block))
-    res = _tasks_in_slots(one[0], one[1], key, profile, stations_x_m,
-                          jnp.asarray(n_blocks, jnp.int32), offset, None,
-                          n_slots=task_slots(n_blocks), pool=pool, settings=settings,
-                          refill_every=refill_every)
+    res = simulate_tasks(one[0], one[1], key, profile, stations_x_m, n_blocks, pool=pool,
+                         settings=settings, refill_every=refill_every, offset=offset,
+                         n_slots=task_slots(n_blocks))
     return _first_blocks(res, n_blocks, one_task=True)
 
 
@@ -193,7 +192,10 @@ def _pooled(params, block, key, profile, stations_x_m, n_per_task, n_slots, pool
     n_tasks = jax.tree_util.tree_leaves(params)[0].shape[0]
     n_items = n_tasks * n_per_task
     n_rows = n_tasks * n_slots
-    pool = default_pool() if pool is None else pool
+    # at most one lane per output row: calls whose block counts share their slots
+    # then share the program whatever pool they ask for above that (a lane beyond
+    # the last block idles; each lane's arithmetic is its own)
+    pool = min(default_pool() if pool is None else pool, n_rows)
     stations_x_m, stations_z_m, order = sorted_stations(profile, stations_x_m)
     params, block, tables = _padded_tasks(params, block, profile, n_tasks)
     lane_init, lane_step = _lanes(params, block, tables, key, profile, settings, n_per_task,
@@ -401,8 +403,8 @@ def run_blocks(
             and with ``workers``).
         progress: optional callable ``progress(n_done)`` called after each chunk,
             in block order.
-        pool: lanes of ``simulate_pooled`` (at most ``task_slots(chunk)``; None:
-            ``default_pool()``).
+        pool: lanes of ``simulate_pooled`` (None: ``default_pool()``; at most
+            ``task_slots(chunk)`` of them are used).
         workers: threads (default ``solvers.parallel.default_workers()``).
 
     Returns:
@@ -412,13 +414,9 @@ def run_blocks(
         stations_x_m, jnp.float64)
     workers = default_workers() if workers is None else workers
     chunk, starts = chunk_plan(n_blocks, chunk_size, workers)
-    # the pool is cut to the chunk's slots, not to the chunk: chunks of fewer than
-    # 256 blocks then share one program whatever their size (a lane beyond the
-    # last block idles; each lane's arithmetic is its own, so results are unchanged)
-    lanes = min(default_pool() if pool is None else pool, task_slots(chunk))
 
     def one(start: int):
-        res = simulate_pooled(params, block, key, profile, st, n_blocks=chunk, pool=lanes,
+        res = simulate_pooled(params, block, key, profile, st, n_blocks=chunk, pool=pool,
                               settings=settings, offset=start)
         count = min(chunk, n_blocks - start)
         return jax.tree_util.tree_map(lambda a: np.asarray(a)[:count], res)
