@@ -3,8 +3,8 @@ its typed results (``calib.inference.calibrate.ModelFit`` per model, the inputs
 and their simulated entries): ``fit_document`` builds the
 ``calib.files.calibration_file.CalibrationFile`` that the fit writes with
 ``to_json``; ``model_section`` and ``dem_alpha_section`` are its model
-sections; ``posterior_files`` are the posterior draws' own files. The schema, its reader and every consumer's checks are in
-``calib.files.calibration_file``.
+sections; ``posterior_files`` are the posterior draws' own files. The schema, its
+reader and every consumer's checks are in ``calib.files.calibration_file``.
 """
 
 from __future__ import annotations

@@ -19,6 +19,7 @@ import time
 from typing import NamedTuple
 
 from calib.hazard._fragment_options import add_options as add_fragment_options
+from calib.hazard._run import HAZARD_SETTINGS
 from calib.model.dem_run import DEM_RUN
 from solvers.cli import (
     CliError,
@@ -86,8 +87,9 @@ def build_parser() -> OneLineParser:
     p.add_argument("--pool", type=int, default=None,
                    help="CRSP lanes per call (default: 256 on a CPU, 4096 on an accelerator; "
                         "results do not depend on it)")
-    p.add_argument("--max-events", type=int, default=5000,
-                   help="CRSP event budget per block (default 5000)")
+    p.add_argument("--max-events", type=int, default=HAZARD_SETTINGS.max_events,
+                   help="CRSP event budget per block; a block still moving after it is "
+                        f"counted unfinished (default {HAZARD_SETTINGS.max_events})")
     p.add_argument("--dem-stiffness-scale", type=float, default=None,
                    help="DEM: multiply kn = ks = 50 GPa/m by this (default: the fit's, "
                         f"from the calibration file; {DEM_RUN.stiffness_scale:g} for files "
@@ -367,7 +369,6 @@ def _simulate(args, run: _Run, sizes):
     from tqdm import tqdm
 
     from calib.hazard import run_hazard
-    from solvers import crsp
 
     cal, cond = run.cal, run.cond
     dem_run = _dem_run(args, cal)
@@ -378,7 +379,7 @@ def _simulate(args, run: _Run, sizes):
     t0 = time.perf_counter()
     counts = run_hazard(cal, run.draws, run.profile, sizes, np.asarray(run.stations),
                         run.n_blocks, args.seed, chunk_blocks=args.chunk_blocks, pool=args.pool,
-                        settings=crsp.Settings(max_events=args.max_events),
+                        settings=dataclasses.replace(HAZARD_SETTINGS, max_events=args.max_events),
                         dem_run=dem_run, release_x_m=run.release_x, release=cond.seeder,
                         barrier=cond.barrier, progress=bar.update, fragments=run.fragments)
     wall = time.perf_counter() - t0

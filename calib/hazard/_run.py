@@ -52,8 +52,14 @@ from calib.model.release import Seeder
 from solvers import crsp, dem
 from solvers.profile import Profile
 
-__all__ = ["Barrier", "HazardCounts", "check_dem_draws", "default_release_x_m", "dem_alpha",
-           "run_hazard"]
+# The hazard run's CRSP settings: at most 5000 flight and contact events per block
+# (a block still moving then is counted unfinished, ``_stats``), the default of
+# ``run_hazard`` and of the command's ``--max-events``, so that a run from the
+# library and one from the command simulate the same program.
+HAZARD_SETTINGS = crsp.Settings(max_events=5000)
+
+__all__ = ["HAZARD_SETTINGS", "Barrier", "HazardCounts", "check_dem_draws",
+           "default_release_x_m", "dem_alpha", "run_hazard"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -179,7 +185,7 @@ def _chunks(n_blocks: int, max_chunk: int) -> tuple[int, list[int]]:
 
 def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, stations_x_m,
                n_blocks: int, seed: int, *, chunk_blocks: int = 16384, pool: int | None = None,
-               settings: crsp.Settings = crsp.Settings(), dem_run: DemRun = DEM_RUN,
+               settings: crsp.Settings = HAZARD_SETTINGS, dem_run: DemRun = DEM_RUN,
                release_x_m: float | None = None, release: Seeder | None = None,
                barrier: Barrier | None = None,
                progress: Callable[[int], None] | None = None, devices=None,
@@ -198,7 +204,7 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
         seed: random seed (see ``_units`` for the key of each block).
         chunk_blocks: most blocks per size in one work unit (memory bound).
         pool: CRSP lanes per unit (None: ``solvers.crsp.default_pool()``).
-        settings: CRSP settings.
+        settings: CRSP settings (``HAZARD_SETTINGS``: the command's defaults).
         dem_run: DEM numerics (``calib.model.dem_run``; default: the fit's).
         release_x_m: release abscissa of every block, m (None:
             ``default_release_x_m``); with ``release``: the zone's downslope end.
