@@ -62,8 +62,10 @@ def test_hazard_releases_where_the_calibration_was_fitted(tmp_path):
     pathlib.Path(path).write_text(json.dumps(doc))
     cal = load_calibration(path, "crsp")
     assert cal.release_x_m == 150.0
+    # one size, three stations, 64 blocks: the compiled program of the hazard runs of
+    # test_zoned_rolling.py and test_design_angles.py
     counts = run_hazard(cal, draw_parameters(cal, 1, 0), PROFILE, [1.0],
-                        np.array([100.0, 155.0]), 64, 0)
+                        np.array([100.0, 155.0, 230.0]), 64, 0)
     assert counts.release_x_m == 150.0
     assert int(np.asarray(counts.reach)[0, 0, 0]) == 0
 
