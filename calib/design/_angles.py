@@ -17,8 +17,9 @@ size released as the hazard run without release conditions releases them (at its
 ``release_x_m``, the solver's release state), with an unlimited barrier at x: the
 crossing is recorded before the barrier acts, so the angles are those of the run
 without it. Block j of draw d has the key fold_in(fold_in(key(seed), d), j), the
-hazard run's (``calib.hazard``'s random-number scheme), so with the same seed the
-blocks are the hazard run's blocks.
+hazard run's (``calib.hazard``'s random-number scheme), and the event budget is the
+hazard run's default (``calib.hazard._run.HAZARD_SETTINGS``), so with the same seed
+the blocks are the hazard run's blocks.
 """
 
 from __future__ import annotations
@@ -113,6 +114,7 @@ def impact_angles(cal, values: np.ndarray, names, profile, x_m: float, size_m: f
     Raises:
         ValueError: not a CRSP calibration, or the barrier at or above the release.
     """
+    from calib.hazard._run import HAZARD_SETTINGS
     from calib.model.effects import draw_overrides
     from solvers import crsp
 
@@ -129,7 +131,7 @@ def impact_angles(cal, values: np.ndarray, names, profile, x_m: float, size_m: f
                                      barrier_x_m=float(x_m),
                                      **draw_overrides(cal.effects, names, row, profile))
         key = jax.random.fold_in(jax.random.key(seed), d)
-        res = crsp.run_blocks(p, block, key, n_blocks, profile)
+        res = crsp.run_blocks(p, block, key, n_blocks, profile, settings=HAZARD_SETTINGS)
         hit = np.asarray(res.barrier.reached, bool)
         angles.append(np.asarray(res.barrier.angle_deg, np.float64)[hit])
         draws.append(np.full(int(hit.sum()), d))
