@@ -45,7 +45,6 @@ import warnings
 
 import jax
 
-from calib.files.provenance import provenance, versions
 from calib.model.effects import CRSP_EFFECTS
 from calib.model.unfinished import UnfinishedBlocksWarning
 from calib.validate import print_summary as print_validation
@@ -177,8 +176,9 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
         CliError: bad input (one line naming the file, row and column) or a
             fit the alpha-law check refuses; nothing is written.
     """
-    from calib.files.fit_record import fit_document, posterior_files
+    from calib.files.fit_record import FitOptions, fit_document, posterior_files
     from calib.files.inputs import InputError, load_inputs
+    from calib.files.provenance import provenance
     from calib.files.split import hold_out
     from calib.inference.calibrate import fit_model
     from calib.model.alpha_law import check_fit
@@ -226,13 +226,9 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
                           inputs.obs.sizes_m)
             except ValueError as e:
                 raise CliError(str(e)) from None
-    header = {"command": " ".join([PROG] + sys.argv[1:]), "data_csv": data_csv,
-              "seed": seed, "quick": bool(quick), "methods": methods,
-              "versions": versions(),
-              "inputs": provenance(PROG, seed, {"data": data,
-                                                "profile": inputs.profile_path})["inputs"]}
-    cal = fit_document(header, inputs, entries, fits, grouped, release_tolerance_m,
-                       time.perf_counter() - t_start)
+    options = FitOptions(provenance(PROG, seed, {"data": data, "profile": inputs.profile_path}),
+                         data_csv, bool(quick), methods, grouped, release_tolerance_m)
+    cal = fit_document(options, inputs, entries, fits, time.perf_counter() - t_start)
     files["calibration.json"] = cal.to_json()
     texts, writers = posterior_files(fits, inputs.obs)
     files.update(texts)

@@ -16,8 +16,32 @@ import numpy as np
 from calib.files.calibration_file import SCHEMA, CalibrationFile
 from calib.model.effects import effect_names
 
-__all__ = ["ALPHA_AT_L", "BLOCK_SIZE_MAPPING", "dem_alpha_section", "fit_document",
-           "model_section", "posterior_files", "summary_stats"]
+__all__ = ["ALPHA_AT_L", "BLOCK_SIZE_MAPPING", "FitOptions", "dem_alpha_section",
+           "fit_document", "model_section", "posterior_files", "summary_stats"]
+
+
+@dataclasses.dataclass(frozen=True)
+class FitOptions:
+    """How one ``calib.fit`` run ran, as its calibration file records it.
+
+    Attributes:
+        provenance: the run's record (``calib.files.provenance.provenance``:
+            command, seed, the input files' hashes, versions).
+        data_csv: the rows fitted: the observations file given, or the rows
+            file a hold-out split wrote.
+        quick, methods: the command's options of those names (its seed is
+            the provenance's).
+        grouped: True where each row was released from its own point (the
+            ``release_groups`` record is written).
+        tolerance_m: the grouping tolerance, m.
+    """
+
+    provenance: dict
+    data_csv: str
+    quick: bool
+    methods: tuple[str, ...]
+    grouped: bool
+    tolerance_m: float
 
 
 def summary_stats(values: np.ndarray | None, point: float) -> dict:
@@ -111,32 +135,35 @@ def dem_alpha_section(form: str, fit, site, sizes_m) -> dict:
     return sec
 
 
-def fit_document(header: dict, inputs, entries, fits: dict, grouped: bool,
-                 tolerance_m: float, total_s: float) -> CalibrationFile:
+def fit_document(options: FitOptions, inputs, entries, fits: dict,
+                 total_s: float) -> CalibrationFile:
     """The calibration file of one ``calib.fit`` run, from its typed results.
 
     Args:
-        header: ``command``, ``data_csv``, ``seed``, ``quick``, ``methods``,
-            ``inputs`` (provenance), ``versions`` as the command ran.
+        options: how the run ran (``FitOptions``).
         inputs: ``calib.files.inputs.Inputs`` (profile, site, rows).
         entries: the rows' ``calib.model.entries.Entries``.
         fits: model -> (``ModelFit``, forward model, alpha-law form or None).
-        grouped: True where each row was released from its own point (the
-            ``release_groups`` record is written).
-        tolerance_m: the grouping tolerance, m.
         total_s: the run's wall time, s.
     """
+    sections = {}
+    for model, (fit, forward, form) in fits.items():
+        sec = model_section(model, fit, forward, form)
+        if form is not None:
+            sec.update(dem_alpha_section(form, fit, inputs.site, inputs.obs.sizes_m))
+        sections[model] = sec
     models = list(fits)
-    doc = {"schema": SCHEMA, "command": header["command"], "data_csv": header["data_csv"],
-           "profile_csv": inputs.profile_path, "seed": header["seed"],
+    prov = options.provenance
+    doc = {"schema": SCHEMA, "command": prov["command"], "data_csv": options.data_csv,
+           "profile_csv": inputs.profile_path, "seed": prov["seed"],
            "release_x_m": inputs.release_x_m,
-           "release_groups": None if not grouped else {
-               "tolerance_m": tolerance_m, "models": models,
+           "release_groups": None if not options.grouped else {
+               "tolerance_m": options.tolerance_m, "models": models,
                "speed_and_height_models": models,
                "groups": [{k: v for k, v in g.items()}
                           for g in entries.record(inputs.profile_path)]},
-           "quick": header["quick"], "methods": list(header["methods"]),
-           "versions": header["versions"], "inputs": header["inputs"],
+           "quick": bool(options.quick), "methods": list(options.methods),
+           "versions": prov["versions"], "inputs": prov["inputs"],
            "rock_density_kg_m3": entries.density_kg_m3,
            "rock_density_source": inputs.site.density_source,
            "release_height_sd_m": inputs.site.release_height_sd_m,
@@ -146,15 +173,11 @@ def fit_document(header: dict, inputs, entries, fits: dict, grouped: bool,
            "block_size_mapping": BLOCK_SIZE_MAPPING,
            "likelihood": "point: (1/n) sum_j N(y; r_j, sd^2 + v_j); interval: (1/n) sum_j "
                          "[Phi((b-r_j)/w_j) - Phi((a-r_j)/w_j)] (calib/inference/likelihood.py)",
-           "n_observations": inputs.obs.n_obs, "fit_quality": {}, "timings_s": {}}
-    for model, (fit, forward, form) in fits.items():
-        sec = model_section(model, fit, forward, form)
-        if form is not None:
-            sec.update(dem_alpha_section(form, fit, inputs.site, inputs.obs.sizes_m))
-        doc[model] = sec
-        doc["fit_quality"][model] = fit.quality
-        doc["timings_s"][model] = fit.timings_s
-    doc["timings_s"]["total_s"] = total_s
+           "n_observations": inputs.obs.n_obs,
+           "fit_quality": {m: f.quality for m, (f, _, _) in fits.items()},
+           "timings_s": {**{m: f.timings_s for m, (f, _, _) in fits.items()},
+                         "total_s": total_s},
+           **sections}
     return CalibrationFile.from_dict(doc)
 
 
