@@ -18,7 +18,7 @@ size released as the hazard run without release conditions releases them (at its
 crossing is recorded before the barrier acts, so the angles are those of the run
 without it. Block j of draw d has the key fold_in(fold_in(key(seed), d), j), the
 hazard run's (``calib.hazard``'s random-number scheme), and the event budget is the
-hazard run's default (``calib.hazard._run.HAZARD_SETTINGS``), so with the same seed
+hazard run's default (``calib.hazard.HAZARD_SETTINGS``), so with the same seed
 the blocks are the hazard run's blocks.
 """
 
@@ -114,7 +114,7 @@ def impact_angles(cal, values: np.ndarray, names, profile, x_m: float, size_m: f
     Raises:
         ValueError: not a CRSP calibration, or the barrier at or above the release.
     """
-    from calib.hazard._run import HAZARD_SETTINGS
+    from calib.hazard import HAZARD_SETTINGS
     from calib.model.effects import draw_overrides
     from solvers import crsp
 

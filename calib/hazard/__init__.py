@@ -38,6 +38,7 @@ from calib.hazard._intensity import (
 )
 from calib.hazard._results import calibration_record, hazard_dataset
 from calib.hazard._run import (
+    HAZARD_SETTINGS,
     Barrier,
     HazardCounts,
     check_dem_draws,
@@ -53,6 +54,7 @@ __all__ = [
     "BINS",
     "Barrier",
     "ENERGY_THRESHOLDS_KJ",
+    "HAZARD_SETTINGS",
     "SCHEMA",
     "Bins",
     "Calibration",
