@@ -54,6 +54,25 @@ def run_a(cal_path, tmp_path_factory):
     return out, _Out(buf.getvalue())
 
 
+def test_a_library_run_is_the_commands_run(cal_path, run_a):
+    """``run_hazard`` with its defaults, on the command's calibration, draws, sizes,
+    stations, block count and seed, simulates the command's compiled program (both
+    use ``HAZARD_SETTINGS``) and counts the same blocks at every station."""
+    from calib.hazard import draw_parameters, load_calibration, run_hazard
+    from calib.hazard._units import _slotted_chunk
+    from solvers import load_profile
+
+    out, _ = run_a
+    cal = load_calibration(cal_path, "crsp")
+    n_programs = _slotted_chunk._cache_size()
+    counts = run_hazard(cal, draw_parameters(cal, 3, 0), load_profile(cal.profile_csv),
+                        [0.5, 2.0], np.arange(0.0, 301.0, 10.0), 400, 0)
+    assert _slotted_chunk._cache_size() == n_programs
+    table = pd.read_csv(out / "hazard_table.csv").sort_values(["block_size_m", "x_m"])
+    reached = np.asarray(counts.reach).sum(axis=0)  # (sizes, stations), over the draws
+    np.testing.assert_array_equal(table["n_blocks_reached"].to_numpy(), reached.ravel())
+
+
 def _read(folder, name):
     with open(os.path.join(folder, name), "rb") as fh:
         return fh.read()
