@@ -162,7 +162,7 @@ def fit_document(options: FitOptions, inputs, entries, fits: dict,
                "speed_and_height_models": models,
                "groups": [{k: v for k, v in g.items()}
                           for g in entries.record(inputs.profile_path)]},
-           "quick": bool(options.quick), "methods": list(options.methods),
+           "quick": options.quick, "methods": list(options.methods),
            "versions": prov["versions"], "inputs": prov["inputs"],
            "rock_density_kg_m3": entries.density_kg_m3,
            "rock_density_source": inputs.site.density_source,

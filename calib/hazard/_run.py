@@ -356,7 +356,6 @@ def _crsp_units(draws, profile, entries: Entries, stations, n_blocks, seed, chun
     n_sizes, release_x = entries.n, float(entries.release_x_m[0])
     blocks = stack_trees([crsp.make_block(float(r), density_kg_m3=entries.density_kg_m3)
                           for r in entries.crsp_radius_m])
-    pool = crsp.default_pool() if pool is None else pool
     fn = functools.partial(crsp_chunk, n_chunk=chunk, pool=pool, settings=settings)
     for d, values in enumerate(draws.values):
         # the fitted model: the baseline's parameters and the effects' (Calibration.effects)

@@ -48,7 +48,7 @@ def draw_key(seed: int, draw: int) -> jax.Array:
 
 
 def crsp_chunk(params, blocks, key, profile, stations_x_m, offset, n_valid, *, n_chunk: int,
-               pool: int, settings: Settings = Settings()) -> ChunkStats:
+               pool: int | None, settings: Settings = Settings()) -> ChunkStats:
     """Blocks ``offset .. offset + n_valid - 1`` of every task, reduced.
 
     Compiled once per ``solvers.crsp.task_slots(n_chunk)`` (``_slotted_chunk``):
@@ -64,8 +64,8 @@ def crsp_chunk(params, blocks, key, profile, stations_x_m, offset, n_valid, *, n
         offset: index of the chunk's first block (traced: no recompilation).
         n_valid: blocks of the chunk that belong to the run (at most ``n_chunk``;
             traced).
-        n_chunk, pool, settings: the run's chunk size, the solver's lanes and
-            its settings (static).
+        n_chunk, pool, settings: the run's chunk size, the solver's lanes (None:
+            ``solvers.crsp.default_pool()``) and its settings (static).
 
     Returns:
         ``ChunkStats`` with T tasks.
@@ -76,7 +76,7 @@ def crsp_chunk(params, blocks, key, profile, stations_x_m, offset, n_valid, *, n
 
 @functools.partial(jax.jit, static_argnames=("n_slots", "pool", "settings"))
 def _slotted_chunk(params, blocks, key, profile, stations_x_m, offset, n_valid, *,
-                   n_slots: int, pool: int, settings: Settings) -> ChunkStats:
+                   n_slots: int, pool: int | None, settings: Settings) -> ChunkStats:
     """``crsp_chunk`` compiled for ``n_slots`` rows per task."""
     res = simulate_tasks(params, blocks, key, profile, stations_x_m, n_per_task=n_valid,
                          pool=pool, settings=settings, offset=offset, n_slots=n_slots)
