@@ -22,8 +22,14 @@ from calib.design import (
 )
 from calib.design.__main__ import main
 from calib.files.hazard_results import write_hazard_results
-from calib.hazard import draw_parameters, hazard_dataset, load_calibration, run_hazard
-from solvers import load_profile
+from calib.hazard import (
+    HAZARD_SETTINGS,
+    draw_parameters,
+    hazard_dataset,
+    load_calibration,
+    run_hazard,
+)
+from solvers import crsp, load_profile
 
 X_M, ROAD_M, SIZE_M, N, SEED = 100.0, 230.0, 1.0, 200, 3
 
@@ -83,7 +89,36 @@ def test_command_puts_the_impact_angle_on_the_sheet(run, capsys):
                  cal.path, "--angle-blocks", str(N)]) == 0
     rec = json.loads((out / "design.json").read_text())
     assert rec["impact_angle"]["n_crossings"] == int(ds["n_reach"].sel(x_m=X_M).sum())
+    # the hazard file records the event budget its blocks ran with; the angles use it
+    assert ds.attrs["crsp_max_events"] == HAZARD_SETTINGS.max_events
+    assert rec["impact_angle"]["crsp_max_events"] == HAZARD_SETTINGS.max_events
     assert "impact angle below the horizontal" in capsys.readouterr().out
     assert "## Impact angle" in (out / "design.md").read_text()
     assert main([path, "--barrier-x-m", str(X_M), "--out", str(folder / "plain")]) == 0
     assert "Not computed" in (folder / "plain" / "design.md").read_text()
+
+
+@pytest.mark.slow  # two solver programs of their own (about 25 s)
+def test_the_angles_use_the_event_budget_the_hazard_run_used(tmp_path):
+    """A hazard run with a budget of 25 events per block (``--max-events 25``) cuts
+    some blocks short of the barrier (184 of 200 per draw pass x = 100 m, against
+    200 with the default budget): the design's impact-angle run, read from the
+    file, simulates with the same budget and crosses with the same blocks."""
+    cal = load_calibration(write_calibration(tmp_path, crsp_posterior=posterior_rows(10)),
+                           "crsp")
+    profile = load_profile(cal.profile_csv)
+    draws = draw_parameters(cal, 2, SEED)
+    counts = run_hazard(cal, draws, profile, [SIZE_M], [50.0, X_M, ROAD_M], N, SEED,
+                        settings=crsp.Settings(max_events=25))
+    ds = hazard_dataset(counts, profile, seed=SEED, road_x_m=ROAD_M, road_label="road",
+                        record={"rock_density_kg_m3": 2350.0})
+    assert ds.attrs["crsp_max_events"] == 25
+    n_reach = int(ds["n_reach"].sel(x_m=X_M).sum())
+    assert 0 < n_reach < 2 * N  # the budget cut some blocks short
+    path = str(tmp_path / "hazard.nc")
+    write_hazard_results(ds, path)
+    out = tmp_path / "design"
+    assert main([path, "--barrier-x-m", str(X_M), "--out", str(out), "--calibration",
+                 cal.path, "--angle-blocks", str(N)]) == 0
+    rec = json.loads((out / "design.json").read_text())["impact_angle"]
+    assert rec["crsp_max_events"] == 25 and rec["n_crossings"] == n_reach

@@ -161,6 +161,22 @@ def test_design_shows_the_residual_hazard_at_the_road(pair):
     assert "barrier at x = 100 m, height 2 m, capacity 300 kJ" in summary
 
 
+def test_runs_of_other_event_budgets_are_not_common_random_numbers(pair):
+    """Both runs record their CRSP event budget; the same budget compares them
+    without a warning, another one is named in the warning (blocks cut short by
+    one budget and not the other are different blocks)."""
+    from calib.design._residual import check_compatible
+    from calib.files.hazard_results import read_hazard_results
+
+    without = read_hazard_results(str(pair / "without" / "hazard.nc"))
+    with_barrier = read_hazard_results(str(pair / "with" / "hazard.nc"))
+    assert without.attrs["crsp_max_events"] == with_barrier.attrs["crsp_max_events"] == 5000
+    assert check_compatible(without, with_barrier) == []
+    with_barrier.attrs["crsp_max_events"] = "profile"
+    (warning,) = check_compatible(without, with_barrier)
+    assert "differs from the run without the barrier in event budget" in warning
+
+
 @pytest.mark.parametrize("extra, message", [
     (["--barrier-x-m", "400"], "--barrier-x-m 400: outside the profile [0, 300] m"),
     (["--barrier-x-m=-5"], "--barrier-x-m -5: outside the profile"),

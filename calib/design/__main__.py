@@ -98,7 +98,9 @@ def build_parser() -> OneLineParser:
                    "impact angle at the barrier from a run of the hazard file's draws with "
                    "the barrier element (default: no impact angle)")
     p.add_argument("--angle-blocks", type=int, default=2000,
-                   help="blocks per draw of the impact-angle run (with --calibration)")
+                   help="blocks per draw of the impact-angle run (with --calibration; it "
+                        "simulates with the hazard run's seed and event budget, "
+                        "crsp_max_events in the hazard file; default 2000)")
     p.add_argument("--out", default="results/design/", help="output folder")
     return p
 
@@ -241,9 +243,10 @@ def _impact_angle(ds, args, x_m: float, size_m: float) -> tuple[dict, list[str]]
     conditions the angle run does not repeat."""
     from calib.design._angles import impact_angles
     from calib.files.calibration_file import CalibrationError, load_calibration
-    from calib.files.hazard_results import json_attr
+    from calib.files.hazard_results import crsp_event_budget, json_attr
     from calib.files.provenance import file_sha256
-    from solvers import load_profile
+    from calib.hazard import HAZARD_SETTINGS
+    from solvers import crsp, load_profile
 
     if not args.angle_blocks > 0:
         raise CliError(f"--angle-blocks {args.angle_blocks}: expected a positive integer")
@@ -268,9 +271,15 @@ def _impact_angle(ds, args, x_m: float, size_m: float) -> tuple[dict, list[str]]
         warnings.append("warning: the hazard run had release conditions; the impact-angle run "
                         f"releases blocks of D = {size_m:g} m at x = "
                         f"{float(ds.attrs['release_x_m']):g} m, the solver's release state")
+    recorded_budget, max_events = crsp_event_budget(ds)
+    if not recorded_budget:
+        max_events = HAZARD_SETTINGS.max_events
+        warnings.append(f"warning: {args.hazard} does not record its CRSP event budget "
+                        f"(crsp_max_events); the impact-angle run uses {max_events} events "
+                        "per block, the hazard command's default")
     a = impact_angles(cal, ds["parameter_value"].values, names, load_profile(cal.profile_csv),
                       x_m, size_m, args.angle_blocks, int(ds.attrs["seed"]),
-                      float(ds.attrs["release_x_m"]))
+                      float(ds.attrs["release_x_m"]), crsp.Settings(max_events=max_events))
     return a.record(), warnings
 
 

@@ -18,8 +18,8 @@ size released as the hazard run without release conditions releases them (at its
 crossing is recorded before the barrier acts, so the angles are those of the run
 without it. Block j of draw d has the key fold_in(fold_in(key(seed), d), j), the
 hazard run's (``calib.hazard``'s random-number scheme), and the event budget is the
-hazard run's default (``calib.hazard.HAZARD_SETTINGS``), so with the same seed
-the blocks are the hazard run's blocks.
+hazard run's (its ``crsp_max_events``; ``calib.hazard.HAZARD_SETTINGS`` by default),
+so with the same seed the blocks are the hazard run's blocks.
 """
 
 from __future__ import annotations
@@ -50,6 +50,8 @@ class ImpactAngles:
         ground_slope_deg: the ground's slope angle below the horizontal at x (the
             segment downslope of x), degrees.
         n_draws, n_blocks_per_draw: the run's size.
+        max_events: the CRSP event budget per block it ran with (None: the
+            solver's size- and profile-derived budget).
     """
 
     x_m: float
@@ -59,6 +61,7 @@ class ImpactAngles:
     ground_slope_deg: float
     n_draws: int
     n_blocks_per_draw: int
+    max_events: int | None = None
 
     def percentiles(self, to_ground: bool = False) -> dict[float, float]:
         """The 5th, 50th and 95th percentiles of the pooled angles, degrees (to the
@@ -79,6 +82,8 @@ class ImpactAngles:
         """A JSON-ready record (what ``design.json`` holds under ``impact_angle``)."""
         return {"x_m": self.x_m, "size_m": self.size_m, "n_crossings": int(self.angle_deg.size),
                 "n_draws": self.n_draws, "n_blocks_per_draw": self.n_blocks_per_draw,
+                "crsp_max_events": ("profile" if self.max_events is None
+                                    else int(self.max_events)),
                 "ground_slope_deg": self.ground_slope_deg,
                 "below_horizontal_deg": {f"p{p:g}": v for p, v in self.percentiles().items()},
                 "to_ground_deg": {f"p{p:g}": v for p, v in self.percentiles(True).items()},
@@ -95,7 +100,8 @@ def _ground_slope_deg(profile, x_m: float) -> float:
 
 
 def impact_angles(cal, values: np.ndarray, names, profile, x_m: float, size_m: float,
-                  n_blocks: int, seed: int, release_x_m: float) -> ImpactAngles:
+                  n_blocks: int, seed: int, release_x_m: float,
+                  settings=None) -> ImpactAngles:
     """Impact angles at ``x_m`` of blocks of size ``size_m`` (module docstring).
 
     Args:
@@ -110,6 +116,8 @@ def impact_angles(cal, values: np.ndarray, names, profile, x_m: float, size_m: f
         n_blocks: blocks per draw.
         seed: the hazard run's seed.
         release_x_m: where the blocks are released, m.
+        settings: the hazard run's CRSP settings (``solvers.crsp.Settings``; its
+            event budget); None: ``calib.hazard.HAZARD_SETTINGS``.
 
     Raises:
         ValueError: not a CRSP calibration, or the barrier at or above the release.
@@ -123,6 +131,7 @@ def impact_angles(cal, values: np.ndarray, names, profile, x_m: float, size_m: f
     if not x_m > release_x_m:
         raise ValueError(f"barrier at x = {x_m:g} m: at or above the release at "
                          f"x = {release_x_m:g} m")
+    settings = HAZARD_SETTINGS if settings is None else settings
     block = crsp.make_block(0.5 * float(size_m), density_kg_m3=cal.rock_density_kg_m3)
     angles, draws = [], []
     values = np.atleast_2d(np.asarray(values, np.float64))
@@ -131,11 +140,12 @@ def impact_angles(cal, values: np.ndarray, names, profile, x_m: float, size_m: f
                                      barrier_x_m=float(x_m),
                                      **draw_overrides(cal.effects, names, row, profile))
         key = jax.random.fold_in(jax.random.key(seed), d)
-        res = crsp.run_blocks(p, block, key, n_blocks, profile, settings=HAZARD_SETTINGS)
+        res = crsp.run_blocks(p, block, key, n_blocks, profile, settings=settings)
         hit = np.asarray(res.barrier.reached, bool)
         angles.append(np.asarray(res.barrier.angle_deg, np.float64)[hit])
         draws.append(np.full(int(hit.sum()), d))
     return ImpactAngles(x_m=float(x_m), size_m=float(size_m),
                         angle_deg=np.concatenate(angles), draw=np.concatenate(draws),
                         ground_slope_deg=_ground_slope_deg(profile, x_m),
-                        n_draws=len(values), n_blocks_per_draw=int(n_blocks))
+                        n_draws=len(values), n_blocks_per_draw=int(n_blocks),
+                        max_events=settings.max_events)

@@ -20,7 +20,12 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from calib.files.hazard_results import HazardResultsError, json_attr, optional_attr
+from calib.files.hazard_results import (
+    HazardResultsError,
+    crsp_event_budget,
+    json_attr,
+    optional_attr,
+)
 from calib.hazard import exceedance_table
 
 __all__ = ["BANDED", "barrier_of", "check_compatible", "residual_exceedance"]
@@ -43,7 +48,7 @@ def check_compatible(without, with_barrier, where: str = "--with-barrier") -> li
     barrier attributes), a run "without" that has a barrier, or runs that differ in
     stations, block sizes or model; return warnings where they differ in what makes
     the comparison one of common random numbers (seed, posterior draws, blocks per
-    draw, release conditions)."""
+    draw, release conditions, the CRSP event budget)."""
     for coord in ("x_m", "block_size_m"):
         a, b = without[coord].values, with_barrier[coord].values
         if a.shape != b.shape or not np.allclose(a, b):
@@ -66,7 +71,8 @@ def check_compatible(without, with_barrier, where: str = "--with-barrier") -> li
                                                with_barrier["posterior_row"].values)),
             ("release conditions", json_attr(without, "release_json")
              == json_attr(with_barrier, "release_json")
-             and without.attrs.get("release_x_m") == with_barrier.attrs.get("release_x_m"))]
+             and without.attrs.get("release_x_m") == with_barrier.attrs.get("release_x_m")),
+            ("event budget", crsp_event_budget(without) == crsp_event_budget(with_barrier))]
     differ = [name for name, ok in same if not ok]
     if differ:
         warnings.append(f"warning: {where} differs from the run without the barrier in "

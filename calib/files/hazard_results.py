@@ -27,7 +27,9 @@ Attributes: how the run was made (``model``,
 ``release_rate_per_year``, ``road_x_m``, ``road_label``, ``rock_density_kg_m3``;
 runs with release conditions: ``release_json``, ``fitted_block_size_min_m`` /
 ``_max_m`` / ``fitted_block_sizes_source``, ``design_block_json``; runs with a
-barrier: ``barrier_x_m``, ``barrier_height_m``, ``barrier_capacity_kJ``),
+barrier: ``barrier_x_m``, ``barrier_height_m``, ``barrier_capacity_kJ``; CRSP runs:
+``crsp_max_events``, the event budget per block, an integer or ``"profile"`` for the
+solver's size- and profile-derived budget, ``crsp_event_budget`` reads it),
 what its numbers mean (``energy_basis``, ``height_convention``), and where it
 came from (``provenance_json``: command, seed, SHA-256 of the inputs, package
 versions, ``calib.files.provenance``; ``adequacy_json``: the calibration's own
@@ -43,9 +45,9 @@ import os
 
 import numpy as np
 
-__all__ = ["OPTIONAL_VARIABLES", "SCHEMA", "VARIABLES", "HazardResultsError", "hazard_results",
-           "json_attr", "optional_attr", "read_hazard_results", "results_writer",
-           "write_hazard_results"]
+__all__ = ["OPTIONAL_VARIABLES", "SCHEMA", "VARIABLES", "HazardResultsError",
+           "crsp_event_budget", "hazard_results", "json_attr", "optional_attr",
+           "read_hazard_results", "results_writer", "write_hazard_results"]
 
 SCHEMA = "rockfall-hazard-results/1"
 
@@ -186,6 +188,17 @@ def json_attr(ds, key: str):
     """A record stored as JSON text (``provenance_json``, ``adequacy_json``), or None."""
     text = ds.attrs.get(key)
     return None if text is None else json.loads(text)
+
+
+def crsp_event_budget(ds) -> tuple[bool, int | None]:
+    """The CRSP event budget per block a run simulated with (attribute
+    ``crsp_max_events``): (recorded, budget), budget an integer, or None for the
+    solver's size- and profile-derived budget (``solvers.crsp.event_budget``);
+    (False, None) where the file does not record it (a DEM run)."""
+    v = optional_attr(ds, "crsp_max_events")
+    if v is None:
+        return False, None
+    return True, None if v == "profile" else int(v)
 
 
 def write_hazard_results(ds, path: str) -> None:

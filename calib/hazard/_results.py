@@ -41,7 +41,8 @@ def hazard_dataset(c: HazardCounts, profile: Profile | None = None, *, seed: int
     variables and attributes of ``calib.files.hazard_results.VARIABLES`` only. A run
     with release conditions (``c.release``) adds ``release_json`` and the range of
     the calibration's fitted sizes; over volume classes, the class variables
-    (``OPTIONAL_VARIABLES``); a run with a barrier adds the barrier's attributes.
+    (``OPTIONAL_VARIABLES``); a run with a barrier adds the barrier's attributes; a
+    CRSP run records its event budget per block (``crsp_max_events``).
 
     Args:
         c: the run's counts (``run_hazard``).
@@ -74,6 +75,9 @@ def hazard_dataset(c: HazardCounts, profile: Profile | None = None, *, seed: int
              "release_rate_per_year": release_rate_per_year}
     if c.release is not None:
         _add_release(c, fitted, data, attrs)
+    if c.crsp_settings is not None:  # what a run of the same blocks must use
+        m = c.crsp_settings.max_events
+        attrs["crsp_max_events"] = "profile" if m is None else int(m)
     if c.barrier is not None:
         attrs.update(barrier_x_m=float(c.barrier.x_m), barrier_height_m=float(c.barrier.height_m),
                      barrier_capacity_kJ=float(c.barrier.capacity_kJ))

@@ -119,6 +119,9 @@ class HazardCounts:
         fragments: a fragment run's per-fragment counts
             (``_fragments.FragmentCounts``; the other fields are then per parent
             block), or None.
+        crsp_settings: the CRSP settings the run simulated with (None for the
+            DEM): a later run that must simulate the same blocks (``calib.design``'s
+            impact angles, a run with a barrier) uses the same event budget.
     """
 
     model: str
@@ -142,6 +145,7 @@ class HazardCounts:
     release: Seeder | None = None
     barrier: Barrier | None = None
     fragments: object = None
+    crsp_settings: crsp.Settings | None = None
 
 
 def dem_alpha(cal: Calibration, values: np.ndarray, size_m: float) -> float:
@@ -251,7 +255,9 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
                         percentiles={q: tuple(v) for q, v in tally.pct.items()},
                         pooled_percentiles=pooled, draw_hist=tally.kept,
                         block_mass_kg=_block_mass_kg(cal.model, entries),
-                        release=release, barrier=barrier, fragments=frag, **tally.acc)
+                        release=release, barrier=barrier, fragments=frag,
+                        crsp_settings=settings if cal.model == "crsp" else None,
+                        **tally.acc)
 
 
 def _check_options(cal: Calibration, release, barrier, fragments) -> None:
