@@ -54,8 +54,11 @@ def nonnegative_normal(u: jax.Array, mean: jax.Array, sd: jax.Array) -> jax.Arra
     safe_sd = jnp.where(pos, sd, 1.0)
     a = mean / safe_sd
     p0 = ndtr(-a)
-    lower = mean + safe_sd * ndtri(jnp.maximum(p0 + u * (1.0 - p0), _TINY))
     q = jnp.maximum(ndtr(a), _TINY)
-    upper = mean - safe_sd * ndtri(jnp.maximum((1.0 - u) * q, _TINY))
-    x = jnp.where(mean >= 0.0, lower, upper)
+    # one Phi^-1 of the form's argument, not both forms computed and one selected:
+    # the inverse is a long piecewise polynomial that every program drawing a
+    # release compiles (about 12 % of a CRSP run's compile time)
+    lower = mean >= 0.0
+    z = ndtri(jnp.maximum(jnp.where(lower, p0 + u * (1.0 - p0), (1.0 - u) * q), _TINY))
+    x = mean + jnp.where(lower, safe_sd, -safe_sd) * z
     return jnp.maximum(jnp.where(pos, x, mean), 0.0)
