@@ -53,12 +53,12 @@ def nonnegative_normal(u: jax.Array, mean: jax.Array, sd: jax.Array) -> jax.Arra
     pos = sd > 0.0
     safe_sd = jnp.where(pos, sd, 1.0)
     a = mean / safe_sd
-    p0 = ndtr(-a)
-    q = jnp.maximum(ndtr(a), _TINY)
-    # one Phi^-1 of the form's argument, not both forms computed and one selected:
-    # the inverse is a long piecewise polynomial that every program drawing a
-    # release compiles (about 12 % of a CRSP run's compile time)
+    # One Phi and one Phi^-1, not both forms computed and one selected: each is a
+    # long piecewise polynomial that every program drawing a release compiles. The
+    # lower form needs p0 = Phi(-a), a >= 0; the upper one q = Phi(a), a < 0: both
+    # are Phi(-|a|), the accurate tail. The sign flip is exact.
     lower = mean >= 0.0
-    z = ndtri(jnp.maximum(jnp.where(lower, p0 + u * (1.0 - p0), (1.0 - u) * q), _TINY))
-    x = mean + jnp.where(lower, safe_sd, -safe_sd) * z
+    tail = ndtr(-jnp.abs(a))
+    arg = jnp.where(lower, tail + u * (1.0 - tail), (1.0 - u) * jnp.maximum(tail, _TINY))
+    x = mean + jnp.where(lower, safe_sd, -safe_sd) * ndtri(jnp.maximum(arg, _TINY))
     return jnp.maximum(jnp.where(pos, x, mean), 0.0)
