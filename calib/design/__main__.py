@@ -12,6 +12,7 @@ column or the option, exit status 2, nothing written.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 
@@ -246,7 +247,7 @@ def _impact_angle(ds, args, x_m: float, size_m: float) -> tuple[dict, list[str]]
     from calib.files.hazard_results import crsp_event_budget, json_attr
     from calib.files.provenance import file_sha256
     from calib.hazard import HAZARD_SETTINGS
-    from solvers import crsp, load_profile
+    from solvers import load_profile
 
     if not args.angle_blocks > 0:
         raise CliError(f"--angle-blocks {args.angle_blocks}: expected a positive integer")
@@ -279,7 +280,8 @@ def _impact_angle(ds, args, x_m: float, size_m: float) -> tuple[dict, list[str]]
                         "per block, the hazard command's default")
     a = impact_angles(cal, ds["parameter_value"].values, names, load_profile(cal.profile_csv),
                       x_m, size_m, args.angle_blocks, int(ds.attrs["seed"]),
-                      float(ds.attrs["release_x_m"]), crsp.Settings(max_events=max_events))
+                      float(ds.attrs["release_x_m"]),
+                      dataclasses.replace(HAZARD_SETTINGS, max_events=max_events))
     return a.record(), warnings
 
 
