@@ -29,6 +29,12 @@ tolerance sqrt(sd^2 + E^2) in place of their own sd: a what-if on the
 observation model (a wider kernel averages over more simulated blocks, so the
 score is less noisy, and the likelihood is flatter), not what ``calib.fit``
 does; E = 0 is its score.
+
+``--allocate-cost C`` scores the points once more with each simulated release's
+block count chosen among ``--n-blocks`` by its measured share of the noise at
+the first ``--theta`` (``release_allocation``), within C times the blocks of
+the first count: whether blocks spent where the noise is make a quieter score
+than the same blocks spread evenly.
 """
 
 from __future__ import annotations
@@ -127,6 +133,55 @@ def tail_mixture(base: dict, more: dict) -> dict:
             "n_tail_entries": np.array(n_tail), "cost": np.array(cost)}
 
 
+def release_allocation(runs: list[dict], cost: float, pilot: int = 0) -> dict:
+    """The score with each simulated release's block count chosen by its measured
+    share of the noise, at a fixed cost.
+
+    ``runs``: ``loglik_spread`` at several block counts (same data, points and
+    replicates), the first the base count. At the ``pilot`` point, each entry's
+    variance over the replicates of the summed log-likelihood of its rows is
+    measured at every count. Starting from the base count everywhere, the
+    upgrade (an entry to its next count) with the largest fall in that variance
+    per added block is made, then the next, while the blocks stay within
+    ``cost`` times the base's: a greedy version of Neyman allocation (block
+    count proportional to an entry's per-block sd; Cochran 1977, "Sampling
+    Techniques", Sect. 5.5) on the measured variances. Each point's score then
+    takes each entry's rows from its chosen count. The choice is made on the
+    replicates that measure it, so at the pilot the sd is optimistic; the other
+    points are the test.
+
+    Returns:
+        dict with ``n_blocks`` (E,) the chosen count per entry, ``cost`` the
+        blocks relative to the base, ``summed`` (R, P), ``mean`` and ``sd`` (P,).
+    """
+    counts = [r["n_blocks"] for r in runs]
+    e_of = runs[0]["row_entry"]
+    n_entries = int(e_of.max()) + 1
+    # (count, R, P, E): the summed log-likelihood of each entry's rows
+    per_entry = np.stack([np.stack([r["pointwise"][:, :, e_of == e].sum(axis=2)
+                                    for e in range(n_entries)], axis=2) for r in runs])
+    var = per_entry[:, :, pilot].var(axis=1, ddof=1)  # (count, E)
+    level = np.zeros(n_entries, int)
+    budget = cost * counts[0] * n_entries
+    spent = counts[0] * n_entries
+    while True:
+        best, gain = None, 0.0
+        for e in range(n_entries):
+            k = level[e]
+            if k + 1 < len(counts) and spent + counts[k + 1] - counts[k] <= budget:
+                g = (var[k, e] - var[k + 1, e]) / (counts[k + 1] - counts[k])
+                if g > gain:
+                    best, gain = e, g
+        if best is None:
+            break
+        spent += counts[level[best] + 1] - counts[level[best]]
+        level[best] += 1
+    summed = sum(per_entry[level[e], :, :, e] for e in range(n_entries))  # (R, P)
+    return {"n_blocks": np.array([counts[k] for k in level]),
+            "cost": spent / (counts[0] * n_entries), "summed": summed,
+            "mean": summed.mean(0), "sd": summed.std(0, ddof=1)}
+
+
 def _theta(text: str) -> np.ndarray:
     try:
         v = np.array([float(s) for s in text.split(",")])
@@ -181,6 +236,11 @@ def main(argv=None) -> int:
                         "releases whose rows lie outside their simulated 5-95 %% range "
                         "(the others keep the block count): the spread and the cost of that "
                         "allocation (0: not done)")
+    p.add_argument("--allocate-cost", type=_comma_list(float, 1.0, "cost factor"), default=[],
+                   help="also score the points with each release's block count chosen among "
+                        "--n-blocks by its share of the noise at the first --theta, within "
+                        "this many times the blocks of the first count (comma-separated "
+                        "factors; none: not done)")
     p.add_argument("--release-tolerance-m", type=float, default=1.0,
                    help="as calib.fit's option of the same name")
     p.add_argument("--profile", help="profile CSV (default: as calib.fit finds it)")
@@ -193,6 +253,7 @@ def main(argv=None) -> int:
 
     thetas = np.array(a.theta)
     for extra in a.extra_sd_m:
+        runs = []
         for n in a.n_blocks:
             try:
                 s = loglik_spread(a.data, thetas, n, a.replicates, a.release_tolerance_m,
@@ -200,6 +261,7 @@ def main(argv=None) -> int:
             except InputError as e:
                 print(f"error: {e}", file=sys.stderr)
                 return 2
+            runs.append(s)
             print(f"{n} blocks per entry, {a.replicates} block sets, extra sd {extra:g} m "
                   f"({s['seconds']:.0f} s)")
             for j, t in enumerate(thetas):
@@ -224,6 +286,16 @@ def main(argv=None) -> int:
                     print(f"  theta {_label(t):28s} mean "
                           f"{mix['mean'][j]:9.1f}  sd {mix['sd'][j]:5.2f}  tail releases "
                           f"{mix['n_tail_entries'][j]}  blocks x{mix['cost'][j]:.2f}")
+        for cost in a.allocate_cost:
+            alloc = release_allocation(runs, cost)
+            chosen = ", ".join(f"{c} x{int((alloc['n_blocks'] == c).sum())}"
+                               for c in a.n_blocks if (alloc["n_blocks"] == c).any())
+            print(f"  each release's blocks by its share of the noise at the first point, "
+                  f"within x{cost:g} of {a.n_blocks[0]} per release: {chosen} "
+                  f"(blocks x{alloc['cost']:.2f})")
+            for j, t in enumerate(thetas):
+                print(f"  theta {_label(t):28s} mean {alloc['mean'][j]:9.1f}  sd "
+                      f"{alloc['sd'][j]:5.2f}" + ("  (chosen here)" if j == 0 else ""))
     return 0
 
 

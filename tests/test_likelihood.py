@@ -152,6 +152,18 @@ def test_loglik_noise_script_measures_the_spread_over_block_sets(tmp_path, capsy
     assert np.all((mixed["cost"] == 1.0) == (mixed["n_tail_entries"] == 0))
     assert np.all(mixed["cost"] <= 512 / 32)
     assert few["entry_quantiles_m"].shape[:2] == (3, 2)
+    # the release allocation: at cost 1 it is the plain score; with room for every
+    # release at the larger count (cost 512 / 32) it upgrades only where the pilot's
+    # variance falls, and its score takes each release's rows from its chosen count
+    plain = mod.release_allocation([few, more], 1.0)
+    np.testing.assert_allclose(plain["summed"], few["summed"], rtol=1e-12)
+    assert plain["cost"] == 1.0 and np.all(plain["n_blocks"] == 32)
+    full = mod.release_allocation([few, more], 512 / 32)
+    assert full["cost"] <= 512 / 32 and set(full["n_blocks"]) <= {32, 512}
+    e_of = few["row_entry"]
+    from_more = full["n_blocks"][e_of] == 512
+    np.testing.assert_allclose(full["summed"], np.where(from_more, more["pointwise"],
+                                                        few["pointwise"]).sum(-1), rtol=1e-12)
     assert np.all(more["bootstrap_sd"] < few["bootstrap_sd"])
     assert run_cli(mod.main, ["data/postignano.csv", "--theta", "0.5,0.9"], capsys)[0] == 2
     # --extra-sd-m E scores the rows as a file whose tolerances are sqrt(sd^2 + E^2)
