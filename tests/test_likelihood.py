@@ -164,6 +164,20 @@ def test_loglik_noise_script_measures_the_spread_over_block_sets(tmp_path, capsy
     from_more = full["n_blocks"][e_of] == 512
     np.testing.assert_allclose(full["summed"], np.where(from_more, more["pointwise"],
                                                         few["pointwise"]).sum(-1), rtol=1e-12)
+    # the nearest-neighbour kernel: where the k-th nearest runout lies within the
+    # tolerance it is calib.fit's kernel; beyond, the kernel widens to that distance
+    from calib.inference.likelihood import log_likelihood
+
+    samples = np.array([[[99.0, 101.0, 100.5, np.nan, 140.0]]])  # (1 point, 1 row, 5)
+    y, sd = np.array([100.0]), np.array([2.0])
+    near = mod.nearest_neighbour_loglik(samples, y, sd, 3)
+    ref = log_likelihood(samples[0, 0][None], y, sd, np.zeros(1), np.zeros(1),
+                         np.zeros(1, bool))
+    np.testing.assert_allclose(near[0], np.asarray(ref), rtol=1e-12)
+    wide = mod.nearest_neighbour_loglik(samples, y, sd, 4)  # 4th nearest: 40 m away
+    ref_wide = log_likelihood(samples[0, 0][None], y, np.array([40.0]), np.zeros(1),
+                              np.zeros(1), np.zeros(1, bool))
+    np.testing.assert_allclose(wide[0], np.asarray(ref_wide), rtol=1e-12)
     assert np.all(more["bootstrap_sd"] < few["bootstrap_sd"])
     assert run_cli(mod.main, ["data/postignano.csv", "--theta", "0.5,0.9"], capsys)[0] == 2
     # --extra-sd-m E scores the rows as a file whose tolerances are sqrt(sd^2 + E^2)
