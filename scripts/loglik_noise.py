@@ -50,9 +50,11 @@ import time
 
 import jax
 import numpy as np
-from scipy.special import logsumexp
 
 jax.config.update("jax_enable_x64", True)
+
+# bound at import: scripts/fit_with_neighbour_kernel.py replaces the module's name
+from calib.inference.likelihood import log_likelihood as _tolerance_kernel  # noqa: E402
 
 
 def loglik_spread(data: str, thetas: np.ndarray, n_blocks: int, replicates: int,
@@ -90,13 +92,12 @@ def loglik_spread(data: str, thetas: np.ndarray, n_blocks: int, replicates: int,
         fw = CrspForward(inputs.profile, entries, n_blocks, jax.random.key(100 + r),
                          box=CRSP_ROLLING_BOX)
         runs = fw.runouts(np.asarray(thetas, float))
-        pw = np.array(rows.pointwise(runs))
         if knn_k:
-            y = np.asarray(obs.runout_m, float)
-            point = np.isfinite(y)
-            pw[:, point] = nearest_neighbour_loglik(
-                np.asarray(runs)[:, np.asarray(entries.index)[point]], y[point],
-                np.asarray(obs.runout_sd_m, float)[point], knn_k)
+            idx = np.asarray(entries.index)
+            pw = np.asarray(jax.vmap(lambda r: nearest_neighbour_loglik(
+                r[idx], *rows.rows, knn_k))(runs))
+        else:
+            pw = np.asarray(rows.pointwise(runs))
         summed.append(pw.sum(axis=1))
         pointwise.append(pw)
         if boot is None:
@@ -113,37 +114,30 @@ def loglik_spread(data: str, thetas: np.ndarray, n_blocks: int, replicates: int,
             "bootstrap_sd": boot, "seconds": time.perf_counter() - t0}
 
 
-def nearest_neighbour_loglik(samples: np.ndarray, y_m: np.ndarray, sd_m: np.ndarray,
-                             k: int) -> np.ndarray:
-    """(P, n_rows) log density of point rows with a kernel at least as wide as the
-    distance from the observation to its k-th nearest simulated runout.
+def nearest_neighbour_loglik(samples, y_m, sd_m, lo_m, hi_m, is_interval, k: int,
+                             extra_var_m2=0.0):
+    """``calib.inference.likelihood.log_likelihood`` with each point row's kernel at
+    least as wide as the distance from the observation to its k-th nearest
+    simulated runout (JAX, jit-able; same arguments, and ``k`` a Python int).
 
-    ``samples`` (P, n_rows, n): each row's simulated runouts at each point (NaN:
-    unfinished, left out). Row i's kernel width is h_i = max(s_i, d_(k)), d_(k)
-    the k-th smallest |y_i - r_j| over its finished samples (the last one where
-    fewer finish); then ``calib.inference.likelihood``'s point-row density with
-    h_i in place of s_i, defensive component included. A what-if on the
+    Row i's kernel sd is h_i = max(s_i, d_(k)), d_(k) the k-th smallest |y_i - r_j|
+    over its finished samples (the farthest finished one where fewer than k
+    finish; s_i where none does); interval rows are unchanged. A what-if on the
     observation model (a balloon kernel estimate: Loftsgaarden & Quesenberry
-    1965, Ann. Math. Statist. 36, 1049-1051; Terrell & Scott 1992, Ann.
-    Statist. 20, 1236-1265): at least k samples lie within one width of the
-    observation, so a row in a thinly populated tail draws on k blocks, not on
-    the few a 2 m kernel reaches; the price is a likelihood that falls off
-    slowly where the model puts few blocks. Not what ``calib.fit`` does.
+    1965, Ann. Math. Statist. 36, 1049-1051; Terrell & Scott 1992, Ann. Statist.
+    20, 1236-1265): at least k samples lie within one width of the observation,
+    so a row in a thinly populated tail draws on k blocks, not on the few a 2 m
+    kernel reaches; the price is a likelihood that falls off slowly where the
+    model puts few blocks. Not what ``calib.fit`` does
+    (``scripts/fit_with_neighbour_kernel.py`` fits with it).
     """
-    from calib.inference.likelihood import R_MAX_M, RUNOUT_EPS
+    import jax.numpy as jnp
 
-    d = np.abs(samples - y_m[None, :, None])
-    d = np.where(np.isfinite(d), d, np.inf)
-    n_fin = np.isfinite(samples).sum(axis=-1)
-    kth = np.take_along_axis(np.sort(d, axis=-1),
-                             np.clip(np.minimum(k, n_fin) - 1, 0, None)[..., None], axis=-1)[..., 0]
-    h = np.maximum(sd_m[None, :], np.where(n_fin > 0, kth, 0.0))
-    z = np.where(np.isfinite(samples), (samples - y_m[None, :, None]) / h[..., None], np.inf)
-    with np.errstate(divide="ignore"):
-        log_kde = (logsumexp(-0.5 * z**2, axis=-1) - np.log(np.maximum(n_fin, 1)) - np.log(h)
-                   - 0.5 * np.log(2 * np.pi))
-    log_kde = np.where(n_fin > 0, log_kde, -np.inf)
-    return np.logaddexp(np.log1p(-RUNOUT_EPS) + log_kde, np.log(RUNOUT_EPS / R_MAX_M))
+    d = jnp.where(jnp.isfinite(samples), jnp.abs(samples - y_m[:, None]), jnp.inf)
+    near = -jax.lax.top_k(-d, min(k, samples.shape[-1]))[0]  # the k smallest distances
+    kth = jnp.max(jnp.where(jnp.isfinite(near), near, 0.0), axis=-1)
+    sd = jnp.where(is_interval, sd_m, jnp.maximum(sd_m, kth))
+    return _tolerance_kernel(samples, y_m, sd, lo_m, hi_m, is_interval, extra_var_m2)
 
 
 def tail_mixture(base: dict, more: dict) -> dict:

@@ -168,16 +168,14 @@ def test_loglik_noise_script_measures_the_spread_over_block_sets(tmp_path, capsy
     # tolerance it is calib.fit's kernel; beyond, the kernel widens to that distance
     from calib.inference.likelihood import log_likelihood
 
-    samples = np.array([[[99.0, 101.0, 100.5, np.nan, 140.0]]])  # (1 point, 1 row, 5)
-    y, sd = np.array([100.0]), np.array([2.0])
-    near = mod.nearest_neighbour_loglik(samples, y, sd, 3)
-    ref = log_likelihood(samples[0, 0][None], y, sd, np.zeros(1), np.zeros(1),
-                         np.zeros(1, bool))
-    np.testing.assert_allclose(near[0], np.asarray(ref), rtol=1e-12)
-    wide = mod.nearest_neighbour_loglik(samples, y, sd, 4)  # 4th nearest: 40 m away
-    ref_wide = log_likelihood(samples[0, 0][None], y, np.array([40.0]), np.zeros(1),
-                              np.zeros(1), np.zeros(1, bool))
-    np.testing.assert_allclose(wide[0], np.asarray(ref_wide), rtol=1e-12)
+    samples = np.array([[99.0, 101.0, 100.5, np.nan, 140.0]])  # (1 row, 5 blocks)
+    y, sd, none = np.array([100.0]), np.array([2.0]), np.zeros(1)
+    point = (y, sd, none, none, np.zeros(1, bool))
+    near = mod.nearest_neighbour_loglik(samples, *point, 3)
+    np.testing.assert_allclose(near, np.asarray(log_likelihood(samples, *point)), rtol=1e-12)
+    wide = mod.nearest_neighbour_loglik(samples, *point, 4)  # 4th nearest: 40 m away
+    ref_wide = log_likelihood(samples, y, np.array([40.0]), none, none, np.zeros(1, bool))
+    np.testing.assert_allclose(wide, np.asarray(ref_wide), rtol=1e-12)
     assert np.all(more["bootstrap_sd"] < few["bootstrap_sd"])
     assert run_cli(mod.main, ["data/postignano.csv", "--theta", "0.5,0.9"], capsys)[0] == 2
     # --extra-sd-m E scores the rows as a file whose tolerances are sqrt(sd^2 + E^2)
