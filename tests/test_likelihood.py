@@ -127,8 +127,11 @@ def test_a_row_no_block_reaches_costs_a_bounded_amount():
 def test_loglik_noise_script_measures_the_spread_over_block_sets(tmp_path, capsys):
     """``scripts/loglik_noise.py`` (docs/studies.md): independent block sets give
     different summed log-likelihoods (sd > 0), the same key gives the same value,
-    more blocks per entry shrink the bootstrap sd of one set, and a widened
-    tolerance is the score of rows with that tolerance."""
+    more blocks per entry shrink the bootstrap sd of one set, a widened
+    tolerance is the score of rows with that tolerance, the release allocation
+    takes each release's rows from its chosen block count, and the
+    nearest-neighbour kernel is the tolerance kernel until the k-th nearest
+    runout lies beyond the tolerance."""
     import importlib.util
 
     from cli_run import run_cli
