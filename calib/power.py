@@ -59,7 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
         "grid and writes power.csv / power.json with detection rates and their exact 90 % "
         "intervals.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="Example (the Postignano slope shipped in data/; about 2.5 minutes per run on "
+        epilog="Example (the Postignano slope shipped in data/; about 3-5 minutes per run on "
                "2 cores at the default budget):\n"
                "  python -m calib.power --profile data/postignano_profile.csv \\\n"
                "      --effects vegetation_belt --strengths 1,2 --n-obs 60,180 \\\n"

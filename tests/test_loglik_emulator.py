@@ -11,11 +11,13 @@ import pytest
 from scipy.stats import qmc
 
 from calib.inference.bayes import keep_chains
+from calib.inference.importance import ess, psis_weights
 from calib.inference.likelihood import RowLikelihood
 from calib.inference.loglik_emulator import (
     CAP_NATS_PER_ROW,
     fit_loglik_emulator,
     loglik_holdout,
+    smoothed_at_design,
 )
 
 LO, HI = np.zeros(2), np.ones(2)
@@ -47,6 +49,36 @@ def test_the_emulator_finds_the_peak_and_caps_the_wall():
     assert np.linalg.norm(grid[np.argmax(mean)] - [0.3, 0.6]) < 0.03
     far = float(emu.predict(jnp.array([1.0, 0.0]))[0])
     assert abs(far - emu.cap) < 30.0, (far, emu.cap)
+
+
+def test_smoothing_the_design_s_log_likelihood_mends_noisy_importance_weights():
+    """512 uniform points of the unit cube (3 parameters) under a Gaussian
+    log-likelihood (sd 0.15 per parameter, 60 rows) seen with 2.5 nats of
+    simulation noise, as a design's summed log-likelihoods are: the raw weights
+    exp(l) collapse (Pareto k-hat above 0.7); the GP's smoothed values, told
+    the noise variance, give weights with k-hat below min(0.7, 1 - 1/log10 512)
+    = 0.63, an ESS near the exact weights' and the posterior mean within 0.03
+    of the truth (measured: raw k-hat 1.18, ESS 6; smoothed 0.01 and 108;
+    exact 0.16 and 80; without the noise variance, the nugget alone: 0.65 and
+    21). A second sum (a fold's training rows: 4/5 of the same surface, 4/5 of
+    the noise variance) is smoothed with its own ceiling on the same kernel."""
+    rng = np.random.default_rng(3)
+    x = rng.uniform(size=(512, 3))
+    exact = -0.5 * np.sum(((x - 0.45) / 0.15) ** 2, axis=1) - 150.0
+    noisy = exact + 2.5 * rng.standard_normal(512)
+    sums = np.stack([noisy, 0.8 * noisy])
+    smooth = smoothed_at_design(x, sums, [60, 48], np.array([[6.25], [4.0]]))
+    assert smooth.shape == (2, 512)
+    w_raw, k_raw = psis_weights(noisy)
+    w_exact, _ = psis_weights(exact)
+    w, k = psis_weights(smooth[0])
+    assert k_raw > 0.7 and ess(w_raw) < 15
+    assert k < 1 - 1 / np.log10(512)
+    assert ess(w) > 0.6 * ess(w_exact)
+    np.testing.assert_allclose(w @ x, 0.45, atol=0.03)
+    w_fold, k_fold = psis_weights(smooth[1])
+    assert k_fold < 1 - 1 / np.log10(512)
+    np.testing.assert_allclose(w_fold @ x, 0.45, atol=0.03)
 
 
 @pytest.mark.slow  # 11 s

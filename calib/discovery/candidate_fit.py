@@ -15,7 +15,22 @@ weighted points so far (covariance inflated x4 plus (0.05)^2 in unit
 coordinates, truncated to the box). All stages are one deterministic-mixture proposal
 (Owen & Zhou 2000, "Safe and effective importance sampling", JASA 95,
 135-143), so the self-normalised weights ``w_k ~ L(theta_k) p(theta_k) /
-q_mix(theta_k)`` target the posterior under the uniform prior. Every set of
+q_mix(theta_k)`` target the posterior under the uniform prior.
+
+L(theta_k) is not the simulated likelihood itself but its GP-smoothed value
+at the design point (``calib.inference.loglik_emulator.smoothed_at_design``:
+the GP of the summed log-likelihood that ``calib.fit`` samples, fitted to
+the design's points, with the Monte Carlo variance measured at the Sobol
+stage's best point over ``noise_reps`` block sets as each point's noise),
+for the sum over all rows and for each fold's training rows (our choice,
+measured in docs/studies.md, "Smoothed weights for the discovery folds"):
+the simulated sums carry 1-3 nats of noise, and weights that are their
+exponential collapse onto a few lucky points (a fold's Pareto k-hat above
+0.7 in half the folds at 60 rows, nearly all at 180) even where the design
+covers the posterior. The held-out rows themselves are scored by their
+simulated likelihoods. On a fixed grid (the DEM's, a few dozen points)
+and at the quick budgets (``DiscoveryBudget.smooth_loglik``) the simulated
+sums are used. Every set of
 weights (each stage's fit, the posterior, each fold's training weights of
 step 3) is Pareto-smoothed (``calib.inference.importance.psis_weights``); its k-hat
 is reported per candidate (``khat``) and per fold (``khat_by_fold``), and a
@@ -43,10 +58,11 @@ from scipy.special import logsumexp
 from scipy.stats import qmc
 
 from calib.discovery.residuals import point_view
-from calib.discovery.scores import crps_ensemble, cv_elpd
+from calib.discovery.scores import crps_ensemble, cv_elpd, training_sums
 from calib.inference.budget import DiscoveryBudget
-from calib.inference.importance import ess, psis_weights, weighted_quantile
+from calib.inference.importance import MIN_POINTS, ess, psis_weights, weighted_quantile
 from calib.inference.likelihood import log_likelihood, observed_rows, velocity_log_likelihood
+from calib.inference.loglik_emulator import smoothed_at_design
 from calib.inference.predictive_check import pool_draws
 from calib.model.entries import Entries
 from calib.model.priors import Box
@@ -281,14 +297,14 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
                          f"passage speeds (CRSP candidates can)") from None
     tallies = {"design": UnfinishedTally(tuple(map(float, entry_sizes)))}
     loglik = _row_loglik(obs, row_entry, vel)
-    z, ll, log_q, to_theta = _design(cand, fw, loglik, budget, rng, warm, vel, tallies,
-                                     progress)
-    w, khat = psis_weights(ll.sum(axis=1) - log_q)
+    z, ll, log_q, to_theta, noise_var = _design(cand, fw, loglik, budget, rng, warm, vel,
+                                                tallies, progress, key)
+    w, khat, elpd, khat_folds = _weights_and_scores(cand, z, ll, log_q, fold, noise_var,
+                                                    budget.smooth_loglik)
     theta = to_theta(z)
     est = w @ theta
     q05 = np.array([weighted_quantile(theta[:, j], w, 0.05) for j in range(dim)])
     q95 = np.array([weighted_quantile(theta[:, j], w, 0.95) for j in range(dim)])
-    elpd, khat_folds = cv_elpd(ll, log_q, fold)
     samples = _predictive(cand, fw, theta, w, simulated, key, budget, rng, tallies)
     if entries is None:
         gap_c, gap_m = gap(samples, obs, row_class, rng)
@@ -300,7 +316,7 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     noise = float("nan")
     if budget.noise_reps > 1 and hasattr(fw, "replicate_sims"):
         reps = fw.replicate_sims(best, budget.noise_reps, jax.random.fold_in(key, 3))
-        tallies["noise"] = UnfinishedTally(tuple(map(float, entry_sizes)))
+        tallies.setdefault("noise", UnfinishedTally(tuple(map(float, entry_sizes))))
         tallies["noise"].add(reps[0], np.broadcast_to(best, (budget.noise_reps, dim)),
                              box.names)
         noise = loglik_noise_sd(loglik(*reps))
@@ -309,6 +325,37 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     return CandidateFit(cand.effect, box.names, theta, log_q, ll, w, ess(w),
                         elpd, est, q05, q95, best, samples, gap_c, gap_m, noise,
                         time.perf_counter() - t0, record, khat, khat_folds, per_class)
+
+
+def _weights_and_scores(cand: Candidate, z, ll, log_q, fold, noise_var: float,
+                        smooth: bool = True):
+    """The posterior weights, their k-hat, the held-out scores and the folds'
+    k-hats (module docstring): with ``smooth``, on the adaptive design, from
+    the log-likelihood GP's smoothed sums (all rows, and each fold's training
+    rows, whose noise variance is ``noise_var`` scaled by their share of the
+    rows; ``_smoothed``); otherwise, and on a fixed grid (the DEM's few
+    points), from the simulated sums."""
+    if not (smooth and cand.design is None):
+        w, khat = psis_weights(ll.sum(axis=1) - log_q)
+        return (w, khat) + cv_elpd(ll, log_q, fold)
+    sums = np.concatenate([ll.sum(axis=1)[None], training_sums(ll, fold)])
+    n_rows = np.array([ll.shape[1]] + [int(np.sum(fold != f)) for f in np.unique(fold)])
+    sums = _smoothed(z, sums, n_rows, noise_var)
+    w, khat = psis_weights(sums[0] - log_q)
+    elpd, khat_folds = cv_elpd(ll, log_q, fold, sums[1:])
+    return w, khat, elpd, khat_folds
+
+
+def _smoothed(z, sums, n_rows, noise_var: float) -> np.ndarray:
+    """``sums`` (S, N) over ``n_rows`` (S,) rows each, smoothed over the design
+    z by the log-likelihood GP (``calib.inference.loglik_emulator.smoothed_at_design``;
+    each sum's noise variance ``noise_var`` times its share of the rows, the
+    noise of a sum of rows growing with their number); as simulated where the
+    design has too few points for it (``MIN_POINTS``)."""
+    if z.shape[0] < MIN_POINTS:
+        return sums
+    nv = noise_var * n_rows / n_rows[0]
+    return smoothed_at_design(z, sums, n_rows, nv[:, None])
 
 
 def _row_loglik(obs, row_entry, vel: VelocityRows | None):
@@ -330,11 +377,13 @@ def _row_loglik(obs, row_entry, vel: VelocityRows | None):
 
 
 def _design(cand: Candidate, fw, loglik, budget: DiscoveryBudget, rng, warm, vel, tallies,
-            progress):
+            progress, key):
     """The simulated design of one candidate (module docstring): a fixed grid, or
     the Sobol pair, the warm stage and the adaptive stages, one deterministic
     mixture. Returns (z (N, p) unit coordinates, loglik (N, n_rows), log_q (N,)
-    the mixture's log density relative to the prior, z -> theta)."""
+    the mixture's log density relative to the prior, z -> theta, the Monte
+    Carlo variance of the summed log-likelihood, nats^2, measured at the Sobol
+    stage's best point over ``noise_reps`` block sets; 0 where not measured)."""
     box, dim = cand.box, cand.box.dim
 
     def simulate(z):
@@ -356,7 +405,7 @@ def _design(cand: Candidate, fw, loglik, budget: DiscoveryBudget, rng, warm, vel
             parts.append(simulate(z[i:i + 8]))
             if progress:
                 progress(cand.effect, min(i + 8, z.shape[0]), z.shape[0])
-        return z, np.concatenate(parts), np.zeros(z.shape[0]), to_theta
+        return z, np.concatenate(parts), np.zeros(z.shape[0]), to_theta, 0.0
     total = budget.n_design - (budget.n_warm if warm is None else 0)
     # stage 0, a defensive pair: one half uniform in theta, one half uniform in
     # the warped coordinates (density -log_jac and 0 relative to the latter)
@@ -366,6 +415,8 @@ def _design(cand: Candidate, fw, loglik, budget: DiscoveryBudget, rng, warm, vel
     ll = simulate(z)
     if progress:
         progress(cand.effect, budget.n_sobol, total)
+    noise_var = (_noise_var(fw, loglik, to_theta(z[np.argmax(ll.sum(axis=1))]), budget, key,
+                            tallies, box.names) if budget.smooth_loglik else 0.0)
     logpdfs = [lambda z: -log_jac(z), lambda z: np.zeros(z.shape[0])]
     counts = [n_theta, budget.n_sobol - n_theta]
     stages = ([("warm", budget.n_warm)] if warm is not None and budget.n_warm else []) + \
@@ -375,7 +426,10 @@ def _design(cand: Candidate, fw, loglik, budget: DiscoveryBudget, rng, warm, vel
         if kind == "warm":
             new, logpdf = _proposal(warm[0], warm[1], rng, n_new, dim)
         else:
-            mean, cov = gaussian_fit(z, psis_weights(ll.sum(axis=1) - log_q)[0])
+            total = ll.sum(axis=1)
+            if budget.smooth_loglik:
+                total = _smoothed(z, total[None], np.array([ll.shape[1]]), noise_var)[0]
+            mean, cov = gaussian_fit(z, psis_weights(total - log_q)[0])
             new, logpdf = _proposal(mean, cov, rng, n_new, dim)
         logpdfs.append(logpdf)
         counts.append(n_new)
@@ -383,7 +437,20 @@ def _design(cand: Candidate, fw, loglik, budget: DiscoveryBudget, rng, warm, vel
         ll = np.concatenate([ll, simulate(new)])
         if progress:
             progress(cand.effect, sum(counts), total)
-    return z, ll, _mixture_log_q(z, counts, logpdfs) + log_jac(z), to_theta
+    return z, ll, _mixture_log_q(z, counts, logpdfs) + log_jac(z), to_theta, noise_var
+
+
+def _noise_var(fw, loglik, theta, budget: DiscoveryBudget, key, tallies, names) -> float:
+    """The variance (nats^2) of the summed log-likelihood at ``theta`` over
+    ``noise_reps`` independent block sets (``loglik_noise_sd``), the noise the
+    smoothing of the weights assumes at every design point; 0 (the GP's nugget
+    alone) for forward models without ``replicate_sims`` or fewer than 2 reps."""
+    if budget.noise_reps < 2 or not hasattr(fw, "replicate_sims"):
+        return 0.0
+    reps = fw.replicate_sims(theta, budget.noise_reps, jax.random.fold_in(key, 4))
+    tallies.setdefault("noise", UnfinishedTally(tallies["design"].sizes_m))
+    tallies["noise"].add(reps[0], np.broadcast_to(theta, (budget.noise_reps, theta.size)), names)
+    return loglik_noise_sd(loglik(*reps)) ** 2
 
 
 def loglik_noise_sd(loglik_reps: np.ndarray) -> float:

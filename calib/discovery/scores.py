@@ -9,8 +9,11 @@ observations split into K folds, row i's score is
     elpd_i = log p(y_i | y_(-fold(i))) = log sum_k wbar_k^(-f) p(y_i | theta_k)
 
 where theta_k are the design points of the model's fit and wbar^(-f) their
-self-normalised importance weights computed WITHOUT the rows of i's fold,
-Pareto-smoothed (``calib.inference.importance.psis_weights``; Vehtari et al. 2024): each
+self-normalised importance weights computed WITHOUT the rows of i's fold
+(from the training rows' summed log-likelihood as given, ``cv_elpd``'s
+``train``: the discovery fits smooth it over the design,
+``calib.discovery.candidate_fit``), Pareto-smoothed
+(``calib.inference.importance.psis_weights``; Vehtari et al. 2024): each
 fold's k-hat is returned with the scores, and a fold above 0.7 has a held-out
 score the design cannot be trusted to estimate.
 Extra parameters are penalised automatically: a model that over-fits the
@@ -66,6 +69,7 @@ __all__ = [
     "naming_threshold",
     "naming_z",
     "rows_needed",
+    "training_sums",
 ]
 
 ELPD_MIN = 4.0
@@ -102,8 +106,16 @@ def folds(groups: np.ndarray, k: int, seed: int) -> np.ndarray:
     return out
 
 
-def cv_elpd(loglik: np.ndarray, log_q: np.ndarray, fold: np.ndarray
-            ) -> tuple[np.ndarray, np.ndarray]:
+def training_sums(loglik: np.ndarray, fold: np.ndarray) -> np.ndarray:
+    """(F, N) the summed log-likelihood of each fold's training rows (the rows
+    of the other folds) at the N design points, folds in the order of
+    ``np.unique(fold)``; with (N, n_obs) ``loglik`` as in ``cv_elpd``."""
+    loglik = np.asarray(loglik, float)
+    return np.stack([loglik[:, fold != f].sum(axis=1) for f in np.unique(fold)])
+
+
+def cv_elpd(loglik: np.ndarray, log_q: np.ndarray, fold: np.ndarray,
+            train: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Held-out log predictive density of each row, and the k-hat of each fold.
 
     Args:
@@ -111,6 +123,11 @@ def cv_elpd(loglik: np.ndarray, log_q: np.ndarray, fold: np.ndarray
         log_q: (N,) log of the design's sampling density relative to the prior
             (importance weight = prior / proposal = exp(-log_q) times the likelihood).
         fold: (n_obs,) fold of each row.
+        train: (F, N) the training log-likelihood of each fold that the weights
+            use (e.g. ``training_sums`` smoothed over the design,
+            ``calib.inference.loglik_emulator.smoothed_at_design``); None: the
+            simulated sums themselves. The held-out rows are always scored by
+            their simulated ``loglik``.
 
     Returns:
         (elpd (n_obs,), khat (F,)): elpd_i, and the Pareto k-hat of the training
@@ -127,10 +144,13 @@ def cv_elpd(loglik: np.ndarray, log_q: np.ndarray, fold: np.ndarray
     khat = np.empty(ids.size)
     for j, f in enumerate(ids):
         held = fold == f
-        train = np.empty_like(total)
-        train[fin] = total[fin] - loglik[fin][:, held].sum(axis=1)
-        train[~fin] = loglik[~fin][:, ~held].sum(axis=1)
-        w, khat[j] = psis_weights(train - log_q)
+        if train is None:
+            t = np.empty_like(total)
+            t[fin] = total[fin] - loglik[fin][:, held].sum(axis=1)
+            t[~fin] = loglik[~fin][:, ~held].sum(axis=1)
+        else:
+            t = np.asarray(train[j], float)
+        w, khat[j] = psis_weights(t - log_q)
         with np.errstate(divide="ignore"):  # weight 0: log 0 = -inf, as meant
             logw = np.log(w)
         out[held] = logsumexp(logw[:, None] + loglik[:, held], axis=0)
