@@ -477,7 +477,7 @@ def test_a_fold_with_a_large_khat_reaches_the_discovery_record():
              Candidate("size_dissipation", Box(("scale", "slope"), (0.5, -0.5), (2.0, 0.5)),
                        _Line)]
     budget = Budget(n_sobol=32, n_warm=0, n_refine=(), n_blocks=16, n_draws=4,
-                    n_blocks_check=16, k_folds=3, noise_reps=0)
+                    n_blocks_check=16, k_folds=3, noise_reps=0, smooth_loglik=False)
     d = discover(cands, obs, PROFILE, jax.random.key(0), budget)
     for f in d.fits.values():
         assert f.khat_folds.shape == (3,)

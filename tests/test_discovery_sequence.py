@@ -46,8 +46,10 @@ class _Hidden:
 def _hidden_budget():
     from calib.inference.budget import DiscoveryBudget as Budget
 
+    # simulated sums (smooth_loglik off): these tests follow the steps' bookkeeping; the
+    # smoothed weights have their own tests (test_discovery.py, test_loglik_emulator.py)
     return Budget(n_sobol=64, n_warm=32, n_refine=(32, 32, 32), n_blocks=32, n_draws=8,
-                  n_blocks_check=32, k_folds=5, noise_reps=0)
+                  n_blocks_check=32, k_folds=5, noise_reps=0, smooth_loglik=False)
 
 
 HIDDEN_BUDGET = _hidden_budget()

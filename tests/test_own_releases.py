@@ -111,7 +111,7 @@ def test_discover_simulates_each_row_from_its_own_release():
     obs = _rows()
     cands = [Candidate("none", Box(("scale",), (0.5,), (2.0,)), _Falls)]
     budget = Budget(n_sobol=64, n_warm=0, n_refine=(32,), n_blocks=32, n_draws=8,
-                    n_blocks_check=32, k_folds=3, noise_reps=0)
+                    n_blocks_check=32, k_folds=3, noise_reps=0, smooth_loglik=False)
     _Falls.built.clear()
     d = discover(cands, obs, PROFILE, jax.random.key(0), budget, release_tolerance_m=1.0)
     assert {0.0, 100.0} == {x for rel in _Falls.built for x in rel}
