@@ -180,12 +180,7 @@ def fit_loglik_emulator(x: np.ndarray, ll: np.ndarray, noise_var: np.ndarray, lo
             the design, and a level raised by them would make every corner
             the design has not reached look as good as the posterior.
     """
-    y, cap = _capped(np.asarray(ll, float), n_rows)
-    nv_y = np.where(y <= cap, 0.0, np.asarray(noise_var, float))  # a capped value: no noise
-    ceiling = float(np.max(y) + _headroom_nats(y, nv_y))
-    deficit = ceiling - y
-    g = np.log(deficit)
-    nv = nv_y / deficit**2  # delta method: var log(T - y) = var y / (T - y)^2
+    g, nv, cap, ceiling = _log_deficit(ll, noise_var, n_rows)
     lo, hi = jnp.asarray(lo, jnp.float64), jnp.asarray(hi, jnp.float64)
     xu = (jnp.asarray(x) - lo) / (hi - lo)
     level = g if level_of is None else g[np.asarray(level_of, bool)]
@@ -195,6 +190,17 @@ def fit_loglik_emulator(x: np.ndarray, ll: np.ndarray, noise_var: np.ndarray, lo
     gp = QuantileEmulator(xu, lo, hi, alpha, chol, hyp, jnp.full((1, 1), mu),
                           jnp.full((1, 1), sd), np.full(1, np.nan))
     return LoglikEmulator(gp, cap, ceiling)
+
+
+def _log_deficit(ll, noise_var, n_rows: int):
+    """The module docstring's warp of summed log-likelihoods ll (D,) with
+    Monte Carlo variances noise_var: (g = log(T - y) (D,), its variance by the
+    delta method var y / (T - y)^2 (D,), the cap, the ceiling T)."""
+    y, cap = _capped(np.asarray(ll, float), n_rows)
+    nv_y = np.where(y <= cap, 0.0, np.asarray(noise_var, float))  # a capped value: no noise
+    ceiling = float(np.max(y) + _headroom_nats(y, nv_y))
+    deficit = ceiling - y
+    return np.log(deficit), nv_y / deficit**2, cap, ceiling
 
 
 def smoothed_at_design(x: np.ndarray, sums: np.ndarray, n_rows, noise_var=0.0) -> np.ndarray:
@@ -236,12 +242,9 @@ def smoothed_at_design(x: np.ndarray, sums: np.ndarray, n_rows, noise_var=0.0) -
     k = se_kernel(gp.x_unit, gp.x_unit, log_ls, log_sf)
     out = np.empty_like(sums)
     for j, (total, rows) in enumerate(zip(sums, n_rows, strict=True)):
-        y, cap = _capped(total, int(rows))
-        nv_y = np.where(y <= cap, 0.0, nv[j])
-        ceiling = float(np.max(y) + _headroom_nats(y, nv_y))
-        g = np.log(ceiling - y)
+        g, nv_g, _, ceiling = _log_deficit(total, nv[j], int(rows))
         mu, sd = float(g.mean()), float(max(g.std(), 1e-3))
-        nv_g = nv_y / (ceiling - y) ** 2 / sd**2  # as fit_loglik_emulator's, standardised
+        nv_g = nv_g / sd**2  # standardised, as fit_loglik_emulator's
         chol = jnp.linalg.cholesky(k + jnp.diag(jnp.exp(2 * log_sn) + nv_g + 1e-8))
         alpha = jax.scipy.linalg.cho_solve((chol, True), jnp.asarray((g - mu) / sd))
         v = jax.scipy.linalg.solve_triangular(chol, k, lower=True)
