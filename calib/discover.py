@@ -31,8 +31,9 @@ Writes into ``--out`` (atomically; nothing on error):
   candidates (the first step's) [{effect, model, score, gap, ...,
   khat, khat_by_fold, psis_flagged_folds}], gap_metric, gap_before, gap_after,
   where (the baseline's disagreement), each candidate's fit (with its
-  unfinished blocks, ``calib.model.unfinished``, and the Pareto k-hats of its
-  importance weights, ``calib.inference.importance``), warnings, budgets, timings, seed;
+  unfinished blocks, ``calib.model.unfinished``, the Pareto k-hats of its
+  importance weights, ``calib.inference.importance``, and the noise variance
+  their smoothing assumed, ``smoothing_noise_var_nats2``), warnings, budgets, timings, seed;
 * ``residuals.png`` (where the baseline fails), ``candidates.png`` (scores),
   ``before_after.png`` (the gap before and after).
 """
@@ -151,6 +152,7 @@ def _fit_section(f) -> dict:
             "ess": f.ess, "n_design": int(f.theta.shape[0]),
             "khat": f.khat, "khat_by_fold": [float(k) for k in f.khat_folds],
             "loglik_noise_sd_nats": f.loglik_noise_sd_nats,
+            "smoothing_noise_var_nats2": f.smoothing_noise_var_nats2,
             "unfinished_blocks": f.unfinished,
             "gap_by_size_class_m": [None if not np.isfinite(g) else float(g)
                                     for g in f.gap_by_class]}

@@ -481,6 +481,7 @@ def test_a_fold_with_a_large_khat_reaches_the_discovery_record():
     d = discover(cands, obs, PROFILE, jax.random.key(0), budget)
     for f in d.fits.values():
         assert f.khat_folds.shape == (3,)
+        assert np.isnan(f.smoothing_noise_var_nats2)  # the simulated sums: no smoothing
     rows = {r["effect"]: r for r in d.table}
     assert all(len(r["khat_by_fold"]) == 3 for r in rows.values())
     flagged = [r for r in rows.values() if r["psis_flagged_folds"]]
@@ -492,6 +493,39 @@ def test_a_fold_with_a_large_khat_reaches_the_discovery_record():
     record = _clean({"candidates": d.table})
     (w,) = psis_warnings(record["candidates"])
     assert all(r["effect"] in w for r in flagged) and "k-hat" in w
+
+
+class _NoisyLine(_Line):
+    """``_Line`` that can re-simulate one point with fresh blocks (its noise
+    variance is then measured, as for CRSP)."""
+
+    def replicate_sims(self, theta, n, key):
+        noise = np.asarray(jax.random.normal(key, (n, self.sizes.size, self.noise.shape[1])))
+        mean = self.runouts(theta)[0] - 10.0 * self.noise
+        return mean[None] + 10.0 * noise, None
+
+
+def test_the_fit_records_the_noise_variance_its_smoothing_assumed():
+    """The variance of the summed log-likelihood that the GP smoothing of the
+    weights assumed is each fit's ``smoothing_noise_var_nats2`` (measured over
+    ``noise_reps`` block sets at the Sobol stage's best point); NaN where the
+    weights use the simulated sums."""
+    from calib.discovery.candidate_fit import Candidate, fit_candidate
+    from calib.inference.budget import DiscoveryBudget as Budget
+    from calib.model.priors import Box
+
+    sizes = np.repeat([0.5, 1.0, 2.0], 8)
+    y = 100.0 * sizes ** 0.3 + np.random.default_rng(1).normal(0, 10, sizes.size)
+    nan = np.full(sizes.size, np.nan)
+    obs = Observations(sizes, y, np.full(sizes.size, 10.0), nan, nan,
+                       np.zeros(sizes.size, bool), ("synthetic",) * sizes.size)
+    classes, row_class = size_classes(obs.block_size_m)
+    cand = Candidate("none", Box(("scale",), (0.5,), (2.0,)), _NoisyLine)
+    fold = folds(row_class, 3, seed=0)
+    kw = dict(n_sobol=32, n_warm=0, n_refine=(), n_blocks=16, n_draws=4,
+              n_blocks_check=16, k_folds=3, noise_reps=4)
+    smooth = fit_candidate(cand, obs, classes, row_class, jax.random.key(0), Budget(**kw), fold)
+    assert smooth.smoothing_noise_var_nats2 > 0  # NaN without smoothing: the test above
 
 
 def test_gap_warning_when_the_named_effect_widens_the_gap():

@@ -126,6 +126,11 @@ class CandidateFit:
             ``best`` over ``noise_reps`` independent block sets of the fit's size
             (nan if not measured); see ``loglik_noise_sd``.
         seconds: wall time of the fit.
+        smoothing_noise_var_nats2: the Monte Carlo variance of the summed
+            log-likelihood that the weights' GP smoothing assumed (measured at
+            the Sobol stage's best point over ``noise_reps`` block sets); nan
+            where the weights use the simulated sums (fixed grids,
+            ``DiscoveryBudget.smooth_loglik`` off).
         unfinished: counts of unfinished blocks per stage (design, predictive,
             noise) and the warning text (``calib.model.unfinished.unfinished_record``).
     """
@@ -151,6 +156,7 @@ class CandidateFit:
     khat: float = float("nan")
     khat_folds: np.ndarray | None = None
     class_samples: np.ndarray | None = None
+    smoothing_noise_var_nats2: float = float("nan")
 
 
 @jax.jit
@@ -299,6 +305,7 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     loglik = _row_loglik(obs, row_entry, vel)
     z, ll, log_q, to_theta, noise_var = _design(cand, fw, loglik, budget, rng, warm, vel,
                                                 tallies, progress, key)
+    smoothed = budget.smooth_loglik and cand.design is None  # fixed grids: simulated sums
     w, khat, elpd, khat_folds = _weights_and_scores(cand, z, ll, log_q, fold, noise_var,
                                                     budget.smooth_loglik)
     theta = to_theta(z)
@@ -324,7 +331,8 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     warn_unfinished(record)
     return CandidateFit(cand.effect, box.names, theta, log_q, ll, w, ess(w),
                         elpd, est, q05, q95, best, samples, gap_c, gap_m, noise,
-                        time.perf_counter() - t0, record, khat, khat_folds, per_class)
+                        time.perf_counter() - t0, record, khat, khat_folds, per_class,
+                        float(noise_var) if smoothed else float("nan"))
 
 
 def _weights_and_scores(cand: Candidate, z, ll, log_q, fold, noise_var: float,
