@@ -51,6 +51,10 @@ def test_the_emulator_finds_the_peak_and_caps_the_wall():
     assert abs(far - emu.cap) < 30.0, (far, emu.cap)
 
 
+# slow (17 s, GP fits on 512 points): the default run keeps the property at the
+# discovery's level (test_discovery.py::test_discovery_weights_from_the_smoothed_
+# log_likelihood_do_not_collapse, the same 512-point design through candidate_fit)
+@pytest.mark.slow
 def test_smoothing_the_design_s_log_likelihood_mends_noisy_importance_weights():
     """512 uniform points of the unit cube (3 parameters) under a Gaussian
     log-likelihood (sd 0.15 per parameter, 60 rows) seen with 2.5 nats of
