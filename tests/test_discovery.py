@@ -628,8 +628,6 @@ def test_discovery_weights_from_the_smoothed_log_likelihood_do_not_collapse():
     variance) every fold's k-hat lies below min(0.7, 1 - 1/log10 512) and the
     held-out scores are finite. Measured: largest fold k-hat 1.24 simulated,
     -0.04 smoothed."""
-    from types import SimpleNamespace
-
     from calib.discovery.candidate_fit import _weights_and_scores
 
     rng = np.random.default_rng(5)
@@ -637,9 +635,8 @@ def test_discovery_weights_from_the_smoothed_log_likelihood_do_not_collapse():
     exact = -0.5 * np.sum(((z - 0.45) / 0.15) ** 2, axis=1) / 20 - 3.0
     ll = exact[:, None] + (2.5 / np.sqrt(20)) * rng.standard_normal((512, 20))
     fold = folds(np.zeros(20), 5, seed=0)
-    cand = SimpleNamespace(design=None)
-    _, _, _, k_raw = _weights_and_scores(cand, z, ll, np.zeros(512), fold, 6.25, smooth=False)
-    w, khat, elpd, k_smooth = _weights_and_scores(cand, z, ll, np.zeros(512), fold, 6.25)
+    _, _, _, k_raw = _weights_and_scores(z, ll, np.zeros(512), fold, 6.25, smooth=False)
+    w, khat, elpd, k_smooth = _weights_and_scores(z, ll, np.zeros(512), fold, 6.25)
     assert np.max(k_raw) > 0.7
     assert np.max(k_smooth) < 1 - 1 / np.log10(512) and khat < 1 - 1 / np.log10(512)
     assert np.all(np.isfinite(elpd)) and w.sum() == pytest.approx(1.0)

@@ -306,8 +306,7 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     z, ll, log_q, to_theta, noise_var = _design(cand, fw, loglik, budget, rng, warm, vel,
                                                 tallies, progress, key)
     smoothed = budget.smooth_loglik and cand.design is None  # fixed grids: simulated sums
-    w, khat, elpd, khat_folds = _weights_and_scores(cand, z, ll, log_q, fold, noise_var,
-                                                    budget.smooth_loglik)
+    w, khat, elpd, khat_folds = _weights_and_scores(z, ll, log_q, fold, noise_var, smoothed)
     theta = to_theta(z)
     est = w @ theta
     q05 = np.array([weighted_quantile(theta[:, j], w, 0.05) for j in range(dim)])
@@ -335,15 +334,14 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
                         float(noise_var) if smoothed else float("nan"))
 
 
-def _weights_and_scores(cand: Candidate, z, ll, log_q, fold, noise_var: float,
-                        smooth: bool = True):
+def _weights_and_scores(z, ll, log_q, fold, noise_var: float, smooth: bool = True):
     """The posterior weights, their k-hat, the held-out scores and the folds'
     k-hats (module docstring): with ``smooth``, on the adaptive design, from
     the log-likelihood GP's smoothed sums (all rows, and each fold's training
     rows, whose noise variance is ``noise_var`` scaled by their share of the
-    rows; ``_smoothed``); otherwise, and on a fixed grid (the DEM's few
-    points), from the simulated sums."""
-    if not (smooth and cand.design is None):
+    rows; ``_smoothed``); otherwise (and on a fixed grid, the DEM's few
+    points, where ``fit_candidate`` does not smooth) from the simulated sums."""
+    if not smooth:
         w, khat = psis_weights(ll.sum(axis=1) - log_q)
         return (w, khat) + cv_elpd(ll, log_q, fold)
     sums = np.concatenate([ll.sum(axis=1)[None], training_sums(ll, fold)])
