@@ -165,15 +165,17 @@ def run_nuts(pointwise_loglik: Callable[[jax.Array], jax.Array], box: Box, key: 
             default (uniform in (-2, 2) in the unconstrained coordinates).
     """
     lo, hi = jnp.asarray(box.lo), jnp.asarray(box.hi)
-    # one compiled program: NumPyro also evaluates the model and its gradient
-    # outside its sampler's jit (to find the sites, at the initial point),
-    # where an un-jitted likelihood compiles each of its operations on its own
-    # (about 200 small compilations per run, 3-6 s)
+    # NumPyro also runs the model on concrete values, outside its sampler's
+    # jit (to find the sample sites): there the likelihood runs as one
+    # compiled program, not as its operations compiled one by one. Wherever
+    # the model is traced (the sampler, NumPyro's gradients) the likelihood is
+    # traced as it is, so the draws are those of the un-jitted likelihood.
     loglik = jax.jit(pointwise_loglik)
 
     def model():
         theta = numpyro.sample("theta", dist.Uniform(lo, hi).to_event(1))
-        numpyro.factor("loglik", jnp.sum(loglik(theta)))
+        f = pointwise_loglik if isinstance(theta, jax.core.Tracer) else loglik
+        numpyro.factor("loglik", jnp.sum(f(theta)))
 
     mcmc = MCMC(NUTS(model, target_accept_prob=0.9), num_warmup=num_warmup,
                 num_samples=num_samples, num_chains=num_chains, chain_method="vectorized",
@@ -188,7 +190,7 @@ def run_nuts(pointwise_loglik: Callable[[jax.Array], jax.Array], box: Box, key: 
              for k, v in mcmc.get_extra_fields(group_by_chain=True).items()}
     extra["lp"] = -extra["lp"]  # NumPyro's potential energy is minus the log density
     samples = by_chain.reshape(-1, box.dim)
-    pw = np.asarray(jax.jit(jax.vmap(loglik))(jnp.asarray(samples)))
+    pw = np.asarray(jax.jit(jax.vmap(pointwise_loglik))(jnp.asarray(samples)))
     logd = pw.sum(axis=1)  # + log prior, constant inside the box
     return diagnosed(tuple(box.names), by_chain, logd, pw, extra, loglik_kind)
 
