@@ -4,9 +4,10 @@ scores better than the baseline on rows of the same site that no fit saw, and
 its hazard exceedance lies closer to the truth's.
 
 The chains themselves are slow (``pytest -m slow tests/test_hidden_effect_chain.py``:
-about 20 minutes per effect on 2 cores (size dissipation, 2026-12-03: 1212 s), 180 rows, the default budgets; the vegetation belt
-is left out: discovery names it only with passage speeds, which ``calib.fit`` does not fit); the
-script's own bookkeeping is checked in the default run.
+about 20 minutes per effect on 2 cores (size dissipation, 2026-12-03: 1212 s), 180 rows,
+the default budgets; the vegetation belt is left out: discovery names it only with
+passage speeds, which ``calib.fit`` does not fit); the script's own bookkeeping is
+checked in the default run.
 """
 
 from __future__ import annotations
