@@ -450,11 +450,14 @@ class _Line:
         self.sizes = self.sizes_m = np.asarray(sizes_m, float)  # the workflow reads sizes_m
         self.noise = np.asarray(jax.random.normal(key, (self.sizes.size, n_blocks)))
 
-    def runouts(self, theta):
+    def mean(self, theta):
+        """(N, C) mean runout of every size class at every point."""
         theta = np.atleast_2d(theta)
         slope = theta[:, 1:2] if theta.shape[1] > 1 else np.zeros((theta.shape[0], 1))
-        mean = theta[:, :1] * 100.0 * self.sizes[None, :] ** slope
-        return mean[:, :, None] + 10.0 * self.noise[None]
+        return theta[:, :1] * 100.0 * self.sizes[None, :] ** slope
+
+    def runouts(self, theta):
+        return self.mean(theta)[:, :, None] + 10.0 * self.noise[None]
 
 
 def test_a_fold_with_a_large_khat_reaches_the_discovery_record():
@@ -501,8 +504,7 @@ class _NoisyLine(_Line):
 
     def replicate_sims(self, theta, n, key):
         noise = np.asarray(jax.random.normal(key, (n, self.sizes.size, self.noise.shape[1])))
-        mean = self.runouts(theta)[0] - 10.0 * self.noise
-        return mean[None] + 10.0 * noise, None
+        return self.mean(theta)[0][None, :, None] + 10.0 * noise, None
 
 
 def test_the_fit_records_the_noise_variance_its_smoothing_assumed():
