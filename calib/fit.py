@@ -58,7 +58,7 @@ from solvers.cli import (
 )
 from solvers.percentiles import few_blocks_warning
 
-__all__ = ["FitRun", "main", "run_fit", "validate_heldout"]
+__all__ = ["POINT_ESTIMATE_BLOCKS", "FitRun", "main", "run_fit", "validate_heldout"]
 
 PROG = "python -m calib.fit"
 
@@ -278,13 +278,19 @@ def _check_effects(models, rolling_resistance, effects) -> None:
         raise CliError(f"--effect: {e}") from None
 
 
-def validate_heldout(out: str, model: str, seed: int = 0,
-                     posterior: bool = True) -> list[tuple[dict, str]]:
+# CRSP blocks per row group of the point estimate's check after a Bayesian fit
+POINT_ESTIMATE_BLOCKS = 2000
+
+
+def validate_heldout(out: str, model: str, seed: int = 0, posterior: bool = True,
+                     point_estimate_blocks: int = POINT_ESTIMATE_BLOCKS
+                     ) -> list[tuple[dict, str]]:
     """The predictive check (``calib.validate.run_validation``) of ``model``'s
     calibration in ``out`` on the held-out rows ``run_fit`` wrote there. With
     ``posterior`` (after a Bayesian fit): of its posterior predictive
     (``out/validation/``, 50 draws) and also of its point estimate alone
-    (``out/validation/point_estimate/``, 2000 CRSP blocks per row group):
+    (``out/validation/point_estimate/``, ``point_estimate_blocks`` CRSP blocks
+    per row group, default ``POINT_ESTIMATE_BLOCKS``):
     where the posterior failed its checks, the two can differ widely, and the
     user should see both. Without (a gradient-only fit): of the point
     estimate, in ``out/validation/``.
@@ -299,8 +305,8 @@ def validate_heldout(out: str, model: str, seed: int = 0,
         n_blocks=None, seed=seed, out=os.path.join(out, "validation"))
     done = [(run_validation(vargs), vargs.out)]
     if posterior:
-        point = argparse.Namespace(**{**vars(vargs), "n_posterior": 1,
-                                      "n_blocks": 2000 if model == "crsp" else None,
+        n_blocks = point_estimate_blocks if model == "crsp" else None
+        point = argparse.Namespace(**{**vars(vargs), "n_posterior": 1, "n_blocks": n_blocks,
                                       "out": os.path.join(vargs.out, "point_estimate")})
         done.append((run_validation(point), point.out))
     return done

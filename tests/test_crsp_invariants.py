@@ -112,11 +112,13 @@ def test_a_state_below_the_ground_is_flagged_invalid():
 
 def test_roughness_limit_s_to_zero_equals_s_zero():
     """S -> 0 is continuous: no asperity impacts survive the limit. Before:
-    S = 0 gave 173.5 m and S = 1e-6 m gave 110.8 m (r = 0.5 m)."""
+    S = 0 gave 173.5 m and S = 1e-6 m gave 110.8 m (r = 0.5 m). 500 blocks with
+    the same keys (common random numbers): on 2 cores, two chunks of 250, the
+    compiled program of the other 256-slot runs on this profile."""
     prof = load_profile(POSTIGNANO)
-    r0 = _runs(prof, 0.5, 1000, 0, roughness_m=0.0).runout_m
+    r0 = _runs(prof, 0.5, 500, 0, roughness_m=0.0).runout_m
     for s in (1e-6, 1e-4):
-        rs = _runs(prof, 0.5, 1000, 0, roughness_m=s).runout_m
+        rs = _runs(prof, 0.5, 500, 0, roughness_m=s).runout_m
         assert abs(np.median(rs) - np.median(r0)) < 0.05, (s, np.median(rs), np.median(r0))
 
 

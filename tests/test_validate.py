@@ -305,10 +305,11 @@ def test_calibrate_without_groups_is_the_one_release_grouping():
 def test_fit_checks_the_posterior_and_the_point_estimate(tmp_path):
     """After a Bayesian fit, ``calib.fit --holdout-fraction`` scores the
     posterior predictive (validation/) and the point estimate alone
-    (validation/point_estimate/, 2000 CRSP blocks per row group): on Tschamut a
-    posterior that failed its checks scored skill -2.04 where its estimate
-    scored -0.08."""
-    from calib.fit import validate_heldout
+    (validation/point_estimate/, ``POINT_ESTIMATE_BLOCKS`` = 2000 CRSP blocks per
+    row group by default): on Tschamut a posterior that failed its checks scored
+    skill -2.04 where its estimate scored -0.08. Here 200 blocks: the compiled
+    program of the posterior's check (256 slots) instead of one of its own."""
+    from calib.fit import POINT_ESTIMATE_BLOCKS, validate_heldout
 
     rng = np.random.default_rng(0)
     post = np.column_stack([rng.uniform(0.3, 0.5, 60), rng.uniform(0.8, 0.9, 60),
@@ -316,7 +317,8 @@ def test_fit_checks_the_posterior_and_the_point_estimate(tmp_path):
     write_calibration(tmp_path, crsp_posterior=post)
     (tmp_path / "heldout_rows.csv").write_text(
         "block_size_m,runout_m,runout_sd_m\n0.2,110,15\n2.0,220,15\n")
-    done = validate_heldout(str(tmp_path), "crsp", 0, posterior=True)
+    assert POINT_ESTIMATE_BLOCKS == 2000
+    done = validate_heldout(str(tmp_path), "crsp", 0, posterior=True, point_estimate_blocks=200)
     assert [folder for _, folder in done] == [str(tmp_path / "validation"),
                                               str(tmp_path / "validation" / "point_estimate")]
     main_check = json.loads((tmp_path / "validation" / "validation.json").read_text())
@@ -324,7 +326,7 @@ def test_fit_checks_the_posterior_and_the_point_estimate(tmp_path):
                         "validation.json").read_text())
     assert [s["n_draws"] for s, _ in done] == [main_check["n_draws"], point["n_draws"]]
     assert main_check["draws"] == "posterior" and main_check["n_draws"] == 50
-    assert point["draws"] == "point estimate" and point["n_blocks_per_draw_and_group"] == 2000
+    assert point["draws"] == "point estimate" and point["n_blocks_per_draw_and_group"] == 200
 
 
 def test_read_summary_checks_the_schema(tmp_path):

@@ -74,12 +74,34 @@ def test_emulator_coordinates_of_zoned_angles_invert():
     assert fw.input_box.names[3:] == ("tan(phi_r)[steep]", "tan(phi_r)[flat]")
 
 
+def _zoned_names():
+    return ("Kn", "Kt", "roughness_m") + tuple(f"rolling_friction_deg[{z}]"
+                                               for z in POSTIGNANO.zone_names)
+
+
+def test_calibration_file_reads_zoned_angles(tmp_path):
+    """The reader returns a calibration's zoned names and values, and the one-angle
+    names for a one-angle file."""
+    names = _zoned_names()
+    cal = load_calibration(write_calibration(tmp_path, crsp=(0.41, 0.87, 0.25, 40.0, 40.0, 10.0),
+                                             crsp_names=names), "crsp")
+    assert cal.names == names
+    np.testing.assert_allclose(cal.point, [0.41, 0.87, 0.25, 40.0, 40.0, 10.0])
+    (tmp_path / "one").mkdir()
+    one = load_calibration(write_calibration(tmp_path / "one", crsp=(0.41, 0.87, 0.25, 30.0)),
+                           "crsp")
+    assert one.names == CRSP_ROLLING_BOX.names
+
+
+# slow: 19 s in a default run, a hazard program (one size, three stations) no other
+# default test uses; the default run keeps the reader above and the solver's zones
+# (test_a_zones_angle_moves_only_the_blocks_that_reach_the_zone)
+@pytest.mark.slow
 def test_calibration_file_and_hazard_read_zoned_angles(tmp_path):
     """The reader returns the zoned names; the hazard run puts each angle on its
     zone: all three at 30 deg reproduce the one-angle file's counts, and a
     10 deg lower zone lets 2 m blocks pass 200 m where 40 deg stops them."""
-    zones = POSTIGNANO.zone_names
-    names = ("Kn", "Kt", "roughness_m") + tuple(f"rolling_friction_deg[{z}]" for z in zones)
+    names = _zoned_names()
     reach = {}
     for tag, crsp, crsp_names in (
             ("one", (0.41, 0.87, 0.25, 30.0), None),
@@ -91,8 +113,8 @@ def test_calibration_file_and_hazard_read_zoned_angles(tmp_path):
         cal = load_calibration(write_calibration(folder, crsp=crsp, crsp_names=crsp_names),
                                "crsp")
         assert cal.names == (crsp_names or CRSP_ROLLING_BOX.names)
-        # one size, three stations, 64 blocks: the compiled program of the hazard runs
-        # of test_rolling_parameter.py and test_design_angles.py
+        # one size, three stations, 64 blocks: the compiled program of the hazard run
+        # of test_rolling_parameter.py
         counts = run_hazard(cal, draw_parameters(cal, 1, 0), POSTIGNANO, [2.0],
                             np.array([100.0, 200.0, 230.0]), 64, 0)
         reach[tag] = float(np.asarray(counts.reach)[0, 0, 1])
