@@ -232,9 +232,11 @@ def test_chunking_does_not_change_results():
 def test_station_records_match_per_block_passage():
     prof = load_profile(POSTIGNANO)
     params = crsp.params_from_profile(prof)
+    # four stations: the compiled program of the no-barrier runs of
+    # test_crsp_barrier.py and of test_crsp_cli.py's run
     res = crsp.run_blocks(params, crsp.make_block(1.5), jax.random.key(2), 500, prof,
-                          stations_x_m=[60.0, 112.0, 125.0])
-    for j, xs in enumerate((60.0, 112.0, 125.0)):
+                          stations_x_m=[60.0, 112.0, 125.0, 140.0])
+    for j, xs in enumerate((60.0, 112.0, 125.0, 140.0)):
         passed = res.stations.passed[:, j]
         # ending beyond a station means having passed it; the converse fails only
         # for the few blocks a rough facet throws back after crossing
