@@ -12,13 +12,15 @@ from solvers.profile import load_profile
 
 PROFILE = load_profile("data/postignano_profile.csv")
 BASE = dict(Kn=0.40, Kt=0.96, roughness_m=0.4)
+# 128 blocks, no stations, the default pool: the compiled program of the other
+# 256-slot runs on this profile (tests/test_crsp.py, tests/test_crsp_invariants.py)
 N = 128
 
 
 def _runouts(diameter_m, **kw):
     p = crsp.params_from_profile(PROFILE, **{**BASE, **kw})
     r = crsp.simulate_pooled(p, crsp.make_block(diameter_m / 2), jax.random.key(3), PROFILE,
-                             jnp.zeros((0,)), n_blocks=N, pool=128)
+                             jnp.zeros((0,)), n_blocks=N)
     assert np.all(np.asarray(r.status) != crsp.BUDGET)
     return np.asarray(r.runout_m)
 
@@ -76,7 +78,7 @@ def test_effect_parameters_vary_per_task_in_one_compiled_pool():
     p = p._replace(rolling_resistance=values)
     blocks = jax.tree_util.tree_map(lambda a: jnp.stack([a, a]), crsp.make_block(0.1))
     res = crsp.simulate_tasks(p, blocks, jax.random.key(3), PROFILE, jnp.zeros((0,)),
-                              n_per_task=N, pool=128)
+                              n_per_task=N)
     np.testing.assert_allclose(np.asarray(res.runout_m[0]), _runouts(0.2), rtol=1e-9)
     np.testing.assert_allclose(np.asarray(res.runout_m[1]),
                                _runouts(0.2, rolling_resistance=0.4), rtol=1e-9)

@@ -175,8 +175,10 @@ def _hazard_counts(path):
 
     cal = load_calibration(path)
     draws = draw_parameters(cal, 1, 0)
-    c = run_hazard(cal, draws, PROFILE, np.array([0.4, 2.0]), np.array([100.0, 150.0, 200.0]),
-                   64, seed=0)
+    # two sizes, 400 blocks, stations every 10 m to 300 m: the compiled program of the
+    # small hazard runs of tests/test_hazard.py and tests/test_hazard_cli.py
+    c = run_hazard(cal, draws, PROFILE, np.array([0.4, 2.0]), np.arange(0.0, 301.0, 10.0),
+                   400, seed=0)
     return np.stack([c.reach, c.exceed, c.e30])
 
 
