@@ -93,8 +93,8 @@ def test_calibration_file_reads_zoned_angles(tmp_path):
     assert one.names == CRSP_ROLLING_BOX.names
 
 
-# slow: 19 s in a default run, a hazard program (one size, three stations) no other
-# default test uses; the default run keeps the reader above and the solver's zones
+# slow: 19 s in a default run (14 s of it compiling its hazard program there); the
+# default run keeps the reader above and the solver's zones
 # (test_a_zones_angle_moves_only_the_blocks_that_reach_the_zone)
 @pytest.mark.slow
 def test_calibration_file_and_hazard_read_zoned_angles(tmp_path):
@@ -113,8 +113,8 @@ def test_calibration_file_and_hazard_read_zoned_angles(tmp_path):
         cal = load_calibration(write_calibration(folder, crsp=crsp, crsp_names=crsp_names),
                                "crsp")
         assert cal.names == (crsp_names or CRSP_ROLLING_BOX.names)
-        # one size, three stations, 64 blocks: the compiled program of the hazard run
-        # of test_rolling_parameter.py
+        # one size, three stations, 64 blocks: the compiled program of the hazard runs
+        # of test_rolling_parameter.py and test_design_angles.py
         counts = run_hazard(cal, draw_parameters(cal, 1, 0), POSTIGNANO, [2.0],
                             np.array([100.0, 200.0, 230.0]), 64, 0)
         reach[tag] = float(np.asarray(counts.reach)[0, 0, 1])
