@@ -63,7 +63,8 @@ def own_profile(path: str):
 
 def _check_reach(obs, profile, profile_path: str) -> None:
     """Every row's release lies on its profile (its own, or the command's) and
-    its observed runout between that release and the profile's end."""
+    its observed runout between that release and the profile's end; a row
+    without a release is released at its profile's first vertex."""
     rel = np.asarray(getattr(obs, "release_x_m", np.full(obs.n_obs, np.nan)), float)
     own = getattr(obs, "profile", None)
     for i in range(obs.n_obs):
@@ -71,23 +72,18 @@ def _check_reach(obs, profile, profile_path: str) -> None:
             row_profile, row_path = own_profile(own[i]), own[i]
         else:
             row_profile, row_path = profile, profile_path
-        _check_row(obs, i, rel[i], row_profile, row_path)
-
-
-def _check_row(obs, i: int, rel: float, profile, profile_path: str) -> None:
-    """Row i (release ``rel``, NaN: the first vertex) against its profile."""
-    start, x1 = float(profile.x_m[0]), float(profile.x_m[-1])
-    x0 = rel if np.isfinite(rel) else start
-    if not start <= x0 < x1:
-        raise InputError(f"{obs.path}: line {i + 2}, column 'release_x_m': release {x0:g} m "
-                         f"lies outside the profile {profile_path} ({start:g} to {x1:g} m)")
-    col, val = (("runout_min_m", obs.runout_min_m[i]) if obs.is_interval[i]
-                else ("runout_m", obs.runout_m[i]))
-    if val > x1 - x0:
-        raise InputError(f"{obs.path}: line {i + 2}, column {col!r}: runout {val:g} m lies "
-                         f"beyond the end of the profile {profile_path} (it covers "
-                         f"{x1 - x0:g} m from the release at x = {x0:g} m); the blocks can "
-                         f"never reach it")
+        start, x1 = float(row_profile.x_m[0]), float(row_profile.x_m[-1])
+        x0 = rel[i] if np.isfinite(rel[i]) else start
+        if not start <= x0 < x1:
+            raise InputError(f"{obs.path}: line {i + 2}, column 'release_x_m': release {x0:g} "
+                             f"m lies outside the profile {row_path} ({start:g} to {x1:g} m)")
+        col, val = (("runout_min_m", obs.runout_min_m[i]) if obs.is_interval[i]
+                    else ("runout_m", obs.runout_m[i]))
+        if val > x1 - x0:
+            raise InputError(f"{obs.path}: line {i + 2}, column {col!r}: runout {val:g} m lies "
+                             f"beyond the end of the profile {row_path} (it covers "
+                             f"{x1 - x0:g} m from the release at x = {x0:g} m); the blocks "
+                             f"can never reach it")
 
 
 def on_command_profile(obs, profile_path: str):
