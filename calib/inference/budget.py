@@ -92,9 +92,10 @@ class DiscoveryBudget:
             below 2 it is skipped, as it is for forward models without
             ``replicates`` (the DEM's).
         smooth_loglik: weight the adaptive design's points by their summed
-            log-likelihood smoothed by the log-likelihood GP
+            log-likelihood smoothed by the log-likelihood GP, and fit each
+            adaptive stage's proposal to that GP's posterior
             (``calib.discovery.candidate_fit``; one GP fit per stage and fit,
-            3-4 minutes of a 60-row run at the default budget on 2 cores);
+            3-5 minutes of a 60-row run at the default budget on 2 cores);
             off, by the simulated sums (the quick budgets: a first look
             whose folds' k-hats are flagged anyway).
     """
