@@ -259,25 +259,23 @@ def _run(args) -> int:
 
 
 def _check_effects(models, rolling_resistance, effects) -> None:
-    """Refuse, in one line, ``--effect`` with a model or baseline it cannot join, an
-    unknown name or a name given twice (the forward model refuses the same with a
-    ValueError: ``calib.model.effects.effect_names``; here before any file is read)."""
+    """Refuse, in one line, ``--effect`` with a model or baseline it cannot join."""
     if not effects:
         return
+    from calib.model.effects import effect_names
+
     if tuple(models) != ("crsp",):
         raise CliError(f"--effect {effects[0]}: effects are fitted with --model crsp only "
                        "(the DEM's size-dependent damping is --alpha-law power; its bonded "
                        "fragments are a calib.discover candidate only)")
-    known = [e for e in CRSP_EFFECTS if e != "none"]
-    for name in effects:
-        if name not in known:
-            raise CliError(f"--effect: unknown effect {name!r}; choose from {', '.join(known)}")
-        if effects.count(name) > 1:
-            raise CliError(f"--effect: effect {name} given twice")
-    if "rolling_resistance" in effects and rolling_resistance != "profile":
-        raise CliError(f"--effect: --rolling-resistance {rolling_resistance} fits the rolling "
-                       "resistance angle already (the two are one parameter); use "
-                       "--rolling-resistance profile with it")
+    try:
+        names = effect_names(effects)
+        if "rolling_resistance" in names and rolling_resistance != "profile":
+            raise ValueError(f"--rolling-resistance {rolling_resistance} fits the rolling "
+                             "resistance angle already (the two are one parameter); use "
+                             "--rolling-resistance profile with it")
+    except ValueError as e:
+        raise CliError(f"--effect: {e}") from None
 
 
 # CRSP blocks per row group of the point estimate's check after a Bayesian fit
