@@ -78,6 +78,31 @@ def test_proposal_density_is_normalised_on_the_cube():
     assert np.mean(np.exp(logpdf(u))) == pytest.approx(1.0, rel=0.03)
 
 
+def test_student_t_proposal_draws_and_density_are_the_t_s():
+    """The adaptive stages' proposal with ``df`` degrees of freedom: its density is
+    scipy's multivariate t (well inside the cube, so truncated by almost nothing),
+    normalised on the cube, and its draws' squared Mahalanobis distance over the
+    dimension follows F(dim, df), which the Gaussian's (a chi^2 over dim) does not."""
+    from scipy import stats
+
+    from calib.discovery.candidate_fit import PROPOSAL_DF
+
+    rng = np.random.default_rng(4)
+    mean, cov = np.array([0.5, 0.45]), np.array([[4e-4, 1e-4], [1e-4, 2e-4]])
+    draws, logpdf = _proposal(mean, cov, rng, 4000, dim=3, df=PROPOSAL_DF)
+    assert draws.shape == (4000, 3) and np.all((draws >= 0) & (draws <= 1))
+    ref = stats.multivariate_t(loc=mean, shape=cov, df=PROPOSAL_DF)
+    np.testing.assert_allclose(logpdf(draws[:50]), ref.logpdf(draws[:50, :2]), atol=1e-3)
+    d = draws[:, :2] - mean
+    m2 = np.einsum("ij,jk,ik->i", d, np.linalg.inv(cov), d) / 2
+    assert stats.kstest(m2, stats.f(2, PROPOSAL_DF).cdf).pvalue > 0.01
+    assert stats.kstest(m2, stats.chi2(2, scale=0.5).cdf).pvalue < 1e-6
+    u = rng.uniform(size=(200_000, 3))  # truncated near a corner: still normalised
+    _, logpdf = _proposal(np.array([0.9, 0.1]), np.array([[0.04, 0.01], [0.01, 0.02]]), rng,
+                          500, dim=3, df=PROPOSAL_DF)
+    assert np.mean(np.exp(logpdf(u))) == pytest.approx(1.0, rel=0.03)
+
+
 def test_size_classes_bin_many_sizes():
     sizes = np.geomspace(0.2, 2.0, 40)
     reps, cls = size_classes(sizes, max_classes=8)
