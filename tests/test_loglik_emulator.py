@@ -52,7 +52,7 @@ def test_the_emulator_finds_the_peak_and_caps_the_wall():
 
 
 # slow (17 s, GP fits on 512 points): the default run keeps the property at the
-# discovery's level (test_discovery.py::test_discovery_weights_from_the_smoothed_
+# discovery's level (test_discovery_proposals.py::test_discovery_weights_from_the_smoothed_
 # log_likelihood_do_not_collapse, the same 512-point design through candidate_fit)
 @pytest.mark.slow
 def test_smoothing_the_design_s_log_likelihood_mends_noisy_importance_weights():
