@@ -47,3 +47,16 @@ def test_degenerate_and_small_sets():
     lr[3] = -np.inf
     w, khat = psis_weights(lr)
     assert w[3] == 0.0 and np.isfinite(khat) and w.sum() == pytest.approx(1.0)
+
+
+def test_the_khat_bar_falls_with_fewer_points():
+    """min(0.7, 1 - 1/log10 S) (Vehtari et al. 2024): 0.631 at S = 512, 0.7 from
+    S = 2155 on, nothing trusted at S <= 10."""
+    from calib.inference.importance import khat_threshold
+
+    assert khat_threshold(512) == pytest.approx(1 - 1 / np.log10(512))
+    assert khat_threshold(512) == pytest.approx(0.631, abs=5e-4)
+    assert khat_threshold(10_000) == KHAT_MAX
+    assert khat_threshold(10) == 0.0
+    bars = [khat_threshold(n) for n in (32, 256, 512, 1024, 4096)]
+    assert bars == sorted(bars)

@@ -12,7 +12,10 @@ says how far the estimate can be trusted (same paper): below 0.5
 the raw weights have finite variance; up to 0.7 PSIS is reliable with a
 practical number of points; above ``KHAT_MAX`` = 0.7 the weighted estimates
 (here: the posterior summaries and the held-out scores built on them) are
-unreliable, and the design needs more points where the posterior lives.
+unreliable, and the design needs more points where the posterior lives. With
+S points the same paper's bar is lower, min(0.7, 1 - 1 / log10 S)
+(``khat_threshold``; 0.631 at S = 512): above it the S points are too few for
+the estimate's error to fall at its usual rate.
 
 Not estimated (k-hat NaN, raw weights returned) with fewer than
 ``MIN_POINTS`` = 25 points of finite weight, since the tail fit needs at least
@@ -26,11 +29,21 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import logsumexp
 
-__all__ = ["KHAT_MAX", "MIN_POINTS", "ess", "psis_weights", "weighted_quantile"]
+__all__ = ["KHAT_MAX", "MIN_POINTS", "ess", "khat_threshold", "psis_weights",
+           "weighted_quantile"]
 
 KHAT_MAX = 0.7
 MIN_POINTS = 25
 _EXP_RANGE = 700.0  # nats; exp(-745) underflows to 0 in float64
+
+
+def khat_threshold(n_points: int) -> float:
+    """The k-hat bar of a PSIS estimate from ``n_points`` draws: min(KHAT_MAX,
+    1 - 1 / log10 S) (Vehtari et al. 2024, the module docstring's source; 0
+    for S <= 10, where no k-hat is trusted)."""
+    if n_points <= 10:
+        return 0.0
+    return float(min(KHAT_MAX, 1.0 - 1.0 / np.log10(n_points)))
 
 
 def _tail_size(n: int) -> int:
