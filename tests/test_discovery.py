@@ -479,9 +479,10 @@ def test_a_fold_with_a_large_khat_reaches_the_discovery_record():
     assert all(len(r["khat_by_fold"]) == 3 for r in rows.values())
     flagged = [r for r in rows.values() if r["psis_flagged_folds"]]
     assert flagged
-    for r in rows.values():  # flagged exactly where k-hat > 0.7
+    for r in rows.values():  # flagged exactly where k-hat > min(0.7, 1 - 1/log10 S)
         k = np.array(r["khat_by_fold"])
-        assert r["psis_flagged_folds"] == [int(j) for j in np.flatnonzero(k > 0.7)]
+        assert r["psis_flagged_folds"] == [int(j) for j in np.flatnonzero(k > r["khat_bar"])]
+        assert r["khat_bar"] == pytest.approx(1 - 1 / np.log10(32))  # 32 design points
     # into the json record (non-finite k-hat -> null, the flag list stays) and its warning
     record = _clean({"candidates": d.table})
     (w,) = psis_warnings(record["candidates"])

@@ -49,8 +49,22 @@ sums are used. Every set of
 weights (each stage's fit, the posterior, each fold's training weights of
 step 3) is Pareto-smoothed (``calib.inference.importance.psis_weights``); its k-hat
 is reported per candidate (``khat``) and per fold (``khat_by_fold``), and a
-fold above ``calib.inference.importance.KHAT_MAX`` = 0.7 is flagged
-(``psis_flagged_folds``): its held-out scores are unreliable. Runouts are
+fold above the bar of the design's size S, min(0.7, 1 - 1/log10 S)
+(``calib.inference.importance.khat_threshold``, Vehtari et al. 2024), is flagged
+(``psis_flagged_folds``): its held-out scores are unreliable.
+
+Fold stages (smoothed path): a fold above that bar gets a stage of its own,
+``DiscoveryBudget.n_fold_refine`` points from the Student t fitted, as an
+adaptive stage's is, to that fold's training posterior under the
+log-likelihood GP (``_fold_stages``), joined to the same mixture; the
+weights and scores are then recomputed, for up to
+``DiscoveryBudget.fold_rounds`` rounds. Our choice among the routes to
+held-out scores that do not rest on a few points: a fold's training
+posterior is not the full posterior, and where one proposal for all of them
+leaves a fold's posterior thinly covered, points drawn for that fold are the
+cheapest cure (a stage costs a few seconds; refitting the fold costs a whole
+design), and one mixture keeps every weight, the posterior's too, valid.
+Runouts are
 simulated with common random numbers (``calib.model.forward``), and the
 likelihood is ``calib.inference.likelihood``'s, the one ``calib.fit`` uses (points:
 the tolerance as kernel; intervals: the Silverman width). Optional passage
@@ -75,7 +89,14 @@ from scipy.stats import qmc
 from calib.discovery.residuals import point_view
 from calib.discovery.scores import crps_ensemble, cv_elpd, training_sums
 from calib.inference.budget import DiscoveryBudget
-from calib.inference.importance import MIN_POINTS, ess, psis_weights, weighted_quantile
+from calib.inference.importance import (
+    KHAT_MAX,
+    MIN_POINTS,
+    ess,
+    khat_threshold,
+    psis_weights,
+    weighted_quantile,
+)
 from calib.inference.likelihood import log_likelihood, observed_rows, velocity_log_likelihood
 from calib.inference.loglik_emulator import fit_loglik_emulator, smoothed_at_design
 from calib.inference.predictive_check import pool_draws
@@ -148,6 +169,10 @@ class CandidateFit:
             ``DiscoveryBudget.smooth_loglik`` off).
         unfinished: counts of unfinished blocks per stage (design, predictive,
             noise) and the warning text (``calib.model.unfinished.unfinished_record``).
+        khat_bar: the k-hat bar of the design's size S, min(0.7, 1 - 1/log10 S)
+            (``calib.inference.importance.khat_threshold``); a fold above it is
+            flagged.
+        n_fold_points: design points the fold stages added (module docstring).
     """
 
     effect: str
@@ -172,6 +197,8 @@ class CandidateFit:
     khat_folds: np.ndarray | None = None
     class_samples: np.ndarray | None = None
     smoothing_noise_var_nats2: float = float("nan")
+    khat_bar: float = KHAT_MAX
+    n_fold_points: int = 0
 
 
 @jax.jit
@@ -325,11 +352,13 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
                          f"passage speeds (CRSP candidates can)") from None
     tallies = {"design": UnfinishedTally(tuple(map(float, entry_sizes)))}
     loglik = _row_loglik(obs, row_entry, vel)
-    z, ll, log_q, to_theta, noise_var = _design(cand, fw, loglik, budget, rng, warm, vel,
-                                                tallies, progress, key)
+    design = _design(cand, fw, loglik, budget, rng, warm, vel, tallies, progress, key)
     smoothed = budget.smooth_loglik and cand.design is None  # fixed grids: simulated sums
-    w, khat, elpd, khat_folds = _weights_and_scores(z, ll, log_q, fold, noise_var, smoothed)
-    theta = to_theta(z)
+    w, khat, elpd, khat_folds = _scores_covering_folds(
+        design, fold, budget.n_fold_refine, budget.fold_rounds if smoothed else 0, smoothed,
+        rng, progress, cand.effect)
+    z, ll, log_q, noise_var = design.z, design.ll, design.log_q(), design.noise_var
+    theta = design.to_theta(z)
     est = w @ theta
     q05 = np.array([weighted_quantile(theta[:, j], w, 0.05) for j in range(dim)])
     q95 = np.array([weighted_quantile(theta[:, j], w, 0.95) for j in range(dim)])
@@ -353,7 +382,8 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     return CandidateFit(cand.effect, box.names, theta, log_q, ll, w, ess(w),
                         elpd, est, q05, q95, best, samples, gap_c, gap_m, noise,
                         time.perf_counter() - t0, record, khat, khat_folds, per_class,
-                        float(noise_var) if smoothed else float("nan"))
+                        float(noise_var) if smoothed else float("nan"),
+                        khat_threshold(z.shape[0]), int(sum(design.counts[design.n_main:])))
 
 
 def _weights_and_scores(z, ll, log_q, fold, noise_var: float, smooth: bool = True):
@@ -404,14 +434,87 @@ def _row_loglik(obs, row_entry, vel: VelocityRows | None):
     return loglik
 
 
+@dataclasses.dataclass
+class _Design:
+    """A candidate's simulated design, one deterministic mixture of stages.
+
+    z: (N, p) unit coordinates; ll: (N, n_rows) pointwise log-likelihood;
+    counts, logpdfs: each stage's number of points and log density relative to
+    the uniform on the unit cube; log_jac: z -> log |d theta / d z| of the
+    warped coordinates relative to the uniform prior in theta; to_theta: z ->
+    theta; noise_var: the Monte Carlo variance of the summed log-likelihood,
+    nats^2, measured at the Sobol stage's best point over ``noise_reps`` block
+    sets (0 where not measured); simulate: z -> (len(z), n_rows) loglik;
+    n_main: the stages of the main design (the fold stages come after them).
+    """
+
+    z: np.ndarray
+    ll: np.ndarray
+    counts: list
+    logpdfs: list
+    log_jac: Callable
+    to_theta: Callable
+    noise_var: float
+    simulate: Callable
+    n_main: int = 0
+
+    def log_q(self) -> np.ndarray:
+        """(N,) the mixture's log density relative to the prior."""
+        return _mixture_log_q(self.z, self.counts, self.logpdfs) + self.log_jac(self.z)
+
+    def add(self, new: np.ndarray, logpdf: Callable) -> None:
+        """Simulate the stage ``new`` drawn from ``logpdf`` and join it to the mixture."""
+        self.ll = np.concatenate([self.ll, self.simulate(new)])
+        self.z = np.concatenate([self.z, new])
+        self.counts.append(new.shape[0])
+        self.logpdfs.append(logpdf)
+
+
+def _scores_covering_folds(design: _Design, fold: np.ndarray, n_new: int, rounds: int,
+                           smoothed: bool, rng, progress=None, effect: str = ""):
+    """``_weights_and_scores`` of the design, after up to ``rounds`` rounds of
+    fold stages (``_fold_stages``, ``n_new`` points per flagged fold) while some
+    fold's k-hat lies above ``khat_threshold`` of the design's size."""
+    scores = _weights_and_scores(design.z, design.ll, design.log_q(), fold, design.noise_var,
+                                 smoothed)
+    for _ in range(rounds):
+        flagged = np.flatnonzero(scores[3] > khat_threshold(design.z.shape[0]))
+        if not flagged.size:
+            break
+        _fold_stages(design, fold, flagged, n_new, rng, progress, effect)
+        scores = _weights_and_scores(design.z, design.ll, design.log_q(), fold,
+                                     design.noise_var, smoothed)
+    return scores
+
+
+def _fold_stages(design: _Design, fold: np.ndarray, flagged: np.ndarray, n_new: int, rng,
+                 progress, effect: str) -> None:
+    """One adaptive stage of ``n_new`` points per flagged fold, drawn from the
+    Student t (``PROPOSAL_DF``) fitted to that fold's training posterior under
+    the log-likelihood GP (``_surrogate_gaussian`` on the fold's training sums,
+    noise ``noise_var`` times their share of the rows), joined to the mixture
+    (module docstring)."""
+    log_q = design.log_q()
+    sums = training_sums(design.ll, fold)
+    n_rows = design.ll.shape[1]
+    stages = []  # every flagged fold's proposal from the same design, then simulated
+    for j in flagged:
+        n_train = int(np.sum(fold != np.unique(fold)[j]))
+        mean, cov = _surrogate_gaussian(design.z, sums[j], log_q,
+                                        design.noise_var * n_train / n_rows, n_train, rng,
+                                        design.log_jac)
+        stages.append(_proposal(mean, cov, rng, n_new, design.z.shape[1], df=PROPOSAL_DF))
+    for new, logpdf in stages:
+        design.add(new, logpdf)
+        if progress:
+            progress(effect, design.z.shape[0], design.z.shape[0])
+
+
 def _design(cand: Candidate, fw, loglik, budget: DiscoveryBudget, rng, warm, vel, tallies,
-            progress, key):
+            progress, key) -> _Design:
     """The simulated design of one candidate (module docstring): a fixed grid, or
     the Sobol pair, the warm stage and the adaptive stages, one deterministic
-    mixture. Returns (z (N, p) unit coordinates, loglik (N, n_rows), log_q (N,)
-    the mixture's log density relative to the prior, z -> theta, the Monte
-    Carlo variance of the summed log-likelihood, nats^2, measured at the Sobol
-    stage's best point over ``noise_reps`` block sets; 0 where not measured)."""
+    mixture (``_Design``)."""
     box, dim = cand.box, cand.box.dim
 
     def simulate(z):
@@ -426,6 +529,9 @@ def _design(cand: Candidate, fw, loglik, budget: DiscoveryBudget, rng, warm, vel
         def to_theta(z):
             return box.from_unit(z)
 
+        def log_jac(z):
+            return np.zeros(z.shape[0])
+
     if cand.design is not None:
         z = box.to_unit(np.atleast_2d(cand.design()))
         parts = []
@@ -433,7 +539,8 @@ def _design(cand: Candidate, fw, loglik, budget: DiscoveryBudget, rng, warm, vel
             parts.append(simulate(z[i:i + 8]))
             if progress:
                 progress(cand.effect, min(i + 8, z.shape[0]), z.shape[0])
-        return z, np.concatenate(parts), np.zeros(z.shape[0]), to_theta, 0.0
+        return _Design(z, np.concatenate(parts), [z.shape[0]], [log_jac], log_jac, to_theta,
+                       0.0, simulate, 1)
     total = budget.n_design - (budget.n_warm if warm is None else 0)
     # stage 0, a defensive pair: one half uniform in theta, one half uniform in
     # the warped coordinates (density -log_jac and 0 relative to the latter)
@@ -469,7 +576,7 @@ def _design(cand: Candidate, fw, loglik, budget: DiscoveryBudget, rng, warm, vel
         ll = np.concatenate([ll, simulate(new)])
         if progress:
             progress(cand.effect, sum(counts), total)
-    return z, ll, _mixture_log_q(z, counts, logpdfs) + log_jac(z), to_theta, noise_var
+    return _Design(z, ll, counts, logpdfs, log_jac, to_theta, noise_var, simulate, len(counts))
 
 
 # degrees of freedom of the adaptive stages' Student t proposals (module docstring)

@@ -37,14 +37,14 @@ def ess_warnings(ess: dict, min_ess: float = MIN_ESS) -> list[str]:
 
 def psis_warnings(candidates: list[dict]) -> list[str]:
     """A warning naming the folds whose training weights have a Pareto k-hat above
-    ``calib.inference.importance.KHAT_MAX`` (``psis_flagged_folds`` of each candidate row).
+    the bar of the design's size, min(0.7, 1 - 1/log10 S)
+    (``calib.inference.importance.khat_threshold``; ``psis_flagged_folds`` of each
+    candidate row).
 
     There the smoothed weights rest on a few design points and the folds'
     held-out scores (so the gains and their se) are unreliable (Vehtari et al.
     2024); more design points where the posterior lives help.
     """
-    from calib.inference.importance import KHAT_MAX
-
     flagged = [c for c in candidates if c.get("psis_flagged_folds")]
     if not flagged:
         return []
@@ -52,7 +52,8 @@ def psis_warnings(candidates: list[dict]) -> list[str]:
         f"{c['effect']} fold{'s' if len(c['psis_flagged_folds']) > 1 else ''} "
         + ", ".join(f"{j} ({_khat_text(c['khat_by_fold'][j])})" for j in c["psis_flagged_folds"])
         for c in flagged)
-    return [f"Pareto k-hat above {KHAT_MAX:g} in the held-out folds' importance weights "
+    return [f"Pareto k-hat above the bar min(0.7, 1 - 1/log10 S) in the held-out folds' "
+            f"importance weights "
             f"({listing}): those folds' scores rest on few design points and are unreliable; "
             f"treat the gains that involve them with care, or rerun with a larger budget."]
 

@@ -79,7 +79,6 @@ from calib.discovery.scores import (
 )
 from calib.files.inputs import own_profile
 from calib.inference.budget import DiscoveryBudget
-from calib.inference.importance import KHAT_MAX
 from calib.model.entries import Entries
 from calib.model.warp import unit_coordinates
 
@@ -341,8 +340,9 @@ def _step_record(step: int, named: tuple[str, ...], cand_fits: dict, base: Candi
                       "se_delta": se, "gap": f.gap, "n_params": len(f.names),
                       "ess": f.ess, "loglik_noise_sd_nats": f.loglik_noise_sd_nats,
                       "khat": f.khat, "khat_by_fold": [float(k) for k in f.khat_folds],
+                      "khat_bar": f.khat_bar, "n_fold_points": f.n_fold_points,
                       "psis_flagged_folds": [int(j) for j in
-                                             np.flatnonzero(f.khat_folds > KHAT_MAX)]})
+                                             np.flatnonzero(f.khat_folds > f.khat_bar)]})
         if eff != "none":  # how many rows carry the gain (the se rule is a bar on it)
             table[-1]["effective_rows"] = effective_rows(gains)
             table[-1]["carrying_rows"] = [int(i) for i in carrying_rows(gains)]

@@ -98,6 +98,11 @@ class DiscoveryBudget:
             3-5 minutes of a 60-row run at the default budget on 2 cores);
             off, by the simulated sums (the quick budgets: a first look
             whose folds' k-hats are flagged anyway).
+        n_fold_refine, fold_rounds: with ``smooth_loglik``, after the adaptive
+            stages, up to ``fold_rounds`` rounds of one stage of
+            ``n_fold_refine`` points per fold whose training weights' k-hat
+            lies above the bar min(0.7, 1 - 1/log10 S) (drawn where that
+            fold's posterior lives; ``calib.discovery.candidate_fit``).
     """
 
     n_sobol: int = 128
@@ -109,20 +114,24 @@ class DiscoveryBudget:
     k_folds: int = 5
     noise_reps: int = 8
     smooth_loglik: bool = True
+    n_fold_refine: int = 64
+    fold_rounds: int = 2
 
     @property
     def n_design(self) -> int:
+        """Points of the main design (the fold stages, when needed, add to it)."""
         return self.n_sobol + self.n_warm + sum(self.n_refine)
 
 
 DISCOVERY_PRESETS = {
     "crsp": DiscoveryBudget(),
     "crsp-quick": DiscoveryBudget(n_sobol=32, n_warm=32, n_refine=(32, 32), n_blocks=32,
-                                  n_draws=8, n_blocks_check=64, smooth_loglik=False),
+                                  n_draws=8, n_blocks_check=64, smooth_loglik=False,
+                                  fold_rounds=0),
     "dem": DiscoveryBudget(n_sobol=0, n_warm=0, n_refine=(), n_blocks=8, n_draws=8,
-                           n_blocks_check=0, noise_reps=0),
+                           n_blocks_check=0, noise_reps=0, fold_rounds=0),
     "dem-quick": DiscoveryBudget(n_sobol=0, n_warm=0, n_refine=(), n_blocks=4, n_draws=8,
-                                 n_blocks_check=0, noise_reps=0),
+                                 n_blocks_check=0, noise_reps=0, fold_rounds=0),
 }
 
 
