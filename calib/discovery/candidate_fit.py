@@ -62,8 +62,10 @@ weights and scores are then recomputed, for up to
 held-out scores that do not rest on a few points: a fold's training
 posterior is not the full posterior, and where one proposal for all of them
 leaves a fold's posterior thinly covered, points drawn for that fold are the
-cheapest cure (a stage costs a few seconds; refitting the fold costs a whole
-design), and one mixture keeps every weight, the posterior's too, valid.
+cheapest cure (a stage costs one GP fit and 64 simulations; refitting the
+fold costs a whole design of 512), and one mixture keeps every weight, the
+posterior's too, valid. Measured in docs/studies.md, "Fold stages: points for
+the folds above the bar".
 Runouts are
 simulated with common random numbers (``calib.model.forward``), and the
 likelihood is ``calib.inference.likelihood``'s, the one ``calib.fit`` uses (points:
