@@ -300,8 +300,9 @@ def test_a_chunk_counts_its_blocks_whatever_their_place(cal_path, class_run):
 # the hazard run had release conditions (same calibration fixture): exceedance.csv, the
 # simulated reach counted per station, by its bytes; hazard_table.csv by value
 # (tests/data/README.md), its floats to a relative 1e-9: its energy and height
-# percentiles pass through NumPy's log and powers, whose last bits depend on the SIMD
-# extensions NumPy dispatches to: the same install (numpy 2.4.6, jax 0.10.2) writes other
+# percentiles pass through NumPy's vectorised float functions (np.log in the binned
+# quantiles), whose last bits depend on the SIMD extensions NumPy dispatches to: the
+# same install (numpy 2.4.6, jax 0.10.2) writes other
 # bytes on a CPU with AVX-512 than with NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL",
 # measured 2026-12-04: at most 4e-16 apart, relative
 EXCEEDANCE_SHA256 = "a5738e864fa6333f1f3e3b3a173fe390f4ad053beee90d0e1cbbae2a362f74d2"
