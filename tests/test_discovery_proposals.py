@@ -21,6 +21,23 @@ def test_proposal_density_is_normalised_on_the_cube():
     assert np.mean(np.exp(logpdf(u))) == pytest.approx(1.0, rel=0.03)
 
 
+@pytest.mark.parametrize("mean, df", [((3.2, -2.4), None), ((3.2, -2.4), 4),
+                                      ((1.5, 0.5), None)])
+def test_a_proposal_padded_from_the_uniform_returns_the_density_of_its_draws(mean, df):
+    """A proposal whose mass lies almost wholly outside the cube: fewer than n of
+    its draws land inside (none for the first two, some for the third), the
+    rest are uniform, and the density returned is the pair's: normalised on the
+    cube, and the density of the draws (the mean of 1/q over them estimates the
+    cube's volume, 1)."""
+    rng = np.random.default_rng(2)
+    draws, logpdf = _proposal(np.array(mean), np.diag([0.15, 0.15]) ** 2, rng, 2000, dim=3,
+                              df=df)
+    assert draws.shape == (2000, 3) and np.all((draws >= 0) & (draws <= 1))
+    u = rng.uniform(size=(200_000, 3))
+    assert np.mean(np.exp(logpdf(u))) == pytest.approx(1.0, rel=0.03)
+    assert np.mean(np.exp(-logpdf(draws))) == pytest.approx(1.0, rel=0.05)
+
+
 def test_student_t_proposal_draws_and_density_are_the_t_s():
     """The adaptive stages' proposal with ``df`` degrees of freedom: its density is
     scipy's multivariate t (well inside the cube, so truncated by almost nothing),

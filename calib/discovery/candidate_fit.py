@@ -249,7 +249,12 @@ def _proposal(mean, cov, rng, n, dim, df=None):
     """n draws in the unit cube [0, 1]^dim: the first ``len(mean)`` coordinates from
     N(mean, cov) truncated to the cube (with ``df``, the multivariate Student t of
     scale matrix cov and df degrees of freedom), the others uniform. Returns (draws,
-    log-density function relative to the uniform prior)."""
+    log-density function relative to the uniform prior).
+
+    Where the distribution lies so far outside the cube that fewer than n of its
+    draws land inside after 1000 n tries, the missing draws are uniform on the
+    cube, and the density returned is that of the pair: m/n times the truncated
+    distribution's plus (n - m)/n times the uniform's, m the draws inside."""
     k = mean.size
     chol = np.linalg.cholesky(cov)
     draws = np.empty((0, k))
@@ -264,13 +269,14 @@ def _proposal(mean, cov, rng, n, dim, df=None):
         accepted += int(inside.sum())
         draws = np.concatenate([draws, pool[inside]])
     p_in = max(accepted, 1) / tried
-    if draws.shape[0] < n:  # the proposal lies almost wholly outside: pad from the prior
-        draws = np.concatenate([draws, rng.uniform(size=(n - draws.shape[0], k))])
+    n_in = min(draws.shape[0], n)
+    if n_in < n:  # the proposal lies almost wholly outside: pad from the prior
+        draws = np.concatenate([draws, rng.uniform(size=(n - n_in, k))])
     draws = np.concatenate([draws[:n], rng.uniform(size=(n, dim - k))], axis=1)
     inv = np.linalg.inv(cov)
     logdet = np.linalg.slogdet(cov)[1]
 
-    def logpdf(x):
+    def truncated(x):
         d = x[:, :k] - mean
         m2 = np.einsum("ij,jk,ik->i", d, inv, d)
         if df is None:
@@ -278,7 +284,14 @@ def _proposal(mean, cov, rng, n, dim, df=None):
         return (gammaln(0.5 * (df + k)) - gammaln(0.5 * df) - 0.5 * k * np.log(df * np.pi)
                 - 0.5 * logdet - 0.5 * (df + k) * np.log1p(m2 / df) - np.log(p_in))
 
-    return draws, logpdf
+    if n_in == n:
+        return draws, truncated
+
+    def padded(x):  # m/n truncated + (n - m)/n uniform (the uniform's log density is 0)
+        with np.errstate(divide="ignore"):
+            return np.logaddexp(np.log(n_in / n) + truncated(x), np.log((n - n_in) / n))
+
+    return draws, padded
 
 
 def gap(samples: np.ndarray, obs, row_class: np.ndarray, rng: np.random.Generator,
