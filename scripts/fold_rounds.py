@@ -72,6 +72,8 @@ def main() -> None:
                    help="comma-separated candidates whose rounds are logged "
                         "(default size_dissipation)")
     args, rest = p.parse_known_args()
+    if args.rounds < 0:
+        p.error(f"--rounds must be >= 0, got {args.rounds}")
     logged = set(args.log_effects.split(","))
 
     def scores(design, fold, n_new, rounds, smoothed, rng, progress=None, effect=""):
