@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calib.discovery.candidate_fit import _proposal
+from calib.discovery.proposals import proposal as _proposal
 from calib.discovery.scores import folds
 
 
@@ -45,7 +45,7 @@ def test_student_t_proposal_draws_and_density_are_the_t_s():
     dimension follows F(dim, df), which the Gaussian's (a chi^2 over dim) does not."""
     from scipy import stats
 
-    from calib.discovery.candidate_fit import PROPOSAL_DF
+    from calib.discovery.proposals import PROPOSAL_DF
 
     rng = np.random.default_rng(4)
     mean, cov = np.array([0.5, 0.45]), np.array([[4e-4, 1e-4], [1e-4, 2e-4]])
@@ -71,7 +71,7 @@ def test_proposals_in_warped_coordinates_weight_back_to_the_uniform_prior():
     weighted median of S would be about 0.2 m instead of 2 m."""
     from scipy.stats import qmc
 
-    from calib.discovery.candidate_fit import _mixture_log_q
+    from calib.discovery.proposals import mixture_log_q as _mixture_log_q
     from calib.model.priors import CRSP_ROLLING_BOX as box
     from calib.model.warp import unit_coordinates
 
@@ -106,7 +106,8 @@ def test_an_adaptive_stage_fitted_to_the_gp_posterior_covers_a_narrow_posterior(
     the Gaussian fitted to the design's own weights (the fallback) is held at
     the 0.05 floor and its points' weights collapse. Measured: sd ratio 2.5-3.0
     (the fallback's 2.6-6.6), centre within 0.24 sd, k-hat 0.16 against 2.23."""
-    from calib.discovery.candidate_fit import _surrogate_gaussian, gaussian_fit
+    from calib.discovery.candidate_fit import _surrogate_gaussian
+    from calib.discovery.proposals import gaussian_fit
     from calib.inference.importance import psis_weights
 
     rng = np.random.default_rng(7)

@@ -85,9 +85,9 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy.special import gammaln, logsumexp
 from scipy.stats import qmc
 
+from calib.discovery.proposals import PROPOSAL_DF, gaussian_fit, mixture_log_q, proposal
 from calib.discovery.residuals import point_view
 from calib.discovery.scores import crps_ensemble, cv_elpd, training_sums
 from calib.inference.budget import DiscoveryBudget
@@ -108,7 +108,7 @@ from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfi
 from calib.model.warp import unit_coordinates
 
 __all__ = ["GAP_METRIC", "Candidate", "CandidateFit", "VelocityRows", "class_samples",
-           "fit_candidate", "gap", "gaussian_fit", "loglik_noise_sd"]
+           "fit_candidate", "gap", "loglik_noise_sd"]
 
 GAP_METRIC = ("mean CRPS (m) of the observed runouts under the model's posterior predictive "
               "(simulated runout + the row's measurement noise), averaged over the rows of "
@@ -236,62 +236,6 @@ def _vel_loglik_design(speeds, size_class, station, v, sd):
     """(N, n_v) log-likelihood of every velocity row at every design point,
     from speeds (N, C, K, n)."""
     return jax.vmap(lambda u: velocity_log_likelihood(u[size_class, station], v, sd))(speeds)
-
-
-def gaussian_fit(z, w, inflate=2.0, floor=0.05):
-    """Mean and inflated covariance of unit-cube points with normalised weights w."""
-    mean = w @ z
-    cov = (z - mean).T @ ((z - mean) * w[:, None])
-    return mean, inflate**2 * cov + floor**2 * np.eye(z.shape[1])
-
-
-def _proposal(mean, cov, rng, n, dim, df=None):
-    """n draws in the unit cube [0, 1]^dim: the first ``len(mean)`` coordinates from
-    N(mean, cov) truncated to the cube (with ``df``, the multivariate Student t of
-    scale matrix cov and df degrees of freedom), the others uniform. Returns (draws,
-    log-density function relative to the uniform prior).
-
-    Where the distribution lies so far outside the cube that fewer than n of its
-    draws land inside after 1000 n tries, the missing draws are uniform on the
-    cube, and the density returned is that of the pair: m/n times the truncated
-    distribution's plus (n - m)/n times the uniform's, m the draws inside."""
-    k = mean.size
-    chol = np.linalg.cholesky(cov)
-    draws = np.empty((0, k))
-    tried = accepted = 0
-    while draws.shape[0] < n and tried < 1000 * n:
-        step = rng.standard_normal((20 * n, k)) @ chol.T
-        if df is not None:
-            step = step * np.sqrt(df / rng.chisquare(df, size=(20 * n, 1)))
-        pool = mean + step
-        inside = np.all((pool >= 0) & (pool <= 1), axis=1)
-        tried += pool.shape[0]
-        accepted += int(inside.sum())
-        draws = np.concatenate([draws, pool[inside]])
-    p_in = max(accepted, 1) / tried
-    n_in = min(draws.shape[0], n)
-    if n_in < n:  # the proposal lies almost wholly outside: pad from the prior
-        draws = np.concatenate([draws, rng.uniform(size=(n - n_in, k))])
-    draws = np.concatenate([draws[:n], rng.uniform(size=(n, dim - k))], axis=1)
-    inv = np.linalg.inv(cov)
-    logdet = np.linalg.slogdet(cov)[1]
-
-    def truncated(x):
-        d = x[:, :k] - mean
-        m2 = np.einsum("ij,jk,ik->i", d, inv, d)
-        if df is None:
-            return -0.5 * m2 - 0.5 * logdet - 0.5 * k * np.log(2 * np.pi) - np.log(p_in)
-        return (gammaln(0.5 * (df + k)) - gammaln(0.5 * df) - 0.5 * k * np.log(df * np.pi)
-                - 0.5 * logdet - 0.5 * (df + k) * np.log1p(m2 / df) - np.log(p_in))
-
-    if n_in == n:
-        return draws, truncated
-
-    def padded(x):  # m/n truncated + (n - m)/n uniform (the uniform's log density is 0)
-        with np.errstate(divide="ignore"):
-            return np.logaddexp(np.log(n_in / n) + truncated(x), np.log((n - n_in) / n))
-
-    return draws, padded
 
 
 def gap(samples: np.ndarray, obs, row_class: np.ndarray, rng: np.random.Generator,
@@ -475,7 +419,7 @@ class _Design:
 
     def log_q(self) -> np.ndarray:
         """(N,) the mixture's log density relative to the prior."""
-        return _mixture_log_q(self.z, self.counts, self.logpdfs) + self.log_jac(self.z)
+        return mixture_log_q(self.z, self.counts, self.logpdfs) + self.log_jac(self.z)
 
     def add(self, new: np.ndarray, logpdf: Callable) -> None:
         """Simulate the stage ``new`` drawn from ``logpdf`` and join it to the mixture."""
@@ -518,7 +462,7 @@ def _fold_stages(design: _Design, fold: np.ndarray, flagged: np.ndarray, n_new: 
         mean, cov = _surrogate_gaussian(design.z, sums[j], log_q,
                                         design.noise_var * n_train / n_rows, n_train, rng,
                                         design.log_jac)
-        stages.append(_proposal(mean, cov, rng, n_new, design.z.shape[1], df=PROPOSAL_DF))
+        stages.append(proposal(mean, cov, rng, n_new, design.z.shape[1], df=PROPOSAL_DF))
     for new, logpdf in stages:
         design.add(new, logpdf)
         if progress:
@@ -572,9 +516,9 @@ def _design(cand: Candidate, fw, loglik, budget: DiscoveryBudget, rng, warm, vel
     stages = ([("warm", budget.n_warm)] if warm is not None and budget.n_warm else []) + \
         [("refine", n) for n in budget.n_refine]
     for kind, n_new in stages:
-        log_q = _mixture_log_q(z, counts, logpdfs) + log_jac(z)
+        log_q = mixture_log_q(z, counts, logpdfs) + log_jac(z)
         if kind == "warm":
-            new, logpdf = _proposal(warm[0], warm[1], rng, n_new, dim)
+            new, logpdf = proposal(warm[0], warm[1], rng, n_new, dim)
         else:
             total = ll.sum(axis=1)
             if budget.smooth_loglik and z.shape[0] >= MIN_POINTS:
@@ -584,7 +528,7 @@ def _design(cand: Candidate, fw, loglik, budget: DiscoveryBudget, rng, warm, vel
             else:
                 mean, cov = gaussian_fit(z, psis_weights(total - log_q)[0])
                 df = None
-            new, logpdf = _proposal(mean, cov, rng, n_new, dim, df=df)
+            new, logpdf = proposal(mean, cov, rng, n_new, dim, df=df)
         logpdfs.append(logpdf)
         counts.append(n_new)
         z = np.concatenate([z, new])
@@ -594,8 +538,6 @@ def _design(cand: Candidate, fw, loglik, budget: DiscoveryBudget, rng, warm, vel
     return _Design(z, ll, counts, logpdfs, log_jac, to_theta, noise_var, simulate, len(counts))
 
 
-# degrees of freedom of the adaptive stages' Student t proposals (module docstring)
-PROPOSAL_DF = 4
 # the cloud on which an adaptive stage's proposal is fitted to the log-likelihood
 # GP's posterior (``_surrogate_gaussian``), and its fit's inflation and floor
 SURROGATE_POINTS = 4096
@@ -632,7 +574,7 @@ def _surrogate_gaussian(z, total, log_q, noise_var: float, n_rows: int, rng, log
     mean_ll = jax.jit(jax.vmap(lambda x: emu.predict(x)[0]))
     mean, cov = gaussian_fit(z, psis_weights(np.asarray(mean_ll(jnp.asarray(z))) - log_q)[0])
     for _ in range(SURROGATE_ROUNDS):
-        cloud, logpdf = _proposal(mean, cov, rng, SURROGATE_POINTS, d)
+        cloud, logpdf = proposal(mean, cov, rng, SURROGATE_POINTS, d)
         log_w = np.asarray(mean_ll(jnp.asarray(cloud))) - logpdf(cloud) - log_jac(cloud)
         mean, cov = gaussian_fit(cloud, psis_weights(log_w)[0], inflate=SURROGATE_INFLATE,
                                  floor=SURROGATE_FLOOR)
@@ -678,14 +620,6 @@ def loglik_noise_sd(loglik_reps: np.ndarray) -> float:
     """
     total = np.asarray(loglik_reps, float).sum(axis=1)
     return float(np.std(total, ddof=1))
-
-
-def _mixture_log_q(z, counts, logpdfs):
-    """log of the deterministic-mixture density at z, relative to the uniform
-    on the unit cube: component k drew counts[k] points with log-density
-    logpdfs[k] (relative to the same uniform)."""
-    terms = [np.log(n) + f(z) for n, f in zip(counts, logpdfs, strict=True) if n]
-    return logsumexp(np.stack(terms), axis=0) - np.log(sum(counts))
 
 
 def _predictive(cand, fw, theta, w, simulated, key, budget, rng, tallies):

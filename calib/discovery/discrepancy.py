@@ -65,8 +65,8 @@ from calib.discovery.candidate_fit import (
     CandidateFit,
     VelocityRows,
     fit_candidate,
-    gaussian_fit,
 )
+from calib.discovery.proposals import gaussian_fit
 from calib.discovery.residuals import locate
 from calib.discovery.scores import (
     best_effect,
