@@ -34,6 +34,7 @@ Usage (the figures of docs/studies.md)::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import runpy
 import sys
 
@@ -54,9 +55,9 @@ def _remembering_noise_var(fw, loglik, theta, budget, key, tallies, names):
 
 
 def _copy(design):
-    return candidate_fit._Design(design.z.copy(), design.ll.copy(), list(design.counts),
-                                 list(design.logpdfs), design.log_jac, design.to_theta,
-                                 design.noise_var, design.simulate, design.n_main)
+    """The design with its own stage lists (``_Design.add`` appends to them)."""
+    return dataclasses.replace(design, counts=list(design.counts),
+                               logpdfs=list(design.logpdfs))
 
 
 def _logged_rounds(design, fold, n_new, rounds, smoothed, effect):
