@@ -42,11 +42,12 @@ import jax
 import numpy as np
 
 import calib.discovery.candidate_fit as candidate_fit
+from calib.discovery.loglik_noise import loglik_noise_sd
 from calib.inference.importance import khat_threshold
 
 _command_scores = candidate_fit._scores_covering_folds
-_command_noise_var = candidate_fit._noise_var
-_forward = {}  # the last fit's forward model, log-likelihood and budget (from _noise_var)
+_command_noise_var = candidate_fit.measured_noise_var
+_forward = {}  # the last fit's forward model, log-likelihood and budget (from measured_noise_var)
 
 
 def _remembering_noise_var(fw, loglik, theta, budget, key, tallies, names):
@@ -60,19 +61,25 @@ def _copy(design):
                                logpdfs=list(design.logpdfs))
 
 
+def _noise_sd(design, start):
+    """The median noise sd (nats) the smoothing assumes at the points from ``start`` on."""
+    var = np.broadcast_to(design.point_noise_var(), design.z.shape[:1])[start:]
+    return float(np.sqrt(np.median(var)))
+
+
 def _logged_rounds(design, fold, n_new, rounds, smoothed, effect):
     d, rng, start = _copy(design), np.random.default_rng(1), 0
     for i in range(rounds + 1):
-        k = candidate_fit._weights_and_scores(d.z, d.ll, d.log_q(), fold, d.noise_var,
-                                              smoothed)[3]
+        k = candidate_fit._weights_and_scores(d.z, d.ll, d.log_q(), fold,
+                                              d.point_noise_var(), smoothed)[3]
         total = d.ll.sum(axis=1)
         fitted = candidate_fit._smoothed(d.z, total[None], np.array([d.ll.shape[1]]),
-                                         d.noise_var)[0]
+                                         d.point_noise_var())[0]
         resid = total[start:] - fitted[start:]
         print(f"[fold rounds] {effect} round {i}: S {d.z.shape[0]}, bar "
               f"{khat_threshold(d.z.shape[0]):.3f}, fold k-hats {np.round(k, 2).tolist()}; "
               f"simulated - smoothed sum at the {'design' if i == 0 else 'new'} points: "
-              f"sd {resid.std():.2f} nats (smoothing noise sd {np.sqrt(d.noise_var):.2f})",
+              f"sd {resid.std():.2f} nats (smoothing noise sd {_noise_sd(d, start):.2f})",
               flush=True)
         flagged = np.flatnonzero(k > khat_threshold(d.z.shape[0]))
         if i == rounds or not flagged.size:
@@ -82,20 +89,21 @@ def _logged_rounds(design, fold, n_new, rounds, smoothed, effect):
 
 
 def _noise_at_heaviest(design, fold, smoothed, effect, k):
+    noise_var = np.broadcast_to(design.point_noise_var(), design.z.shape[:1])
     w = candidate_fit._weights_and_scores(design.z, design.ll, design.log_q(), fold,
-                                          design.noise_var, smoothed)[0]
+                                          noise_var, smoothed)[0]
     total = design.ll.sum(axis=1)
     fitted = candidate_fit._smoothed(design.z, total[None], np.array([design.ll.shape[1]]),
-                                     design.noise_var)[0]
+                                     noise_var)[0]
     fw, loglik, budget = _forward["fw"], _forward["loglik"], _forward["budget"]
     for rank, i in enumerate(np.argsort(w)[::-1][:k]):
         reps = fw.replicate_sims(design.to_theta(design.z[i][None])[0], budget.noise_reps,
                                  jax.random.fold_in(_forward["key"], 100 + rank))
-        sd = candidate_fit.loglik_noise_sd(loglik(*reps))
+        sd = loglik_noise_sd(loglik(*reps))
         print(f"[fold rounds] {effect} point {rank + 1} (weight {w[i]:.3f}): noise sd "
               f"{sd:.2f} nats over {budget.noise_reps} block sets; simulated - smoothed "
               f"{total[i] - fitted[i]:+.2f} nats (smoothing noise sd "
-              f"{np.sqrt(design.noise_var):.2f})", flush=True)
+              f"{np.sqrt(noise_var[i]):.2f})", flush=True)
 
 
 def main() -> None:
@@ -124,7 +132,7 @@ def main() -> None:
         return _command_scores(design, fold, n_new, rounds, smoothed, rng, progress, effect)
 
     candidate_fit._scores_covering_folds = scores
-    candidate_fit._noise_var = _remembering_noise_var
+    candidate_fit.measured_noise_var = _remembering_noise_var
     sys.argv = ["python -m calib.discover"] + [a for a in rest if a != "--"]
     runpy.run_module("calib.discover", run_name="__main__")
 

@@ -231,7 +231,7 @@ def test_discover_names_a_strong_hidden_effect_and_shrinks_the_gap(discover_run)
 
 
 def test_loglik_noise_sd_is_the_spread_of_the_summed_rows():
-    from calib.discovery.candidate_fit import loglik_noise_sd
+    from calib.discovery.loglik_noise import loglik_noise_sd
 
     reps = np.array([[-1.0, -2.0, -3.0], [-2.0, -2.0, -3.0], [-1.0, -1.0, -1.0]])
     assert loglik_noise_sd(reps) == pytest.approx(np.std([-6.0, -7.0, -3.0], ddof=1))
@@ -519,6 +519,79 @@ def test_the_fit_records_the_noise_variance_its_smoothing_assumed():
               n_blocks_check=16, k_folds=3, noise_reps=4)
     smooth = fit_candidate(cand, obs, classes, row_class, jax.random.key(0), Budget(**kw), fold)
     assert smooth.smoothing_noise_var_nats2 > 0  # NaN without smoothing: the test above
+
+
+def test_the_smoothing_takes_the_noise_measured_where_the_weight_lies():
+    """After the design, the noise is measured again at the ``noise_points``
+    heaviest design points (the Sobol stage's best point is measured first),
+    and each point's smoothing noise is that of the nearest point measured."""
+    from calib.discovery.candidate_fit import Candidate, fit_candidate
+    from calib.inference.budget import DiscoveryBudget as Budget
+    from calib.model.priors import Box
+
+    sizes = np.repeat([0.5, 1.0, 2.0], 8)
+    y = 100.0 * sizes ** 0.3 + np.random.default_rng(1).normal(0, 10, sizes.size)
+    nan = np.full(sizes.size, np.nan)
+    obs = Observations(sizes, y, np.full(sizes.size, 10.0), nan, nan,
+                       np.zeros(sizes.size, bool), ("synthetic",) * sizes.size)
+    classes, row_class = size_classes(obs.block_size_m)
+    cand = Candidate("none", Box(("scale",), (0.5,), (2.0,)), _NoisyLine)
+    fold = folds(row_class, 3, seed=0)
+    kw = dict(n_sobol=32, n_warm=0, n_refine=(), n_blocks=16, n_draws=4,
+              n_blocks_check=16, k_folds=3, noise_reps=4, fold_rounds=0)
+    one = fit_candidate(cand, obs, classes, row_class, jax.random.key(0),
+                        Budget(**kw, noise_points=0), fold)
+    three = fit_candidate(cand, obs, classes, row_class, jax.random.key(0),
+                          Budget(**kw, noise_points=2), fold)
+    assert len(one.noise_points_sd_nats) == 1
+    assert one.noise_points_sd_nats[0] == pytest.approx(np.sqrt(one.smoothing_noise_var_nats2))
+    assert len(three.noise_points_sd_nats) == 3
+    assert three.noise_points_sd_nats[0] == one.noise_points_sd_nats[0]
+    assert all(np.isfinite(three.noise_points_sd_nats)) and min(three.noise_points_sd_nats) > 0
+    np.testing.assert_array_equal(three.noise_points_theta[0], one.noise_points_theta[0])
+    # the points measured after the design are its two of largest weight under the
+    # smoothing with the Sobol stage's noise (the weights of the fit without them),
+    # the point already measured left out
+    np.testing.assert_array_equal(three.theta, one.theta)
+    order = [i for i in np.argsort(-one.weights, kind="stable")
+             if not np.array_equal(one.theta[i], one.noise_points_theta[0])]
+    heaviest = one.theta[order[:2]]
+    np.testing.assert_allclose(three.noise_points_theta[1:], heaviest, rtol=1e-12)
+
+
+def test_each_design_point_takes_the_noise_of_the_nearest_point_measured():
+    """``_Design.point_noise_var``: nearest measured point in the unit
+    coordinates; one measured point (or none): its variance everywhere."""
+    from calib.discovery.candidate_fit import _Design
+
+    z = np.array([[0.1, 0.1], [0.3, 0.2], [0.8, 0.8], [0.7, 0.9]])
+    d = _Design(z, np.zeros((4, 3)), [4], [lambda z: np.zeros(len(z))], lambda z: np.zeros(len(z)),
+                lambda z: z, 2.0, None, 1, z[:1], np.array([2.0]))
+    assert d.point_noise_var() == 2.0
+    d.noise_z = np.array([[0.0, 0.0], [1.0, 1.0]])
+    d.noise_vars = np.array([2.0, 50.0])
+    np.testing.assert_array_equal(d.point_noise_var(), [2.0, 2.0, 50.0, 50.0])
+
+
+def test_a_point_with_more_noise_is_smoothed_more():
+    """``_smoothed`` with one noise variance per point: where the variance told
+    the GP is the simulations' own, the smoothed sums lie nearer the true
+    log-likelihood than where a small one was told (the GP then follows the
+    noise)."""
+    from calib.discovery.candidate_fit import _smoothed
+
+    rng = np.random.default_rng(3)
+    z = rng.uniform(size=(96, 2))
+    truth = -200.0 - 400.0 * ((z - 0.5) ** 2).sum(axis=1)
+    noisy = z[:, 0] > 0.5
+    sd = np.where(noisy, 8.0, 0.5)
+    sims = truth + sd * rng.normal(size=z.shape[0])
+    told = _smoothed(z, sims[None], np.array([60]), sd**2)[0]
+    small = _smoothed(z, sims[None], np.array([60]), 0.25)[0]
+    err_told = np.abs(told - truth)[noisy].mean()
+    err_small = np.abs(small - truth)[noisy].mean()
+    assert err_told < 0.8 * err_small, (err_told, err_small)
+    assert np.abs(told - truth)[~noisy].mean() < 2.0
 
 
 def test_gap_warning_when_the_named_effect_widens_the_gap():
