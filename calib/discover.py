@@ -33,10 +33,8 @@ Writes into ``--out`` (atomically; nothing on error):
   gap_before, gap_after,
   where (the baseline's disagreement), each candidate's fit (with its
   unfinished blocks, ``calib.model.unfinished``, the Pareto k-hats of its
-  importance weights, ``calib.inference.importance``, the noise variance
-  measured at the Sobol stage's best point, ``smoothing_noise_var_nats2``, and
-  the noise sd at every point where the smoothing's noise was measured,
-  ``noise_points_sd_nats``, and those points, ``noise_points``), warnings, budgets, timings, seed;
+  importance weights, ``calib.inference.importance``, and the noise variance
+  their smoothing assumed, ``smoothing_noise_var_nats2``), warnings, budgets, timings, seed;
 * ``residuals.png`` (where the baseline fails), ``candidates.png`` (scores),
   ``before_after.png`` (the gap before and after).
 """
@@ -157,9 +155,6 @@ def _fit_section(f) -> dict:
             "khat": f.khat, "khat_by_fold": [float(k) for k in f.khat_folds],
             "loglik_noise_sd_nats": f.loglik_noise_sd_nats,
             "smoothing_noise_var_nats2": f.smoothing_noise_var_nats2,
-            "noise_points_sd_nats": list(f.noise_points_sd_nats),
-            "noise_points": ([] if f.noise_points_theta is None else
-                             [dict(zip(f.names, map(float, t))) for t in f.noise_points_theta]),
             "unfinished_blocks": f.unfinished,
             "gap_by_size_class_m": [None if not np.isfinite(g) else float(g)
                                     for g in f.gap_by_class]}

@@ -61,25 +61,19 @@ def _copy(design):
                                logpdfs=list(design.logpdfs))
 
 
-def _noise_sd(design, start):
-    """The median noise sd (nats) the smoothing assumes at the points from ``start`` on."""
-    var = np.broadcast_to(design.point_noise_var(), design.z.shape[:1])[start:]
-    return float(np.sqrt(np.median(var)))
-
-
 def _logged_rounds(design, fold, n_new, rounds, smoothed, effect):
     d, rng, start = _copy(design), np.random.default_rng(1), 0
     for i in range(rounds + 1):
-        k = candidate_fit._weights_and_scores(d.z, d.ll, d.log_q(), fold,
-                                              d.point_noise_var(), smoothed)[3]
+        k = candidate_fit._weights_and_scores(d.z, d.ll, d.log_q(), fold, d.noise_var,
+                                              smoothed)[3]
         total = d.ll.sum(axis=1)
         fitted = candidate_fit._smoothed(d.z, total[None], np.array([d.ll.shape[1]]),
-                                         d.point_noise_var())[0]
+                                         d.noise_var)[0]
         resid = total[start:] - fitted[start:]
         print(f"[fold rounds] {effect} round {i}: S {d.z.shape[0]}, bar "
               f"{khat_threshold(d.z.shape[0]):.3f}, fold k-hats {np.round(k, 2).tolist()}; "
               f"simulated - smoothed sum at the {'design' if i == 0 else 'new'} points: "
-              f"sd {resid.std():.2f} nats (smoothing noise sd {_noise_sd(d, start):.2f})",
+              f"sd {resid.std():.2f} nats (smoothing noise sd {np.sqrt(d.noise_var):.2f})",
               flush=True)
         flagged = np.flatnonzero(k > khat_threshold(d.z.shape[0]))
         if i == rounds or not flagged.size:
@@ -89,12 +83,11 @@ def _logged_rounds(design, fold, n_new, rounds, smoothed, effect):
 
 
 def _noise_at_heaviest(design, fold, smoothed, effect, k):
-    noise_var = np.broadcast_to(design.point_noise_var(), design.z.shape[:1])
     w = candidate_fit._weights_and_scores(design.z, design.ll, design.log_q(), fold,
-                                          noise_var, smoothed)[0]
+                                          design.noise_var, smoothed)[0]
     total = design.ll.sum(axis=1)
     fitted = candidate_fit._smoothed(design.z, total[None], np.array([design.ll.shape[1]]),
-                                     noise_var)[0]
+                                     design.noise_var)[0]
     fw, loglik, budget = _forward["fw"], _forward["loglik"], _forward["budget"]
     for rank, i in enumerate(np.argsort(w)[::-1][:k]):
         reps = fw.replicate_sims(design.to_theta(design.z[i][None])[0], budget.noise_reps,
@@ -103,7 +96,7 @@ def _noise_at_heaviest(design, fold, smoothed, effect, k):
         print(f"[fold rounds] {effect} point {rank + 1} (weight {w[i]:.3f}): noise sd "
               f"{sd:.2f} nats over {budget.noise_reps} block sets; simulated - smoothed "
               f"{total[i] - fitted[i]:+.2f} nats (smoothing noise sd "
-              f"{np.sqrt(noise_var[i]):.2f})", flush=True)
+              f"{np.sqrt(design.noise_var):.2f})", flush=True)
 
 
 def main() -> None:

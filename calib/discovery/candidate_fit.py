@@ -35,12 +35,9 @@ q_mix(theta_k)`` target the posterior under the uniform prior.
 L(theta_k) is not the simulated likelihood itself but its GP-smoothed value
 at the design point (``calib.inference.loglik_emulator.smoothed_at_design``:
 the GP of the summed log-likelihood that ``calib.fit`` samples, fitted to
-the design's points, with each point's noise the Monte Carlo variance
-measured over ``noise_reps`` block sets at the nearest of a few points: the
-Sobol stage's best, then, once the adaptive stages are done,
-``DiscoveryBudget.noise_points`` points of largest weight;
-``_Design.point_noise_var``), for the sum over all rows and for each fold's
-training rows (our choice,
+the design's points, with the Monte Carlo variance measured at the Sobol
+stage's best point over ``noise_reps`` block sets as each point's noise),
+for the sum over all rows and for each fold's training rows (our choice,
 measured in docs/studies.md, "Smoothed weights for the discovery folds"):
 the simulated sums carry 1-3 nats of noise, and weights that are their
 exponential collapse onto a few lucky points (a fold's Pareto k-hat above
@@ -90,7 +87,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.stats import qmc
 
-from calib.discovery.loglik_noise import loglik_noise_sd, measured_noise_var, nearest_noise_var
+from calib.discovery.loglik_noise import loglik_noise_sd, measured_noise_var
 from calib.discovery.proposals import PROPOSAL_DF, gaussian_fit, mixture_log_q, proposal
 from calib.discovery.residuals import point_view
 from calib.discovery.scores import crps_ensemble, cv_elpd, training_sums
@@ -180,11 +177,6 @@ class CandidateFit:
             (``calib.inference.importance.khat_threshold``); a fold above it is
             flagged.
         n_fold_points: design points the fold stages added (module docstring).
-        noise_points_sd_nats: the Monte Carlo sd of the summed log-likelihood
-            at each point where the smoothing's noise was measured (the Sobol
-            stage's best point first, then ``DiscoveryBudget.noise_points``
-            points of largest weight; ``_Design.point_noise_var``); empty where
-            not measured; noise_points_theta: (M, p) those points.
     """
 
     effect: str
@@ -211,8 +203,6 @@ class CandidateFit:
     smoothing_noise_var_nats2: float = float("nan")
     khat_bar: float = KHAT_MAX
     n_fold_points: int = 0
-    noise_points_sd_nats: tuple[float, ...] = ()
-    noise_points_theta: np.ndarray | None = None
 
 
 @jax.jit
@@ -325,9 +315,6 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     loglik = _row_loglik(obs, row_entry, vel)
     design = _design(cand, fw, loglik, budget, rng, warm, vel, tallies, progress, key)
     smoothed = budget.smooth_loglik and cand.design is None  # fixed grids: simulated sums
-    if smoothed and budget.noise_points > 0 and design.noise_z is not None:
-        _noise_where_weight_lies(design, fw, loglik, budget, jax.random.fold_in(key, 5),
-                                 tallies, box.names)
     w, khat, elpd, khat_folds = _scores_covering_folds(
         design, fold, budget.n_fold_refine, budget.fold_rounds if smoothed else 0, smoothed,
         rng, progress, cand.effect)
@@ -357,16 +344,15 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
                         elpd, est, q05, q95, best, samples, gap_c, gap_m, noise,
                         time.perf_counter() - t0, record, khat, khat_folds, per_class,
                         float(noise_var) if smoothed else float("nan"),
-                        khat_threshold(z.shape[0]), int(sum(design.counts[design.n_main:])),
-                        *_noise_points(design, smoothed))
+                        khat_threshold(z.shape[0]), int(sum(design.counts[design.n_main:])))
 
 
-def _weights_and_scores(z, ll, log_q, fold, noise_var, smooth: bool = True):
+def _weights_and_scores(z, ll, log_q, fold, noise_var: float, smooth: bool = True):
     """The posterior weights, their k-hat, the held-out scores and the folds'
     k-hats (module docstring): with ``smooth``, on the adaptive design, from
     the log-likelihood GP's smoothed sums (all rows, and each fold's training
-    rows, whose noise variance is ``noise_var`` (one, or (N,) one per point)
-    scaled by their share of the rows; ``_smoothed``); otherwise (and on a fixed grid, the DEM's few
+    rows, whose noise variance is ``noise_var`` scaled by their share of the
+    rows; ``_smoothed``); otherwise (and on a fixed grid, the DEM's few
     points, where ``fit_candidate`` does not smooth) from the simulated sums."""
     if not smooth:
         w, khat = psis_weights(ll.sum(axis=1) - log_q)
@@ -379,18 +365,16 @@ def _weights_and_scores(z, ll, log_q, fold, noise_var, smooth: bool = True):
     return w, khat, elpd, khat_folds
 
 
-def _smoothed(z, sums, n_rows, noise_var) -> np.ndarray:
+def _smoothed(z, sums, n_rows, noise_var: float) -> np.ndarray:
     """``sums`` (S, N) over ``n_rows`` (S,) rows each, smoothed over the design
     z by the log-likelihood GP (``calib.inference.loglik_emulator.smoothed_at_design``;
-    each sum's noise variance ``noise_var`` (one, or (N,) one per point) times
-    its share of the rows, the noise of a sum of rows growing with their
-    number); as simulated where the design has too few points for it
-    (``MIN_POINTS``)."""
+    each sum's noise variance ``noise_var`` times its share of the rows, the
+    noise of a sum of rows growing with their number); as simulated where the
+    design has too few points for it (``MIN_POINTS``)."""
     if z.shape[0] < MIN_POINTS:
         return sums
-    per_point = np.broadcast_to(np.asarray(noise_var, float), (z.shape[0],))
-    nv = per_point[None, :] * (np.asarray(n_rows, float) / n_rows[0])[:, None]
-    return smoothed_at_design(z, sums, n_rows, nv)
+    nv = noise_var * n_rows / n_rows[0]
+    return smoothed_at_design(z, sums, n_rows, nv[:, None])
 
 
 def _row_loglik(obs, row_entry, vel: VelocityRows | None):
@@ -422,10 +406,7 @@ class _Design:
     theta; noise_var: the Monte Carlo variance of the summed log-likelihood,
     nats^2, measured at the Sobol stage's best point over ``noise_reps`` block
     sets (0 where not measured); simulate: z -> (len(z), n_rows) loglik;
-    n_main: the stages of the main design (the fold stages come after them);
-    noise_z, noise_vars: (M, p) the points where that variance was measured
-    and (M,) its values there (the Sobol stage's best point first; None where
-    not measured; ``point_noise_var``).
+    n_main: the stages of the main design (the fold stages come after them).
     """
 
     z: np.ndarray
@@ -437,17 +418,6 @@ class _Design:
     noise_var: float
     simulate: Callable
     n_main: int = 0
-    noise_z: np.ndarray | None = None
-    noise_vars: np.ndarray | None = None
-
-    def point_noise_var(self) -> np.ndarray | float:
-        """The Monte Carlo variance (nats^2) the smoothing assumes at each design
-        point: that of the nearest point where it was measured
-        (``calib.discovery.loglik_noise.nearest_noise_var``), ``noise_var``
-        everywhere where it was measured at one point or none."""
-        if self.noise_z is None or len(self.noise_vars) < 2:
-            return self.noise_var
-        return nearest_noise_var(self.z, self.noise_z, self.noise_vars)
 
     def log_q(self) -> np.ndarray:
         """(N,) the mixture's log density relative to the prior."""
@@ -466,15 +436,15 @@ def _scores_covering_folds(design: _Design, fold: np.ndarray, n_new: int, rounds
     """``_weights_and_scores`` of the design, after up to ``rounds`` rounds of
     fold stages (``_fold_stages``, ``n_new`` points per flagged fold) while some
     fold's k-hat lies above ``khat_threshold`` of the design's size."""
-    scores = _weights_and_scores(design.z, design.ll, design.log_q(), fold,
-                                 design.point_noise_var(), smoothed)
+    scores = _weights_and_scores(design.z, design.ll, design.log_q(), fold, design.noise_var,
+                                 smoothed)
     for _ in range(rounds):
         flagged = np.flatnonzero(scores[3] > khat_threshold(design.z.shape[0]))
         if not flagged.size:
             break
         _fold_stages(design, fold, flagged, n_new, rng, progress, effect)
         scores = _weights_and_scores(design.z, design.ll, design.log_q(), fold,
-                                     design.point_noise_var(), smoothed)
+                                     design.noise_var, smoothed)
     return scores
 
 
@@ -483,17 +453,16 @@ def _fold_stages(design: _Design, fold: np.ndarray, flagged: np.ndarray, n_new: 
     """One adaptive stage of ``n_new`` points per flagged fold, drawn from the
     Student t (``PROPOSAL_DF``) fitted to that fold's training posterior under
     the log-likelihood GP (``_surrogate_gaussian`` on the fold's training sums,
-    each point's noise (``_Design.point_noise_var``) times their share of the
-    rows), joined to the mixture (module docstring)."""
+    noise ``noise_var`` times their share of the rows), joined to the mixture
+    (module docstring)."""
     log_q = design.log_q()
     sums = training_sums(design.ll, fold)
     n_rows = design.ll.shape[1]
-    noise_var = design.point_noise_var()
     stages = []  # every flagged fold's proposal from the same design, then simulated
     for j in flagged:
         n_train = int(np.sum(fold != np.unique(fold)[j]))
         mean, cov = _surrogate_gaussian(design.z, sums[j], log_q,
-                                        noise_var * n_train / n_rows, n_train, rng,
+                                        design.noise_var * n_train / n_rows, n_train, rng,
                                         design.log_jac)
         stages.append(proposal(mean, cov, rng, n_new, design.z.shape[1], df=PROPOSAL_DF))
     for new, logpdf in stages:
@@ -542,9 +511,8 @@ def _design(cand: Candidate, fw, loglik, budget: DiscoveryBudget, rng, warm, vel
     ll = simulate(z)
     if progress:
         progress(cand.effect, budget.n_sobol, total)
-    z_best = z[np.argmax(ll.sum(axis=1))]
-    noise_var = (measured_noise_var(fw, loglik, to_theta(z_best[None])[0], budget, key, tallies,
-                            box.names) if budget.smooth_loglik else 0.0)
+    noise_var = (measured_noise_var(fw, loglik, to_theta(z[np.argmax(ll.sum(axis=1))]), budget, key,
+                            tallies, box.names) if budget.smooth_loglik else 0.0)
     logpdfs = [lambda z: -log_jac(z), lambda z: np.zeros(z.shape[0])]
     counts = [n_theta, budget.n_sobol - n_theta]
     stages = ([("warm", budget.n_warm)] if warm is not None and budget.n_warm else []) + \
@@ -569,9 +537,7 @@ def _design(cand: Candidate, fw, loglik, budget: DiscoveryBudget, rng, warm, vel
         ll = np.concatenate([ll, simulate(new)])
         if progress:
             progress(cand.effect, sum(counts), total)
-    measured = budget.smooth_loglik and budget.noise_reps > 1 and hasattr(fw, "replicate_sims")
-    return _Design(z, ll, counts, logpdfs, log_jac, to_theta, noise_var, simulate, len(counts),
-                   z_best[None] if measured else None, np.array([noise_var]) if measured else None)
+    return _Design(z, ll, counts, logpdfs, log_jac, to_theta, noise_var, simulate, len(counts))
 
 
 # the cloud on which an adaptive stage's proposal is fitted to the log-likelihood
@@ -581,14 +547,13 @@ SURROGATE_ROUNDS = 2
 SURROGATE_INFLATE, SURROGATE_FLOOR = 2.0, 0.005
 
 
-def _surrogate_gaussian(z, total, log_q, noise_var, n_rows: int, rng, log_jac):
+def _surrogate_gaussian(z, total, log_q, noise_var: float, n_rows: int, rng, log_jac):
     """The next adaptive stage's Gaussian (mean, covariance in unit coordinates),
     fitted to the posterior under the log-likelihood GP instead of to the
     design's few weighted points.
 
     The GP of the summed log-likelihood (``calib.inference.loglik_emulator``,
-    the one ``calib.fit`` samples; each point's noise ``noise_var``, one or
-    (N,)) is fitted
+    the one ``calib.fit`` samples; each point's noise ``noise_var``) is fitted
     to the design (z, ``total``). A first Gaussian is the design's, weighted by
     the GP's mean at its points (``gaussian_fit``: inflated x4 plus
     (0.05)^2); then, ``SURROGATE_ROUNDS`` times, ``SURROGATE_POINTS`` points
@@ -606,8 +571,8 @@ def _surrogate_gaussian(z, total, log_q, noise_var, n_rows: int, rng, log_jac):
     measures the posterior's spread that the design alone cannot.
     """
     d = z.shape[1]
-    emu = fit_loglik_emulator(z, total, np.zeros(z.shape[0]) + np.asarray(noise_var, float),
-                              np.zeros(d), np.ones(d), n_rows)
+    emu = fit_loglik_emulator(z, total, np.full(z.shape[0], noise_var), np.zeros(d),
+                              np.ones(d), n_rows)
     mean_ll = jax.jit(jax.vmap(lambda x: emu.predict(x)[0]))
     mean, cov = gaussian_fit(z, psis_weights(np.asarray(mean_ll(jnp.asarray(z))) - log_q)[0])
     for _ in range(SURROGATE_ROUNDS):
@@ -616,43 +581,6 @@ def _surrogate_gaussian(z, total, log_q, noise_var, n_rows: int, rng, log_jac):
         mean, cov = gaussian_fit(cloud, psis_weights(log_w)[0], inflate=SURROGATE_INFLATE,
                                  floor=SURROGATE_FLOOR)
     return mean, cov
-
-
-def _noise_points(design: _Design, smoothed: bool) -> tuple:
-    """(sds in nats, (M, p) theta) of the points where the smoothing's noise
-    was measured; ((), None) where the weights were not smoothed."""
-    if design.noise_vars is None or not smoothed:
-        return (), None
-    return (tuple(float(np.sqrt(v)) for v in design.noise_vars),
-            design.to_theta(design.noise_z))
-
-
-def _noise_where_weight_lies(design: _Design, fw, loglik, budget: DiscoveryBudget, key,
-                             tallies, names) -> None:
-    """Measure the noise variance (``measured_noise_var``) at the ``noise_points``
-    design points of largest posterior weight (the weights smoothed with the
-    Sobol stage's best point's noise everywhere), points already measured
-    left out, and add them to the design's measured points
-    (``_Design.point_noise_var``).
-
-    Why (measured in docs/studies.md, "Why size dissipation's folds at
-    Tschamut stay above the bar"): the noise at the Sobol stage's best point
-    is the noise of a region the posterior may not reach; at Tschamut it was
-    half the median noise at the posterior's heaviest points for one
-    candidate and nearly three times it for another, and a smoothing that
-    assumes too little noise where the weight is lets the weights follow the
-    noise."""
-    total = design.ll.sum(axis=1)
-    smooth = _smoothed(design.z, total[None], np.array([design.ll.shape[1]]),
-                       design.point_noise_var())[0]
-    w = psis_weights(smooth - design.log_q())[0]
-    measured = {tuple(p) for p in design.noise_z}
-    chosen = [i for i in np.argsort(-w, kind="stable")
-              if tuple(design.z[i]) not in measured][:budget.noise_points]
-    new = [measured_noise_var(fw, loglik, design.to_theta(design.z[i][None])[0], budget,
-                      jax.random.fold_in(key, k), tallies, names) for k, i in enumerate(chosen)]
-    design.noise_z = np.concatenate([design.noise_z, design.z[chosen]])
-    design.noise_vars = np.concatenate([design.noise_vars, new])
 
 
 def _predictive(cand, fw, theta, w, simulated, key, budget, rng, tallies):

@@ -3,10 +3,9 @@ point over independent block sets, and carried to every design point.
 
 The likelihood of ``calib.inference.likelihood`` is a simulation estimate, so
 the summed log-likelihood of a design point carries Monte Carlo noise. The
-discovery workflow measures it at a few points (``measured_noise_var``) and
-tells the log-likelihood GP that smooths its importance weights each point's
-noise as that of the nearest point measured (``nearest_noise_var``; used by
-``calib.discovery.candidate_fit``).
+discovery workflow measures it at the Sobol stage's best point
+(``measured_noise_var``) and tells the log-likelihood GP that smooths its
+importance weights that noise at every point (``calib.discovery.candidate_fit``).
 """
 
 from __future__ import annotations
@@ -17,37 +16,20 @@ import numpy as np
 from calib.inference.budget import DiscoveryBudget
 from calib.model.unfinished import UnfinishedTally
 
-__all__ = ["loglik_noise_sd", "measured_noise_var", "nearest_noise_var"]
+__all__ = ["loglik_noise_sd", "measured_noise_var"]
 
 
 def measured_noise_var(fw, loglik, theta, budget: DiscoveryBudget, key, tallies, names) -> float:
     """The variance (nats^2) of the summed log-likelihood at ``theta`` over
     ``noise_reps`` independent block sets (``loglik_noise_sd``), the noise the
-    smoothing of the weights assumes at the design points nearest ``theta``
-    (``nearest_noise_var``); 0 (the GP's nugget alone) for forward
-    models without ``replicate_sims`` or fewer than 2 reps."""
+    smoothing of the weights assumes at every design point; 0 (the GP's nugget
+    alone) for forward models without ``replicate_sims`` or fewer than 2 reps."""
     if budget.noise_reps < 2 or not hasattr(fw, "replicate_sims"):
         return 0.0
     reps = fw.replicate_sims(theta, budget.noise_reps, jax.random.fold_in(key, 4))
     tallies.setdefault("noise", UnfinishedTally(tallies["design"].sizes_m))
     tallies["noise"].add(reps[0], np.broadcast_to(theta, (budget.noise_reps, theta.size)), names)
     return loglik_noise_sd(loglik(*reps)) ** 2
-
-
-def nearest_noise_var(z: np.ndarray, noise_z: np.ndarray, noise_vars: np.ndarray) -> np.ndarray:
-    """(N,) the noise variance at each of the points z (N, p): that of the
-    nearest of the points noise_z (M, p) where it was measured (Euclidean in
-    the unit coordinates), noise_vars (M,).
-
-    Why nearest (our choice): the noise's sd changed by a factor 1.4-5
-    between two points of one fit at Tschamut, and from point to point within
-    the posterior itself (docs/studies.md, "Why size dissipation's folds at
-    Tschamut stay above the bar"), and a handful of measured points cannot
-    carry a fitted model of it; the nearest measured value needs no
-    parameters and gives each region the noise measured in it.
-    """
-    d2 = ((np.asarray(z)[:, None, :] - np.asarray(noise_z)[None]) ** 2).sum(axis=-1)
-    return np.asarray(noise_vars, float)[np.argmin(d2, axis=1)]
 
 
 def loglik_noise_sd(loglik_reps: np.ndarray) -> float:

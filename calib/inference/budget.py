@@ -103,13 +103,6 @@ class DiscoveryBudget:
             ``n_fold_refine`` points per fold whose training weights' k-hat
             lies above the bar min(0.7, 1 - 1/log10 S) (drawn where that
             fold's posterior lives; ``calib.discovery.candidate_fit``).
-        noise_points: with ``smooth_loglik``, after the adaptive stages, the
-            design points of largest posterior weight at which the noise is
-            measured again over ``noise_reps`` block sets; the weights'
-            smoothing then takes each point's noise from the nearest point
-            measured (the Sobol stage's best among them;
-            ``calib.discovery.candidate_fit``). 0: the Sobol stage's best
-            point's noise everywhere.
     """
 
     n_sobol: int = 128
@@ -123,7 +116,6 @@ class DiscoveryBudget:
     smooth_loglik: bool = True
     n_fold_refine: int = 64
     fold_rounds: int = 2
-    noise_points: int = 4
 
     @property
     def n_design(self) -> int:
