@@ -342,6 +342,9 @@ def test_concentration_warning_names_the_sizes_that_carry_an_unnamed_gain():
      "already fits the rolling resistance"),
     (["data/postignano.csv", "--model", "dem", "--rolling-resistance", "fit"],
      "--rolling-resistance fit"),
+    (["data/postignano.csv", "--design-scale", "0.5"], "--design-scale: expected a number"),
+    (["data/postignano.csv", "--design-scale", "nan"], "--design-scale: expected a number"),
+    (["data/postignano.csv", "--model", "dem", "--design-scale", "2"], "fixed grids"),
 ])
 def test_discover_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, needle, capsys):
     """``main`` in this process (the command as a process: test_discover_help_explains
@@ -353,6 +356,45 @@ def test_discover_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, n
     assert rc == 2
     assert needle in err and len(err.strip().splitlines()) == 1, err
     assert not out.exists()
+
+
+def test_design_scale_multiplies_the_main_designs_points():
+    """``scaled_design``: the Sobol, warm and adaptive stages times the factor
+    (rounded), everything else, the fold stages too, as before."""
+    from calib.inference.budget import discovery_budget, scaled_design
+
+    base = discovery_budget("crsp")
+    twice = scaled_design(base, 2.0)
+    assert (twice.n_sobol, twice.n_warm, twice.n_refine) == (256, 256, (128, 128, 128, 128))
+    assert twice.n_design == 2 * base.n_design
+    assert dataclasses.replace(twice, n_sobol=base.n_sobol, n_warm=base.n_warm,
+                               n_refine=base.n_refine) == base
+    assert scaled_design(base, 1.5).n_sobol == 192
+    assert scaled_design(base, 1.0) == base
+
+
+def test_discover_design_scale_reaches_every_fit(tmp_path, capsys):
+    """``--design-scale 2`` at the quick budget: the budget recorded and every
+    candidate's design carry twice the points (15 s on 2 cores)."""
+    from calib.discover import main
+
+    out = tmp_path / "d"
+    rc, _, err = run_cli(main, ["data/postignano.csv", "--quick", "--design-scale", "2",
+                                "--effects", "fragmentation", "--out", str(out),
+                                "--no-progress"], capsys)
+    assert rc == 0, err
+    doc = json.loads((out / "discovery.json").read_text())
+    assert (doc["budget"]["n_sobol"], doc["budget"]["n_refine"]) == (64, [64, 64])
+    assert {e: f["n_design"] for e, f in doc["fits"].items()} == {"none": 192,
+                                                                  "fragmentation": 256}
+
+
+def test_the_khat_warning_points_to_more_design_points_not_more_blocks():
+    """More blocks per point sharpen the posterior and can raise k-hat (measured at
+    Tschamut); the warning names what helps."""
+    (w,) = psis_warnings([{"effect": "size_dissipation", "psis_flagged_folds": [0],
+                           "khat_by_fold": [0.9, 0.3]}])
+    assert "--design-scale 2" in w and "can raise k-hat" in w
 
 
 def test_discover_help_explains():

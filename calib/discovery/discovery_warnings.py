@@ -32,7 +32,7 @@ def ess_warnings(ess: dict, min_ess: float = MIN_ESS) -> list[str]:
     return [f"few effective design points (importance-sampling ESS < {min_ess:g}): {listing}. "
             f"Their 90 % intervals understate the uncertainty, and their held-out scores carry "
             f"Monte Carlo error that the reported se omits: treat gains near the naming "
-            f"threshold with care, or rerun with a larger budget."]
+            f"threshold with care, or rerun with more design points (crsp: --design-scale 2)."]
 
 
 def psis_warnings(candidates: list[dict]) -> list[str]:
@@ -43,7 +43,9 @@ def psis_warnings(candidates: list[dict]) -> list[str]:
 
     There the smoothed weights rest on a few design points and the folds'
     held-out scores (so the gains and their se) are unreliable (Vehtari et al.
-    2024); more design points where the posterior lives help.
+    2024); more design points where the posterior lives help (``calib.discover
+    --design-scale``; measured in docs/studies.md, "The noise measured where
+    the weight lies, and eight times the blocks").
     """
     flagged = [c for c in candidates if c.get("psis_flagged_folds")]
     if not flagged:
@@ -55,7 +57,9 @@ def psis_warnings(candidates: list[dict]) -> list[str]:
     return [f"Pareto k-hat above the bar min(0.7, 1 - 1/log10 S) in the held-out folds' "
             f"importance weights "
             f"({listing}): those folds' scores rest on few design points and are unreliable; "
-            f"treat the gains that involve them with care, or rerun with a larger budget."]
+            f"treat the gains that involve them with care, or rerun with more design points "
+            f"(crsp: --design-scale 2; more blocks per point, --n-blocks, sharpen the "
+            f"posterior and can raise k-hat)."]
 
 
 def _khat_text(k) -> str:
