@@ -101,7 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "and adaptive stages; default 1: 384 for the baseline, 512 with an "
                         "effect; at most 8), at roughly proportional cost. More points "
                         "where the posterior lies are what lower the folds' Pareto k-hats "
-                        "(on the 62 Tschamut runs x2 took 702 s against 409 s and left 19 "
+                        "(on the 62 Tschamut runs x2 took 713 s against 409 s and left 19 "
                         "of 20 folds below the bar against 18; docs/studies.md)")
     p.add_argument("--velocities", default=None, metavar="FILE",
                    help="passage speeds at stations, CSV with columns station_x_m, "
@@ -184,7 +184,7 @@ def _run(args) -> int:
                      combine=combine, max_steps=args.max_steps)
     bar.close()
     result = _result(args, inputs, velocities, combine, budget, d, t0)
-    result["warnings"] = _run_warnings(d, budget, inputs.obs, velocities)
+    result["warnings"] = _run_warnings(d, budget, inputs.obs, velocities, args.design_scale)
     out_figs = figs.discovery_figures(inputs.obs, d, args.model)
     text = json.dumps(json_ready(result), indent=1, allow_nan=False) + "\n"
     write_outputs(args.out, {"discovery.json": text}, out_figs)
@@ -279,10 +279,11 @@ def _result(args, inputs, velocities, combine, budget, d, t0: float) -> dict:
     }
 
 
-def _run_warnings(d, budget, obs, velocities) -> list[str]:
+def _run_warnings(d, budget, obs, velocities, design_scale: float = 1.0) -> list[str]:
     """The run's warnings, in the order discovery.json lists them: the first step's
     (ESS, PSIS, simulation noise, gap, concentration), each later step's with its
-    own candidates (prefixed with the step), then the fits' unfinished blocks."""
+    own candidates (prefixed with the step), then the fits' unfinished blocks;
+    ``design_scale``, the run's ``--design-scale``, sets the rerun they suggest."""
     from calib.discovery.discovery_warnings import (
         concentration_warnings,
         ess_warnings,
@@ -294,13 +295,15 @@ def _run_warnings(d, budget, obs, velocities) -> list[str]:
     speed_sizes = None if velocities is None else velocities.block_size_m
     later = []  # a later step's warnings: its own candidates, prefixed with the step
     for s in d.steps[1:]:
-        ws = (psis_warnings([r for r in s["candidates"] if r["effect"] != "none"])
+        ws = (psis_warnings([r for r in s["candidates"] if r["effect"] != "none"],
+                            design_scale)
               + noise_warnings(s["candidates"], budget.n_blocks, s["n_compared"])
               + concentration_warnings(s["candidates"], obs.block_size_m, speed_sizes,
                                        s["n_compared"]))
         later += [f"step {s['step']}: {w}" for w in ws]
-    return (ess_warnings({e: (f.ess, int(f.theta.shape[0])) for e, f in d.fits.items()})
-            + psis_warnings(d.table)
+    return (ess_warnings({e: (f.ess, int(f.theta.shape[0])) for e, f in d.fits.items()},
+                         design_scale=design_scale)
+            + psis_warnings(d.table, design_scale)
             + noise_warnings(d.table, budget.n_blocks, d.steps[0]["n_compared"])
             + gap_warnings(d.final_model, d.gap_before, d.gap_after)
             + concentration_warnings(d.table, obs.block_size_m, speed_sizes,

@@ -392,9 +392,13 @@ def test_discover_design_scale_reaches_every_fit(tmp_path, capsys):
 def test_the_khat_warning_points_to_more_design_points_not_more_blocks():
     """More blocks per point sharpen the posterior and can raise k-hat (measured at
     Tschamut); the warning names what helps."""
-    (w,) = psis_warnings([{"effect": "size_dissipation", "psis_flagged_folds": [0],
-                           "khat_by_fold": [0.9, 0.3]}])
-    assert "--design-scale 2" in w and "can raise k-hat" in w
+    row = {"effect": "size_dissipation", "psis_flagged_folds": [0], "khat_by_fold": [0.9, 0.3]}
+    (w,) = psis_warnings([row])
+    assert "--design-scale 2;" in w and "can raise k-hat" in w
+    (w,) = psis_warnings([row], design_scale=3.0)  # a rerun already scaled: doubled again
+    assert "--design-scale 6;" in w
+    (w,) = psis_warnings([row], design_scale=8.0)
+    assert "already at the largest --design-scale, 8" in w
 
 
 def test_discover_help_explains():

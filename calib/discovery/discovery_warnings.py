@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from calib.inference.budget import MAX_DESIGN_SCALE
+
 __all__ = ["MIN_ESS", "concentration_warnings", "ess_warnings", "gap_warnings",
            "noise_warnings", "psis_warnings"]
 
@@ -18,12 +20,22 @@ __all__ = ["MIN_ESS", "concentration_warnings", "ess_warnings", "gap_warnings",
 MIN_ESS = 10.0
 
 
-def ess_warnings(ess: dict, min_ess: float = MIN_ESS) -> list[str]:
+def _more_points(design_scale: float) -> str:
+    """The rerun that adds design points: ``--design-scale`` doubled from the
+    run's (``calib.inference.budget.scaled_design``), up to its largest."""
+    if design_scale >= MAX_DESIGN_SCALE:
+        return f"crsp: already at the largest --design-scale, {MAX_DESIGN_SCALE:g}"
+    return f"crsp: --design-scale {min(2.0 * design_scale, MAX_DESIGN_SCALE):g}"
+
+
+def ess_warnings(ess: dict, min_ess: float = MIN_ESS, design_scale: float = 1.0) -> list[str]:
     """Warnings for fits whose importance weights rest on few design points.
 
-    ``ess``: effect -> (effective sample size, design points). With few
-    effective points the posterior intervals understate the uncertainty and the
-    held-out score carries Monte Carlo error that its standard error omits.
+    ``ess``: effect -> (effective sample size, design points); ``design_scale``:
+    the run's factor on its design's points (the rerun suggested doubles it).
+    With few effective points the posterior intervals understate the
+    uncertainty and the held-out score carries Monte Carlo error that its
+    standard error omits.
     """
     low = {e: v for e, v in ess.items() if v[0] < min_ess}
     if not low:
@@ -32,14 +44,15 @@ def ess_warnings(ess: dict, min_ess: float = MIN_ESS) -> list[str]:
     return [f"few effective design points (importance-sampling ESS < {min_ess:g}): {listing}. "
             f"Their 90 % intervals understate the uncertainty, and their held-out scores carry "
             f"Monte Carlo error that the reported se omits: treat gains near the naming "
-            f"threshold with care, or rerun with more design points (crsp: --design-scale 2)."]
+            f"threshold with care, or rerun with more design points "
+            f"({_more_points(design_scale)})."]
 
 
-def psis_warnings(candidates: list[dict]) -> list[str]:
+def psis_warnings(candidates: list[dict], design_scale: float = 1.0) -> list[str]:
     """A warning naming the folds whose training weights have a Pareto k-hat above
     the bar of the design's size, min(0.7, 1 - 1/log10 S)
     (``calib.inference.importance.khat_threshold``; ``psis_flagged_folds`` of each
-    candidate row).
+    candidate row); ``design_scale`` as for ``ess_warnings``.
 
     There the smoothed weights rest on a few design points and the folds'
     held-out scores (so the gains and their se) are unreliable (Vehtari et al.
@@ -58,7 +71,7 @@ def psis_warnings(candidates: list[dict]) -> list[str]:
             f"importance weights "
             f"({listing}): those folds' scores rest on few design points and are unreliable; "
             f"treat the gains that involve them with care, or rerun with more design points "
-            f"(crsp: --design-scale 2; more blocks per point, --n-blocks, sharpen the "
+            f"({_more_points(design_scale)}; more blocks per point, --n-blocks, sharpen the "
             f"posterior and can raise k-hat)."]
 
 

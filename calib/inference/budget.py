@@ -170,8 +170,8 @@ def scaled_design(budget: DiscoveryBudget, factor: float) -> DiscoveryBudget:
     if not (1.0 <= factor <= MAX_DESIGN_SCALE):
         raise ValueError(f"expected a number from 1 to {MAX_DESIGN_SCALE:g}, got {factor:g}")
     if budget.n_sobol == 0:
-        raise ValueError("the DEM's candidates run on fixed grids, which it does not scale "
-                         "(crsp only)")
+        raise ValueError("the dem candidates run on fixed grids, which have no points to "
+                         "scale (crsp only)")
     return dataclasses.replace(
         budget, n_sobol=round(budget.n_sobol * factor), n_warm=round(budget.n_warm * factor),
         n_refine=tuple(round(n * factor) for n in budget.n_refine))
