@@ -175,6 +175,11 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
     Raises:
         CliError: bad input (one line naming the file, row and column) or a
             fit the alpha-law check refuses; nothing is written.
+
+    Longer than 80 lines with this docstring (about 60 without): the job's
+    steps in order, each one call into the module that owns it (load, split,
+    fit per model, record, figures, write); cut into helpers of this module,
+    the inputs and fits would pass back and forth through it between steps.
     """
     from calib.files.fit_record import FitOptions, fit_document, posterior_files
     from calib.files.inputs import InputError, load_inputs
