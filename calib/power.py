@@ -8,9 +8,14 @@ the same fit and naming rule as ``calib.discover``) and records which effect
 was named. Per cell (effect, strength, rows) it reports the detection rate
 (for ``none``: the rate of correctly naming ``none``, i.e. one minus the
 false-positive rate) with its exact (Clopper-Pearson) 90 % interval, what was
-named instead, and the median gain of the true effect in nats and in standard
-errors. It answers a planning question: how many mapped blocks does a survey
-need before an effect of a given size can be told from the baseline?
+named instead, the median gain of the true effect in nats and in standard
+errors, and how many of the first step's held-out folds have importance
+weights the workflow flags (Pareto k-hat above its bar) and in how many runs:
+a verdict from such a run rests in part on scores ``calib.discover`` calls
+unreliable, and ``named_right_unwarned`` in ``power.json`` counts the right
+verdicts of the other runs. It answers a planning question: how many mapped
+blocks does a survey need before an effect of a given size can be told from
+the baseline?
 
 Every finished run is written at once to ``OUT/runs/`` (one JSON file each);
 a re-run with the same ``--out`` skips the runs already there, so a long study
@@ -252,17 +257,24 @@ def _summarise(args, runs: list[dict], budget_name: str, speeds) -> None:
                         "decision_rule": "calib.discover's: gain > 4 nats and > 2 se",
                         "cells": table, "runs": runs})
     print(f"\n{'effect':18} {'strength':>8} {'rows':>5} {'named right':>12} "
-          f"{'90 % interval':>14} {'median gain':>12} {'sim sd':>6}  named")
+          f"{'90 % interval':>14} {'median gain':>12} {'sim sd':>6} {'folds > bar':>12} "
+          f"{'warned':>6}  named")
     for c in table:
         g = "-" if c["median_gain_nats"] is None else \
             f"{c['median_gain_nats']:+.1f} ({c['median_gain_se'] or 0:.1f} se)"
         sd = c["median_loglik_noise_sd_none_nats"]
         noise = "-" if sd is None else f"{sd:.1f}"
+        folds = "-" if c["folds"] is None else f"{c['folds_above_bar']} of {c['folds']}"
+        warned = "-" if c["runs_warned"] is None else f"{c['runs_warned']}"
         print(f"{c['effect']:18} {c['strength']:8g} {c['n_obs']:5d} "
               f"{c['named_right']:>5d} of {c['runs']:<4d} "
-              f"{c['rate_q05']:6.2f}-{c['rate_q95']:<6.2f} {g:>12} {noise:>6}  "
-              + ", ".join(f"{k} {v}" for k, v in c["named"].items()))
-    print("(sim sd: median Monte Carlo sd of the baseline's summed log-likelihood, nats)")
+              f"{c['rate_q05']:6.2f}-{c['rate_q95']:<6.2f} {g:>12} {noise:>6} {folds:>12} "
+              f"{warned:>6}  " + ", ".join(f"{k} {v}" for k, v in c["named"].items()))
+    print("(sim sd: median Monte Carlo sd of the baseline's summed log-likelihood, nats;\n"
+          " folds > bar: the first step's held-out folds, every candidate's, whose importance\n"
+          " weights have a Pareto k-hat above the bar min(0.7, 1 - 1/log10 S); warned: runs\n"
+          " with such a fold, whose verdict calib.discover flags as resting on unreliable "
+          "scores)")
     print(f"wrote {os.path.join(args.out, 'power.csv')} and power.json")
 
 

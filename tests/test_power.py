@@ -64,6 +64,30 @@ def test_detection_table_counts_rates_and_exact_intervals():
     assert (n["named_right"], n["rate"], n["median_gain_nats"]) == (1, 1.0, None)
 
 
+def test_detection_table_counts_the_folds_and_runs_the_khat_bar_flags():
+    """Per cell: every candidate's first-step folds, those above the bar (as the
+    run flagged them), those above 0.7 (a NaN k-hat counts as above), the runs
+    with a flagged fold and the right verdicts of the others; None for records
+    without k-hats (older studies)."""
+    def run(seed, named, khats, flagged):
+        return {"effect": "vegetation_belt", "strength": 1.0, "n_obs": 60, "seed": seed,
+                "named": named, "gains": {"vegetation_belt": [12.0, 5.0]},
+                "khat_by_fold": khats, "psis_flagged_folds": flagged}
+
+    clean = {"none": [0.1, 0.2, 0.3, 0.4, 0.5], "vegetation_belt": [0.2] * 5}
+    bad = {"none": [1.2, 2.4, 0.3, None, 0.5], "vegetation_belt": [0.66, 0.2, 0.2, 0.2, 0.2]}
+    runs = [run(1, "vegetation_belt", clean, {"none": [], "vegetation_belt": []}),
+            run(2, "vegetation_belt", bad, {"none": [0, 1, 3], "vegetation_belt": [0]}),
+            run(3, "none", clean, {"none": [], "vegetation_belt": []})]
+    c = detection_table(runs)[0]
+    assert (c["folds"], c["folds_above_bar"], c["folds_khat_above_0_7"]) == (30, 4, 3)
+    assert (c["runs_warned"], c["named_right"], c["named_right_unwarned"]) == (1, 2, 1)
+    old = [{k: v for k, v in r.items() if k not in ("khat_by_fold", "psis_flagged_folds")}
+           for r in runs]
+    c = detection_table(old)[0]
+    assert c["folds"] is None and c["runs_warned"] is None and c["named_right"] == 2
+
+
 @pytest.mark.slow  # a whole quick power study, 23 s: run with -m slow
 def test_power_quick_run_writes_table_and_resumes(tmp_path):
     out = tmp_path / "pw"

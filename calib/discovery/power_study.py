@@ -70,10 +70,20 @@ def one_run(profile, effect, strength, n_obs, seed, sd_m, fit_seed, budget,
 
 
 def detection_table(runs: list[dict], effects=None) -> list[dict]:
-    """Per (effect, strength, n_obs): detection rate, exact 90 % interval, what was named.
+    """Per (effect, strength, n_obs): detection rate, exact 90 % interval, what was
+    named, and how far the held-out scores behind those verdicts can be trusted.
 
     ``runs``: records with keys effect, strength, n_obs, named, gains
-    ({effect: [gain, se]}).
+    ({effect: [gain, se]}) and, where ``one_run`` wrote them, the first step's
+    ``khat_by_fold`` and ``psis_flagged_folds`` ({effect: [...]}, every
+    candidate and the baseline). From those, per cell: ``folds`` (every
+    candidate's folds over the runs), ``folds_above_bar`` (k-hat above the
+    bar of its fit's design size, min(0.7, 1 - 1/log10 S), as ``calib.discover``
+    flags them), ``folds_khat_above_0_7``, ``runs_warned`` (runs with a
+    flagged fold: ``calib.discover`` printed its k-hat warning, so their
+    verdict rests in part on scores it calls unreliable) and
+    ``named_right_unwarned`` (right verdicts of the other runs); all None
+    where no run of the cell has them (records of older studies).
     """
     from scipy.stats import binomtest
 
@@ -99,8 +109,28 @@ def detection_table(runs: list[dict], effects=None) -> list[dict]:
                                        if x[1] is not None and x[1] > 0]),
             "median_loglik_noise_sd_none_nats": _median(
                 [r.get("loglik_noise_sd_nats", {}).get("none") for r in rows]),
+            **_fold_counts(rows, eff),
             "seeds": [r["seed"] for r in rows]})
     return table
+
+
+def _fold_counts(rows: list[dict], effect: str) -> dict:
+    """The k-hat counts of ``detection_table`` for one cell's runs."""
+    keys = ("folds", "folds_above_bar", "folds_khat_above_0_7", "runs_warned",
+            "named_right_unwarned")
+    rows = [r for r in rows if r.get("khat_by_fold") and "psis_flagged_folds" in r]
+    if not rows:
+        return dict.fromkeys(keys)
+    k = [np.array([np.nan if x is None else x for x in ks], float)
+         for r in rows for ks in r["khat_by_fold"].values()]
+    warned = [any(r["psis_flagged_folds"].values()) for r in rows]
+    return dict(zip(keys, (
+        int(sum(v.size for v in k)),
+        int(sum(len(f) for r in rows for f in r["psis_flagged_folds"].values())),
+        int(sum(np.sum(~(v <= 0.7)) for v in k)),  # a NaN k-hat counts as above
+        int(sum(warned)),
+        int(sum(r["named"] == effect and not w for r, w in zip(rows, warned, strict=True))),
+    ), strict=True))
 
 
 def _median(values) -> float | None:
