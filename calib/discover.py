@@ -186,7 +186,9 @@ def _run(args) -> int:
                      combine=combine, max_steps=args.max_steps)
     bar.close()
     result = _result(args, inputs, velocities, combine, budget, d, t0)
-    result["warnings"] = _run_warnings(d, budget, inputs.obs, velocities, args.design_scale)
+    # a fixed-grid design (the DEM's, no Sobol points) has no points to scale
+    result["warnings"] = _run_warnings(d, budget, inputs.obs, velocities,
+                                       args.design_scale if budget.n_sobol else None)
     out_figs = figs.discovery_figures(inputs.obs, d, args.model)
     text = json.dumps(json_ready(result), indent=1, allow_nan=False) + "\n"
     write_outputs(args.out, {"discovery.json": text}, out_figs)
@@ -281,11 +283,12 @@ def _result(args, inputs, velocities, combine, budget, d, t0: float) -> dict:
     }
 
 
-def _run_warnings(d, budget, obs, velocities, design_scale: float = 1.0) -> list[str]:
+def _run_warnings(d, budget, obs, velocities, design_scale: float | None = 1.0) -> list[str]:
     """The run's warnings, in the order discovery.json lists them: the first step's
     (ESS, PSIS, simulation noise, gap, concentration), each later step's with its
     own candidates (prefixed with the step), then the fits' unfinished blocks;
-    ``design_scale``, the run's ``--design-scale``, sets the rerun they suggest."""
+    ``design_scale``, the run's ``--design-scale`` (None for the DEM's fixed
+    grids), sets the rerun they suggest."""
     from calib.discovery.discovery_warnings import (
         concentration_warnings,
         ess_warnings,

@@ -13,7 +13,12 @@ import pytest
 from cli_run import run_cli, run_module
 from scipy import stats
 
-from calib.discovery.discovery_warnings import gap_warnings, noise_warnings, psis_warnings
+from calib.discovery.discovery_warnings import (
+    ess_warnings,
+    gap_warnings,
+    noise_warnings,
+    psis_warnings,
+)
 from calib.discovery.discrepancy import size_classes
 from calib.discovery.residuals import locate
 from calib.discovery.scores import (
@@ -399,6 +404,15 @@ def test_the_khat_warning_points_to_more_design_points_not_more_blocks():
     assert "--design-scale 6;" in w
     (w,) = psis_warnings([row], design_scale=8.0)
     assert "already at the largest --design-scale, 8" in w
+
+
+def test_the_warnings_of_a_fixed_grid_run_suggest_no_design_scale():
+    """The DEM candidates' designs are fixed grids, which --design-scale refuses:
+    their warnings say so instead of suggesting a rerun that exits 2."""
+    row = {"effect": "fragmentation", "psis_flagged_folds": [1], "khat_by_fold": [0.2, 1.4]}
+    for (w,) in (psis_warnings([row], design_scale=None),
+                 ess_warnings({"fragmentation": (2.0, 40)}, design_scale=None)):
+        assert "--design-scale" not in w and "fixed grids have no points to add" in w
 
 
 def test_discover_help_explains():

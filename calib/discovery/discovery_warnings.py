@@ -20,19 +20,26 @@ __all__ = ["MIN_ESS", "concentration_warnings", "ess_warnings", "gap_warnings",
 MIN_ESS = 10.0
 
 
-def _more_points(design_scale: float) -> str:
+def _more_points(design_scale: float | None) -> str:
     """The rerun that adds design points: ``--design-scale`` doubled from the
-    run's (``calib.inference.budget.scaled_design``), up to its largest."""
+    run's (``calib.inference.budget.scaled_design``), up to its largest; None:
+    the run's designs are fixed grids (the DEM candidates'), which
+    ``--design-scale`` refuses, so no rerun of this run adds points."""
+    if design_scale is None:
+        return ("the dem candidates' fixed grids have no points to add; --model crsp "
+                "can add them")
     if design_scale >= MAX_DESIGN_SCALE:
-        return f"crsp: already at the largest --design-scale, {MAX_DESIGN_SCALE:g}"
-    return f"crsp: --design-scale {min(2.0 * design_scale, MAX_DESIGN_SCALE):g}"
+        return f"already at the largest --design-scale, {MAX_DESIGN_SCALE:g}"
+    return f"--design-scale {min(2.0 * design_scale, MAX_DESIGN_SCALE):g}"
 
 
-def ess_warnings(ess: dict, min_ess: float = MIN_ESS, design_scale: float = 1.0) -> list[str]:
+def ess_warnings(ess: dict, min_ess: float = MIN_ESS,
+                 design_scale: float | None = 1.0) -> list[str]:
     """Warnings for fits whose importance weights rest on few design points.
 
     ``ess``: effect -> (effective sample size, design points); ``design_scale``:
-    the run's factor on its design's points (the rerun suggested doubles it).
+    the run's factor on its design's points (the rerun suggested doubles it),
+    None for fixed-grid designs (the DEM's: no rerun adds points).
     With few effective points the posterior intervals understate the
     uncertainty and the held-out score carries Monte Carlo error that its
     standard error omits.
@@ -48,7 +55,7 @@ def ess_warnings(ess: dict, min_ess: float = MIN_ESS, design_scale: float = 1.0)
             f"({_more_points(design_scale)})."]
 
 
-def psis_warnings(candidates: list[dict], design_scale: float = 1.0) -> list[str]:
+def psis_warnings(candidates: list[dict], design_scale: float | None = 1.0) -> list[str]:
     """A warning naming the folds whose training weights have a Pareto k-hat above
     the bar of the design's size, min(0.7, 1 - 1/log10 S)
     (``calib.inference.importance.khat_threshold``; ``psis_flagged_folds`` of each
