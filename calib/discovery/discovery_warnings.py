@@ -26,8 +26,7 @@ def _more_points(design_scale: float | None) -> str:
     the run's designs are fixed grids (the DEM candidates'), which
     ``--design-scale`` refuses, so no rerun of this run adds points."""
     if design_scale is None:
-        return ("the dem candidates' fixed grids have no points to add; --model crsp "
-                "can add them")
+        return "--model crsp; the dem candidates' fixed grids have no points to add"
     if design_scale >= MAX_DESIGN_SCALE:
         return f"already at the largest --design-scale, {MAX_DESIGN_SCALE:g}"
     return f"--design-scale {min(2.0 * design_scale, MAX_DESIGN_SCALE):g}"
