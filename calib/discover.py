@@ -173,6 +173,7 @@ def _run(args) -> int:
     """The command: check the inputs, run the stepwise discovery, write
     discovery.json and the figures (atomically) and print the summary."""
     from calib.discovery.discrepancy import discover
+    from calib.inference.budget import has_scalable_design
     from calib.model.unfinished import UnfinishedBlocksWarning
     from calib.plots import discovery_figures as figs
 
@@ -186,9 +187,9 @@ def _run(args) -> int:
                      combine=combine, max_steps=args.max_steps)
     bar.close()
     result = _result(args, inputs, velocities, combine, budget, d, t0)
-    # a fixed-grid design (the DEM's, no Sobol points) has no points to scale
-    result["warnings"] = _run_warnings(d, budget, inputs.obs, velocities,
-                                       args.design_scale if budget.n_sobol else None)
+    result["warnings"] = _run_warnings(
+        d, budget, inputs.obs, velocities,
+        args.design_scale if has_scalable_design(budget) else None)
     out_figs = figs.discovery_figures(inputs.obs, d, args.model)
     text = json.dumps(json_ready(result), indent=1, allow_nan=False) + "\n"
     write_outputs(args.out, {"discovery.json": text}, out_figs)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 
 __all__ = ["DISCOVERY_PRESETS", "MAX_DESIGN_SCALE", "Budget", "DiscoveryBudget",
-           "discovery_budget", "presets", "scaled_design"]
+           "discovery_budget", "has_scalable_design", "presets", "scaled_design"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -154,6 +154,12 @@ def discovery_budget(model: str, quick: bool = False,
     return dataclasses.replace(budget, n_blocks=n_blocks)
 
 
+def has_scalable_design(budget: DiscoveryBudget) -> bool:
+    """Whether ``scaled_design`` can add points to the budget's designs: not for
+    a fixed grid (the DEM candidates', ``n_sobol`` 0)."""
+    return budget.n_sobol > 0
+
+
 def scaled_design(budget: DiscoveryBudget, factor: float) -> DiscoveryBudget:
     """``budget`` with the points of its main design (the Sobol, warm and adaptive
     stages) multiplied by ``factor`` (1 to ``MAX_DESIGN_SCALE``), each rounded to
@@ -171,7 +177,7 @@ def scaled_design(budget: DiscoveryBudget, factor: float) -> DiscoveryBudget:
     refused."""
     if not (1.0 <= factor <= MAX_DESIGN_SCALE):
         raise ValueError(f"expected a number from 1 to {MAX_DESIGN_SCALE:g}, got {factor:g}")
-    if budget.n_sobol == 0:
+    if not has_scalable_design(budget):
         raise ValueError("the dem candidates run on fixed grids, which have no points to "
                          "scale (crsp only)")
     return dataclasses.replace(
