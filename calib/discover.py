@@ -29,7 +29,8 @@ Writes into ``--out`` (atomically; nothing on error):
   gap_after, candidates}], stopping_rule, multiple_testing, refit_command (the
   calib.fit command of the final model; null where calib.fit cannot fit it),
   candidates (the first step's) [{effect, model, score, gap, ...,
-  khat, khat_by_fold, khat_bar, n_fold_points, psis_flagged_folds}], gap_metric,
+  khat, khat_by_fold, khat_bar, n_fold_points, fresh_draw_folds,
+  psis_flagged_folds}], gap_metric,
   gap_before, gap_after,
   where (the baseline's disagreement), each candidate's fit (with its
   unfinished blocks, ``calib.model.unfinished``, the Pareto k-hats of its
@@ -161,6 +162,7 @@ def _fit_section(f) -> dict:
             "best_design_point": dict(zip(f.names, map(float, f.best))),
             "ess": f.ess, "n_design": int(f.theta.shape[0]),
             "n_fold_points": f.n_fold_points, "khat_bar": f.khat_bar,
+            "fresh_draw_folds": list(f.fresh_draw_folds),
             "khat": f.khat, "khat_by_fold": [float(k) for k in f.khat_folds],
             "loglik_noise_sd_nats": f.loglik_noise_sd_nats,
             "smoothing_noise_var_nats2": f.smoothing_noise_var_nats2,

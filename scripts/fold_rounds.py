@@ -117,12 +117,14 @@ def main() -> None:
         p.error(f"--noise-points must be >= 0, got {args.noise_points}")
     logged = set(args.log_effects.split(","))
 
-    def scores(design, fold, n_new, rounds, smoothed, rng, progress=None, effect=""):
+    def scores(design, fold, n_new, rounds, smoothed, rng, progress=None, effect="",
+               n_draws=0):
         if effect in logged and smoothed:
             _logged_rounds(design, fold, n_new, args.rounds, smoothed, effect)
             if args.noise_points and "fw" in _forward:
                 _noise_at_heaviest(design, fold, smoothed, effect, args.noise_points)
-        return _command_scores(design, fold, n_new, rounds, smoothed, rng, progress, effect)
+        return _command_scores(design, fold, n_new, rounds, smoothed, rng, progress, effect,
+                               n_draws)
 
     candidate_fit._scores_covering_folds = scores
     candidate_fit.measured_noise_var = _remembering_noise_var

@@ -66,6 +66,19 @@ cheapest cure (a stage costs one GP fit and 64 simulations; refitting the
 fold costs a whole design of 512), and one mixture keeps every weight, the
 posterior's too, valid. Measured in docs/studies.md, "Fold stages: points for
 the folds above the bar".
+
+Fresh draws (smoothed path): a fold still above the bar after those rounds
+is not scored by the design's weights at all: ``DiscoveryBudget.n_fold_draws``
+points are drawn from its training posterior under the log-likelihood GP
+(a cloud of ``FOLD_CLOUD_POINTS`` weighted by the GP's mean) and simulated,
+and its held-out rows are scored at them (``_fresh_draw_scores``); its
+reported k-hat is that of the cloud's weights. Why: where the design's
+points miss a fold's training posterior, more points near it can move the
+weights' tail instead of filling it (measured in docs/studies.md, "Why size
+dissipation's folds at Tschamut stay above the bar", and "Fresh draws for
+the folds the design cannot weight"); the fresh draws need no importance
+weight on a simulated likelihood. They are not joined to the design, so
+the posterior's weights and every fold below the bar are unchanged.
 Runouts are
 simulated with common random numbers (``calib.model.forward``), and the
 likelihood is ``calib.inference.likelihood``'s, the one ``calib.fit`` uses (points:
@@ -85,6 +98,7 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy.special import logsumexp
 from scipy.stats import qmc
 
 from calib.discovery.loglik_noise import loglik_noise_sd, measured_noise_var
@@ -177,6 +191,9 @@ class CandidateFit:
             (``calib.inference.importance.khat_threshold``); a fold above it is
             flagged.
         n_fold_points: design points the fold stages added (module docstring).
+        fresh_draw_folds: the folds scored on fresh draws of their training
+            posterior (``_fresh_draw_scores``); their ``khat_folds`` are those
+            draws' weights'.
     """
 
     effect: str
@@ -203,6 +220,7 @@ class CandidateFit:
     smoothing_noise_var_nats2: float = float("nan")
     khat_bar: float = KHAT_MAX
     n_fold_points: int = 0
+    fresh_draw_folds: tuple[int, ...] = ()
 
 
 @jax.jit
@@ -315,9 +333,9 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     loglik = _row_loglik(obs, row_entry, vel)
     design = _design(cand, fw, loglik, budget, rng, warm, vel, tallies, progress, key)
     smoothed = budget.smooth_loglik and cand.design is None  # fixed grids: simulated sums
-    w, khat, elpd, khat_folds = _scores_covering_folds(
+    w, khat, elpd, khat_folds, fresh = _scores_covering_folds(
         design, fold, budget.n_fold_refine, budget.fold_rounds if smoothed else 0, smoothed,
-        rng, progress, cand.effect)
+        rng, progress, cand.effect, budget.n_fold_draws)
     z, ll, log_q, noise_var = design.z, design.ll, design.log_q(), design.noise_var
     theta = design.to_theta(z)
     est = w @ theta
@@ -344,7 +362,8 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
                         elpd, est, q05, q95, best, samples, gap_c, gap_m, noise,
                         time.perf_counter() - t0, record, khat, khat_folds, per_class,
                         float(noise_var) if smoothed else float("nan"),
-                        khat_threshold(z.shape[0]), int(sum(design.counts[design.n_main:])))
+                        khat_threshold(z.shape[0]), int(sum(design.counts[design.n_main:])),
+                        fresh)
 
 
 def _weights_and_scores(z, ll, log_q, fold, noise_var: float, smooth: bool = True):
@@ -432,10 +451,17 @@ class _Design:
 
 
 def _scores_covering_folds(design: _Design, fold: np.ndarray, n_new: int, rounds: int,
-                           smoothed: bool, rng, progress=None, effect: str = ""):
+                           smoothed: bool, rng, progress=None, effect: str = "",
+                           n_draws: int = 0):
     """``_weights_and_scores`` of the design, after up to ``rounds`` rounds of
     fold stages (``_fold_stages``, ``n_new`` points per flagged fold) while some
-    fold's k-hat lies above ``khat_threshold`` of the design's size."""
+    fold's k-hat lies above ``khat_threshold`` of the design's size; then, with
+    ``smoothed`` and ``n_draws``, every fold still above it scored on
+    ``n_draws`` fresh draws (``_fresh_draw_scores``: its rows' scores and its
+    k-hat, that of the draws' weights, replaced).
+
+    Returns (weights, k-hat, elpd (n_rows,), fold k-hats (K,), the indices of
+    the folds scored on fresh draws)."""
     scores = _weights_and_scores(design.z, design.ll, design.log_q(), fold, design.noise_var,
                                  smoothed)
     for _ in range(rounds):
@@ -445,7 +471,74 @@ def _scores_covering_folds(design: _Design, fold: np.ndarray, n_new: int, rounds
         _fold_stages(design, fold, flagged, n_new, rng, progress, effect)
         scores = _weights_and_scores(design.z, design.ll, design.log_q(), fold,
                                      design.noise_var, smoothed)
-    return scores
+    w, khat, elpd, khat_folds = scores
+    flagged = np.flatnonzero(khat_folds > khat_threshold(design.z.shape[0]))
+    if not (smoothed and n_draws and flagged.size):
+        return w, khat, elpd, khat_folds, ()
+    elpd, khat_folds = elpd.copy(), khat_folds.copy()
+    ids = np.unique(fold)
+    for j, (held_elpd, khat_j) in zip(flagged, _fresh_draw_scores(design, fold, flagged,
+                                                                  n_draws, rng), strict=True):
+        elpd[fold == ids[j]] = held_elpd
+        khat_folds[j] = khat_j
+    return w, khat, elpd, khat_folds, tuple(int(j) for j in flagged)
+
+
+# the cloud on which a fold's training posterior under the log-likelihood GP is
+# weighted before its fresh draws are taken (``_fresh_draw_scores``)
+FOLD_CLOUD_POINTS = 16384
+
+
+def _fresh_draw_scores(design: _Design, fold: np.ndarray, flagged: np.ndarray,
+                       n_draws: int, rng) -> list[tuple[np.ndarray, float]]:
+    """Held-out scores of the ``flagged`` folds from fresh draws of each fold's
+    training posterior, not from the design's importance weights.
+
+    For fold f: the log-likelihood GP is fitted to the design's sums over the
+    fold's training rows (``_surrogate_fit``: noise ``noise_var`` times their
+    share of the rows); ``FOLD_CLOUD_POINTS`` points from the Student t
+    (``PROPOSAL_DF``) fitted to that GP's posterior are weighted by exp(GP
+    mean) times the prior over their density (Pareto-smoothed), ``n_draws``
+    of them taken by systematic resampling and each simulated (the design's
+    forward model and blocks); a held-out row i of f scores
+
+        elpd_i = log (1/M) sum_m p(y_i | theta_m),  theta_m ~ p_GP(theta | y_(-f))
+
+    with p(y_i | theta_m) simulated. Returns per fold (elpd of its rows, the
+    k-hat of the cloud's weights).
+
+    Why (our choice; measured in docs/studies.md, "Fresh draws for the folds
+    the design cannot weight"): where the design's points do not cover a
+    fold's training posterior, the importance weights of its score rest on a
+    few points, and adding points near it (the fold stages) can move the
+    weights' tail instead of filling it. The training posterior under the
+    GP is the one the design's weights already use; drawing from it costs
+    GP evaluations only (thousands of points, the weights' k-hat measured on
+    them), and the held-out rows are then scored by simulation at the draws,
+    with no importance weight on a simulated likelihood. A K-fold score of
+    a predictive distribution fitted to the training rows alone is a proper
+    held-out score whatever the approximation of that fit; what it shares
+    with the full data is where the design's points lie, not their values.
+    """
+    log_q = design.log_q()
+    sums = training_sums(design.ll, fold)
+    ids = np.unique(fold)
+    n_rows = design.ll.shape[1]
+    u = (rng.uniform() + np.arange(n_draws)) / n_draws
+    out = []
+    for j in flagged:
+        held = fold == ids[j]
+        n_train = int(np.sum(~held))
+        mean, cov, mean_ll = _surrogate_fit(design.z, sums[j], log_q,
+                                            design.noise_var * n_train / n_rows, n_train,
+                                            rng, design.log_jac)
+        cloud, logpdf = proposal(mean, cov, rng, FOLD_CLOUD_POINTS, design.z.shape[1],
+                                 df=PROPOSAL_DF)
+        w, khat = psis_weights(mean_ll(cloud) - logpdf(cloud) - design.log_jac(cloud))
+        idx = np.minimum(np.searchsorted(np.cumsum(w), u), len(w) - 1)
+        ll = design.simulate(cloud[idx])
+        out.append((logsumexp(ll[:, held], axis=0) - np.log(n_draws), float(khat)))
+    return out
 
 
 def _fold_stages(design: _Design, fold: np.ndarray, flagged: np.ndarray, n_new: int, rng,
@@ -548,6 +641,11 @@ SURROGATE_INFLATE, SURROGATE_FLOOR = 2.0, 0.005
 
 
 def _surrogate_gaussian(z, total, log_q, noise_var: float, n_rows: int, rng, log_jac):
+    """``_surrogate_fit``'s (mean, covariance)."""
+    return _surrogate_fit(z, total, log_q, noise_var, n_rows, rng, log_jac)[:2]
+
+
+def _surrogate_fit(z, total, log_q, noise_var: float, n_rows: int, rng, log_jac):
     """The next adaptive stage's Gaussian (mean, covariance in unit coordinates),
     fitted to the posterior under the log-likelihood GP instead of to the
     design's few weighted points.
@@ -569,18 +667,25 @@ def _surrogate_gaussian(z, total, log_q, noise_var: float, n_rows: int, rng, log
     floor made the folds' k-hat worse), so the design's points missed it; the
     GP's mean costs nothing per point, and a cloud of thousands of points
     measures the posterior's spread that the design alone cannot.
+
+    Returns (mean, covariance, the GP's mean log-likelihood as a function of
+    (n, p) unit coordinates).
     """
     d = z.shape[1]
     emu = fit_loglik_emulator(z, total, np.full(z.shape[0], noise_var), np.zeros(d),
                               np.ones(d), n_rows)
-    mean_ll = jax.jit(jax.vmap(lambda x: emu.predict(x)[0]))
-    mean, cov = gaussian_fit(z, psis_weights(np.asarray(mean_ll(jnp.asarray(z))) - log_q)[0])
+    gp_mean = jax.jit(jax.vmap(lambda x: emu.predict(x)[0]))
+
+    def mean_ll(x):
+        return np.asarray(gp_mean(jnp.asarray(x)))
+
+    mean, cov = gaussian_fit(z, psis_weights(mean_ll(z) - log_q)[0])
     for _ in range(SURROGATE_ROUNDS):
         cloud, logpdf = proposal(mean, cov, rng, SURROGATE_POINTS, d)
-        log_w = np.asarray(mean_ll(jnp.asarray(cloud))) - logpdf(cloud) - log_jac(cloud)
+        log_w = mean_ll(cloud) - logpdf(cloud) - log_jac(cloud)
         mean, cov = gaussian_fit(cloud, psis_weights(log_w)[0], inflate=SURROGATE_INFLATE,
                                  floor=SURROGATE_FLOOR)
-    return mean, cov
+    return mean, cov, mean_ll
 
 
 def _predictive(cand, fw, theta, w, simulated, key, budget, rng, tallies):

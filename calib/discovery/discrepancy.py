@@ -341,6 +341,7 @@ def _step_record(step: int, named: tuple[str, ...], cand_fits: dict, base: Candi
                       "ess": f.ess, "loglik_noise_sd_nats": f.loglik_noise_sd_nats,
                       "khat": f.khat, "khat_by_fold": [float(k) for k in f.khat_folds],
                       "khat_bar": f.khat_bar, "n_fold_points": f.n_fold_points,
+                      "fresh_draw_folds": list(f.fresh_draw_folds),
                       "psis_flagged_folds": [int(j) for j in
                                              np.flatnonzero(f.khat_folds > f.khat_bar)]})
         if eff != "none":  # how many rows carry the gain (the se rule is a bar on it)

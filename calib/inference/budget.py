@@ -104,6 +104,11 @@ class DiscoveryBudget:
             ``n_fold_refine`` points per fold whose training weights' k-hat
             lies above the bar min(0.7, 1 - 1/log10 S) (drawn where that
             fold's posterior lives; ``calib.discovery.candidate_fit``).
+        n_fold_draws: with ``smooth_loglik``, a fold still above that bar
+            after the rounds is scored on this many fresh draws from its
+            training posterior under the log-likelihood GP, each simulated
+            (``calib.discovery.candidate_fit``); 0: its importance-weighted
+            score stays, flagged.
     """
 
     n_sobol: int = 128
@@ -117,6 +122,7 @@ class DiscoveryBudget:
     smooth_loglik: bool = True
     n_fold_refine: int = 64
     fold_rounds: int = 2
+    n_fold_draws: int = 64
 
     @property
     def n_design(self) -> int:
