@@ -424,7 +424,12 @@ def _print_step(st: dict, n_velocity: int, several: bool) -> None:
             print("(sim sd: Monte Carlo sd of the summed log-likelihood, nats, over "
                   "independent block sets)")
         print("(k-hat: the largest Pareto k-hat of the folds' importance weights; ! marks one "
-              "above 0.7, an unreliable held-out score)")
+              "above the bar min(0.7, 1 - 1/log10 S), an unreliable held-out score)")
+    fresh = "; ".join(f"{c['effect']} {_folds_text(c['fresh_draw_folds'])}" for c in rows
+                      if c.get("fresh_draw_folds"))
+    if fresh:
+        print(f"(scored on fresh draws of their training posterior, the design's weights "
+              f"being above the bar: {fresh}; their k-hat is that of the draws' weights)")
     if n_velocity:
         parts = ", ".join(f"{c['effect']} {c['delta_velocity_rows']:+.1f}"
                           for c in rows if c["effect"] != "none")
@@ -436,6 +441,10 @@ def _print_step(st: dict, n_velocity: int, several: bool) -> None:
             f"{st['threshold_nats']:.1f}")
         print(f"step {st['step']} names {st['named']}{gain}; gap {st['gap_before']:.2f} -> "
               f"{st['gap_after']:.2f} m")
+
+
+def _folds_text(folds: list) -> str:
+    return ("fold " if len(folds) == 1 else "folds ") + ", ".join(map(str, folds))
 
 
 def _worst_fold(c: dict) -> str:

@@ -640,3 +640,30 @@ def test_synthetic_rows_written_by_the_library_read_back_as_the_command_writes(t
     np.testing.assert_array_equal(vback.velocity_m_s, [12.346, 20.0])
     np.testing.assert_array_equal(vback.station_x_m, vel.station_x_m)
 
+
+
+def test_the_step_table_names_the_folds_scored_on_fresh_draws(capsys):
+    """A step's table says which folds were scored on fresh draws of their
+    training posterior (``fresh_draw_folds`` of each candidate row) and that
+    '!' marks a fold above the sample-size bar, not above 0.7."""
+    from calib.discover import _print_step
+
+    def row(effect, fresh, flagged):
+        return {"effect": effect, "score": -230.0, "delta_vs_none": 0.0 if effect == "none"
+                else 5.0, "se_delta": None if effect == "none" else 2.0, "gap": 6.0,
+                "loglik_noise_sd_nats": 1.0, "khat_by_fold": [0.2, 0.66, 0.1, 0.3, 0.4],
+                "psis_flagged_folds": flagged, "fresh_draw_folds": fresh}
+
+    st = {"step": 1, "baseline": "none", "n_compared": 2, "z": 2.28, "se_nats": 2.0,
+          "gain_nats": 5.0, "best": "fragmentation", "threshold_nats": 4.6,
+          "named": "fragmentation", "gap_before": 6.0, "gap_after": 5.0,
+          "candidates": [row("fragmentation", [3], [1]), row("none", [0, 2, 4], [])]}
+    _print_step(st, 0, True)
+    out = capsys.readouterr().out
+    assert "! marks one above the bar min(0.7, 1 - 1/log10 S)" in out
+    assert "0.66!" in out
+    assert ("(scored on fresh draws of their training posterior, the design's weights being "
+            "above the bar: fragmentation fold 3; none folds 0, 2, 4;") in out
+    st["candidates"] = [row("fragmentation", [], []), row("none", [], [])]
+    _print_step(st, 0, True)
+    assert "fresh draws" not in capsys.readouterr().out

@@ -60,9 +60,11 @@ def psis_warnings(candidates: list[dict], design_scale: float | None = 1.0) -> l
     (``calib.inference.importance.khat_threshold``; ``psis_flagged_folds`` of each
     candidate row); ``design_scale`` as for ``ess_warnings``.
 
-    There the smoothed weights rest on a few design points and the folds'
-    held-out scores (so the gains and their se) are unreliable (Vehtari et al.
-    2024); more design points where the posterior lives help (``calib.discover
+    There the smoothed weights rest on a few design points (or, for a fold
+    scored on fresh draws of its training posterior, the draws' weights on a
+    few points of their cloud) and the folds' held-out scores (so the gains
+    and their se) are unreliable (Vehtari et al. 2024); more design points
+    where the posterior lives help (``calib.discover
     --design-scale``; measured in docs/studies.md, "The noise measured where
     the weight lies, and eight times the blocks").
     """
@@ -75,7 +77,7 @@ def psis_warnings(candidates: list[dict], design_scale: float | None = 1.0) -> l
         for c in flagged)
     return [f"Pareto k-hat above the bar min(0.7, 1 - 1/log10 S) in the held-out folds' "
             f"importance weights "
-            f"({listing}): those folds' scores rest on few design points and are unreliable; "
+            f"({listing}): those folds' scores rest on few weighted points and are unreliable; "
             f"treat the gains that involve them with care, or rerun with more design points "
             f"({_more_points(design_scale)}; more blocks per point, --n-blocks, sharpen the "
             f"posterior and can raise k-hat)."]
