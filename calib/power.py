@@ -13,7 +13,9 @@ errors, and how many of the first step's held-out folds have importance
 weights the workflow flags (Pareto k-hat above its bar) and in how many runs:
 a verdict from such a run rests in part on scores ``calib.discover`` calls
 unreliable, and ``named_right_unwarned`` in ``power.json`` counts the right
-verdicts of the other runs. It answers a planning question: how many mapped
+verdicts of the other runs (``folds_fresh_draws`` there: the folds the
+design could not weight, scored on fresh draws of their training posterior
+instead). It answers a planning question: how many mapped
 blocks does a survey need before an effect of a given size can be told from
 the baseline?
 

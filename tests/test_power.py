@@ -86,6 +86,22 @@ def test_detection_table_counts_the_folds_and_runs_the_khat_bar_flags():
            for r in runs]
     c = detection_table(old)[0]
     assert c["folds"] is None and c["runs_warned"] is None and c["named_right"] == 2
+    assert c["folds_fresh_draws"] is None
+
+
+def test_detection_table_counts_the_folds_scored_on_fresh_draws():
+    """``folds_fresh_draws``: the folds of a cell's runs scored on fresh draws of
+    their training posterior; None where a run's record lacks them."""
+    def run(seed, fresh):
+        r = {"effect": "none", "strength": 1.0, "n_obs": 60, "seed": seed, "named": "none",
+             "gains": {}, "khat_by_fold": {"none": [0.1] * 5, "fragmentation": [0.2] * 5},
+             "psis_flagged_folds": {"none": [], "fragmentation": []}}
+        return r if fresh is None else r | {"fresh_draw_folds": fresh}
+
+    runs = [run(1, {"none": [0, 2], "fragmentation": [4]}),
+            run(2, {"none": [], "fragmentation": []})]
+    assert detection_table(runs)[0]["folds_fresh_draws"] == 3
+    assert detection_table(runs + [run(3, None)])[0]["folds_fresh_draws"] is None
 
 
 @pytest.mark.slow  # a whole quick power study, 23 s: run with -m slow

@@ -63,6 +63,7 @@ def one_run(profile, effect, strength, n_obs, seed, sd_m, fit_seed, budget,
             "khat": {r["effect"]: float(r["khat"]) for r in d.table},
             "khat_by_fold": {r["effect"]: r["khat_by_fold"] for r in d.table},
             "psis_flagged_folds": {r["effect"]: r["psis_flagged_folds"] for r in d.table},
+            "fresh_draw_folds": {r["effect"]: r["fresh_draw_folds"] for r in d.table},
             "warnings": [f.unfinished["warning"] for f in d.fits.values()
                          if f.unfinished and f.unfinished["warning"]],
             "seconds": time.perf_counter() - t0,
@@ -83,7 +84,10 @@ def detection_table(runs: list[dict], effects=None) -> list[dict]:
     flagged fold: ``calib.discover`` printed its k-hat warning, so their
     verdict rests in part on scores it calls unreliable) and
     ``named_right_unwarned`` (right verdicts of the other runs); all None
-    where no run of the cell has them (records of older studies).
+    where no run of the cell has them (records of older studies). And
+    ``folds_fresh_draws``: the folds scored on fresh draws of their training
+    posterior (``fresh_draw_folds`` of the records; None where a run of the
+    cell lacks them).
     """
     from scipy.stats import binomtest
 
@@ -120,17 +124,19 @@ def _fold_counts(rows: list[dict], effect: str) -> dict:
             "named_right_unwarned")
     rows = [r for r in rows if r.get("khat_by_fold") and "psis_flagged_folds" in r]
     if not rows:
-        return dict.fromkeys(keys)
+        return dict.fromkeys(keys + ("folds_fresh_draws",))
     k = [np.array([np.nan if x is None else x for x in ks], float)
          for r in rows for ks in r["khat_by_fold"].values()]
     warned = [any(r["psis_flagged_folds"].values()) for r in rows]
+    fresh = (int(sum(len(f) for r in rows for f in r["fresh_draw_folds"].values()))
+             if all("fresh_draw_folds" in r for r in rows) else None)
     return dict(zip(keys, (
         int(sum(v.size for v in k)),
         int(sum(len(f) for r in rows for f in r["psis_flagged_folds"].values())),
         int(sum(np.sum(~(v <= 0.7)) for v in k)),  # a NaN k-hat counts as above
         int(sum(warned)),
         int(sum(r["named"] == effect and not w for r, w in zip(rows, warned, strict=True))),
-    ), strict=True))
+    ), strict=True)) | {"folds_fresh_draws": fresh}
 
 
 def _median(values) -> float | None:
