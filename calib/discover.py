@@ -100,12 +100,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--design-scale", type=float, default=1.0, metavar="X",
                    help="crsp: multiply the points of each candidate's design (Sobol, warm "
                         "and adaptive stages; default 1: 384 for the baseline, 512 with an "
-                        "effect; at most 8). More points where the posterior lies can "
-                        "lower the folds' Pareto k-hats, not always: x2 left 19 of 20 folds "
-                        "below the bar against 18 on the 62 Tschamut runs (713 s against "
-                        "409 s) and 34 of 40 against 28 on 180 synthetic rows (2,122 s "
-                        "against 596 s), where the named effect's own folds rose above it "
-                        "(docs/studies.md)")
+                        "effect; at most 8). More points sharpen each fit's posterior and "
+                        "its log-likelihood GP, at two to four times the time; the folds the "
+                        "design's weights cannot score are scored on fresh draws at any "
+                        "scale (docs/discovery.md)")
     p.add_argument("--velocities", default=None, metavar="FILE",
                    help="passage speeds at stations, CSV with columns station_x_m, "
                         "block_size_m, velocity_m_s, velocity_sd_m_s[, source] (e.g. from "
