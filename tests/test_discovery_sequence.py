@@ -215,7 +215,8 @@ def test_the_naming_bar_is_raised_for_the_candidates_compared():
     def fit(elpd, gap=1.0):
         return SimpleNamespace(elpd=elpd, gap=gap, names=("a",), ess=50.0,
                                loglik_noise_sd_nats=float("nan"), khat=0.1,
-                               khat_folds=np.zeros(5), khat_bar=0.631, n_fold_points=0)
+                               khat_folds=np.zeros(5), khat_bar=0.631, n_fold_points=0,
+                               fresh_draw_folds=())
 
     base = fit(np.zeros(n))
     one = _step_record(1, (), {"e": fit(d)}, base, n, None)
