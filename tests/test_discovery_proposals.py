@@ -156,8 +156,36 @@ def test_discovery_weights_from_the_smoothed_log_likelihood_do_not_collapse():
     assert np.all(np.isfinite(elpd)) and w.sum() == pytest.approx(1.0)
 
 
+# the toy design of the two tests below: fold 0's five rows pin the posterior
+# at A (sd 0.03 per coordinate), the other 20 rows pull towards B (sd 0.06)
+_A = np.array([0.35, 0.4])
+_B = _A + 0.12
+
+
+def _toy_fold_design(rng):
+    """(design, fold): 256 points (64 uniform, 192 from a t at A) for 25 rows in
+    five folds, each row's simulated log-likelihood with noise sd 0.05."""
+    from calib.discovery.candidate_fit import _Design
+
+    fold = np.repeat(np.arange(5), 5)
+
+    def simulate(z):
+        ll = np.empty((z.shape[0], 25))
+        ll[:, :5] = (-0.5 * np.sum(((z - _A) / 0.03) ** 2, axis=1) / 5)[:, None]
+        ll[:, 5:] = (-0.5 * np.sum(((z - _B) / 0.06) ** 2, axis=1) / 20)[:, None]
+        return ll + 0.05 * rng.standard_normal(ll.shape)
+
+    def uniform(z):
+        return np.zeros(z.shape[0])
+
+    t_draws, t_logpdf = _proposal(_A, 0.03**2 * np.eye(2), rng, 192, 2, df=4)
+    z = np.concatenate([rng.uniform(size=(64, 2)), t_draws])
+    return _Design(z, simulate(z), [64, 192], [uniform, t_logpdf], uniform, lambda z: z,
+                   25 * 0.05**2, simulate, 2), fold
+
+
 def test_fold_stages_cover_the_training_posterior_the_design_missed():
-    """A design of 256 points (64 uniform, 192 from a t at A) for 25 rows in five
+    """The toy design (``_toy_fold_design``), 256 points for 25 rows in five
     folds: fold 0's five rows pin the posterior at A (sd 0.03 per coordinate),
     the other 20 pull towards B = A + 0.12 (sd 0.06). Fold 0's training
     posterior, near B, falls where only the uniform points lie, so its weights'
@@ -167,27 +195,11 @@ def test_fold_stages_cover_the_training_posterior_the_design_missed():
     one mixture. Measured: fold 0's k-hat 1.07 -> 1.50 after one stage (its 64
     points spread over a t of twice the posterior's sd: about a dozen land
     where it lives) -> -0.60 after the second."""
-    from calib.discovery.candidate_fit import _Design, _scores_covering_folds
+    from calib.discovery.candidate_fit import _scores_covering_folds
     from calib.inference.importance import khat_threshold
 
     rng = np.random.default_rng(2)
-    a = np.array([0.35, 0.4])
-    b = a + 0.12
-    fold = np.repeat(np.arange(5), 5)
-
-    def simulate(z):
-        ll = np.empty((z.shape[0], 25))
-        ll[:, :5] = (-0.5 * np.sum(((z - a) / 0.03) ** 2, axis=1) / 5)[:, None]
-        ll[:, 5:] = (-0.5 * np.sum(((z - b) / 0.06) ** 2, axis=1) / 20)[:, None]
-        return ll + 0.05 * rng.standard_normal(ll.shape)
-
-    def uniform(z):
-        return np.zeros(z.shape[0])
-
-    t_draws, t_logpdf = _proposal(a, 0.03**2 * np.eye(2), rng, 192, 2, df=4)
-    z = np.concatenate([rng.uniform(size=(64, 2)), t_draws])
-    design = _Design(z, simulate(z), [64, 192], [uniform, t_logpdf], uniform, lambda z: z,
-                     25 * 0.05**2, simulate, 2)
+    design, fold = _toy_fold_design(rng)
     *_, before, _ = _scores_covering_folds(design, fold, 64, 0, True, rng)
     assert before[0] > khat_threshold(256) and np.all(before[1:] < khat_threshold(256))
     assert design.z.shape == (256, 2)  # no rounds: nothing added
@@ -200,7 +212,7 @@ def test_fold_stages_cover_the_training_posterior_the_design_missed():
 
 @pytest.mark.parametrize("seed", [2, 5, 7])
 def test_a_fold_the_design_cannot_weight_is_scored_on_fresh_draws(seed):
-    """The design of the test above (fold 0's training posterior, N(B, 0.06^2)
+    """The toy design (``_toy_fold_design``; fold 0's training posterior, N(B, 0.06^2)
     per coordinate, where only the uniform points lie), without fold stages:
     fold 0's weights' k-hat lies above the bar and its rows' importance-weighted
     scores miss the exact held-out density, log E_{theta ~ N(B, 0.06^2)}
@@ -210,27 +222,11 @@ def test_a_fold_the_design_cannot_weight_is_scored_on_fresh_draws(seed):
     nats per row, its k-hat (the draws' weights') below the bar, and the other
     folds are untouched. Measured: errors per row +1.03, +0.49, +0.19 nats
     weighted (seeds 2, 5, 7) and -0.05, -0.20, +0.11 on fresh draws."""
-    from calib.discovery.candidate_fit import _Design, _scores_covering_folds
+    from calib.discovery.candidate_fit import _scores_covering_folds
     from calib.inference.importance import khat_threshold
 
     rng = np.random.default_rng(seed)
-    a = np.array([0.35, 0.4])
-    b = a + 0.12
-    fold = np.repeat(np.arange(5), 5)
-
-    def simulate(z):
-        ll = np.empty((z.shape[0], 25))
-        ll[:, :5] = (-0.5 * np.sum(((z - a) / 0.03) ** 2, axis=1) / 5)[:, None]
-        ll[:, 5:] = (-0.5 * np.sum(((z - b) / 0.06) ** 2, axis=1) / 20)[:, None]
-        return ll + 0.05 * rng.standard_normal(ll.shape)
-
-    def uniform(z):
-        return np.zeros(z.shape[0])
-
-    t_draws, t_logpdf = _proposal(a, 0.03**2 * np.eye(2), rng, 192, 2, df=4)
-    z = np.concatenate([rng.uniform(size=(64, 2)), t_draws])
-    design = _Design(z, simulate(z), [64, 192], [uniform, t_logpdf], uniform, lambda z: z,
-                     25 * 0.05**2, simulate, 2)
+    design, fold = _toy_fold_design(rng)
     s2, sig2 = 5 * 0.03**2, 0.06**2
     exact = 2 * (0.5 * np.log(s2 / (s2 + sig2)) - 0.12**2 / (2 * (s2 + sig2)))
     _, _, weighted, k_weighted, none = _scores_covering_folds(design, fold, 64, 0, True, rng)
