@@ -68,17 +68,10 @@ posterior's too, valid. Measured in docs/studies.md, "Fold stages: points for
 the folds above the bar".
 
 Fresh draws (smoothed path): a fold still above the bar after those rounds
-is not scored by the design's weights at all: ``DiscoveryBudget.n_fold_draws``
-points are drawn from its training posterior under the log-likelihood GP
-(a cloud of ``FOLD_CLOUD_POINTS`` weighted by the GP's mean) and simulated,
-and its held-out rows are scored at them (``_fresh_draw_scores``); its
-reported k-hat is that of the cloud's weights. Why: where the design's
-points miss a fold's training posterior, more points near it can move the
-weights' tail instead of filling it (measured in docs/studies.md, "Why size
-dissipation's folds at Tschamut stay above the bar", and "Fresh draws for
-the folds the design cannot weight"); the fresh draws need no importance
-weight on a simulated likelihood. They are not joined to the design, so
-the posterior's weights and every fold below the bar are unchanged.
+is scored on ``DiscoveryBudget.n_fold_draws`` simulated draws of its training
+posterior under the log-likelihood GP instead of the design's weights
+(``_fresh_draw_scores`` says how and why); the draws are not joined to the
+design, so the posterior's weights and every other fold are unchanged.
 Runouts are
 simulated with common random numbers (``calib.model.forward``), and the
 likelihood is ``calib.inference.likelihood``'s, the one ``calib.fit`` uses (points:
@@ -513,12 +506,11 @@ def _fresh_draw_scores(design: _Design, fold: np.ndarray, flagged: np.ndarray,
     few points, and adding points near it (the fold stages) can move the
     weights' tail instead of filling it. The training posterior under the
     GP is the one the design's weights already use; drawing from it costs
-    GP evaluations only (thousands of points, the weights' k-hat measured on
-    them), and the held-out rows are then scored by simulation at the draws,
-    with no importance weight on a simulated likelihood. A K-fold score of
-    a predictive distribution fitted to the training rows alone is a proper
-    held-out score whatever the approximation of that fit; what it shares
-    with the full data is where the design's points lie, not their values.
+    GP evaluations only, and the held-out rows are scored by simulation at
+    the draws, with no importance weight on a simulated likelihood. A K-fold
+    score of a predictive fitted to the training rows alone is proper
+    whatever that fit's approximation; it shares with the full data where
+    the design's points lie, not their values.
     """
     log_q = design.log_q()
     sums = training_sums(design.ll, fold)
