@@ -453,8 +453,7 @@ def _scores_covering_folds(design: _Design, fold: np.ndarray, n_new: int, rounds
     ``n_draws`` fresh draws (``_fresh_draw_scores``: its rows' scores and its
     k-hat, that of the draws' weights, replaced).
 
-    Returns (weights, k-hat, elpd (n_rows,), fold k-hats (K,), the indices of
-    the folds scored on fresh draws)."""
+    Returns (weights, k-hat, elpd, fold k-hats, the folds scored on fresh draws)."""
     scores = _weights_and_scores(design.z, design.ll, design.log_q(), fold, design.noise_var,
                                  smoothed)
     for _ in range(rounds):
@@ -477,9 +476,7 @@ def _scores_covering_folds(design: _Design, fold: np.ndarray, n_new: int, rounds
     return w, khat, elpd, khat_folds, tuple(int(j) for j in flagged)
 
 
-# the cloud on which a fold's training posterior under the log-likelihood GP is
-# weighted before its fresh draws are taken (``_fresh_draw_scores``)
-FOLD_CLOUD_POINTS = 16384
+FOLD_CLOUD_POINTS = 16384  # the GP-weighted cloud of ``_fresh_draw_scores``
 
 
 def _fresh_draw_scores(design: _Design, fold: np.ndarray, flagged: np.ndarray,
@@ -527,8 +524,7 @@ def _fresh_draw_scores(design: _Design, fold: np.ndarray, flagged: np.ndarray,
         cloud, logpdf = proposal(mean, cov, rng, FOLD_CLOUD_POINTS, design.z.shape[1],
                                  df=PROPOSAL_DF)
         w, khat = psis_weights(mean_ll(cloud) - logpdf(cloud) - design.log_jac(cloud))
-        idx = np.minimum(np.searchsorted(np.cumsum(w), u), len(w) - 1)
-        ll = design.simulate(cloud[idx])
+        ll = design.simulate(cloud[_systematic(w, u)])
         out.append((logsumexp(ll[:, held], axis=0) - np.log(n_draws), float(khat)))
     return out
 
@@ -680,14 +676,18 @@ def _surrogate_fit(z, total, log_q, noise_var: float, n_rows: int, rng, log_jac)
     return mean, cov, mean_ll
 
 
+def _systematic(w: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Systematic resampling: indices of weights ``w`` at positions ``u`` in [0, 1)."""
+    return np.minimum(np.searchsorted(np.cumsum(w), u), len(w) - 1)
+
+
 def _predictive(cand, fw, theta, w, simulated, key, budget, rng, tallies):
     """(E, M) posterior-predictive runouts per entry: ``n_draws`` systematic-
     resampled posterior draws, each simulated with fresh blocks (a key the fit
     never used; their unfinished blocks are counted in ``tallies["predictive"]``).
     With ``n_blocks_check`` = 0 the design's own simulations are resampled."""
     m = budget.n_draws
-    u = (rng.uniform() + np.arange(m)) / m
-    idx = np.minimum(np.searchsorted(np.cumsum(w), u), len(w) - 1)
+    idx = _systematic(w, (rng.uniform() + np.arange(m)) / m)
     if budget.n_blocks_check > 0:
         fresh = cand.forward(simulated, budget.n_blocks_check, jax.random.fold_in(key, 2))
         runs = fresh.runouts(theta[idx])  # (M, E, n)
