@@ -134,7 +134,8 @@ def build_parser() -> argparse.ArgumentParser:
 def refit_command(args, named: tuple[str, ...]) -> str | None:
     """The ``python -m calib.fit`` command that calibrates the model discovery
     ended with (the baseline plus the ``named`` effects) on the same data,
-    profile, release grouping and, for CRSP, rolling-resistance baseline; None
+    profile, release grouping and, for CRSP, rolling-resistance baseline and
+    passage speeds; None
     where calib.fit cannot fit it (the DEM's bonded fragments)."""
     cmd = ["python", "-m", "calib.fit", args.data]
     if args.profile:
@@ -149,6 +150,8 @@ def refit_command(args, named: tuple[str, ...]) -> str | None:
         cmd += ["--model", "dem", "--alpha-law",
                 "power" if "size_dissipation" in named else "constant"]
     cmd += ["--release-tolerance-m", f"{args.release_tolerance_m:g}"]
+    if args.velocities:  # CRSP: the passage speeds are fitted too
+        cmd += ["--velocities", args.velocities]
     return shlex.join(cmd)
 
 
@@ -340,21 +343,14 @@ def _load_velocities(path, model: str, profile):
     or a station off the profile is a one-line error."""
     if path is None:
         return None
-    from calib.files.observations import ObservationError, load_velocities
+    from calib.files.inputs import InputError, load_passage_speeds
 
     if model != "crsp":
         raise CliError("--velocities: passage speeds are scored with the crsp model only")
     try:
-        vel = load_velocities(path)
-    except ObservationError as e:
+        return load_passage_speeds(path, profile)
+    except InputError as e:
         raise CliError(str(e)) from None
-    x0, x1 = profile.x_range_m
-    off = np.flatnonzero((vel.station_x_m <= x0) | (vel.station_x_m >= x1))
-    if off.size:
-        i = int(off[0])
-        raise CliError(f"{path}: line {i + 2}, column 'station_x_m': expected an abscissa "
-                       f"inside the profile ({x0:g} to {x1:g} m), got {vel.station_x_m[i]:g}")
-    return vel
 
 
 def _print_summary(r: dict, out: str) -> None:
@@ -391,9 +387,7 @@ def _print_summary(r: dict, out: str) -> None:
     print(f"gap (mean CRPS per size class): before {r['gap_before']:.2f} m, after "
           f"{r['gap_after']:.2f} m (x{r['gap_after'] / r['gap_before']:.2f})")
     if r["refit_command"]:
-        print(f"calibrate the final model: {r['refit_command']}"
-              + (" (calib.fit fits the runouts; it does not use the passage speeds)"
-                 if r["n_velocity_observations"] else ""))
+        print(f"calibrate the final model: {r['refit_command']}")
     else:
         print("calib.fit cannot fit the final model (the DEM's bonded fragments are a "
               "discovery candidate only)")

@@ -146,8 +146,8 @@ def test_noise_variance_falls_with_the_number_of_blocks():
     rng = np.random.default_rng(1)
     # two point rows of one size, 5 m tolerance: a Gaussian kernel at 5 m
     rows = RowLikelihood(Observations.points([0.5, 0.5], [100.0, 120.0], [5.0, 5.0]))
-    small = rows.noise_var(110 + 10 * rng.standard_normal((3, 1, 200)), 64)
-    large = rows.noise_var(110 + 10 * rng.standard_normal((3, 1, 800)), 64)
+    small = rows.noise_var(110 + 10 * rng.standard_normal((3, 1, 200)), n_boot=64)
+    large = rows.noise_var(110 + 10 * rng.standard_normal((3, 1, 800)), n_boot=64)
     ratio = float(np.mean(small) / np.mean(large))
     assert 2.5 < ratio < 6.0, ratio
 
@@ -171,13 +171,17 @@ def test_chains_the_simulator_fits_far_worse_are_dropped():
     def runouts(theta):  # one entry, one "block" whose runout is the point's quality
         return np.where(theta[:, 0] > 0.6, -500.0, -50.0)[:, None, None]
 
+    def simulate(theta):  # runouts, no passage speeds
+        return runouts(theta), None
+
     class Rows:  # 10 rows whose summed log-likelihood is the point's one "runout"
         n_rows = 10
 
-        def summed(self, runs):
+        def summed(self, runs, speeds=None):
             return runs[:, 0, 0]
 
-    kept, rec, (theta, runs) = screen_chains(post, runouts, Rows())
+    kept, rec, (theta, runs, speeds) = screen_chains(post, simulate, Rows())
+    assert speeds is None
     assert rec["kept"] == [True, True, True, False] and rec["n_dropped"] == 1
     # the screened draws (8 per chain, the dropped chain's too) come back for the
     # next refinement wave, with their simulations
@@ -185,7 +189,7 @@ def test_chains_the_simulator_fits_far_worse_are_dropped():
     assert np.array_equal(runs, runouts(theta))
     assert kept.n_chains == 3 and kept.samples.shape == (3 * n, 2)
     assert kept.rhat.max() < 1.05 and kept.ok is not None and kept.loglik_kind == "summed"
-    same, rec, _ = screen_chains(keep_chains(post, [True, True, True, False]), runouts,
+    same, rec, _ = screen_chains(keep_chains(post, [True, True, True, False]), simulate,
                                   Rows())
     assert rec["n_dropped"] == 0 and same.n_chains == 3
 

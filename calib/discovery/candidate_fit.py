@@ -107,7 +107,12 @@ from calib.inference.importance import (
     psis_weights,
     weighted_quantile,
 )
-from calib.inference.likelihood import log_likelihood, observed_rows, velocity_log_likelihood
+from calib.inference.likelihood import (
+    VelocityRows,
+    log_likelihood,
+    observed_rows,
+    velocity_rows_loglik,
+)
 from calib.inference.loglik_emulator import fit_loglik_emulator, smoothed_at_design
 from calib.inference.predictive_check import pool_draws
 from calib.model.entries import Entries
@@ -115,7 +120,7 @@ from calib.model.priors import Box
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
 from calib.model.warp import unit_coordinates
 
-__all__ = ["GAP_METRIC", "Candidate", "CandidateFit", "VelocityRows", "class_samples",
+__all__ = ["GAP_METRIC", "Candidate", "CandidateFit", "class_samples",
            "fit_candidate", "gap"]
 
 GAP_METRIC = ("mean CRPS (m) of the observed runouts under the model's posterior predictive "
@@ -223,34 +228,6 @@ def _loglik_design(runs, row_class, y, sd, lo, hi, is_interval):
     return jax.vmap(lambda r: log_likelihood(r[row_class], y, sd, lo, hi, is_interval))(runs)
 
 
-@dataclasses.dataclass(frozen=True)
-class VelocityRows:
-    """Passage-velocity rows prepared for the fits (``calib.files.observations.Velocities``).
-
-    Attributes:
-        stations_m: (K,) distinct station abscissae, m.
-        station: (n_v,) station index of each row; size_class: (n_v,) its size class.
-        v_m_s, sd_m_s: (n_v,) observed speed and tolerance, m/s.
-    """
-
-    stations_m: np.ndarray
-    station: np.ndarray
-    size_class: np.ndarray
-    v_m_s: np.ndarray
-    sd_m_s: np.ndarray
-
-    @property
-    def n_obs(self) -> int:
-        return int(self.v_m_s.shape[0])
-
-
-@jax.jit
-def _vel_loglik_design(speeds, size_class, station, v, sd):
-    """(N, n_v) log-likelihood of every velocity row at every design point,
-    from speeds (N, C, K, n)."""
-    return jax.vmap(lambda u: velocity_log_likelihood(u[size_class, station], v, sd))(speeds)
-
-
 def gap(samples: np.ndarray, obs, row_class: np.ndarray, rng: np.random.Generator,
         row_entry: np.ndarray | None = None):
     """The gap metric (``GAP_METRIC``): (per-class mean CRPS (C,), their mean), m,
@@ -298,7 +275,7 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     ``warm``: (mean, cov) in unit coordinates of the first parameters (the
     baseline's posterior), used for the warm stage. ``velocities``: passage-
     velocity rows scored with the runout rows (``fold`` then covers both; their
-    ``size_class`` indexes the entries). ``entries``: what the forward model
+    ``entry`` indexes the entries). ``entries``: what the forward model
     simulates, (size, release) groups with the entry of each runout row
     (``index``); None: one entry per size class ``class_sizes_m``, released at
     the profile's first vertex (``calib.model.forward.as_entries``).
@@ -394,15 +371,12 @@ def _row_loglik(obs, row_entry, vel: VelocityRows | None):
     runout rows (each reads its entry), then the passage-velocity rows."""
     y, sd, lo, hi, is_int = observed_rows(obs)
     rc = jnp.asarray(row_entry)
-    vel_arrays = None if vel is None else tuple(
-        jnp.asarray(a) for a in (vel.size_class, vel.station, vel.v_m_s, vel.sd_m_s))
 
     def loglik(runs, speeds):
         ll = np.asarray(_loglik_design(jnp.asarray(runs), rc, y, sd, lo, hi, is_int))
         if vel is None:
             return ll
-        lv = _vel_loglik_design(jnp.asarray(speeds), *vel_arrays)
-        return np.concatenate([ll, np.asarray(lv)], axis=1)
+        return np.concatenate([ll, np.asarray(velocity_rows_loglik(speeds, vel))], axis=1)
 
     return loglik
 

@@ -60,12 +60,7 @@ from collections.abc import Callable
 import jax
 import numpy as np
 
-from calib.discovery.candidate_fit import (
-    Candidate,
-    CandidateFit,
-    VelocityRows,
-    fit_candidate,
-)
+from calib.discovery.candidate_fit import Candidate, CandidateFit, fit_candidate
 from calib.discovery.proposals import gaussian_fit
 from calib.discovery.residuals import locate
 from calib.discovery.scores import (
@@ -79,6 +74,7 @@ from calib.discovery.scores import (
 )
 from calib.files.inputs import own_profile
 from calib.inference.budget import DiscoveryBudget
+from calib.inference.likelihood import VelocityRows
 from calib.model.entries import Entries
 from calib.model.warp import unit_coordinates
 
@@ -312,8 +308,7 @@ def _rows(obs, profile, budget: DiscoveryBudget, velocities, release_tolerance_m
             vel_class = entries.index[n_run:]
         entries = dataclasses.replace(entries, index=entries.index[:n_run])
     if vel_class is not None:
-        vel = VelocityRows(velocities.stations_m, velocities.station_index, vel_class,
-                           velocities.velocity_m_s, velocities.velocity_sd_m_s)
+        vel = VelocityRows.of(velocities, vel_class)
     return class_sizes, row_class, fold, entries, vel, row_release
 
 
@@ -386,9 +381,5 @@ def _entries(obs, profile, class_sizes, row_class, vel_class, tol_m,
                           ).with_release_errors(*release_errors)
     if vel_class is None:
         return g
-    median = float(np.median(g.release_x_m[g.index]))
-    used = np.unique(vel_class)
-    speed = g.concat(Entries.at_sizes(np.asarray(class_sizes)[used], median,
-                                      density_kg_m3=g.density_kg_m3))
-    return dataclasses.replace(speed, index=np.concatenate(
-        [g.index, g.n + np.searchsorted(used, vel_class)]))
+    speed, vel_entry = g.with_speed_entries(np.asarray(class_sizes)[vel_class])
+    return dataclasses.replace(speed, index=np.concatenate([g.index, vel_entry]))

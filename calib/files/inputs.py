@@ -16,7 +16,7 @@ import os
 import numpy as np
 
 __all__ = ["InputError", "Inputs", "common_release_m", "default_profile", "load_inputs",
-           "on_command_profile", "own_profile"]
+           "load_passage_speeds", "on_command_profile", "own_profile"]
 
 
 class InputError(ValueError):
@@ -214,3 +214,23 @@ def load_inputs(data: str, profile_arg: str | None, out: str) -> Inputs:
     if os.path.exists(out) and not os.path.isdir(out):
         raise InputError(f"--out {out}: exists and is not a folder")
     return Inputs(obs, profile, profile_path, site)
+
+
+def load_passage_speeds(path: str, profile):
+    """Passage speeds at stations (``calib.files.observations.load_velocities``)
+    for a command's profile (``InputError`` on bad input: the file's own
+    checks, and a station not strictly inside the profile, named by line).
+    Shared by ``calib.fit`` and ``calib.discover`` (``--velocities``)."""
+    from calib.files.observations import ObservationError, load_velocities
+
+    try:
+        vel = load_velocities(path)
+    except ObservationError as e:
+        raise InputError(str(e)) from None
+    x0, x1 = profile.x_range_m
+    off = np.flatnonzero((vel.station_x_m <= x0) | (vel.station_x_m >= x1))
+    if off.size:
+        i = int(off[0])
+        raise InputError(f"{path}: line {i + 2}, column 'station_x_m': expected an abscissa "
+                         f"inside the profile ({x0:g} to {x1:g} m), got {vel.station_x_m[i]:g}")
+    return vel

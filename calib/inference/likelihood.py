@@ -84,6 +84,7 @@ filled in. An interval row has no tolerance: the interval is what was seen.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import NamedTuple
 
 import jax
@@ -91,8 +92,9 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import log_ndtr, logsumexp
 
-__all__ = ["RUNOUT_EPS", "R_MAX_M", "ObservedRows", "RowLikelihood", "log_likelihood",
-           "observed_rows", "silverman_width_m", "velocity_log_likelihood"]
+__all__ = ["RUNOUT_EPS", "R_MAX_M", "ObservedRows", "RowLikelihood", "VelocityRows",
+           "log_likelihood", "observed_rows", "silverman_width_m", "velocity_log_likelihood",
+           "velocity_rows_loglik"]
 
 _LOG_2PI = 1.8378770664093453
 RUNOUT_EPS = 1e-3  # weight of the runouts' defensive uniform component
@@ -201,29 +203,81 @@ def log_likelihood(samples: jax.Array, y_m: jax.Array, sd_m: jax.Array, lo_m: ja
 log_likelihood_jit = jax.jit(log_likelihood)
 
 
-class RowLikelihood:
-    """The rows of one fit scored against simulated runouts: row i reads the
-    blocks of simulated entry ``index[i]`` (``log_likelihood`` of each row).
-
-    Built once per fit from the observations; every stage of
-    ``calib.inference.calibrate`` scores its simulations through it.
+@dataclasses.dataclass(frozen=True)
+class VelocityRows:
+    """Passage-velocity rows prepared for a fit (``calib.files.observations.Velocities``).
 
     Attributes:
-        rows: the rows as ``log_likelihood`` takes them (``observed_rows``).
-        index: (n_rows,) int, the simulated entry of each row (default
-            ``obs.size_index``: one entry per distinct size).
-        n_rows: the number of rows.
-        kernel_var_m2: the median over rows of the kernel variance one
-            simulated sample gets: the tolerance sd^2 of a point row, the
-            smallest kernel width h^2 (0.5 m) of an interval row, m^2.
-        pointwise: runouts (T, S, n) -> (T, n_rows) pointwise log-likelihood
-            (jitted).
+        stations_m: (K,) distinct station abscissae, m (the solver records a
+            passage speed at each: ``CrspForward.stations_x_m``).
+        station: (n_v,) station index of each row.
+        entry: (n_v,) the simulated entry whose blocks each row reads (a size
+            class where the entries are the size classes).
+        v_m_s, sd_m_s: (n_v,) observed speed and tolerance, m/s.
     """
 
-    def __init__(self, obs, index=None):
+    stations_m: np.ndarray
+    station: np.ndarray
+    entry: np.ndarray
+    v_m_s: np.ndarray
+    sd_m_s: np.ndarray
+
+    @classmethod
+    def of(cls, velocities, entry) -> VelocityRows:
+        """The rows of ``velocities`` (``calib.files.observations.Velocities``),
+        row i reading the blocks of simulated entry ``entry[i]``."""
+        return cls(velocities.stations_m, velocities.station_index, np.asarray(entry),
+                   velocities.velocity_m_s, velocities.velocity_sd_m_s)
+
+    @property
+    def n_obs(self) -> int:
+        return int(self.v_m_s.shape[0])
+
+
+@jax.jit
+def _velocity_rows_loglik(speeds, entry, station, v, sd):
+    return jax.vmap(lambda u: velocity_log_likelihood(u[entry, station], v, sd))(speeds)
+
+
+def velocity_rows_loglik(speeds_m_s, vel: VelocityRows) -> jax.Array:
+    """(T, n_v) log-likelihood of every velocity row at each of T points, from the
+    simulated passage speeds (T, E, K, n) (``CrspForward.simulate``; NaN where a
+    block did not pass): row i against the speeds of its entry at its station."""
+    return _velocity_rows_loglik(jnp.asarray(speeds_m_s), *(jnp.asarray(a) for a in (
+        vel.entry, vel.station, vel.v_m_s, vel.sd_m_s)))
+
+
+class RowLikelihood:
+    """The rows of one fit scored against simulated runouts: row i reads the
+    blocks of simulated entry ``index[i]`` (``log_likelihood`` of each row);
+    with passage-velocity rows (``VelocityRows``), each also against the
+    simulated passage speeds of its entry at its station
+    (``velocity_log_likelihood``). The summed log-likelihood is over both.
+
+    Built once per fit from the observations; every stage of
+    ``calib.inference.calibrate`` scores its simulations through it
+    (``simulate``: what a point's simulation must record for the rows).
+
+    Attributes:
+        rows: the runout rows as ``log_likelihood`` takes them (``observed_rows``).
+        index: (n_runout,) int, the simulated entry of each runout row (default
+            ``obs.size_index``: one entry per distinct size).
+        velocities: the passage-velocity rows, or None.
+        n_runout: the number of runout rows.
+        n_rows: the number of rows scored: runout rows plus velocity rows.
+        kernel_var_m2: the median over runout rows of the kernel variance one
+            simulated sample gets: the tolerance sd^2 of a point row, the
+            smallest kernel width h^2 (0.5 m) of an interval row, m^2.
+        pointwise: runouts (T, S, n) -> (T, n_runout) pointwise log-likelihood
+            of the runout rows (jitted).
+    """
+
+    def __init__(self, obs, index=None, velocities: VelocityRows | None = None):
         self.rows = observed_rows(obs)
         self.index = np.asarray(obs.size_index if index is None else index)
-        self.n_rows = int(obs.n_obs)
+        self.velocities = velocities if velocities is not None and velocities.n_obs else None
+        self.n_runout = int(obs.n_obs)
+        self.n_rows = self.n_runout + (0 if self.velocities is None else self.velocities.n_obs)
         self.kernel_var_m2 = float(np.median(np.where(
             obs.is_interval, 0.5**2, np.nan_to_num(obs.runout_sd_m)**2)))
         rows, idx = self.rows, jnp.asarray(self.index)
@@ -234,28 +288,62 @@ class RowLikelihood:
 
         self.pointwise = pointwise
 
-    def summed(self, runouts) -> np.ndarray:
-        """(D,) summed log-likelihood of the rows at each of D points (runouts
-        (D, S, n)); -inf where a row gets no finished block."""
-        ll = np.asarray(self.pointwise(jnp.asarray(runouts))).sum(1)
+    @property
+    def stations_m(self) -> tuple[float, ...]:
+        """The abscissae at which the forward model must record passage speeds, m."""
+        return () if self.velocities is None else tuple(map(float, self.velocities.stations_m))
+
+    def simulate(self, forward, theta) -> tuple[np.ndarray, np.ndarray | None]:
+        """(runouts (T, S, n), passage speeds (T, S, K, n) or None without
+        velocity rows) of ``forward`` at theta (T, d): what ``summed`` scores.
+        The forward records the speeds at ``stations_m``."""
+        if self.velocities is None:
+            return forward.runouts(theta), None
+        return forward.simulate(theta)
+
+    def all_rows(self, runouts, speeds=None) -> np.ndarray:
+        """(T, n_rows) pointwise log-likelihood: the runout rows, then the
+        velocity rows (which need the passage ``speeds``)."""
+        ll = np.asarray(self.pointwise(jnp.asarray(runouts)))
+        if self.velocities is None:
+            return ll
+        if speeds is None:
+            raise ValueError("the fit has passage-velocity rows: their speeds are needed")
+        return np.concatenate([ll, np.asarray(velocity_rows_loglik(speeds, self.velocities))],
+                              axis=1)
+
+    def summed(self, runouts, speeds=None) -> np.ndarray:
+        """(D,) summed log-likelihood of all rows at each of D points (runouts
+        (D, S, n), speeds (D, S, K, n) with velocity rows); -inf where a runout
+        row gets no finished block."""
+        ll = self.all_rows(runouts, speeds).sum(1)
         return np.where(np.isnan(ll), -np.inf, ll)
 
-    def noise_var(self, runouts: np.ndarray, n_boot: int = 16, seed: int = 0) -> np.ndarray:
+    def noise_var(self, runouts: np.ndarray, speeds=None, *, n_boot: int = 16,
+                  seed: int = 0) -> np.ndarray:
         """(D,) Monte Carlo variance of the summed log-likelihood at each of D
-        points: bootstrap over each point's blocks (runouts (D, S, n); Efron
-        1979); 0 where it is not finite."""
+        points: bootstrap over each point's blocks (runouts (D, S, n), and
+        the same blocks' speeds with velocity rows; Efron 1979); 0 where it is
+        not finite."""
         rng = np.random.default_rng(seed)
         n = runouts.shape[-1]
-        boot = np.stack([np.asarray(self.pointwise(jnp.asarray(
-            runouts[..., rng.integers(0, n, n)]))).sum(1) for _ in range(n_boot)])
+        boot = []
+        for _ in range(n_boot):
+            pick = rng.integers(0, n, n)
+            boot.append(self.all_rows(runouts[..., pick],
+                                      None if speeds is None else speeds[..., pick]).sum(1))
+        boot = np.stack(boot)
         var = np.var(np.where(np.isfinite(boot), boot, np.nan), axis=0)
         return np.where(np.isfinite(var), var, 0.0)
 
     def emulated(self, emu, emulator_inputs, inflation: float):
-        """theta (d,) -> pointwise log-likelihood (n_rows,) from an emulator of the
-        runout quantiles (``calib.inference.emulator``): each row's entry's
-        predicted quantiles are its samples, with ``inflation`` times their
-        predictive variance as the samples' extra variance v_j."""
+        """theta (d,) -> pointwise log-likelihood (n_runout,) of the runout rows
+        from an emulator of the runout quantiles (``calib.inference.emulator``):
+        each row's entry's predicted quantiles are its samples, with
+        ``inflation`` times their predictive variance as the samples' extra
+        variance v_j. Velocity rows are not emulated: they enter through the
+        log-likelihood GP of the summed log-likelihood
+        (``calib.inference.loglik_emulator``)."""
         idx = jnp.asarray(self.index)
 
         def f(theta):
@@ -263,6 +351,7 @@ class RowLikelihood:
             return log_likelihood(mean[idx], *self.rows, inflation * var[idx])
 
         return f
+
 
 VELOCITY_EPS = 1e-3  # weight of the defensive uniform component
 V_MAX_M_S = 100.0  # its upper end, m/s

@@ -248,6 +248,20 @@ class Entries:
                        self.profile_csv[idx], None, self.density_kg_m3,
                        self.release_height_sd_m[idx], self.release_speed_sd_m_s[idx])
 
+    def with_speed_entries(self, sizes_m) -> tuple[Entries, np.ndarray]:
+        """These entries followed by one per distinct size of ``sizes_m``, where
+        the blocks of passage-speed rows are simulated: a speed row gives a
+        size and a station, not a release, so its blocks start at the median
+        of these entries' rows' releases (of all entries, without a row
+        index), at the solver's default speed and height, on the command's
+        profile (our choice). Returns (the entries, the rows' ``index`` kept;
+        the entry of each of ``sizes_m``)."""
+        rel = self.release_x_m if self.index is None else self.release_x_m[self.index]
+        used, inv = np.unique(np.asarray(sizes_m, float), return_inverse=True)
+        out = self.concat(Entries.at_sizes(used, float(np.median(rel)),
+                                           density_kg_m3=self.density_kg_m3))
+        return dataclasses.replace(out, index=self.index), self.n + inv
+
     def concat(self, other: Entries) -> Entries:
         """These entries followed by ``other``'s (same density; no row index)."""
         if other.density_kg_m3 != self.density_kg_m3:
