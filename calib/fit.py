@@ -18,6 +18,14 @@ temporary name and renamed, so a failure leaves no half-written file):
   ``read_inference_data``);
 * ``runout_vs_size.png``, ``alpha_law.png``, ``crsp_pairs.png``, ``dem_pairs.png``.
 
+``--velocities FILE`` (CRSP) fits passage speeds at stations with the runouts
+(``calib.files.observations.load_velocities``; the same observation model as
+``python -m calib.discover --velocities``): each speed row is scored against
+the simulated speeds of the blocks of its size that passed its station, in
+the summed log-likelihood NUTS samples. The fit is then Bayesian only (the
+gradient stage fits runouts); ``calibration.json`` records the file
+(``velocities``).
+
 ``--effect NAME`` (CRSP, repeatable) adds candidate effects of
 ``calib.model.effects`` (the ones ``python -m calib.discover`` compares) to
 the model: their parameters are fitted with the baseline's over their prior
@@ -97,6 +105,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "--rolling-resistance profile, the other modes fit that angle "
                         "already). calibration.json records them (crsp.effects), and "
                         "calib.validate and calib.hazard simulate them. Default: none")
+    p.add_argument("--velocities", default=None, metavar="FILE",
+                   help="CRSP only: passage speeds at stations to fit with the runouts, CSV "
+                        "with columns station_x_m, block_size_m, velocity_m_s, "
+                        "velocity_sd_m_s[, source] (calib.synth --velocity-stations-m writes "
+                        "one); the fit is then Bayesian (--method both means bayes; the "
+                        "gradient stage fits runouts only); every speed row is fitted, "
+                        "also under --holdout-fraction. Default: none")
     p.add_argument("--alpha-law", choices=["power", "constant"], default="power",
                    help="DEM damping law: power alpha = a L^-b (default) or constant alpha")
     p.add_argument("--out", default="results", help="output folder (default: results/)")
@@ -151,8 +166,8 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
             methods: tuple[str, ...] = ("gradient", "bayes"), rolling_resistance: str = "fit",
             effects: tuple[str, ...] = (), alpha_law: str = "power", seed: int = 0,
             quick: bool = False, holdout_fraction: float = 0.0,
-            release_tolerance_m: float = 1.0, progress: bool = False,
-            report=None) -> FitRun:
+            release_tolerance_m: float = 1.0, velocities: str | None = None,
+            progress: bool = False, report=None) -> FitRun:
     """Calibrate ``models`` on the rows of ``data`` and write every output into
     ``out`` (the files of the module docstring; the rows files of the split),
     as ``python -m calib.fit`` does with the same options (defaults: the
@@ -163,8 +178,10 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
             profile next to the data, ``calib.files.inputs.default_profile``).
         out: output folder.
         models, methods, rolling_resistance, effects, alpha_law, seed, quick,
-        holdout_fraction, release_tolerance_m: the command's options of those
-            names (``--model``, ``--method``, ...; ``build_parser``).
+        holdout_fraction, release_tolerance_m, velocities: the command's
+            options of those names (``--model``, ``--method``, ...;
+            ``build_parser``; with ``velocities``, methods ("gradient", "bayes")
+            fit by "bayes" alone).
         progress: show progress bars on stderr.
         report: callable(line) given the lines the command prints before it
             fits (the split, the release groups); None: silent.
@@ -182,7 +199,7 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
     the inputs and fits would pass back and forth through it between steps.
     """
     from calib.files.fit_record import FitOptions, fit_document, posterior_files
-    from calib.files.inputs import InputError, load_inputs
+    from calib.files.inputs import InputError, load_inputs, load_passage_speeds
     from calib.files.provenance import provenance
     from calib.files.split import hold_out
     from calib.inference.calibrate import fit_model
@@ -194,8 +211,11 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
     _check_effects(models, rolling_resistance, effects)
     if not release_tolerance_m >= 0:
         raise CliError(f"--release-tolerance-m must be >= 0, got {release_tolerance_m:g}")
+    methods = _check_velocities(velocities, models, methods, say)
     try:
         inputs = load_inputs(data, profile, out)
+        speeds = None if velocities is None else load_passage_speeds(velocities,
+                                                                     inputs.profile)
     except InputError as e:
         raise CliError(str(e)) from None
     files, data_csv = {}, data
@@ -221,7 +241,8 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
             fits[model] = fit_model(model, inputs, entries, jax.random.fold_in(key, i),
                                     methods=methods, quick=quick,
                                     rolling_resistance=rolling_resistance,
-                                    effects=tuple(effects), alpha_law=alpha_law, progress=bar)
+                                    effects=tuple(effects), alpha_law=alpha_law,
+                                    velocities=speeds, progress=bar)
         bar.close()
         if model == "dem":
             fit = fits[model].fit
@@ -231,8 +252,10 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
                           inputs.obs.sizes_m)
             except ValueError as e:
                 raise CliError(str(e)) from None
-    options = FitOptions(provenance(PROG, seed, {"data": data, "profile": inputs.profile_path}),
-                         data_csv, bool(quick), methods, grouped, release_tolerance_m)
+    options = FitOptions(provenance(PROG, seed, {"data": data, "profile": inputs.profile_path,
+                                                 **({"velocities": velocities}
+                                                    if velocities else {})}),
+                         data_csv, bool(quick), methods, grouped, release_tolerance_m, speeds)
     cal = fit_document(options, inputs, entries, fits, time.perf_counter() - t_start)
     files["calibration.json"] = cal.to_json()
     texts, writers = posterior_files(fits, inputs.obs)
@@ -252,7 +275,7 @@ def _run(args) -> int:
                   rolling_resistance=args.rolling_resistance, effects=tuple(args.effect),
                   alpha_law=args.alpha_law, seed=args.seed, quick=args.quick,
                   holdout_fraction=args.holdout_fraction,
-                  release_tolerance_m=args.release_tolerance_m,
+                  release_tolerance_m=args.release_tolerance_m, velocities=args.velocities,
                   progress=not args.no_progress, report=print)
     _print_summary(run.calibration.doc, models, args.out)
     if args.holdout_fraction:
@@ -261,6 +284,23 @@ def _run(args) -> int:
             print()
             print_validation(summary, folder)
     return 0
+
+
+def _check_velocities(velocities, models, methods, say) -> tuple[str, ...]:
+    """The methods a fit with ``--velocities`` runs (the gradient stage fits
+    runouts only: "both" runs bayes, said in a line); a DEM or gradient-only
+    fit with them is refused in one line."""
+    methods = tuple(methods)
+    if velocities is None:
+        return methods
+    if tuple(models) != ("crsp",):
+        raise CliError("--velocities: passage speeds are fitted with --model crsp only")
+    if "bayes" not in methods:
+        raise CliError("--velocities: the gradient stage fits runouts only; passage speeds "
+                       "are fitted with --method bayes (or both)")
+    if "gradient" in methods:
+        say("passage speeds given: the fit is Bayesian (the gradient stage fits runouts only)")
+    return ("bayes",)
 
 
 def _check_effects(models, rolling_resistance, effects) -> None:
@@ -325,6 +365,11 @@ def _print_summary(result: dict, models, out: str) -> None:
     """The fit's summary: parameters, rows, warnings, checks, the NUTS repairs,
     stage times."""
     _print_parameters(result, models)
+    vel = result.get("velocities")
+    if vel:
+        print(f"fitted with {vel['n_observations']} passage speeds at "
+              f"{', '.join(f'{x:g}' for x in vel['stations_m'])} m (calibration.json: "
+              "velocities); the rows below are the runouts")
     _print_rows(result, models)
     _print_checks(result, models)
     _print_nuts_repairs(result, models)

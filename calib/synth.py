@@ -13,7 +13,8 @@ data whose missing physics is known. Three files are written, atomically:
 * with ``--velocity-stations-m X[,X...]``: ``<OUT stem>_velocities.csv``,
   ``--n-velocity`` passage speeds at those abscissae (schema of
   ``calib.files.observations.load_velocities``; noise and tolerance
-  ``--velocity-sd-m-s``), for ``calib.discover --velocities``. CRSP only.
+  ``--velocity-sd-m-s``), for ``calib.discover --velocities`` and
+  ``calib.fit --velocities``. CRSP only.
 
 Rows: ``--n-obs`` blocks spread over the sizes 0.2, 0.4, 0.7, 1.0, 1.4, 2.0 m;
 each runout is one simulated block plus Gaussian noise of ``--sd-m`` m, which is
@@ -182,8 +183,8 @@ def _run(args) -> int:
     print(f"wrote {obs.n_obs} rows to {args.out} (truth in {stem}.truth.json, "
           f"profile in {stem}_profile.csv and {stem}_materials.csv)")
     if files:
-        print(f"wrote {args.n_velocity} passage speeds to {stem}_velocities.csv (use "
-              f"calib.discover --velocities {stem}_velocities.csv)")
+        print(f"wrote {args.n_velocity} passage speeds to {stem}_velocities.csv (give "
+              f"--velocities {stem}_velocities.csv to calib.discover and calib.fit)")
     return 0
 
 

@@ -34,6 +34,8 @@ class FitOptions:
         grouped: True where each row was released from its own point (the
             ``release_groups`` record is written).
         tolerance_m: the grouping tolerance, m.
+        velocities: the passage speeds fitted with the runouts
+            (``calib.files.observations.Velocities``), or None.
     """
 
     provenance: dict
@@ -42,6 +44,7 @@ class FitOptions:
     methods: tuple[str, ...]
     grouped: bool
     tolerance_m: float
+    velocities: object = None
 
 
 def summary_stats(values: np.ndarray | None, point: float) -> dict:
@@ -174,11 +177,23 @@ def fit_document(options: FitOptions, inputs, entries, fits: dict,
            "likelihood": "point: (1/n) sum_j N(y; r_j, sd^2 + v_j); interval: (1/n) sum_j "
                          "[Phi((b-r_j)/w_j) - Phi((a-r_j)/w_j)] (calib/inference/likelihood.py)",
            "n_observations": inputs.obs.n_obs,
+           "velocities": _velocity_record(options.velocities),
            "fit_quality": {m: f.quality for m, (f, _, _) in fits.items()},
            "timings_s": {**{m: f.timings_s for m, (f, _, _) in fits.items()},
                          "total_s": total_s},
            **sections}
     return CalibrationFile.from_dict(doc)
+
+
+def _velocity_record(vel) -> dict | None:
+    """The passage speeds fitted (key ``velocities``), or None."""
+    if vel is None:
+        return None
+    return {"csv": vel.path, "n_observations": vel.n_obs,
+            "stations_m": [float(x) for x in vel.stations_m],
+            "likelihood": "(1 - eps) (1/m) sum_{j passed} N(v; u_j, sd^2 + h_v^2) + eps / V_MAX "
+                          "over the simulated blocks of the row's size that passed its "
+                          "station (calib/inference/likelihood.py)"}
 
 
 def posterior_files(fits: dict, obs) -> tuple[dict, dict]:

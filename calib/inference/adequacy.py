@@ -308,8 +308,9 @@ def fit_adequacy(forward, obs: Observations, rows, posterior, estimate: np.ndarr
     at the point estimate (plug-in). CRSP: with the rolling resistance angle
     at each release of every draw (or of the estimate), for the rows that
     stall at their release (check 5). With a design, check 4 scores the
-    estimate (the check's blocks) and the posterior's mode (the design's own
-    blocks) against the design's best point.
+    estimate (the check's blocks; with passage-velocity rows, whose speeds the
+    check does not record, the design's) and the posterior's mode (the
+    design's own blocks) against the design's best point.
 
     Args:
         forward: the fit's forward model (``calib.model.forward``).
@@ -326,9 +327,13 @@ def fit_adequacy(forward, obs: Observations, rows, posterior, estimate: np.ndarr
     """
     better = None
     if design is not None:
-        fitted = {"estimate": float(rows.summed(at_rows[None])[0])}
+        if rows.velocities is None:
+            fitted = {"estimate": float(rows.summed(at_rows[None])[0])}
+        else:  # the check records no passage speeds: the design's own blocks
+            fitted = {"estimate": float(rows.summed(*rows.simulate(forward, estimate[None]))[0])}
         if posterior is not None:  # its mode with the design's own blocks
-            fitted["posterior mode"] = float(rows.summed(forward.runouts(posterior.map[None]))[0])
+            fitted["posterior mode"] = float(rows.summed(
+                *rows.simulate(forward, posterior.map[None]))[0])
         better = better_design_point(forward.box.names, *design, fitted, rows.n_rows)
     release = forward.entries.release_x_m
     slopes_deg = release_slopes_deg(forward.profile, release, forward.entries.profiles)

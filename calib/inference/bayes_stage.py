@@ -110,7 +110,7 @@ class _Stage:
         keep = d.inside(self.ibox) if focus else np.ones(len(d.x), bool)
         x_emu, r_emu, ll_emu = d.x[keep], d.r[keep], d.ll[keep]
         if focus:  # a GP of the summed log-likelihood (calib.inference.loglik_emulator)
-            noise = self.rows.noise_var(r_emu)
+            noise = self.rows.noise_var(r_emu, None if d.v is None else d.v[keep])
             level_of = ~d.refined[keep]
             self.emu_check = loglik_holdout(x_emu, ll_emu, noise, self.ibox.lo, self.ibox.hi,
                                             self.rows.n_rows, level_of=level_of)
@@ -144,9 +144,9 @@ class _Stage:
                   if focus else None))
         if hasattr(fw, "from_input") and self.posterior.n_chains > 1:
             def screen_runs(theta):
-                runs = fw.runouts(theta)
+                runs, speeds = self.rows.simulate(fw, theta)
                 self.tally("screen", runs, theta)
-                return runs
+                return runs, speeds
 
             self.posterior, self.chain_screen, self.screened = screen_chains(
                 self.posterior, screen_runs, self.rows)
@@ -161,7 +161,7 @@ class _Stage:
         if self.screened is not None:  # the GP against the simulator at the screened draws
             emu_there = at_posterior(
                 self.lemu, np.asarray(self.forward.to_input(self.screened[0])),
-                self.rows.summed(self.screened[1]), self.rows.noise_var(self.screened[1]))
+                self.rows.summed(*self.screened[1:]), self.rows.noise_var(*self.screened[1:]))
             self.region.record["at_posterior"] = emu_there
         faces = self.region.faces_holding(self.posterior.samples)
         if faces and self.region.n_widened != MAX_WIDEN:

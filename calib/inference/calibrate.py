@@ -84,7 +84,7 @@ from calib.inference.bayes_stage import bayes_stage
 from calib.inference.budget import Budget, presets
 from calib.inference.fit_check import check_estimate
 from calib.inference.gradient import GradientFit, gradient_stage
-from calib.inference.likelihood import RowLikelihood
+from calib.inference.likelihood import RowLikelihood, VelocityRows
 from calib.model.entries import Entries
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
 
@@ -132,7 +132,7 @@ def _row_entries(forward, obs: Observations) -> Entries:
 
 def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ...],
               budget: Budget, progress: Callable[[str, int, int], None] | None = None,
-              extra_sizes_m=()) -> ModelFit:
+              extra_sizes_m=(), velocities: VelocityRows | None = None) -> ModelFit:
     """Run the stages of the module docstring for one forward model.
 
     Every row is scored against the blocks of its entry of the forward model
@@ -151,13 +151,27 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
         extra_sizes_m: more block sizes to simulate in the check (for figures);
             ``ModelFit.check_sizes_m`` lists every size checked, simulated at
             the median of the rows' releases (``ModelFit.check_runouts``).
+        velocities: passage-velocity rows (CRSP; ``VelocityRows``, each reading
+            an entry of the forward model, which records speeds at their
+            stations), scored with the runout rows in every summed
+            log-likelihood (the designs, the log-likelihood GP that NUTS
+            samples, the chain screen, the adequacy check's best design
+            point); the runout-quantile emulator (the pilot posteriors of the
+            design waves) and the check's fit quality per row score the runout
+            rows. The gradient stage fits runouts only and is refused with them.
     """
+    if velocities is not None and "gradient" in methods:
+        raise ValueError("the gradient stage fits runout rows only: with passage speeds "
+                         "the fit is Bayesian (method 'bayes')")
+    if velocities is not None and tuple(getattr(forward, "stations_x_m", ())) != tuple(
+            map(float, velocities.stations_m)):
+        raise ValueError("the forward model must record passage speeds at the rows' stations")
     entries = _row_entries(forward, obs)
     k_design, k_grad, k_nuts, k_pilot, k_check = jax.random.split(key, 5)
     tick = progress or (lambda *a: None)
     timings, posterior, gfit, emu_check, design = {}, None, None, None, None
     focus_record = chain_screen = None
-    rows = RowLikelihood(obs, entries.index)
+    rows = RowLikelihood(obs, entries.index, velocities)
     box = forward.box
     sizes = np.unique(np.concatenate([obs.sizes_m, np.asarray(extra_sizes_m, float)]))
     tallies = {}
@@ -215,7 +229,7 @@ class ModelRun(NamedTuple):
 def fit_model(model: str, inputs, entries: Entries, key: jax.Array, *,
               methods: tuple[str, ...] = ("gradient", "bayes"), quick: bool = False,
               rolling_resistance: str = "fit", effects: tuple[str, ...] = (),
-              alpha_law: str = "power",
+              alpha_law: str = "power", velocities=None,
               progress: Callable[[str, int, int], None] | None = None) -> ModelRun:
     """Calibrate one model on a data set's rows, as ``python -m calib.fit`` does.
 
@@ -239,6 +253,10 @@ def fit_model(model: str, inputs, entries: Entries, key: jax.Array, *,
             the profile's angles).
         effects: CRSP candidate effects switched on (``calib.model.effects``).
         alpha_law: DEM damping law, "power" or "constant".
+        velocities: CRSP: passage speeds at stations
+            (``calib.files.observations.Velocities``) fitted with the runouts;
+            their blocks are simulated as ``Entries.with_speed_entries`` says,
+            and the fit is Bayesian (``calibrate``'s ``velocities``).
         progress: optional callable(stage, done, total).
     """
     from calib.model.forward import CrspForward, DemForward
@@ -246,6 +264,13 @@ def fit_model(model: str, inputs, entries: Entries, key: jax.Array, *,
 
     budget = presets(model, quick)
     profile = inputs.profile
+    vel_rows, stations = None, ()
+    if velocities is not None:
+        if model != "crsp":
+            raise ValueError("passage speeds are fitted with the crsp model only")
+        entries, vel_entry = entries.with_speed_entries(velocities.block_size_m)
+        vel_rows = VelocityRows.of(velocities, vel_entry)
+        stations = tuple(map(float, vel_rows.stations_m))
     if model == "crsp":
         box = {"fit": CRSP_ROLLING_BOX, "profile": CRSP_BOX}.get(rolling_resistance) \
             or zoned_rolling_box(dict.fromkeys(
@@ -253,12 +278,13 @@ def fit_model(model: str, inputs, entries: Entries, key: jax.Array, *,
                 for z in pr.zone_names))
         forward = CrspForward(profile, entries, budget.n_blocks_design,
                               jax.random.fold_in(key, 1), box=box,
-                              effect=tuple(effects) or "none")  # columns after box's
+                              effect=tuple(effects) or "none",  # columns after box's
+                              stations_x_m=stations)
         extra = np.geomspace(0.2, 2.0, 6)  # the check's sizes for the runout-vs-size figure
     else:
         forward = DemForward(profile, entries, budget.n_blocks_design,
                              jax.random.fold_in(key, 1), form=alpha_law)
         extra = [0.2, 0.9, 2.0] if quick else [0.2, 0.5, 0.9, 1.4, 2.0]
     fit = calibrate(forward, inputs.obs, jax.random.fold_in(key, 2), methods, budget, progress,
-                    extra_sizes_m=extra)
+                    extra_sizes_m=extra, velocities=vel_rows)
     return ModelRun(fit, forward, alpha_law if model == "dem" else None)

@@ -42,15 +42,16 @@ def chain_starts(theta: np.ndarray, ll: np.ndarray, box, n_chains: int
     return theta[cand[take]]
 
 
-def screen_chains(posterior: Posterior, runouts, rows
-                   ) -> tuple[Posterior, dict, tuple[np.ndarray, np.ndarray]]:
+def screen_chains(posterior: Posterior, simulate, rows
+                   ) -> tuple[Posterior, dict, tuple[np.ndarray, np.ndarray, np.ndarray | None]]:
     """Keep the chains whose draws the SIMULATOR fits about as well as the best
     chain's; drop the others (the emulator was wrong where they sit).
 
     Each chain's score is the median, over ``N_SCREEN`` of its draws spread
     evenly over its output, of the rows' summed simulated log-likelihood with
-    the design's blocks (``runouts``: theta (T, d) -> (T, S, n); ``rows``: the
-    fit's ``calib.inference.likelihood.RowLikelihood``). A chain whose
+    the design's blocks (``simulate``: theta (T, d) -> (runouts (T, S, n),
+    passage speeds or None), ``RowLikelihood.simulate``; ``rows``: the fit's
+    ``calib.inference.likelihood.RowLikelihood``). A chain whose
     score trails the best chain's by more than ``adequacy.loglik_gap_nats`` is
     dropped and the diagnostics are recomputed on the others
     (``bayes.keep_chains``).
@@ -66,15 +67,15 @@ def screen_chains(posterior: Posterior, runouts, rows
 
     Returns:
         (posterior, the ``bayes.chain_screen`` record, (the screened draws
-        (T, d), their runouts (T, S, n))): the draws go into the next
-        refinement wave's design.
+        (T, d), their runouts (T, S, n), their passage speeds or None)): the
+        draws go into the next refinement wave's design.
     """
     c, d = posterior.n_chains, posterior.samples.shape[1]
     n = posterior.samples.shape[0] // c
     pick = np.linspace(0, n - 1, min(N_SCREEN, n)).round().astype(int)
     draws = posterior.samples.reshape(c, n, d)[:, pick].reshape(-1, d)
-    runs = runouts(draws)
-    ll = rows.summed(runs).reshape(c, len(pick))
+    runs, speeds = simulate(draws)
+    ll = rows.summed(runs, speeds).reshape(c, len(pick))
     score = np.median(ll, axis=1)
     bar = loglik_gap_nats(rows.n_rows, d)
     keep = score >= np.max(score) - bar if np.isfinite(score).any() else np.ones(c, bool)
@@ -85,4 +86,4 @@ def screen_chains(posterior: Posterior, runouts, rows
               "kept": [bool(k) for k in keep], "n_dropped": int((~keep).sum())}
     if not keep.all():
         posterior = keep_chains(posterior, keep)
-    return posterior, record, (draws, runs)
+    return posterior, record, (draws, runs, speeds)

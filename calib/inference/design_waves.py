@@ -35,6 +35,8 @@ class Design:
     Attributes:
         x: (D, d) the points in the emulator's coordinates.
         r: (D, S, n) their runouts, m.
+        v: (D, S, K, n) their passage speeds at the rows' stations, m/s, with
+            passage-velocity rows (``RowLikelihood.velocities``); else None.
         ll: (D,) the rows' summed simulated log-likelihood at each
             (``RowLikelihood.summed``).
         refined: (D,) bool, placed by a repair wave (where an emulated
@@ -47,8 +49,14 @@ class Design:
         ``tally`` records the unfinished blocks of every simulation (stage
         "design")."""
         self.forward, self.rows, self.tally = forward, rows, tally
-        self.x, self.r = forward.design(n, seed=seed)
-        self.ll = rows.summed(self.r)
+        if rows.velocities is None:
+            self.x, self.r = forward.design(n, seed=seed)
+            self.v = None
+        else:  # CRSP: the same points, simulated with their passage speeds
+            theta = forward.design_points(n, seed=seed)
+            self.r, self.v = rows.simulate(forward, theta)
+            self.x = np.asarray(forward.to_input(theta))
+        self.ll = rows.summed(self.r, self.v)
         tally("design", self.r)
         self.refined = np.zeros(len(self.x), bool)
 
@@ -57,18 +65,22 @@ class Design:
         """(D, d) the points in theta."""
         return self.forward.from_input(self.x)
 
-    def add(self, theta, runs, refinement: bool = False) -> None:
-        """Simulated points join the design (``refinement``: a repair wave's)."""
-        self.ll = np.concatenate([self.ll, self.rows.summed(runs)])
+    def add(self, theta, runs, speeds=None, refinement: bool = False) -> None:
+        """Simulated points join the design (their runouts and, with velocity
+        rows, passage speeds: ``RowLikelihood.simulate``; ``refinement``: a
+        repair wave's)."""
+        self.ll = np.concatenate([self.ll, self.rows.summed(runs, speeds)])
         self.x = np.concatenate([self.x, np.asarray(self.forward.to_input(theta))])
         self.r = np.concatenate([self.r, runs])
+        if self.v is not None:
+            self.v = np.concatenate([self.v, speeds])
         self.refined = np.concatenate([self.refined, np.full(len(runs), refinement)])
 
     def simulate(self, theta, refinement: bool = False) -> None:
         """Simulate the points theta (T, d) and add them."""
-        runs = self.forward.runouts(theta)
+        runs, speeds = self.rows.simulate(self.forward, theta)
         self.tally("design", runs, theta)
-        self.add(theta, runs, refinement)
+        self.add(theta, runs, speeds, refinement)
 
     def inside(self, input_box) -> np.ndarray:
         """(D,) bool: the points inside ``input_box`` (emulator coordinates)."""

@@ -405,12 +405,16 @@ class CrspForward:
             (X, runouts): X (n_design, d) emulator inputs (``to_input`` of the
             thetas); runouts (n_design, S, n_blocks).
         """
+        x = self.design_points(n_design, seed)
+        return self.to_input(x), self.runouts(x)
+
+    def design_points(self, n_design: int, seed: int) -> np.ndarray:
+        """theta (n_design, d) of ``design``, not simulated."""
         from scipy.stats import qmc
 
         z = qmc.Sobol(self.box.dim, scramble=True, seed=seed).random_base2(
             int(np.ceil(np.log2(n_design))))[:n_design]
-        x = np.clip(self.from_input(self.input_box.from_unit(z)), self.box.lo, self.box.hi)
-        return self.to_input(x), self.runouts(x)
+        return np.clip(self.from_input(self.input_box.from_unit(z)), self.box.lo, self.box.hi)
 
     def to_input(self, theta):
         """Emulator coordinates (Kn, log(1 - Kt), log S[, tan(phi_r)];
