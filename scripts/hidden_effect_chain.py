@@ -5,12 +5,13 @@ A user's whole path, command by command, on synthetic data with one effect
 hidden (``calib.synth``), where the truth is known and fresh rows of the same
 site can be drawn:
 
-1. ``calib.synth``: the rows to fit (``--n-obs``, ``--seed``) and, from the
-   same truth with another seed, rows the fits never see (``--heldout-n-obs``,
-   ``--heldout-seed``);
-2. ``calib.discover`` on the rows to fit: which effect it names;
-3. the ``calib.fit`` command discovery prints (``refit_command``), and the same
-   command without its ``--effect`` options: the baseline;
+1. ``calib.synth``: the rows to fit (``--n-obs``, ``--seed``; with
+   ``--velocity-stations-m``, also ``--n-velocity`` passage speeds there) and,
+   from the same truth with another seed, runout rows the fits never see
+   (``--heldout-n-obs``, ``--heldout-seed``);
+2. ``calib.discover`` on the rows to fit (and their speeds): which effect it names;
+3. the ``calib.fit`` command discovery prints (``refit_command``, which carries
+   the speeds), and the same command without its ``--effect`` options: the baseline;
 4. ``calib.validate`` of both calibrations on the unseen rows: CRPS, skill
    against the fitted rows' climatology, coverage;
 5. ``calib.hazard`` of both calibrations (``--road-x-m``), and the truth's own
@@ -29,6 +30,8 @@ Usage (the figures of docs/studies.md)::
     python scripts/hidden_effect_chain.py --effect size_dissipation \\
         --profile data/postignano_profile.csv --n-obs 180 --seed 9101 \\
         --heldout-seed 9102 --out results/chain-size_dissipation/
+    python scripts/hidden_effect_chain.py --effect vegetation_belt \\
+        --velocity-stations-m 110 --n-velocity 30 --out results/chain-vegetation_belt/
 
 Writes into ``--out``: the synthetic rows, every command's output folder, and
 ``chain.json`` (the commands, their times and the figures printed).
@@ -98,6 +101,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--heldout-n-obs", type=int, default=60, help="unseen rows")
     p.add_argument("--heldout-seed", type=int, default=9102,
                    help="calib.synth seed of the unseen rows")
+    p.add_argument("--velocity-stations-m", default=None, metavar="X[,X...]",
+                   help="also make passage speeds of the rows to fit at these abscissae, m "
+                        "(calib.synth --velocity-stations-m), fitted by discover and both "
+                        "fits; the unseen rows stay runouts")
+    p.add_argument("--n-velocity", type=int, default=30,
+                   help="passage speeds with --velocity-stations-m")
     p.add_argument("--road-x-m", type=float, default=230.0,
                    help="road abscissa for calib.hazard, m")
     p.add_argument("--truth-blocks", type=int, default=20000,
@@ -118,18 +127,24 @@ def main(argv=None) -> int:
     times, record = {}, {"effect": args.effect, "strength": args.strength,
                          "n_obs": args.n_obs, "seed": args.seed,
                          "heldout_n_obs": args.heldout_n_obs,
-                         "heldout_seed": args.heldout_seed}
+                         "heldout_seed": args.heldout_seed,
+                         "velocity_stations_m": args.velocity_stations_m,
+                         "n_velocity": args.n_velocity if args.velocity_stations_m else 0}
     data, held = o("data.csv"), o("heldout.csv")
-    for csv, n, seed in ((data, args.n_obs, args.seed),
-                         (held, args.heldout_n_obs, args.heldout_seed)):
+    speeds = ([] if args.velocity_stations_m is None else
+              ["--velocity-stations-m", args.velocity_stations_m,
+               "--n-velocity", str(args.n_velocity)])
+    for csv, n, seed, extra in ((data, args.n_obs, args.seed, speeds),
+                                (held, args.heldout_n_obs, args.heldout_seed, [])):
         times[f"synth {os.path.basename(csv)}"] = run_command(
             ["-m", "calib.synth", "--effect", args.effect, "--strength", str(args.strength),
-             "--n-obs", str(n), "--seed", str(seed), "--profile", args.profile, "--out", csv],
-            csv + ".log")
+             "--n-obs", str(n), "--seed", str(seed), "--profile", args.profile, "--out", csv,
+             *extra], csv + ".log")
     truth = read_json(o("data.truth.json"))
 
-    times["discover"] = run_command(["-m", "calib.discover", data, "--out", o("discover"),
-                                     "--no-progress"], o("discover.log"))
+    times["discover"] = run_command(
+        ["-m", "calib.discover", data, "--out", o("discover"), "--no-progress",
+         *(["--velocities", o("data_velocities.csv")] if speeds else [])], o("discover.log"))
     disc = read_json(o("discover", "discovery.json"))
     record["named_effects"] = disc["named_effects"]
     record["gap_m"] = [disc["gap_before"], disc["gap_after"]]
@@ -138,7 +153,8 @@ def main(argv=None) -> int:
         fits["effect"] = shlex.split(disc["refit_command"])[1:]
         fits["baseline"] = without_effects(disc["refit_command"])
     else:
-        fits["baseline"] = ["-m", "calib.fit", data, "--model", "crsp"]
+        fits["baseline"] = ["-m", "calib.fit", data, "--model", "crsp",
+                            *(["--velocities", o("data_velocities.csv")] if speeds else [])]
     record["fit_commands"] = {}
     for k, cmd in fits.items():
         cmd = [*cmd, "--out", o(f"fit_{k}"), "--no-progress"]
@@ -176,8 +192,11 @@ def main(argv=None) -> int:
 
 
 def _print(r: dict) -> None:
-    print(f"hidden effect {r['effect']} (strength {r['strength']:g}), {r['n_obs']} rows "
-          f"(seed {r['seed']}), {r['heldout_n_obs']} unseen rows (seed {r['heldout_seed']})")
+    speeds = (f" and {r['n_velocity']} passage speeds at {r['velocity_stations_m']} m"
+              if r.get("n_velocity") else "")
+    print(f"hidden effect {r['effect']} (strength {r['strength']:g}), {r['n_obs']} rows"
+          f"{speeds} (seed {r['seed']}), {r['heldout_n_obs']} unseen rows (seed "
+          f"{r['heldout_seed']})")
     print(f"discover named: {', '.join(r['named_effects']) or 'none'}; gap "
           f"{r['gap_m'][0]:.2f} -> {r['gap_m'][1]:.2f} m")
     for k, v in r["validation"].items():

@@ -184,7 +184,8 @@ def test_refit_command_of_each_model():
     from calib.discover import refit_command
 
     args = argparse.Namespace(data="my data.csv", profile=None, model="crsp",
-                              rolling_resistance="fit", release_tolerance_m=0.5)
+                              rolling_resistance="fit", release_tolerance_m=0.5,
+                              velocities=None)
     assert refit_command(args, ()) == ("python -m calib.fit 'my data.csv' --model crsp "
                                        "--rolling-resistance fit --release-tolerance-m 0.5")
     assert refit_command(args, ("fragmentation", "vegetation_belt")).endswith(
