@@ -464,6 +464,15 @@ def _print_nuts_repairs(result: dict, models) -> None:
                   + "; ".join(f"run {i + 1} {r}" for i, r in enumerate(why))
                   + f", the {waves[0]['n_points']} draws re-simulated for the chain "
                   "screening joined the log-likelihood GP's design (bayes.focus.refined)")
+        bwaves = ((b or {}).get("focus") or {}).get("best_point_waves") or []
+        if bwaves:
+            w = bwaves[0]
+            print(f"\n{model.upper()} best-point waves: the design's best point "
+                  f"({w['best_loglik']:.0f} nats) beat every chain ({w['chain_loglik']:.0f}) "
+                  f"by more than {w['bar_nats']:.1f} nats; "
+                  f"{'once' if len(bwaves) == 1 else f'{len(bwaves)} times'}, the focus region "
+                  "narrowed to the points near it, new points filled it, and NUTS ran again "
+                  "(bayes.focus.best_point_waves, bayes.focus.narrowed)")
         rwaves = ((b or {}).get("focus") or {}).get("realisation_waves") or []
         if rwaves:
             first = rwaves[0]["median_range"]

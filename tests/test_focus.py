@@ -130,3 +130,80 @@ def test_the_tschamut_posterior_lives_where_the_simulator_fits(tmp_path, capsys)
     assert len(waves) <= 1  # --quick: one wave at most
     for wave in waves:  # only after the check flagged the intervals
         assert wave["outside"] and wave["problems_before"] and wave["n_points"] <= 32
+
+
+class _Design:
+    """The parts of ``calib.inference.design_waves.Design`` the best-point wave reads."""
+
+    def __init__(self, fw, theta, ll):
+        self.fw, self.theta, self.ll = fw, np.asarray(theta, float), np.asarray(ll, float)
+        self.x = np.asarray(fw.to_input(self.theta))
+        self.r = np.full((len(self.ll), 1, 4), 100.0)
+        self.v = None
+        self.filled = []
+
+    def inside(self, input_box):
+        return np.all((self.x >= input_box.lo - 1e-9) & (self.x <= input_box.hi + 1e-9), axis=1)
+
+    def fill(self, input_box, box, n, key):
+        self.filled.append((input_box, box, n))
+
+
+def _two_modes(fw, rng):
+    """A sharp mode (20 points within 5 nats of -760) and a broad one (60 points
+    about -828) in separate corners of the input box."""
+    ibox = fw.input_box
+    span = ibox.hi - ibox.lo
+    sharp = ibox.lo + np.array([0.3, 0.3, 0.3, 0.3]) * span + 0.02 * span * rng.standard_normal(
+        (20, 4))
+    broad = ibox.lo + np.array([0.8, 0.8, 0.8, 0.8]) * span + 0.08 * span * rng.standard_normal(
+        (60, 4))
+    u = np.clip(np.concatenate([sharp, broad]), ibox.lo, ibox.hi)
+    ll = np.concatenate([-760.0 - rng.uniform(0, 5, 20), -828.0 - rng.uniform(0, 20, 60)])
+    return fw.from_input(u), ll
+
+
+def test_chains_that_miss_the_designs_best_mode_narrow_the_focus_to_it():
+    """Every chain's median simulated log-likelihood (-828) trails the design's
+    best point (-760) by more than the bar (half the chi-square 99.9 % point for
+    4 parameters, 9.2 nats, plus three Monte Carlo sds): the focus region
+    narrows to the points within twice the bar of the best (the sharp mode, not
+    the broad one), half a third design fills it and NUTS runs again; at most
+    ``Budget.refinements`` times, and never where the chains reach the best."""
+    from calib.inference.bayes_stage import _Stage, best_point_bar
+    from calib.inference.budget import Budget
+    from calib.inference.focus import FocusRegion
+
+    fw = _forward()
+    theta, ll = _two_modes(fw, np.random.default_rng(1))
+    assert best_point_bar(4, 0.0) == pytest.approx(9.233, abs=1e-3)
+    assert best_point_bar(4, 4.0) == pytest.approx(9.233 + 6.0, abs=1e-3)
+
+    def stage(chain_loglik, refinements=2):
+        s = _Stage.__new__(_Stage)
+        s.forward, s.box, s.budget = fw, fw.box, Budget(n_design3=64, refinements=refinements)
+        s.k_nuts, s.timings = jax.random.key(0), {"design3_s": 0.0}
+        s.design = _Design(fw, theta, ll)
+        s.region = FocusRegion(fw, fw.input_box, fw.box, {})
+
+        class Rows:
+            def noise_var(self, runs, speeds=None):
+                return np.array([1.0])  # sd 1 nat: bar 12.2
+        s.rows = Rows()
+        s.chain_screen = {"chain_loglik": list(chain_loglik)}
+        return s
+
+    s = stage([-829.0, -828.0, None])
+    assert s._best_point_wave()
+    (ibox, box, n), = s.design.filled
+    assert n == 32
+    sharp, broad = s.design.inside(ibox)[:20], s.design.inside(ibox)[20:]
+    assert sharp.all() and not broad.any()
+    assert s.region.input_box == ibox and s.region.box == box
+    w, = s.region.record["best_point_waves"]
+    assert w["gain_nats"] == pytest.approx(ll.max() + 828.0)
+    assert w["bar_nats"] == pytest.approx(9.233 + 3.0, abs=1e-3)
+    assert s.region.record["narrowed"][0]["threshold_nats"] == pytest.approx(2 * w["bar_nats"])
+    assert s._best_point_wave() and not s._best_point_wave()  # at most 2 waves
+    assert not stage([-763.0, -829.0])._best_point_wave()  # a chain reached the best
+    assert not stage([-829.0], refinements=0)._best_point_wave()

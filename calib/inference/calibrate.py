@@ -26,7 +26,11 @@ Stages (each timed; ``Budget`` sets the sizes, ``QUICK`` / ``DEFAULT`` the prese
    d. NUTS (``calib.inference.bayes``; CRSP: its chains start at the best
       design points, spread apart, ``chains.chain_starts``); CRSP: each chain's draws are
       re-simulated and a chain the simulator fits far worse than the best one
-      is dropped (``chains.screen_chains``). While the diagnostics still fail, or
+      is dropped (``chains.screen_chains``). Where a design point's simulated
+      log-likelihood beats every chain's by more than
+      ``bayes_stage.best_point_bar``, the chains missed a mode the design
+      found: the focus region narrows to the design points near it, new
+      points fill it and NUTS runs again. While the diagnostics still fail, or
       the GP's predictions at those draws disagree with the simulator
       (``loglik_emulator.at_posterior``), the re-simulated draws join the
       log-likelihood GP's design and NUTS runs again (at most

@@ -53,7 +53,7 @@ from calib.inference.adequacy import BOUND_BAND, bound_mass
 from calib.model.priors import Box
 
 __all__ = ["MARGIN", "MAX_WIDEN", "NATS_PER_ROW", "FocusRegion", "cut_faces", "face_problems",
-           "focus_boxes", "region_record", "widen"]
+           "focus_boxes", "region_record", "theta_box", "widen"]
 
 NATS_PER_ROW = 3.0  # points this close to the best simulated log-likelihood are kept
 MARGIN = 0.10  # widening of the kept points' bounding box, fraction of the input box
@@ -87,6 +87,23 @@ class FocusRegion:
         focus = focus_boxes(forward, design.theta, design.ll, n_rows)
         return None if focus is None else cls(forward, *focus)
 
+    def narrow(self, design, threshold_nats: float) -> tuple[Box, Box]:
+        """Refocus on the design points inside the region whose simulated
+        log-likelihood lies within ``threshold_nats`` of the best one's
+        (``focus_boxes``' rule with that band), the new box inside the old.
+        Returns (input box, theta box) of the new region."""
+        inside = design.inside(self.input_box)
+        ibox, _, rec = focus_boxes(self.forward, design.theta[inside], design.ll[inside], 0,
+                                   threshold_nats)
+        lo = np.maximum(ibox.lo, self.input_box.lo)
+        hi = np.minimum(ibox.hi, self.input_box.hi)
+        self.input_box = Box(ibox.names, tuple(map(float, lo)), tuple(map(float, hi)))
+        self.box = theta_box(self.forward, lo, hi)
+        self.record.setdefault("narrowed", []).append(
+            {k: rec[k] for k in ("rule", "best_loglik", "threshold_nats", "n_kept")}
+            | region_record(self.box, self.prior))
+        return self.input_box, self.box
+
     def faces_holding(self, samples: np.ndarray) -> list[tuple[int, str, float]]:
         """The faces that hold the posterior ``samples`` (``cut_faces``)."""
         return cut_faces(samples, self.box, self.prior)
@@ -113,8 +130,8 @@ class FocusRegion:
         return face_problems(samples, self.box, self.prior)
 
 
-def focus_boxes(forward, design_theta: np.ndarray, design_ll: np.ndarray, n_rows: int
-                ) -> tuple[Box, Box, dict] | None:
+def focus_boxes(forward, design_theta: np.ndarray, design_ll: np.ndarray, n_rows: int,
+                threshold_nats: float | None = None) -> tuple[Box, Box, dict] | None:
     """The focus box in the emulator's coordinates and in theta, and its record.
 
     Args:
@@ -124,6 +141,8 @@ def focus_boxes(forward, design_theta: np.ndarray, design_ll: np.ndarray, n_rows
         design_ll: (D,) their simulated summed log-likelihood (-inf: a row got
             no finished block).
         n_rows: observation rows in the likelihood.
+        threshold_nats: the band below the best point that is kept (default
+            ``NATS_PER_ROW`` x ``n_rows``).
 
     Returns:
         (input box, theta box, record) or None where no design point has a
@@ -135,14 +154,14 @@ def focus_boxes(forward, design_theta: np.ndarray, design_ll: np.ndarray, n_rows
     ibox, box = forward.input_box, forward.box
     d = box.dim
     order = np.argsort(-np.where(np.isfinite(ll), ll, -np.inf))
-    threshold = NATS_PER_ROW * n_rows
+    threshold = NATS_PER_ROW * n_rows if threshold_nats is None else threshold_nats
     keep = order[:max(2 * d, int(np.sum(ll >= ll[order[0]] - threshold)))]
     u = np.asarray(forward.to_input(np.asarray(design_theta, float)[keep]))
     span = ibox.hi - ibox.lo
     lo, hi = _to_bounds(ibox, u.min(0) - MARGIN * span, u.max(0) + MARGIN * span)
-    fbox = _theta_box(forward, lo, hi)
+    fbox = theta_box(forward, lo, hi)
     record = {
-        "rule": (f"design points within {NATS_PER_ROW:g} nats per row of the best simulated "
+        "rule": (f"design points within {threshold:.1f} nats of the best simulated "
                  f"log-likelihood (at least {2 * d}), their bounding box in the emulator's "
                  f"coordinates widened by {MARGIN:.0%} of the input box on each side "
                  "(history matching's refocusing, Vernon et al. 2010)"),
@@ -169,7 +188,7 @@ def _to_bounds(ibox: Box, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, n
     return np.where(lo < ibox.lo + m, ibox.lo, lo), np.where(hi > ibox.hi - m, ibox.hi, hi)
 
 
-def _theta_box(forward, lo: np.ndarray, hi: np.ndarray) -> Box:
+def theta_box(forward, lo: np.ndarray, hi: np.ndarray) -> Box:
     """The image in theta of the input box [lo, hi] (every coordinate of
     ``to_input`` is monotone in its own parameter), with the prior's own bounds,
     exactly, where it reaches them."""
@@ -224,7 +243,7 @@ def widen(forward, input_box: Box, faces) -> tuple[Box, Box, list[Box]]:
             s_hi[i] = input_box.lo[i]
         slabs.append(Box(ibox.names, tuple(map(float, s_lo)), tuple(map(float, s_hi))))
     return (Box(ibox.names, tuple(map(float, lo)), tuple(map(float, hi))),
-            _theta_box(forward, lo, hi), slabs)
+            theta_box(forward, lo, hi), slabs)
 
 
 def _snap(t: np.ndarray, lo: np.ndarray, hi: np.ndarray, tol: float = 1e-9) -> np.ndarray:
