@@ -443,6 +443,7 @@ def test_notebook_03_discrepancy_runs_at_small_size(tmp_path):
                    for o in c.get("outputs", []))
     assert "hidden: rolling_resistance | named:" in text
     assert "of which from the speeds" in text  # section 2: runouts and passage speeds
+    assert "passage speeds (methods: bayes)" in text and "belt_start_m" in text  # refitted
     assert "size_dissipation" in text and "named:" in text
     print(text[-2500:])  # the closing sections' figures, shown with -rP or on failure
     # section 4: the named effect fitted, scored on held-back rows and run for the hazard
