@@ -285,7 +285,7 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     dim = box.dim
     rng = np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel()[-1])
     vel = velocities if velocities is not None and velocities.n_obs else None
-    st_kw = {} if vel is None else {"stations_x_m": tuple(map(float, vel.stations_m))}
+    st_kw = {} if vel is None else {"stations_x_m": vel.stations_x_m}
     if entries is None:
         simulated, row_entry = np.asarray(class_sizes_m, float), row_class
     else:

@@ -167,8 +167,8 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     if velocities is not None and "gradient" in methods:
         raise ValueError("the gradient stage fits runout rows only: with passage speeds "
                          "the fit is Bayesian (method 'bayes')")
-    if velocities is not None and tuple(getattr(forward, "stations_x_m", ())) != tuple(
-            map(float, velocities.stations_m)):
+    if velocities is not None and tuple(getattr(forward, "stations_x_m", ())) != \
+            velocities.stations_x_m:
         raise ValueError("the forward model must record passage speeds at the rows' stations")
     entries = _row_entries(forward, obs)
     k_design, k_grad, k_nuts, k_pilot, k_check = jax.random.split(key, 5)
@@ -274,7 +274,7 @@ def fit_model(model: str, inputs, entries: Entries, key: jax.Array, *,
             raise ValueError("passage speeds are fitted with the crsp model only")
         entries, vel_entry = entries.with_speed_entries(velocities.block_size_m)
         vel_rows = VelocityRows.of(velocities, vel_entry)
-        stations = tuple(map(float, vel_rows.stations_m))
+        stations = vel_rows.stations_x_m
     if model == "crsp":
         box = {"fit": CRSP_ROLLING_BOX, "profile": CRSP_BOX}.get(rolling_resistance) \
             or zoned_rolling_box(dict.fromkeys(

@@ -233,6 +233,11 @@ class VelocityRows:
     def n_obs(self) -> int:
         return int(self.v_m_s.shape[0])
 
+    @property
+    def stations_x_m(self) -> tuple[float, ...]:
+        """The stations as a forward model records them (``CrspForward.stations_x_m``)."""
+        return tuple(map(float, self.stations_m))
+
 
 @jax.jit
 def _velocity_rows_loglik(speeds, entry, station, v, sd):
@@ -291,7 +296,7 @@ class RowLikelihood:
     @property
     def stations_m(self) -> tuple[float, ...]:
         """The abscissae at which the forward model must record passage speeds, m."""
-        return () if self.velocities is None else tuple(map(float, self.velocities.stations_m))
+        return () if self.velocities is None else self.velocities.stations_x_m
 
     def simulate(self, forward, theta) -> tuple[np.ndarray, np.ndarray | None]:
         """(runouts (T, S, n), passage speeds (T, S, K, n) or None without
