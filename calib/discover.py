@@ -207,11 +207,13 @@ def _checked_inputs(args):
     from calib.files.inputs import InputError, load_inputs
     from calib.inference.budget import discovery_budget, scaled_design
 
+    if args.velocities is not None and args.model != "crsp":
+        raise CliError("--velocities: passage speeds are scored with the crsp model only")
     try:
-        inputs = load_inputs(args.data, args.profile, args.out)
+        inputs = load_inputs(args.data, args.profile, args.out, args.velocities)
     except InputError as e:
         raise CliError(str(e)) from None
-    velocities = _load_velocities(args.velocities, args.model, inputs.profile)
+    velocities = inputs.speeds
     if not args.release_tolerance_m >= 0:
         raise CliError(f"--release-tolerance-m must be >= 0, got {args.release_tolerance_m:g}")
     try:
@@ -336,21 +338,6 @@ def _release_record(entries, n_runout_rows: int, tol_m: float) -> dict | None:
                        for g, (d, x, v, h, pf) in enumerate(zip(
                            entries.sizes_m, entries.release_x_m, entries.release_speed_m_s,
                            entries.release_height_m, entries.profile_csv))]}
-
-
-def _load_velocities(path, model: str, profile):
-    """Passage speeds of ``--velocities`` (None without it); a bad file, a DEM run
-    or a station off the profile is a one-line error."""
-    if path is None:
-        return None
-    from calib.files.inputs import InputError, load_passage_speeds
-
-    if model != "crsp":
-        raise CliError("--velocities: passage speeds are scored with the crsp model only")
-    try:
-        return load_passage_speeds(path, profile)
-    except InputError as e:
-        raise CliError(str(e)) from None
 
 
 def _print_summary(r: dict, out: str) -> None:

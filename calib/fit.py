@@ -199,7 +199,7 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
     the inputs and fits would pass back and forth through it between steps.
     """
     from calib.files.fit_record import FitOptions, fit_document, posterior_files
-    from calib.files.inputs import InputError, load_inputs, load_passage_speeds
+    from calib.files.inputs import InputError, load_inputs
     from calib.files.provenance import provenance
     from calib.files.split import hold_out
     from calib.inference.calibrate import fit_model
@@ -213,9 +213,7 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
         raise CliError(f"--release-tolerance-m must be >= 0, got {release_tolerance_m:g}")
     methods = _check_velocities(velocities, models, methods, say)
     try:
-        inputs = load_inputs(data, profile, out)
-        speeds = None if velocities is None else load_passage_speeds(velocities,
-                                                                     inputs.profile)
+        inputs = load_inputs(data, profile, out, velocities)
     except InputError as e:
         raise CliError(str(e)) from None
     files, data_csv = {}, data
@@ -242,7 +240,7 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
                                     methods=methods, quick=quick,
                                     rolling_resistance=rolling_resistance,
                                     effects=tuple(effects), alpha_law=alpha_law,
-                                    velocities=speeds, progress=bar)
+                                    progress=bar)
         bar.close()
         if model == "dem":
             fit = fits[model].fit
@@ -255,7 +253,7 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
     options = FitOptions(provenance(PROG, seed, {"data": data, "profile": inputs.profile_path,
                                                  **({"velocities": velocities}
                                                     if velocities else {})}),
-                         data_csv, bool(quick), methods, grouped, release_tolerance_m, speeds)
+                         data_csv, bool(quick), methods, grouped, release_tolerance_m)
     cal = fit_document(options, inputs, entries, fits, time.perf_counter() - t_start)
     files["calibration.json"] = cal.to_json()
     texts, writers = posterior_files(fits, inputs.obs)

@@ -64,8 +64,8 @@ def build_parser() -> OneLineParser:
 
 def _load(args):
     from calib.files.calibration_file import CalibrationError, load_calibration
-    from calib.files.inputs import InputError, on_command_profile, own_profile
-    from calib.files.observations import ObservationError, load_observations
+    from calib.files.inputs import InputError, own_profile
+    from calib.files.observations import ObservationError, load_observations, on_command_profile
     from calib.files.site import SiteError, load_site
     from solvers.profile import ProfileError, load_profile
 

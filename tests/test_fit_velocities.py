@@ -181,3 +181,21 @@ def test_discovery_refit_command_carries_the_speeds():
     assert refit_command(args, ("vegetation_belt",)) == (
         "python -m calib.fit rows.csv --profile p.csv --model crsp --rolling-resistance "
         "profile --effect vegetation_belt --release-tolerance-m 1 --velocities speeds.csv")
+
+
+def test_the_inputs_carry_the_speeds_checked_on_their_profile(speed_data, tmp_path):
+    """``load_inputs`` reads the speeds with the rows and the profile, into the one
+    typed ``Inputs`` the fit and discover take; a station off that profile is
+    an ``InputError`` by line, whichever command reads it."""
+    from calib.files.inputs import InputError, load_inputs
+
+    data, speeds = speed_data
+    inputs = load_inputs(str(data), PROFILE, str(tmp_path / "r"), str(speeds))
+    assert inputs.speeds_path == str(speeds) and inputs.speeds.n_obs > 0
+    assert np.all((inputs.speeds.station_x_m > inputs.profile.x_m[0])
+                  & (inputs.speeds.station_x_m < inputs.profile.x_m[-1]))
+    assert load_inputs(str(data), PROFILE, str(tmp_path / "r")).speeds is None
+    speeds.write_text("station_x_m,block_size_m,velocity_m_s,velocity_sd_m_s\n"
+                      "110,1.0,12.0,1\n-5,1.0,3.0,1\n")
+    with pytest.raises(InputError, match="line 3, column 'station_x_m'"):
+        load_inputs(str(data), PROFILE, str(tmp_path / "r"), str(speeds))

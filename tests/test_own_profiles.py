@@ -16,8 +16,8 @@ from cli_run import run_cli
 
 import calib  # noqa: F401  (x64)
 from calib.field import main as field_main
-from calib.files.inputs import on_command_profile, own_profile
-from calib.files.observations import ObservationError, load_observations
+from calib.files.inputs import own_profile
+from calib.files.observations import ObservationError, load_observations, on_command_profile
 from calib.inference.calibrate import _row_entries
 from calib.inference.fit_check import check_entries
 from calib.model.entries import Entries

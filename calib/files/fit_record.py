@@ -34,8 +34,6 @@ class FitOptions:
         grouped: True where each row was released from its own point (the
             ``release_groups`` record is written).
         tolerance_m: the grouping tolerance, m.
-        velocities: the passage speeds fitted with the runouts
-            (``calib.files.observations.Velocities``), or None.
     """
 
     provenance: dict
@@ -44,7 +42,6 @@ class FitOptions:
     methods: tuple[str, ...]
     grouped: bool
     tolerance_m: float
-    velocities: object = None
 
 
 def summary_stats(values: np.ndarray | None, point: float) -> dict:
@@ -177,7 +174,7 @@ def fit_document(options: FitOptions, inputs, entries, fits: dict,
            "likelihood": "point: (1/n) sum_j N(y; r_j, sd^2 + v_j); interval: (1/n) sum_j "
                          "[Phi((b-r_j)/w_j) - Phi((a-r_j)/w_j)] (calib/inference/likelihood.py)",
            "n_observations": inputs.obs.n_obs,
-           "velocities": _velocity_record(options.velocities),
+           "velocities": _velocity_record(inputs.speeds),
            "fit_quality": {m: f.quality for m, (f, _, _) in fits.items()},
            "timings_s": {**{m: f.timings_s for m, (f, _, _) in fits.items()},
                          "total_s": total_s},

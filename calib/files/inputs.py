@@ -16,7 +16,7 @@ import os
 import numpy as np
 
 __all__ = ["InputError", "Inputs", "common_release_m", "default_profile", "load_inputs",
-           "load_passage_speeds", "on_command_profile", "own_profile"]
+           "own_profile"]
 
 
 class InputError(ValueError):
@@ -61,42 +61,6 @@ def own_profile(path: str):
         raise InputError(str(e)) from None
 
 
-def _check_reach(obs, profile, profile_path: str) -> None:
-    """Every row's release lies on its profile (its own, or the command's) and
-    its observed runout between that release and the profile's end; a row
-    without a release is released at its profile's first vertex."""
-    rel = np.asarray(getattr(obs, "release_x_m", np.full(obs.n_obs, np.nan)), float)
-    own = getattr(obs, "profile", None)
-    for i in range(obs.n_obs):
-        if own is not None and own[i]:
-            row_profile, row_path = own_profile(own[i]), own[i]
-        else:
-            row_profile, row_path = profile, profile_path
-        start, x1 = float(row_profile.x_m[0]), float(row_profile.x_m[-1])
-        x0 = rel[i] if np.isfinite(rel[i]) else start
-        if not start <= x0 < x1:
-            raise InputError(f"{obs.path}: line {i + 2}, column 'release_x_m': release {x0:g} "
-                             f"m lies outside the profile {row_path} ({start:g} to {x1:g} m)")
-        col, val = (("runout_min_m", obs.runout_min_m[i]) if obs.is_interval[i]
-                    else ("runout_m", obs.runout_m[i]))
-        if val > x1 - x0:
-            raise InputError(f"{obs.path}: line {i + 2}, column {col!r}: runout {val:g} m lies "
-                             f"beyond the end of the profile {row_path} (it covers "
-                             f"{x1 - x0:g} m from the release at x = {x0:g} m); the blocks "
-                             f"can never reach it")
-
-
-def on_command_profile(obs, profile_path: str):
-    """Rows that name the command's own profile file run on it ("" in
-    ``Observations.profile``), so that only the others are simulated apart."""
-    own = getattr(obs, "profile", None)
-    if own is None or not any(own):
-        return obs
-    prof = np.array([("" if p and os.path.samefile(p, profile_path) else p) for p in own],
-                    dtype=object)
-    return dataclasses.replace(obs, profile=prof)
-
-
 @dataclasses.dataclass(frozen=True)
 class Inputs:
     """A calibration command's checked inputs.
@@ -107,12 +71,17 @@ class Inputs:
         profile_path: its file.
         site: its site (``calib.files.site.Site``: station of interest,
             reference values, the rock density).
+        speeds: passage speeds at stations
+            (``calib.files.observations.Velocities``), or None.
+        speeds_path: their file, or None.
     """
 
     obs: object
     profile: object
     profile_path: str
     site: object
+    speeds: object = None
+    speeds_path: str | None = None
 
     @property
     def release_x_m(self) -> float:
@@ -188,49 +157,43 @@ class Inputs:
         return lines
 
 
-def load_inputs(data: str, profile_arg: str | None, out: str) -> Inputs:
-    """Observations, profile, its path and its site, checked for a command
+def load_inputs(data: str, profile_arg: str | None, out: str,
+                velocities: str | None = None) -> Inputs:
+    """Profile, its site, observations and passage speeds, checked for a command
     (``InputError`` on bad input): the files exist and parse, every runout
-    lies on the profile, ``out`` can be a folder. Shared by ``calib.fit`` and
-    ``calib.discover``."""
-    from calib.files.observations import ObservationError, load_observations
+    lies on the profile, every speed station inside it, ``out`` can be a
+    folder. Shared by ``calib.fit`` and ``calib.discover``.
+
+    Args:
+        data: the observations CSV (``calib.files.observations``).
+        profile_arg: the profile CSV; None: ``default_profile(data)``.
+        out: the command's output folder (need not exist).
+        velocities: a CSV of passage speeds at stations
+            (``calib.files.observations.load_velocities``, every station
+            strictly inside the profile); None: none.
+    """
+    from calib.files.observations import (
+        ObservationError,
+        load_observations,
+        load_velocities,
+        rows_on_profile,
+    )
     from calib.files.site import SiteError, load_site
     from solvers.profile import ProfileError, load_profile
 
     profile_path = profile_arg or default_profile(data)
-    try:
-        obs = load_observations(data)
-    except ObservationError as e:
-        raise InputError(str(e)) from None
+    if not os.path.isfile(data):  # named before its profile, which is found next to it
+        raise InputError(f"{data}: no such file")
     if not os.path.isfile(profile_path):
         raise InputError(f"{profile_path}: no such profile file (give --profile)")
     try:
         profile = load_profile(profile_path)
         site = load_site(profile_path)
-    except (ProfileError, SiteError) as e:
+        obs = rows_on_profile(load_observations(data), profile, profile_path, own_profile)
+        speeds = None if velocities is None else load_velocities(velocities,
+                                                                 profile.x_range_m)
+    except (ProfileError, SiteError, ObservationError) as e:
         raise InputError(str(e)) from None
-    obs = on_command_profile(obs, profile_path)
-    _check_reach(obs, profile, profile_path)
     if os.path.exists(out) and not os.path.isdir(out):
         raise InputError(f"--out {out}: exists and is not a folder")
-    return Inputs(obs, profile, profile_path, site)
-
-
-def load_passage_speeds(path: str, profile):
-    """Passage speeds at stations (``calib.files.observations.load_velocities``)
-    for a command's profile (``InputError`` on bad input: the file's own
-    checks, and a station not strictly inside the profile, named by line).
-    Shared by ``calib.fit`` and ``calib.discover`` (``--velocities``)."""
-    from calib.files.observations import ObservationError, load_velocities
-
-    try:
-        vel = load_velocities(path)
-    except ObservationError as e:
-        raise InputError(str(e)) from None
-    x0, x1 = profile.x_range_m
-    off = np.flatnonzero((vel.station_x_m <= x0) | (vel.station_x_m >= x1))
-    if off.size:
-        i = int(off[0])
-        raise InputError(f"{path}: line {i + 2}, column 'station_x_m': expected an abscissa "
-                         f"inside the profile ({x0:g} to {x1:g} m), got {vel.station_x_m[i]:g}")
-    return vel
+    return Inputs(obs, profile, profile_path, site, speeds, velocities)

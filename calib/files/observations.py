@@ -62,7 +62,7 @@ import numpy as np
 import pandas as pd
 
 __all__ = ["ObservationError", "Observations", "Velocities", "load_observations",
-           "load_velocities", "read_table"]
+           "load_velocities", "on_command_profile", "read_table", "rows_on_profile"]
 
 REQUIRED = ("block_size_m",)
 OPTIONAL = ("runout_m", "runout_sd_m", "runout_min_m", "runout_max_m", "source",
@@ -322,14 +322,21 @@ def _field_columns(df: pd.DataFrame, path: str):
 VELOCITY_COLUMNS = ("station_x_m", "block_size_m", "velocity_m_s", "velocity_sd_m_s")
 
 
-def load_velocities(path: str | os.PathLike) -> Velocities:
+def load_velocities(path: str | os.PathLike,
+                    x_range_m: tuple[float, float] | None = None) -> Velocities:
     """Read and validate a passage-velocity CSV (schema in the module docstring).
+
+    Args:
+        path: the CSV.
+        x_range_m: (x0, x1) of the profile the speeds are simulated on: every
+            station must lie strictly inside it; None: not checked.
 
     Raises:
         ObservationError: missing file, empty table, missing column, or a row
-            whose station is not a finite number, whose size or tolerance is not
-            positive, or whose speed is negative. The message names the file,
-            line (header = line 1) and column.
+            whose station is not a finite number (or not inside ``x_range_m``),
+            whose size or tolerance is not positive, or whose speed is
+            negative. The message names the file, line (header = line 1) and
+            column.
     """
     path = os.fspath(path)
     df = read_table(path, ",".join(VELOCITY_COLUMNS))
@@ -353,5 +360,59 @@ def load_velocities(path: str | os.PathLike) -> Velocities:
             i = int(bad[0])
             raise ObservationError(f"{path}: line {i + 2}, column {col!r}: expected {what}, "
                                    f"got {df[col][i]!r}")
+    if x_range_m is not None:
+        x0, x1 = x_range_m
+        off = np.flatnonzero((x <= x0) | (x >= x1))
+        if off.size:
+            i = int(off[0])
+            raise ObservationError(f"{path}: line {i + 2}, column 'station_x_m': expected an "
+                                   f"abscissa inside the profile ({x0:g} to {x1:g} m), got "
+                                   f"{x[i]:g}")
     src = tuple(df["source"].tolist()) if "source" in df.columns else ("",) * len(df)
     return Velocities(x, d, v, sd, src, path)
+
+
+def on_command_profile(obs: Observations, profile_path: str) -> Observations:
+    """Rows that name the command's own profile file run on it ("" in
+    ``Observations.profile``), so that only the others are simulated apart."""
+    own = getattr(obs, "profile", None)
+    if own is None or not any(own):
+        return obs
+    prof = np.array([("" if p and os.path.samefile(p, profile_path) else p) for p in own],
+                    dtype=object)
+    return dataclasses.replace(obs, profile=prof)
+
+
+def rows_on_profile(obs: Observations, profile, profile_path: str,
+                    profile_of) -> Observations:
+    """``obs`` with the rows that name ``profile_path`` moved onto it
+    (``on_command_profile``), checked: every row's release lies on its profile
+    (its own, read by ``profile_of(path)``, or the command's ``profile``) and
+    its observed runout between that release and the profile's end; a row
+    without a release is released at its profile's first vertex.
+
+    Raises:
+        ObservationError: the first row that fails, by line and column.
+    """
+    obs = on_command_profile(obs, profile_path)
+    rel = np.asarray(getattr(obs, "release_x_m", np.full(obs.n_obs, np.nan)), float)
+    own = getattr(obs, "profile", None)
+    for i in range(obs.n_obs):
+        if own is not None and own[i]:
+            row_profile, row_path = profile_of(own[i]), own[i]
+        else:
+            row_profile, row_path = profile, profile_path
+        start, x1 = float(row_profile.x_m[0]), float(row_profile.x_m[-1])
+        x0 = rel[i] if np.isfinite(rel[i]) else start
+        if not start <= x0 < x1:
+            raise ObservationError(f"{obs.path}: line {i + 2}, column 'release_x_m': release "
+                                   f"{x0:g} m lies outside the profile {row_path} ({start:g} "
+                                   f"to {x1:g} m)")
+        col, val = (("runout_min_m", obs.runout_min_m[i]) if obs.is_interval[i]
+                    else ("runout_m", obs.runout_m[i]))
+        if val > x1 - x0:
+            raise ObservationError(f"{obs.path}: line {i + 2}, column {col!r}: runout {val:g} m "
+                                   f"lies beyond the end of the profile {row_path} (it covers "
+                                   f"{x1 - x0:g} m from the release at x = {x0:g} m); the "
+                                   f"blocks can never reach it")
+    return obs

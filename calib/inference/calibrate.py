@@ -233,7 +233,7 @@ class ModelRun(NamedTuple):
 def fit_model(model: str, inputs, entries: Entries, key: jax.Array, *,
               methods: tuple[str, ...] = ("gradient", "bayes"), quick: bool = False,
               rolling_resistance: str = "fit", effects: tuple[str, ...] = (),
-              alpha_law: str = "power", velocities=None,
+              alpha_law: str = "power",
               progress: Callable[[str, int, int], None] | None = None) -> ModelRun:
     """Calibrate one model on a data set's rows, as ``python -m calib.fit`` does.
 
@@ -246,7 +246,10 @@ def fit_model(model: str, inputs, entries: Entries, key: jax.Array, *,
 
     Args:
         model: "crsp" or "dem".
-        inputs: the data set (``calib.files.inputs.Inputs``).
+        inputs: the data set (``calib.files.inputs.Inputs``); with passage
+            speeds (``Inputs.speeds``, CRSP only) they are fitted with the
+            runouts, their blocks simulated as ``Entries.with_speed_entries``
+            says, and the fit is Bayesian (``calibrate``'s ``velocities``).
         entries: what the rows make the solvers simulate (``Inputs.entries``).
         key: PRNG key of this model's fit.
         methods: subset of ("gradient", "bayes").
@@ -257,10 +260,6 @@ def fit_model(model: str, inputs, entries: Entries, key: jax.Array, *,
             the profile's angles).
         effects: CRSP candidate effects switched on (``calib.model.effects``).
         alpha_law: DEM damping law, "power" or "constant".
-        velocities: CRSP: passage speeds at stations
-            (``calib.files.observations.Velocities``) fitted with the runouts;
-            their blocks are simulated as ``Entries.with_speed_entries`` says,
-            and the fit is Bayesian (``calibrate``'s ``velocities``).
         progress: optional callable(stage, done, total).
     """
     from calib.model.forward import CrspForward, DemForward
@@ -268,7 +267,7 @@ def fit_model(model: str, inputs, entries: Entries, key: jax.Array, *,
 
     budget = presets(model, quick)
     profile = inputs.profile
-    vel_rows, stations = None, ()
+    vel_rows, stations, velocities = None, (), inputs.speeds
     if velocities is not None:
         if model != "crsp":
             raise ValueError("passage speeds are fitted with the crsp model only")
