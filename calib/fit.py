@@ -448,21 +448,35 @@ def _print_checks(result: dict, models) -> None:
 
 
 def _print_nuts_repairs(result: dict, models) -> None:
+    """How often NUTS ran and why (each repair wave of
+    ``calib.inference.bayes_stage`` reruns it once), the chains dropped, and a
+    failed posterior's problems."""
     for model in models:
         b = result[model].get("bayes")
         screen = (b or {}).get("chain_screen") or {}
-        waves = ((b or {}).get("focus") or {}).get("refined") or []
+        focus = (b or {}).get("focus") or {}
+        waves = focus.get("refined") or []
+        bwaves = focus.get("best_point_waves") or []
+        rwaves = focus.get("realisation_waves") or []
+        widened = focus.get("widened") or []
+        n_runs = focus.get("nuts_runs", 1)
+        if n_runs > 1:
+            print(f"\n{model.upper()} NUTS ran {n_runs} times: once, then once after each "
+                  "repair below (bayes.focus.nuts_runs)")
+        if widened:
+            print(f"\n{model.upper()} focus region widened {len(widened)} times: the "
+                  "posterior piled against a face the focus region drew (not the prior's); "
+                  "the face moved out, new points filled the slab (bayes.focus.widened)")
         if waves:
             why = []
             for w in waves:
                 there = w.get("emulator_at_posterior") or {}
                 why.append("its diagnostics failed" if w["problems_before"] else
                            f"the GP was off where it sat (RMS z {there.get('z_rms', 0):.1f})")
-            print(f"\n{model.upper()} NUTS ran {len(waves) + 1} times: after "
-                  + "; ".join(f"run {i + 1} {r}" for i, r in enumerate(why))
+            print(f"\n{model.upper()} refinement waves: "
+                  + "; ".join(f"after run {i + 1} {r}" for i, r in enumerate(why))
                   + f", the {waves[0]['n_points']} draws re-simulated for the chain "
                   "screening joined the log-likelihood GP's design (bayes.focus.refined)")
-        bwaves = ((b or {}).get("focus") or {}).get("best_point_waves") or []
         if bwaves:
             w = bwaves[0]
             print(f"\n{model.upper()} best-point waves: the design's best point "
@@ -471,7 +485,6 @@ def _print_nuts_repairs(result: dict, models) -> None:
                   f"{'once' if len(bwaves) == 1 else f'{len(bwaves)} times'}, the focus region "
                   "narrowed to the points near it, new points filled it, and NUTS ran again "
                   "(bayes.focus.best_point_waves, bayes.focus.narrowed)")
-        rwaves = ((b or {}).get("focus") or {}).get("realisation_waves") or []
         if rwaves:
             first = rwaves[0]["median_range"]
             print(f"\n{model.upper()} realisation waves: the posterior medians of "

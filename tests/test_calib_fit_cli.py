@@ -134,7 +134,30 @@ def test_main_job_writes_every_output(small_run):
     cal = _check_every_output(proc, out, n_draws_min=50)
     for m in ("crsp", "dem"):  # the SMALL stage sizes reached the job and its record
         assert cal[m]["budget"] == dataclasses.asdict(SMALL[m])
-    assert len(cal["crsp"]["bayes"]["focus"]["refined"]) <= SMALL["crsp"].refinements
+    focus = cal["crsp"]["bayes"]["focus"]
+    assert len(focus["refined"]) <= SMALL["crsp"].refinements
+    # every NUTS run is counted: the first, and one after each repair
+    assert focus["nuts_runs"] == 1 + sum(len(focus.get(k) or []) for k in (
+        "refined", "best_point_waves", "realisation_waves", "widened"))
+
+
+def test_the_summary_counts_every_nuts_run(capsys):
+    """The summary says how often NUTS ran (the record's count, every repair
+    wave included) and names each kind of wave."""
+    from calib.fit import _print_nuts_repairs
+
+    focus = {"nuts_runs": 4,
+             "refined": [{"problems_before": ["R-hat"], "n_points": 32}],
+             "best_point_waves": [{"best_loglik": -760.0, "chain_loglik": -828.0,
+                                   "bar_nats": 13.8}],
+             "realisation_waves": [{"median_range": {"Kn": (0.31, 0.59)},
+                                    "n_realisations": 16}],
+             "widened": []}
+    _print_nuts_repairs({"crsp": {"bayes": {"focus": focus, "ok": True}}}, ("crsp",))
+    out = capsys.readouterr().out
+    assert "CRSP NUTS ran 4 times" in out
+    for kind in ("refinement waves", "best-point waves", "realisation waves"):
+        assert f"CRSP {kind}" in out
 
 
 @pytest.mark.slow

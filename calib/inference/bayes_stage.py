@@ -320,5 +320,6 @@ def bayes_stage(forward, rows, budget, keys, tick, tally, timings: dict):
             break
     if focus:
         s.finish_focus()
+        s.region.record["nuts_runs"] = s.n_nuts
     return (s.posterior, s.emu_check, None if s.region is None else s.region.record,
             s.chain_screen, s.design)
