@@ -8,7 +8,7 @@ the separate benchmark virtual environment::
 
     python3 -m venv .bench-venv && .bench-venv/bin/pip install pyrockfall==0.1.2
     .bench-venv/bin/python scripts/pyrockfall_anchor.py \\
-        --profile data/postignano_profile.csv --n 1000 --radius-m 0.5 \\
+        --profile data/postignano_profile.csv --n 1000 --block-size-m 1.0 \\
         --Kn 0.41 --Kt 0.87 --roughness-m 0 --seed 0
 
 It prints ONE line of JSON on stdout::
@@ -28,17 +28,18 @@ Set-up, mapped onto our conventions (solvers.crsp):
   default 10000) so that rocks can come to rest; everything else (0.1 m/s
   normal-velocity threshold, 0.01 s sliding step, point contact) is PyRockfall's
   default.
-* Rock: a sphere of ``--radius-m``; PyRockfall derives r from mass and density,
-  so mass = density * 4/3 pi r^3 (only r enters the impact law).
+* Rock: a sphere of diameter ``--block-size-m`` (radius r = d/2); PyRockfall
+  derives r from mass and density, so mass = density * 4/3 pi r^3 (only r
+  enters the impact law).
 * Release: one point seeder at the first profile vertex (x = 0 m on Postignano),
-  on the ground, velocity (``--vx``, 0) m/s, no spin.
+  on the ground, velocity (``--release-vx-m-s``, 0) m/s, no spin.
 * Roughness: PyRockfall tilts the impact normal by an angle (degrees) drawn from
   the material's roughness distribution. CRSP roughness S (m) is mapped to
   Uniform(0, degrees(arctan(S / r))), i.e. our ``roughness_tilt`` range; a
   positive angle turns the normal counter-clockwise, which faces a rock moving
   towards +x (our model picks the side from the rock's direction).
 * Runout: final x minus release x, over all N rocks (as ``Result.runout_m``).
-  A rock counts as not stopped when it ends faster than ``--stop-speed`` m/s
+  A rock counts as not stopped when it ends faster than ``--stop-speed-m-s`` m/s
   (iteration bound hit, or PyRockfall dropped it when it found no next
   impact) or outside the profile's x range (flew off an end onto PyRockfall's
   floor) or more than one radius below the ground (passed through the slope).
@@ -77,7 +78,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = OneLineParser(prog=PROG, description=__doc__.split("\n\n")[0])
     p.add_argument("--profile", required=True, help="profile CSV with columns x_m,z_m,zone")
     p.add_argument("--n", type=int, required=True, help="number of rocks")
-    p.add_argument("--radius-m", type=float, required=True, help="sphere radius, m")
+    p.add_argument("--block-size-m", type=float, required=True,
+                   help="block size d, the sphere's diameter, m (radius d/2)")
     p.add_argument("--Kn", type=float, required=True, help="normal restitution (all segments)")
     p.add_argument("--Kt", type=float, required=True, help="tangential restitution (all segments)")
     p.add_argument("--roughness-m", type=float, default=0.0,
@@ -87,8 +89,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--friction-deg", type=float, default=30.0,
                    help="PyRockfall sliding friction angle, degrees (default 30, the "
                         "rolling_friction_deg of data/postignano_materials.csv)")
-    p.add_argument("--density", type=float, default=2350.0, help="rock density, kg/m^3")
-    p.add_argument("--vx", type=float, default=1.0, help="initial horizontal velocity, m/s")
+    p.add_argument("--density-kg-m3", type=float, default=2350.0,
+                   help="rock density, kg/m^3 (default 2350)")
+    p.add_argument("--release-vx-m-s", type=float, default=1.0,
+                   help="initial horizontal velocity, m/s (default 1)")
     p.add_argument("--max-iter", type=int, default=10000,
                    help="PyRockfall Analysis.maxIter (its own default, 1000, is too few: a "
                         "rock sliding in 0.01 s steps needs ~1100 on Postignano). The loop "
@@ -96,22 +100,22 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--mem-limit-gb", type=float, default=5.0,
                    help="refuse to start if the worst-case trajectory storage "
                         "(~128 B x N x max-iter) exceeds this, GB")
-    p.add_argument("--stop-speed", type=float, default=1e-3,
+    p.add_argument("--stop-speed-m-s", type=float, default=1e-3,
                    help="final speed above which a rock counts as not stopped, m/s")
     p.add_argument("--verbose", action="store_true",
                    help="print a diagnostic line (iterations, peak memory) on stderr")
     a = p.parse_args(argv)
     checks = [
         (a.n > 0, f"--n must be positive, got {a.n}"),
-        (a.radius_m > 0 and math.isfinite(a.radius_m), "--radius-m must be positive"),
+        (a.block_size_m > 0 and math.isfinite(a.block_size_m), "--block-size-m must be positive"),
         (0 < a.Kn <= 1, f"--Kn must be in (0, 1], got {a.Kn}"),
         (0 < a.Kt <= 1, f"--Kt must be in (0, 1], got {a.Kt}"),
         (a.roughness_m >= 0 and math.isfinite(a.roughness_m), "--roughness-m must be >= 0"),
         (0 <= a.friction_deg < 90, "--friction-deg must be in [0, 90)"),
-        (a.density > 0, "--density must be positive"),
-        (math.isfinite(a.vx), "--vx must be finite"),
+        (a.density_kg_m3 > 0, "--density-kg-m3 must be positive"),
+        (math.isfinite(a.release_vx_m_s), "--release-vx-m-s must be finite"),
         (a.max_iter > 0, "--max-iter must be positive"),
-        (a.stop_speed > 0, "--stop-speed must be positive"),
+        (a.stop_speed_m_s > 0, "--stop-speed-m-s must be positive"),
         (a.mem_limit_gb > 0, "--mem-limit-gb must be positive"),
     ]
     for ok, msg in checks:
@@ -178,7 +182,7 @@ def main(argv=None) -> int:
 
     # ---- slope: one material per zone, all with the CLI's constants ----
     if args.roughness_m > 0:
-        tilt_max_deg = math.degrees(math.atan2(args.roughness_m, args.radius_m))
+        tilt_max_deg = math.degrees(math.atan2(args.roughness_m, 0.5 * args.block_size_m))
         roughness = prf.stats.Uniform(0.0, tilt_max_deg)
     else:
         tilt_max_deg = 0.0
@@ -192,12 +196,12 @@ def main(argv=None) -> int:
     slope = prf.Slope(prf.Geometry(nodes), materials, materialIDs=material_ids)
 
     # ---- rock and release ----
-    mass = args.density * 4.0 / 3.0 * math.pi * args.radius_m ** 3
-    rock = prf.Rock("sphere", mass=mass, density=args.density)
+    mass = args.density_kg_m3 * 4.0 / 3.0 * math.pi * (0.5 * args.block_size_m) ** 3
+    rock = prf.Rock("sphere", mass=mass, density=args.density_kg_m3)
     x0, z0 = xs[0], zs[0]
     seeder = prf.Seeder(np.array([x0, z0]), [rock], name="cliff top")
     seeder.numberOfRocks = args.n
-    seeder.translationalVelocity = [args.vx, 0.0]
+    seeder.translationalVelocity = [args.release_vx_m_s, 0.0]
     seeder.angularVelocity = 0.0
 
     # ---- analysis: CRSP-type impacts ----
@@ -224,12 +228,12 @@ def main(argv=None) -> int:
     if x_end.shape[0] != args.n:
         fail(f"PyRockfall simulated {x_end.shape[0]} rocks, expected {args.n}")
     speed = np.hypot(velocity[0], velocity[1])
-    moving = ~(speed <= args.stop_speed)  # NaN counts as moving
+    moving = ~(speed <= args.stop_speed_m_s)  # NaN counts as moving
     off_profile = (x_end < xs[0] - 1e-6) | (x_end > xs[-1] + 1e-6) | ~np.isfinite(x_end)
     # rocks that ended well below the ground passed through the slope (seen with
     # large roughness tilts): not a stop either
     z_ground = np.interp(x_end, xs, zs)
-    tunnelled = ~off_profile & (position[1] < z_ground - args.radius_m)
+    tunnelled = ~off_profile & (position[1] < z_ground - 0.5 * args.block_size_m)
     not_stopped = moving | off_profile | tunnelled
     runout = x_end - x0
 

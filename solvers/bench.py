@@ -105,7 +105,7 @@ def crsp_throughput(n_blocks: int, roughness_m: float = 2.0, radius_m: float = 0
 
 def pyrockfall_anchor(python: str, n_blocks: int = 1000) -> dict:
     script = os.path.join(os.path.dirname(PROFILE), "..", "scripts", "pyrockfall_anchor.py")
-    cmd = [python, script, "--profile", PROFILE, "--n", str(n_blocks), "--radius-m", "0.5",
+    cmd = [python, script, "--profile", PROFILE, "--n", str(n_blocks), "--block-size-m", "1.0",
            "--Kn", "0.41", "--Kt", "0.87", "--roughness-m", "0", "--seed", "0"]
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=1800)
     if out.returncode != 0:
