@@ -191,7 +191,7 @@ def test_the_inputs_carry_the_speeds_checked_on_their_profile(speed_data, tmp_pa
 
     data, speeds = speed_data
     inputs = load_inputs(str(data), PROFILE, str(tmp_path / "r"), str(speeds))
-    assert inputs.speeds_path == str(speeds) and inputs.speeds.n_obs > 0
+    assert inputs.speeds.path == str(speeds) and inputs.speeds.n_obs > 0
     assert np.all((inputs.speeds.station_x_m > inputs.profile.x_m[0])
                   & (inputs.speeds.station_x_m < inputs.profile.x_m[-1]))
     assert load_inputs(str(data), PROFILE, str(tmp_path / "r")).speeds is None

@@ -72,8 +72,8 @@ class Inputs:
         site: its site (``calib.files.site.Site``: station of interest,
             reference values, the rock density).
         speeds: passage speeds at stations
-            (``calib.files.observations.Velocities``), or None.
-        speeds_path: their file, or None.
+            (``calib.files.observations.Velocities``, its file in ``path``),
+            or None.
     """
 
     obs: object
@@ -81,7 +81,6 @@ class Inputs:
     profile_path: str
     site: object
     speeds: object = None
-    speeds_path: str | None = None
 
     @property
     def release_x_m(self) -> float:
@@ -196,4 +195,4 @@ def load_inputs(data: str, profile_arg: str | None, out: str,
         raise InputError(str(e)) from None
     if os.path.exists(out) and not os.path.isdir(out):
         raise InputError(f"--out {out}: exists and is not a folder")
-    return Inputs(obs, profile, profile_path, site, speeds, velocities)
+    return Inputs(obs, profile, profile_path, site, speeds)
