@@ -354,20 +354,16 @@ def load_velocities(path: str | os.PathLike,
                "a speed >= 0 m/s"),
               ("velocity_sd_m_s", sd, lambda a: np.isfinite(a) & (a > 0),
                "a positive tolerance in m/s"))
+    if x_range_m is not None:
+        x0, x1 = x_range_m
+        checks += (("station_x_m", x, lambda a: (a > x0) & (a < x1),
+                    f"an abscissa inside the profile ({x0:g} to {x1:g} m)"),)
     for col, a, ok, what in checks:
         bad = np.flatnonzero(~ok(a))
         if bad.size:
             i = int(bad[0])
             raise ObservationError(f"{path}: line {i + 2}, column {col!r}: expected {what}, "
                                    f"got {df[col][i]!r}")
-    if x_range_m is not None:
-        x0, x1 = x_range_m
-        off = np.flatnonzero((x <= x0) | (x >= x1))
-        if off.size:
-            i = int(off[0])
-            raise ObservationError(f"{path}: line {i + 2}, column 'station_x_m': expected an "
-                                   f"abscissa inside the profile ({x0:g} to {x1:g} m), got "
-                                   f"{x[i]:g}")
     src = tuple(df["source"].tolist()) if "source" in df.columns else ("",) * len(df)
     return Velocities(x, d, v, sd, src, path)
 
