@@ -161,12 +161,13 @@ def _fit_section(f) -> dict:
             "q05": dict(zip(f.names, map(float, f.q05))),
             "q95": dict(zip(f.names, map(float, f.q95))),
             "best_design_point": dict(zip(f.names, map(float, f.best))),
-            "ess": f.ess, "n_design": int(f.theta.shape[0]),
+            "ess": f.ess, "n_design": f.n_simulated,
             "n_fold_points": f.n_fold_points, "khat_bar": f.khat_bar,
             "fresh_draw_folds": list(f.fresh_draw_folds),
             "khat": f.khat, "khat_by_fold": [float(k) for k in f.khat_folds],
             "loglik_noise_sd_nats": f.loglik_noise_sd_nats,
             "smoothing_noise_var_nats2": f.smoothing_noise_var_nats2,
+            "grid_emulator": f.grid_emulator,
             "unfinished_blocks": f.unfinished,
             "gap_by_size_class_m": [None if not np.isfinite(g) else float(g)
                                     for g in f.gap_by_class]}

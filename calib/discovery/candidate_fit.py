@@ -43,9 +43,13 @@ the simulated sums carry 1-3 nats of noise, and weights that are their
 exponential collapse onto a few lucky points (a fold's Pareto k-hat above
 0.7 in half the folds at 60 rows, nearly all at 180) even where the design
 covers the posterior. The held-out rows themselves are scored by their
-simulated likelihoods. On a fixed grid (the DEM's, a few dozen points)
-and at the quick budgets (``DiscoveryBudget.smooth_loglik``) the simulated
-sums are used. Every set of
+simulated likelihoods. At the quick budgets
+(``DiscoveryBudget.smooth_loglik``) the simulated sums are used. On a fixed
+grid (the DEM's, a few dozen points) the weights and the scores are those of
+``calib.discovery.grid_emulation``: every row's log-likelihood emulated
+between the grid's points, the posterior and the folds weighted on a dense
+cloud of emulated points, the held-out rows scored by their emulated values.
+Every set of
 weights (each stage's fit, the posterior, each fold's training weights of
 step 3) is Pareto-smoothed (``calib.inference.importance.psis_weights``); its k-hat
 is reported per candidate (``khat``) and per fold (``khat_by_fold``), and a
@@ -94,6 +98,7 @@ import numpy as np
 from scipy.special import logsumexp
 from scipy.stats import qmc
 
+from calib.discovery.grid_emulation import grid_scores
 from calib.discovery.loglik_noise import loglik_noise_sd, measured_noise_var
 from calib.discovery.proposals import PROPOSAL_DF, gaussian_fit, mixture_log_q, proposal
 from calib.discovery.residuals import point_view
@@ -158,8 +163,12 @@ class CandidateFit:
     Attributes:
         effect, names: the effect and its parameter names.
         theta: (N, p) design points; log_q: (N,) proposal / prior density.
-        loglik: (N, n_rows) pointwise log-likelihood at the design points: the
-            runout rows, then the passage-velocity rows (if any).
+            On a fixed grid (the DEM's), the points of the cloud on which the
+            rows are emulated between the grid's points
+            (``calib.discovery.grid_emulation``), and their mixture density.
+        loglik: (N, n_rows) pointwise log-likelihood at those points: the
+            runout rows, then the passage-velocity rows (if any); simulated at
+            design points, emulated on a fixed grid's cloud.
         weights: (N,) posterior weights (all rows), Pareto-smoothed.
         ess: effective sample size of the weights.
         elpd: (n_rows,) held-out log predictive density of each row (same order).
@@ -192,6 +201,13 @@ class CandidateFit:
         fresh_draw_folds: the folds scored on fresh draws of their training
             posterior (``_fresh_draw_scores``); their ``khat_folds`` are those
             draws' weights'.
+        n_simulated: the points simulated (the design's, with the fold
+            stages'; a fixed grid's points).
+        grid_emulator: a fixed grid's row emulator (``calib.discovery.grid_emulation``):
+            its trend's degree, the error of the rows' values at the grid's
+            inner points left out of its fit (nats, root mean square), its
+            kernel's length scales (unit coordinates), signal and noise sd
+            (standardised); None on an adaptive design.
     """
 
     effect: str
@@ -219,6 +235,8 @@ class CandidateFit:
     khat_bar: float = KHAT_MAX
     n_fold_points: int = 0
     fresh_draw_folds: tuple[int, ...] = ()
+    n_simulated: int = 0
+    grid_emulator: dict | None = None
 
 
 @jax.jit
@@ -302,11 +320,21 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
     tallies = {"design": UnfinishedTally(tuple(map(float, entry_sizes)))}
     loglik = _row_loglik(obs, row_entry, vel)
     design = _design(cand, fw, loglik, budget, rng, warm, vel, tallies, progress, key)
-    smoothed = budget.smooth_loglik and cand.design is None  # fixed grids: simulated sums
-    w, khat, elpd, khat_folds, fresh = _scores_covering_folds(
-        design, fold, budget.n_fold_refine, budget.fold_rounds if smoothed else 0, smoothed,
-        rng, progress, cand.effect, budget.n_fold_draws)
-    z, ll, log_q, noise_var = design.z, design.ll, design.log_q(), design.noise_var
+    smoothed = budget.smooth_loglik and cand.design is None
+    if cand.design is not None:  # fixed grids: the rows emulated between the points
+        g = grid_scores(design.z, design.ll, fold, rng)
+        z, ll, log_q, noise_var = g.z, g.ll, g.log_q, 0.0
+        w, khat, elpd, khat_folds, fresh = g.weights, g.khat, g.elpd, g.khat_folds, ()
+        emulator = {"trend_degree": g.emulator.degree,
+                    "loo_rmse_nats": g.emulator.loo_rmse_nats,
+                    "length_scales": [float(v) for v in g.emulator.ls],
+                    "signal_sd": g.emulator.sf, "noise_sd": g.emulator.sn}
+    else:
+        w, khat, elpd, khat_folds, fresh = _scores_covering_folds(
+            design, fold, budget.n_fold_refine, budget.fold_rounds if smoothed else 0,
+            smoothed, rng, progress, cand.effect, budget.n_fold_draws)
+        z, ll, log_q, noise_var = design.z, design.ll, design.log_q(), design.noise_var
+        emulator = None
     theta = design.to_theta(z)
     est = w @ theta
     q05 = np.array([weighted_quantile(theta[:, j], w, 0.05) for j in range(dim)])
@@ -333,7 +361,7 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
                         time.perf_counter() - t0, record, khat, khat_folds, per_class,
                         float(noise_var) if smoothed else float("nan"),
                         khat_threshold(z.shape[0]), int(sum(design.counts[design.n_main:])),
-                        fresh)
+                        fresh, int(design.z.shape[0]), emulator)
 
 
 def _weights_and_scores(z, ll, log_q, fold, noise_var: float, smooth: bool = True):
@@ -341,8 +369,8 @@ def _weights_and_scores(z, ll, log_q, fold, noise_var: float, smooth: bool = Tru
     k-hats (module docstring): with ``smooth``, on the adaptive design, from
     the log-likelihood GP's smoothed sums (all rows, and each fold's training
     rows, whose noise variance is ``noise_var`` scaled by their share of the
-    rows; ``_smoothed``); otherwise (and on a fixed grid, the DEM's few
-    points, where ``fit_candidate`` does not smooth) from the simulated sums."""
+    rows; ``_smoothed``); otherwise (the quick budgets) from the simulated
+    sums. A fixed grid's are ``calib.discovery.grid_emulation``'s."""
     if not smooth:
         w, khat = psis_weights(ll.sum(axis=1) - log_q)
         return (w, khat) + cv_elpd(ll, log_q, fold)
