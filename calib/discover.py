@@ -293,13 +293,15 @@ def _result(args, inputs, velocities, combine, budget, d, t0: float) -> dict:
 def _run_warnings(d, budget, obs, velocities, design_scale: float | None = 1.0) -> list[str]:
     """The run's warnings, in the order discovery.json lists them: the first step's
     (ESS, PSIS, simulation noise, gap, concentration), each later step's with its
-    own candidates (prefixed with the step), then the fits' unfinished blocks;
+    own candidates (prefixed with the step), what fixed grids leave out, then the
+    fits' unfinished blocks;
     ``design_scale``, the run's ``--design-scale`` (None for the DEM's fixed
     grids), sets the rerun they suggest."""
     from calib.discovery.discovery_warnings import (
         concentration_warnings,
         ess_warnings,
         gap_warnings,
+        grid_warnings,
         noise_warnings,
         psis_warnings,
     )
@@ -321,6 +323,7 @@ def _run_warnings(d, budget, obs, velocities, design_scale: float | None = 1.0) 
             + concentration_warnings(d.table, obs.block_size_m, speed_sizes,
                                      d.steps[0]["n_compared"])
             + later
+            + grid_warnings({e: f.grid_emulator for e, f in d.fits.items()})
             + [f.unfinished["warning"] for f in d.fits.values()
                if f.unfinished and f.unfinished["warning"]])
 

@@ -109,6 +109,8 @@ def test_a_fixed_grid_fit_holds_a_posterior_narrower_than_its_step():
     key = jax.random.key(0)
     fit = fit_candidate(cand, obs, np.array([1.0]), row_class, key, budget, fold)
     assert fit.n_simulated == 16
+    rec = fit.grid_emulator  # what discovery.json records
+    assert rec["trend_degree"] in (0, 1, 2) and np.isfinite(rec["loo_rmse_nats"])
     assert np.all(fit.khat_folds <= fit.khat_bar), (fit.khat_folds, fit.khat_bar)
     lo, hi = fit.q05[0], fit.q95[0]
     fw = _Line([1.0], n_blocks, jax.random.fold_in(key, 1))  # the fit's blocks
@@ -123,3 +125,15 @@ def test_a_fixed_grid_fit_holds_a_posterior_narrower_than_its_step():
     median = weighted_quantile(fine, np.exp(s_fine - s_fine.max()), 0.5)
     assert lo < median < hi and hi - lo < 0.1, (lo, median, hi)
     assert ess(psis_weights(summed(grid))[0]) < 2.0  # the grid's own weights: one point
+
+
+def test_a_run_on_fixed_grids_says_what_its_intervals_leave_out():
+    """The warning names each fixed-grid fit with its emulator's left-out
+    error; a run without one (every CRSP run) says nothing."""
+    from calib.discovery.discovery_warnings import grid_warnings
+
+    (w,) = grid_warnings({"none": {"loo_rmse_nats": 2.499},
+                          "size_dissipation": {"loo_rmse_nats": 2.117}})
+    assert "none 2.50, size_dissipation 2.12" in w
+    assert "too narrow" in w and "conservative" in w
+    assert grid_warnings({"none": None, "fragmentation": None}) == []

@@ -176,7 +176,7 @@ class CandidateFit:
             each fold's training weights (``calib.discovery.scores.cv_elpd``); NaN where
             not estimated (``calib.inference.importance``).
         estimate, q05, q95: weighted posterior mean and 90 % interval per parameter;
-            best: the design point of highest weight.
+            best: the point of highest weight (a fixed grid: of its cloud).
         samples: (E, M) posterior-predictive runouts per simulated entry (a size
             class, or a (size class, release) group; fresh blocks).
         class_samples: (C, M') the same pooled per size class: each row of the
@@ -325,10 +325,7 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
         g = grid_scores(design.z, design.ll, fold, rng)
         z, ll, log_q, noise_var = g.z, g.ll, g.log_q, 0.0
         w, khat, elpd, khat_folds, fresh = g.weights, g.khat, g.elpd, g.khat_folds, ()
-        emulator = {"trend_degree": g.emulator.degree,
-                    "loo_rmse_nats": g.emulator.loo_rmse_nats,
-                    "length_scales": [float(v) for v in g.emulator.ls],
-                    "signal_sd": g.emulator.sf, "noise_sd": g.emulator.sn}
+        emulator = g.emulator.record()
     else:
         w, khat, elpd, khat_folds, fresh = _scores_covering_folds(
             design, fold, budget.n_fold_refine, budget.fold_rounds if smoothed else 0,

@@ -3,12 +3,12 @@ from each row's log-likelihood emulated between the grid's points.
 
 Why (our choice; measured in docs/studies.md, "`calib.discover --model dem`
 on DEM-made data" and "DEM discovery with the rows emulated between the
-grid's points"): the DEM is too dear on two cores
-for adaptive designs, so its candidates are simulated on grids of 12-64
-points. With 60 rows the posterior is narrower than a grid step, and
-importance weights on the grid's simulated sums put all their mass on one
-point (ESS 1, the folds' Pareto k-hat 9-12): the held-out scores then rest on
-one point's few blocks. One row's log-likelihood, though, varies slowly over
+grid's points"): the DEM is too dear on two cores for adaptive designs, so
+its candidates are simulated on grids of 12-64 points. With 60 rows the
+posterior is narrower than a grid step, and importance weights on the
+grid's simulated sums put all their mass on one point (ESS 1, the folds'
+Pareto k-hat 9-35): the held-out scores then rest on one point's few
+blocks. One row's log-likelihood, though, varies slowly over
 the box (one runout says little about the parameters); only the sum over the
 rows is sharp. So each row is emulated between the grid's points and the
 sum of the emulated rows is evaluated where the posterior lives, on a dense
@@ -131,6 +131,13 @@ class RowEmulator:
     sf: float
     sn: float
     loo_rmse_nats: float = float("nan")
+
+    def record(self) -> dict:
+        """The emulator's figures as a fit records them: the trend's degree, the
+        left-out error (nats), the kernel's length scales, signal and noise sd."""
+        return {"trend_degree": self.degree, "loo_rmse_nats": self.loo_rmse_nats,
+                "length_scales": [float(v) for v in self.ls], "signal_sd": self.sf,
+                "noise_sd": self.sn}
 
     def mean(self, x: np.ndarray, chunk: int = 4096) -> np.ndarray:
         """(M, R) the emulated log-likelihood of every row at (M, d) unit coordinates."""
