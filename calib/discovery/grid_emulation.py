@@ -71,6 +71,7 @@ from scipy.stats import qmc
 
 from calib.discovery.proposals import PROPOSAL_DF, gaussian_fit, mixture_log_q, proposal
 from calib.discovery.scores import cv_elpd
+from calib.inference.emulator import se_kernel
 from calib.inference.importance import psis_weights
 
 __all__ = ["CLOUD_POINTS", "GridScores", "RowEmulator", "fit_row_emulator", "grid_scores",
@@ -86,8 +87,8 @@ _JITTER = 1e-8
 
 
 def _kernel(a: np.ndarray, b: np.ndarray, ls: np.ndarray, sf: float) -> np.ndarray:
-    d2 = (((a[:, None, :] - b[None, :, :]) / ls) ** 2).sum(axis=-1)
-    return sf * sf * np.exp(-0.5 * d2)
+    """The squared-exponential kernel of ``calib.inference.emulator``, as NumPy."""
+    return np.asarray(se_kernel(a, b, np.log(ls), np.log(sf)))
 
 
 def trend_basis(z: np.ndarray, degree: int) -> np.ndarray:
