@@ -95,11 +95,12 @@ def grid_warnings(emulators: dict) -> list[str]:
     row's log-likelihood emulated between the grid's points
     (``calib.discovery.grid_emulation``); measured on data the DEM made
     (docs/studies.md, "DEM discovery with the rows emulated between the
-    grid's points", 2026-12-05): in each of 4 runs some parameter's 90 %
+    grid's points", 2026-12-05): in each of 5 runs some parameter's 90 %
     interval missed the truth (the intervals leave out the error of the
     grid's few blocks per point and of the emulation), and on data without
     the effect the two-parameter candidate, on a grid coarser per axis,
-    scored 9-28 nats below the baseline it contains.
+    scored 9-94 nats below the baseline it contains at 60-180 rows (about
+    half a nat per row at the default 8 blocks per point).
     """
     used = {e: r for e, r in emulators.items() if r}
     if not used:
@@ -109,9 +110,9 @@ def grid_warnings(emulators: dict) -> list[str]:
             f"(error of a left-out point, nats per row: {listing}). The 90 % intervals leave "
             f"out the error of the grid's few blocks per point and of the emulation (on "
             f"DEM-made data they missed the truth), and a candidate with more parameters, on "
-            f"a grid coarser per axis, scores low (9-28 nats on DEM-made data without its "
-            f"effect): read the intervals as too narrow and a gain as conservative "
-            f"(docs/studies.md)."]
+            f"a grid coarser per axis, scores low (9-94 nats at 60-180 rows of DEM-made "
+            f"data without its effect): read the intervals as too narrow and a gain as "
+            f"conservative (docs/studies.md)."]
 
 
 def gap_warnings(named: str, gap_before_m: float, gap_after_m: float) -> list[str]:
