@@ -28,14 +28,17 @@ def _simulated_loglik(theta, y, n_blocks, seed):
     """(N, R) the likelihood of ``calib.fit`` (2 m tolerance) from ``n_blocks``
     runouts 100 + 50 theta + 10 eps, the same eps at every theta."""
     eps = np.random.default_rng(1000 + seed).standard_normal(n_blocks)
+    return np.stack([_rows_loglik(100.0 + 50.0 * t + SPREAD_M * eps, y)
+                     for t in np.ravel(theta)])
+
+
+def _rows_loglik(runouts_m, y):
+    """(R,) every point row's log-likelihood (2 m tolerance) given one set of
+    simulated runouts (n,), the same set for every row."""
     n = y.size
-    out = []
-    for t in np.ravel(theta):
-        runs = jnp.broadcast_to(100.0 + 50.0 * t + SPREAD_M * eps, (n, n_blocks))
-        out.append(np.asarray(log_likelihood(runs, jnp.asarray(y), jnp.full(n, 2.0),
-                                             jnp.zeros(n), jnp.zeros(n),
-                                             jnp.zeros(n, bool))))
-    return np.stack(out)
+    return np.asarray(log_likelihood(jnp.broadcast_to(jnp.asarray(runouts_m), (n, runouts_m.size)),
+                                     jnp.asarray(y), jnp.full(n, 2.0), jnp.zeros(n),
+                                     jnp.zeros(n), jnp.zeros(n, bool)))
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -116,10 +119,7 @@ def test_a_fixed_grid_fit_holds_a_posterior_narrower_than_its_step():
     fw = _Line([1.0], n_blocks, jax.random.fold_in(key, 1))  # the fit's blocks
 
     def summed(theta):
-        return np.array([np.asarray(log_likelihood(
-            jnp.broadcast_to(jnp.asarray(r[0]), (60, n_blocks)), jnp.asarray(y), jnp.full(60, 2.0),
-            jnp.zeros(60), jnp.zeros(60), jnp.zeros(60, bool))).sum()
-            for r in fw.runouts(theta)])
+        return np.array([_rows_loglik(r[0], y).sum() for r in fw.runouts(theta)])
     fine = np.linspace(0.5, 2.0, 1025)
     s_fine = summed(fine[:, None])
     median = weighted_quantile(fine, np.exp(s_fine - s_fine.max()), 0.5)
