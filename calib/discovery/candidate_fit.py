@@ -325,7 +325,7 @@ def fit_candidate(cand: Candidate, obs, class_sizes_m, row_class, key: jax.Array
         g = grid_scores(design.z, design.ll, fold, rng)
         z, ll, log_q, noise_var = g.z, g.ll, g.log_q, 0.0
         w, khat, elpd, khat_folds, fresh = g.weights, g.khat, g.elpd, g.khat_folds, ()
-        emulator = g.emulator.record()
+        emulator = g.record()
     else:
         w, khat, elpd, khat_folds, fresh = _scores_covering_folds(
             design, fold, budget.n_fold_refine, budget.fold_rounds if smoothed else 0,

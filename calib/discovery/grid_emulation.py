@@ -47,8 +47,28 @@ constant. Measured on the toy simulator of tests/test_grid_emulation.py
 0.2-2.2 nats of a 64-times finer grid's simulated one, the posterior mean
 within 0.014 of the fine grid's; with the kernel alone, 0.1-3.9 nats and
 0.024. The nugget sn^2 takes the simulation noise of a few blocks per
-point. The emulated mean is used as the row's log-likelihood; the GP's own
-uncertainty between the points is not propagated (our simplification).
+point. The emulated mean is used as the row's log-likelihood in the
+held-out scores.
+
+The posterior carries the emulator's uncertainty of the SUM (our choice;
+why: a DEM block's runout is chaotic in the parameters, so with the default
+8 blocks per point and size the summed log-likelihood of 180 rows jumps by
+about 50 nats (sd over block sets) from one grid point to the next, far more
+than it varies across the posterior; the emulated mean then puts a 90 %
+interval at a fraction of the width the simulations support, and it missed
+the truth in 3 of 4 block sets of one data set, docs/studies.md). The summed
+values L(Z) = sum_i l_i(Z) get a GP of their own with the rows' trend basis
+and length scales and an explicit basis under a vague prior (Rasmussen &
+Williams 2006, Sect. 2.7, eqs. 2.42 and 2.45: the trend's coefficients
+integrated out, the signal and noise sd fitted by that marginal
+likelihood), since the rows share their blocks and their noise does not add
+up independently. ``N_REALISATIONS`` joint draws of its posterior at
+``N_SUBSET`` points of the cloud, extended to the whole cloud by their
+conditional mean, are added to the emulated sum, and the posterior's weights
+are the average of each realisation's (Pareto-smoothed) weights: the
+expected posterior over the GP's uncertainty (Reiser, Aguilar, Guthke &
+Buerkner 2023, arXiv 2312.05153, "E-Post"). The folds' training weights
+and held-out scores keep the emulated mean.
 
 Cloud (our choice): ``CLOUD_POINTS`` scrambled Sobol points uniform on the
 unit cube, weighted by exp(sum_i m_i(z)); then as many points from the
@@ -74,11 +94,13 @@ from calib.discovery.scores import cv_elpd
 from calib.inference.emulator import se_kernel
 from calib.inference.importance import psis_weights
 
-__all__ = ["CLOUD_POINTS", "GridScores", "RowEmulator", "fit_row_emulator", "grid_scores",
-           "trend_basis", "trend_degrees"]
+__all__ = ["CLOUD_POINTS", "GridScores", "N_REALISATIONS", "RowEmulator", "SumEmulator",
+           "fit_row_emulator", "fit_sum_emulator", "grid_scores", "trend_basis", "trend_degrees"]
 
 CLOUD_POINTS = 4096
 CLOUD_FLOOR = 0.005
+N_REALISATIONS = 64  # draws of the summed log-likelihood's GP (module docstring)
+N_SUBSET = 1024      # cloud points the draws are joint at
 # bounds of the kernel's log hyperparameters (unit coordinates; standardised rows)
 _LOG_LS = (np.log(0.05), np.log(3.0))
 _LOG_SF = (np.log(0.1), np.log(10.0))
@@ -215,14 +237,96 @@ def _fit(z: np.ndarray, ll: np.ndarray, degree: int) -> RowEmulator:
 
 
 @dataclasses.dataclass(frozen=True)
+class SumEmulator:
+    """The summed log-likelihood's GP (module docstring): an explicit trend
+    basis of ``degree`` with a vague prior on its coefficients plus
+    sf^2 k_SE(z, z'; ls), observed at the grid's points z (N, d) with noise sd
+    sn, nats. ``posterior_cov`` gives its posterior covariance."""
+
+    z: np.ndarray
+    degree: int
+    ls: np.ndarray
+    sf: float
+    sn: float
+
+    def _parts(self):
+        n = self.z.shape[0]
+        ky = (self.sf ** 2 * _kernel(self.z, self.z, self.ls, 1.0)
+              + (self.sn ** 2 + _JITTER) * np.eye(n))
+        h = trend_basis(self.z, self.degree).T  # (T, N)
+        ky_inv = np.linalg.inv(ky)
+        return h, ky_inv, np.linalg.inv(h @ ky_inv @ h.T)
+
+    def posterior_cov(self, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+        """(M1, M2) posterior covariance of the sum at unit coordinates x1, x2
+        (Rasmussen & Williams eq. 2.42 with the vague prior's limit):
+        k(x1, x2) - k1^T Ky^-1 k2 + R1^T (H Ky^-1 H^T)^-1 R2, R = H(x) - H Ky^-1 k."""
+        h, ky_inv, a_inv = self._parts()
+        k1 = self.sf ** 2 * _kernel(self.z, x1, self.ls, 1.0)
+        k2 = self.sf ** 2 * _kernel(self.z, x2, self.ls, 1.0)
+        r1 = trend_basis(x1, self.degree).T - h @ ky_inv @ k1
+        r2 = trend_basis(x2, self.degree).T - h @ ky_inv @ k2
+        return (self.sf ** 2 * _kernel(x1, x2, self.ls, 1.0) - k1.T @ ky_inv @ k2
+                + r1.T @ a_inv @ r2)
+
+    def realisations(self, x: np.ndarray, rng: np.random.Generator,
+                     n: int = N_REALISATIONS, n_subset: int = N_SUBSET) -> np.ndarray:
+        """(n, M) draws of the sum's deviation from its posterior mean at the
+        (M, d) points x: joint at every (M // n_subset)-th point (eigenvectors of
+        their covariance, relative eigenvalues below 1e-10 dropped), extended
+        to all M points by the conditional mean."""
+        sub = x[::max(x.shape[0] // n_subset, 1)]
+        lam, vec = np.linalg.eigh(self.posterior_cov(sub, sub))
+        keep = lam > 1e-10 * max(lam.max(), 1e-300)
+        xi = rng.standard_normal((int(keep.sum()), n))
+        # C_xs C_ss^-1 (V sqrt(lam) xi) = C_xs V lam^-1/2 xi
+        return (self.posterior_cov(x, sub) @ (vec[:, keep] / np.sqrt(lam[keep])) @ xi).T
+
+
+def fit_sum_emulator(emu: RowEmulator, total: np.ndarray) -> SumEmulator:
+    """The ``SumEmulator`` of the summed log-likelihoods ``total`` (N,) at the
+    row emulator's grid, with its trend degree and length scales; sf and sn
+    maximise the marginal likelihood with the trend integrated out (Rasmussen
+    & Williams eq. 2.45), from a few starts about the values' sd."""
+    z, n = emu.z, emu.z.shape[0]
+    y = np.asarray(total, float) - np.mean(total)
+    h = trend_basis(z, emu.degree).T
+    k0 = _kernel(z, z, emu.ls, 1.0)
+
+    def neg_restricted(p):
+        sf, sn = np.exp(p)
+        ky = sf * sf * k0 + (sn * sn + _JITTER) * np.eye(n)
+        try:
+            c = np.linalg.cholesky(ky)
+            ky_inv_y = np.linalg.solve(ky, y)
+            ky_inv_h = np.linalg.solve(ky, h.T)
+            a = h @ ky_inv_h
+            ca = np.linalg.cholesky(a)
+        except np.linalg.LinAlgError:
+            return 1e12
+        hy = h @ ky_inv_y
+        return float(0.5 * y @ ky_inv_y - 0.5 * hy @ np.linalg.solve(a, hy)
+                     + np.sum(np.log(np.diag(c))) + np.sum(np.log(np.diag(ca))))
+
+    scale = np.log(max(float(np.std(y)), 1e-6))
+    bounds = [(scale - 8.0, scale + 4.0)] * 2
+    best = min((minimize(neg_restricted, [scale + a, scale + b], method="L-BFGS-B", bounds=bounds)
+                for a in (-2.0, 0.0, 1.0) for b in (-3.0, -1.0, 0.0)), key=lambda r: r.fun)
+    sf, sn = np.exp(best.x)
+    return SumEmulator(z, emu.degree, emu.ls, float(sf), float(sn))
+
+
+@dataclasses.dataclass(frozen=True)
 class GridScores:
     """A fixed grid's posterior and held-out scores on the emulator's cloud.
 
     z: (M, d) the cloud's unit coordinates; log_q: (M,) its mixture density
     relative to the prior; ll: (M, R) the emulated rows there; weights: (M,)
-    the posterior's (Pareto-smoothed), khat theirs; elpd: (R,) held-out
-    scores; khat_folds: (F,) each fold's training weights' k-hat;
-    emulator: the ``RowEmulator``.
+    the posterior's, averaged over the summed log-likelihood's realisations
+    (module docstring); khat: their Pareto k-hat as importance ratios;
+    elpd: (R,) held-out scores; khat_folds: (F,) each fold's
+    training weights' k-hat; emulator: the ``RowEmulator``; sum_emulator:
+    the ``SumEmulator``.
     """
 
     z: np.ndarray
@@ -233,24 +337,41 @@ class GridScores:
     elpd: np.ndarray
     khat_folds: np.ndarray
     emulator: RowEmulator
+    sum_emulator: SumEmulator
+
+    def record(self) -> dict:
+        """The fit's record of its emulators: the rows' (``RowEmulator.record``),
+        the sum's signal and noise sd (nats) and the realisations averaged."""
+        return {**self.emulator.record(), "sum_signal_sd_nats": self.sum_emulator.sf,
+                "sum_noise_sd_nats": self.sum_emulator.sn, "n_realisations": N_REALISATIONS}
 
 
 def grid_scores(z: np.ndarray, ll: np.ndarray, fold: np.ndarray,
                 rng: np.random.Generator, n_cloud: int = CLOUD_POINTS) -> GridScores:
     """The posterior and held-out scores of the grid (z (N, d) unit coordinates,
     ll (N, R) simulated log-likelihoods, ``fold`` (R,) each row's fold) from the
-    rows emulated between its points, on a cloud of 2 ``n_cloud`` points
-    (module docstring)."""
+    rows emulated between its points, on a cloud of 2 ``n_cloud`` points, the
+    posterior averaged over the summed log-likelihood's realisations (module
+    docstring)."""
     emu = fit_row_emulator(z, ll)
+    emu_sum = fit_sum_emulator(emu, ll.sum(axis=1))
     d = z.shape[1]
     first = qmc.Sobol(d, scramble=True, seed=rng).random(n_cloud)
-    w0, _ = psis_weights(emu.mean(first).sum(axis=1))
+    w0 = _expected_weights(emu.mean(first).sum(axis=1), emu_sum.realisations(first, rng))
     mean, cov = gaussian_fit(first, w0, floor=CLOUD_FLOOR)
     second, logpdf = proposal(mean, cov, rng, n_cloud, d, df=PROPOSAL_DF)
     cloud = np.concatenate([first, second])
     log_q = mixture_log_q(cloud, [n_cloud, n_cloud],
                           [lambda x: np.zeros(x.shape[0]), logpdf])
     rows = emu.mean(cloud)
-    w, khat = psis_weights(rows.sum(axis=1) - log_q)
+    w = _expected_weights(rows.sum(axis=1) - log_q, emu_sum.realisations(cloud, rng))
+    khat = float(psis_weights(np.log(np.maximum(w, 1e-300)))[1])
     elpd, khat_folds = cv_elpd(rows, log_q, fold)
-    return GridScores(cloud, log_q, rows, w, float(khat), elpd, khat_folds, emu)
+    return GridScores(cloud, log_q, rows, w, khat, elpd, khat_folds, emu, emu_sum)
+
+
+def _expected_weights(log_w: np.ndarray, deviations: np.ndarray) -> np.ndarray:
+    """(M,) the posterior's weights averaged over the realisations: each
+    realisation's log weights ``log_w`` + its deviation (R, M), Pareto-smoothed
+    and normalised, then averaged (module docstring)."""
+    return np.mean([psis_weights(log_w + dev)[0] for dev in deviations], axis=0)
