@@ -92,27 +92,31 @@ def grid_warnings(emulators: dict) -> list[str]:
 
     ``emulators``: effect -> the fit's ``grid_emulator`` record (None on an
     adaptive design). Such a fit's weights and held-out scores come from each
-    row's log-likelihood emulated between the grid's points
-    (``calib.discovery.grid_emulation``); measured on data the DEM made
-    (docs/studies.md, "DEM discovery with the rows emulated between the
-    grid's points", 2026-12-05): in each of 5 runs some parameter's 90 %
-    interval missed the truth (the intervals leave out the error of the
-    grid's few blocks per point and of the emulation), and on data without
-    the effect the two-parameter candidate, on a grid coarser per axis,
-    scored 9-94 nats below the baseline it contains at 60-180 rows (about
-    half a nat per row at the default 8 blocks per point).
+    row's log-likelihood emulated between the grid's points, its posterior
+    averaged over the summed log-likelihood's realisations
+    (``calib.discovery.grid_emulation``). Measured on data the DEM made
+    (docs/studies.md, "DEM discovery: the grid's noise in the intervals",
+    2026-12-05): the held-out score rests on one set of blocks per point, and
+    the baseline's held-out total moved by an sd of 10 nats (60 rows) and 30
+    nats (180 rows) between four block sets, which the gain's se (over rows)
+    does not hold; the likelihood of 8 blocks per point is biased low (by
+    65-95 nats at 180 rows against 32 blocks, unevenly over alpha
+    0.36-0.44), which the intervals do not hold either.
     """
     used = {e: r for e, r in emulators.items() if r}
     if not used:
         return []
     listing = ", ".join(f"{e} {r['loo_rmse_nats']:.2f}" for e, r in used.items())
+    noise = ", ".join(f"{e} {r['sum_noise_sd_nats']:.0f}" for e, r in used.items()
+                      if r.get("sum_noise_sd_nats") is not None)
     return [f"fixed grids: each row's log-likelihood is emulated between the grid's points "
-            f"(error of a left-out point, nats per row: {listing}). The 90 % intervals leave "
-            f"out the error of the grid's few blocks per point and of the emulation (on "
-            f"DEM-made data they missed the truth), and a candidate with more parameters, on "
-            f"a grid coarser per axis, scores low (9-94 nats at 60-180 rows of DEM-made "
-            f"data without its effect): read the intervals as too narrow and a gain as "
-            f"conservative (docs/studies.md)."]
+            f"(error of a left-out point, nats per row: {listing}; the summed log-likelihood's "
+            f"noise from point to point, nats: {noise}), and the intervals carry that noise. "
+            f"The held-out scores rest on one set of blocks per point: on DEM-made data the "
+            f"baseline's held-out total moved by an sd of 10 nats at 60 rows and 30 at 180 "
+            f"between block sets, which the gain's se does not hold; read a gain within "
+            f"about twice that of the naming threshold as unsettled; --n-blocks 32 cut the "
+            f"noise about threefold at four times the cost (docs/studies.md)."]
 
 
 def gap_warnings(named: str, gap_before_m: float, gap_after_m: float) -> list[str]:
