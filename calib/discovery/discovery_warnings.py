@@ -114,9 +114,11 @@ def grid_warnings(emulators: dict) -> list[str]:
             f"noise from point to point, nats: {noise}), and the intervals carry that noise. "
             f"The held-out scores rest on one set of blocks per point: on DEM-made data the "
             f"baseline's held-out total moved by an sd of 10 nats at 60 rows and 30 at 180 "
-            f"between block sets, which the gain's se does not hold; read a gain within "
-            f"about twice that of the naming threshold as unsettled; --n-blocks 32 cut the "
-            f"noise about threefold at four times the cost (docs/studies.md)."]
+            f"between block sets, which the gain's se does not hold (a gain between two "
+            f"candidates carries about 1.4 times that): read a gain within about 30 nats "
+            f"(60 rows) to 85 nats (180 rows) of the naming threshold as unsettled; "
+            f"--n-blocks 32 cut the noise about threefold at four times the cost "
+            f"(docs/studies.md)."]
 
 
 def gap_warnings(named: str, gap_before_m: float, gap_after_m: float) -> list[str]:
