@@ -89,6 +89,7 @@ posterior's weights are those averaged over the realisations.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 from scipy.optimize import minimize
@@ -254,7 +255,9 @@ class SumEmulator:
     sf: float
     sn: float
 
+    @functools.cached_property
     def _parts(self):
+        """(H (T, N), Ky^-1, (H Ky^-1 H^T)^-1), fixed by the fit: computed once."""
         n = self.z.shape[0]
         ky = (self.sf ** 2 * _kernel(self.z, self.z, self.ls, 1.0)
               + (self.sn ** 2 + _JITTER) * np.eye(n))
@@ -266,7 +269,7 @@ class SumEmulator:
         """(M1, M2) posterior covariance of the sum at unit coordinates x1, x2
         (Rasmussen & Williams eq. 2.42 with the vague prior's limit):
         k(x1, x2) - k1^T Ky^-1 k2 + R1^T (H Ky^-1 H^T)^-1 R2, R = H(x) - H Ky^-1 k."""
-        h, ky_inv, a_inv = self._parts()
+        h, ky_inv, a_inv = self._parts
         k1 = self.sf ** 2 * _kernel(self.z, x1, self.ls, 1.0)
         k2 = self.sf ** 2 * _kernel(self.z, x2, self.ls, 1.0)
         r1 = trend_basis(x1, self.degree).T - h @ ky_inv @ k1
@@ -362,7 +365,8 @@ def grid_scores(z: np.ndarray, ll: np.ndarray, fold: np.ndarray,
     emu_sum = fit_sum_emulator(emu, ll.sum(axis=1))
     d = z.shape[1]
     first = qmc.Sobol(d, scramble=True, seed=rng).random(n_cloud)
-    sums = emu.mean(first).sum(axis=1)
+    rows_first = emu.mean(first)
+    sums = rows_first.sum(axis=1)
     stages, logpdfs = [first], [lambda x: np.zeros(x.shape[0])]
     for w0 in (psis_weights(sums)[0],
                _expected_weights(sums, emu_sum.realisations(first, rng))):
@@ -372,7 +376,7 @@ def grid_scores(z: np.ndarray, ll: np.ndarray, fold: np.ndarray,
         logpdfs.append(logpdf)
     cloud = np.concatenate(stages)
     log_q = mixture_log_q(cloud, [n_cloud] * len(stages), logpdfs)
-    rows = emu.mean(cloud)
+    rows = np.concatenate([rows_first, emu.mean(cloud[n_cloud:])])
     w = _expected_weights(rows.sum(axis=1) - log_q, emu_sum.realisations(cloud, rng))
     khat = float(psis_weights(np.log(np.maximum(w, 1e-300)))[1])
     elpd, khat_folds = cv_elpd(rows, log_q, fold)
