@@ -205,9 +205,11 @@ def test_dem_posterior_recovers_power_law_exponent(dem_fit):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="the DEM gradient fit (8 blocks per size, 2 starts x 8 steps of one "
-                   "antithetic direction) ends at a = 0.43, b = 1.10 on this data set: too "
-                   "few blocks and steps for b; the posterior (MAP b = 0.43, 90 % 0.34-0.57) "
-                   "recovers it", strict=False)
 def test_dem_gradient_recovers_power_law_exponent(dem_fit):
+    """The gradient stage's b within +-0.15 of the truth. Measured 2026-12-05 (2 cores,
+    with the posterior case: 282 s): a 0.476, b 0.565 (8 blocks per size, 2 starts x 8
+    steps of one antithetic direction); the posterior's MAP b 0.535, 90 % 0.41-0.73.
+    One data set and one key: the DEM's runout jumps between neighbouring parameter
+    values (docs/studies.md, "DEM discovery: the grid's noise in the intervals"), so
+    this checks the stage end to end, not its accuracy in general."""
     assert abs(dem_fit.gradient.theta[1] - DEM_TRUTH[1]) < 0.15
