@@ -213,3 +213,38 @@ def test_dem_gradient_recovers_power_law_exponent(dem_fit):
     values (docs/studies.md, "DEM discovery: the grid's noise in the intervals"), so
     this checks the stage end to end, not its accuracy in general."""
     assert abs(dem_fit.gradient.theta[1] - DEM_TRUTH[1]) < 0.15
+
+
+_DEM_COVERAGE_SHORT = (
+    "measured 2026-12-05 (2 cores, beside another run; about 100 s per fit): 8 of 12 "
+    "intervals hold the truth, every fit passing its diagnostics; the misses: a "
+    "0.582-0.650 against 0.566, 0.458-0.599 against 0.457; b 0.429-0.851 against 0.412, "
+    "1.033-1.479 against 0.889. Cause not measured; a likely one: the quantile "
+    "emulator's variance enters each row's density on its own, so the rows of one size "
+    "share an emulator error the posterior does not see (docs/studies.md, 'Coverage of "
+    "the DEM posterior')")
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=_DEM_COVERAGE_SHORT)
+def test_dem_posterior_covers_the_truth_at_its_nominal_rate():
+    """The DEM fit's 90 % intervals of a and b over 6 data sets (5 sizes x 6 blocks, sd
+    3 m, truths drawn uniformly in a 0.25-0.60, b 0.2-0.9) hold the truth in at least
+    9 of 12: fewer is below 0.9 at the 5 % level (one-sided binomial, P(X <= 8) =
+    0.026), the rule of tests/test_grid_emulation.py. About 10 minutes on 2 cores."""
+    rng = np.random.default_rng(31)
+    sizes = np.array([0.3, 0.6, 1.0, 1.5, 2.0])
+    budget = presets("dem", quick=False)
+    covered = []
+    for i in range(6):
+        truth = np.array([0.25 + 0.35 * rng.random(), 0.2 + 0.7 * rng.random()])
+        obs = synthesize(DemForward, PROFILE, truth, sizes, 6, 3.0, jax.random.key(500 + i))
+        fw = DemForward(PROFILE, obs.sizes_m, budget.n_blocks_design, jax.random.key(5))
+        fit = calibrate(fw, obs, jax.random.key(6), ("bayes",), budget)
+        s = fit.posterior.summary()
+        for j, name in enumerate(fit.names):
+            covered.append(bool(s[name]["q05"] <= truth[j] <= s[name]["q95"]))
+        print(f"data set {i}: truth {np.round(truth, 3)}, ok {fit.posterior.ok}, intervals "
+              f"{[(round(s[n]['q05'], 3), round(s[n]['q95'], 3)) for n in fit.names]}",
+              flush=True)
+    assert sum(covered) >= 9, f"{sum(covered)} of {len(covered)} intervals hold the truth"
