@@ -74,7 +74,12 @@ _SHORT = {
     # shared by calib.fit and calib.discover it was named in
     # 4 of 5 (2026-11-24: 1001 gain 14.6 +- 6.8 nats, 1003-1005; 1002 named
     # size_dissipation), so it is held to the requirement again.
-    "vegetation_belt": "named in 0 of 5 seeds (gains -1.7 to +1.9 nats): a baseline with a "
+    # Again 2026-12-05 (2 cores beside other runs, 1,865 s for the five): named in 0 of 5,
+    # none every time; the belt's gains -0.3 +- 0.6, +1.9 +- 2.6, +0.2 +- 1.1,
+    # -0.1 +- 0.7, -0.1 +- 1.2 nats. A strict xfail: it fails while the belt stays
+    # unnamed at this design, and says so when it no longer does.
+    "vegetation_belt": "named in 0 of 5 seeds (2026-12-05: belt gains -0.3 to +1.9 nats, "
+                       "none named each time): a baseline with a "
                        "lower Kt reproduces the belt's shorter, narrower runouts of large "
                        "blocks about as well as the belt does (development seed 101: "
                        "log-likelihood at the truth -230.8, baseline's best -230.3)",
@@ -82,7 +87,7 @@ _SHORT = {
 
 
 @pytest.mark.parametrize("effect", [
-    pytest.param(e, marks=pytest.mark.xfail(reason=_SHORT[e], strict=False)) if e in _SHORT
+    pytest.param(e, marks=pytest.mark.xfail(reason=_SHORT[e], strict=True)) if e in _SHORT
     else e for e in EFFECT_NAMES])
 def test_hidden_effect_is_named_in_4_of_5_seeds(effect):
     rows = _run(effect)
