@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 
 import numpy as np
+import pytest
 import xarray as xr
 
 from calib.files.inference_data import inference_data, netcdf_writer, read_inference_data
@@ -61,18 +62,20 @@ def test_inference_data_round_trips_through_netcdf(tmp_path):
     assert back.attrs["model"] == "crsp"
 
 
-def test_a_summed_log_likelihood_is_stored_as_its_total_only(tmp_path):
+@pytest.mark.parametrize("kind", ["summed", "expected"])
+def test_a_summed_log_likelihood_is_stored_as_its_total_only(tmp_path, kind):
     """A fit that emulated the rows' summed log-likelihood (CRSP in its focus
-    region) has no per-row values: the group holds ``total`` (chain, draw)
-    and says so."""
+    region), or the DEM's posterior averaged over its emulator's realisations,
+    has no per-row values: the group holds ``total`` (chain, draw) and says
+    which it is."""
     import dataclasses
 
-    from calib.files.inference_data import SUMMED_NOTE
+    from calib.files.inference_data import EXPECTED_NOTE, SUMMED_NOTE
 
     rng = np.random.default_rng(1)
     post = _posterior(rng)
     post = dataclasses.replace(post, pointwise_loglik=post.pointwise_loglik.sum(1)[:, None],
-                               loglik_kind="summed")
+                               loglik_kind=kind)
     tree = inference_data(post, _observations(), "crsp")
     path = str(tmp_path / "crsp_posterior.nc")
     write_all_atomic({path: netcdf_writer(tree)})
@@ -81,4 +84,5 @@ def test_a_summed_log_likelihood_is_stored_as_its_total_only(tmp_path):
     assert back["log_likelihood"]["total"].dims == ("chain", "draw")
     np.testing.assert_array_equal(back["log_likelihood"]["total"].values,
                                   post.pointwise_loglik.reshape(2, 7))
-    assert back["log_likelihood"].attrs["likelihood"] == SUMMED_NOTE
+    assert back["log_likelihood"].attrs["likelihood"] == {"summed": SUMMED_NOTE,
+                                                          "expected": EXPECTED_NOTE}[kind]

@@ -16,7 +16,10 @@ schema/schema.html; here an ``xarray.DataTree`` of ``arviz_base``) with groups:
   emulator's runouts, its variance added), or, where the fit emulated the
   rows' SUMMED log-likelihood (CRSP inside its focus region,
   ``calib.inference.loglik_emulator``), ``total`` (chain, draw) only: no
-  per-row values, so no PSIS-LOO over rows;
+  per-row values, so no PSIS-LOO over rows; the DEM's fits store under
+  ``total`` the log of the posterior averaged over the quantile emulator's
+  realisations, less the log prior (``calib.inference.quantile_realisations``),
+  likewise without per-row values;
 * ``observed_data``: the rows (dim row, file order): ``block_size_m``,
   ``runout_m``, ``runout_sd_m`` (NaN for intervals), ``runout_min_m``,
   ``runout_max_m`` (NaN for points), ``is_interval``.
@@ -29,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["LIKELIHOOD_NOTE", "SUMMED_NOTE", "inference_data", "netcdf_writer",
+__all__ = ["EXPECTED_NOTE", "LIKELIHOOD_NOTE", "SUMMED_NOTE", "inference_data", "netcdf_writer",
            "read_inference_data"]
 
 LIKELIHOOD_NOTE = ("emulated: calib.inference.likelihood on the Gaussian-process emulator's runout "
@@ -39,6 +42,11 @@ SUMMED_NOTE = ("emulated: the expected rows' summed simulated log-likelihood, ca
                "Gaussian process of its log deficit below a ceiling "
                "(calib.inference.loglik_emulator), the density NUTS sampled; not a "
                "re-simulation, and no per-row values")
+EXPECTED_NOTE = ("emulated: the log of the posterior averaged over realisations of the "
+                 "Gaussian processes of the runout quantiles, less the log prior "
+                 "(calib.inference.quantile_realisations), the density NUTS sampled; not a "
+                 "re-simulation, and no per-row values")
+_ONE_COLUMN = {"summed": SUMMED_NOTE, "expected": EXPECTED_NOTE}
 
 
 def inference_data(post, obs, model: str):
@@ -59,10 +67,11 @@ def inference_data(post, obs, model: str):
     by_chain = np.asarray(post.samples).reshape(c, -1, len(post.names))
     n_draws = by_chain.shape[1]
     loglik = np.asarray(post.pointwise_loglik).reshape(c, n_draws, -1)
-    summed = post.loglik_kind == "summed"
+    summed = post.loglik_kind in _ONE_COLUMN
     if summed:
         if loglik.shape[-1] != 1:
-            raise ValueError(f"a summed log-likelihood has one column, not {loglik.shape[-1]}")
+            raise ValueError(f"a {post.loglik_kind} log density has one column, not "
+                             f"{loglik.shape[-1]}")
     elif loglik.shape[-1] != obs.n_obs:
         raise ValueError(f"the posterior's log-likelihood has {loglik.shape[-1]} rows, the "
                          f"observations {obs.n_obs}")
@@ -76,7 +85,8 @@ def inference_data(post, obs, model: str):
          "observed_data": {k: np.asarray(v) for k, v in rows.items()}},
         dims={k: ["row"] for k in rows}, coords={"row": np.arange(obs.n_obs)})
     tree.attrs.update(model=model, observations=obs.path)
-    tree["log_likelihood"].attrs["likelihood"] = SUMMED_NOTE if summed else LIKELIHOOD_NOTE
+    tree["log_likelihood"].attrs["likelihood"] = _ONE_COLUMN.get(post.loglik_kind,
+                                                                LIKELIHOOD_NOTE)
     tree["log_likelihood"]["total" if summed else "runout_m"].attrs["units"] = "nats"
     return tree
 

@@ -83,8 +83,11 @@ class Posterior:
             box's transform and differs from ``log_density`` by a function of
             theta, step_size).
         loglik_kind: "pointwise" (``pointwise_loglik`` has one column per
-            observation row) or "summed" (one column: the emulated summed
-            log-likelihood, ``calib.inference.loglik_emulator``).
+            observation row), "summed" (one column: the emulated summed
+            log-likelihood, ``calib.inference.loglik_emulator``) or "expected"
+            (one column: the log of the posterior averaged over the quantile
+            emulator's realisations less the log prior,
+            ``calib.inference.quantile_realisations``).
     """
 
     names: tuple[str, ...]
@@ -159,8 +162,8 @@ def run_nuts(pointwise_loglik: Callable[[jax.Array], jax.Array], box: Box, key: 
         box: uniform prior.
         key: PRNG key.
         num_warmup, num_samples, num_chains: NUTS settings (chains vectorised).
-        loglik_kind: what ``pointwise_loglik`` returns: "pointwise" (n_obs,)
-            or "summed" (1,) (``Posterior.loglik_kind``).
+        loglik_kind: what ``pointwise_loglik`` returns: "pointwise" (n_obs,),
+            "summed" or "expected" (1,) (``Posterior.loglik_kind``).
         init: (num_chains, d) starting points inside the box; None: NumPyro's
             default (uniform in (-2, 2) in the unconstrained coordinates).
     """

@@ -8,7 +8,9 @@ a. a first design (``forward.design``) and, where the budget asks, a second
    (``calib.inference.design_waves.Design``);
 b. CRSP: the focus region (``calib.inference.focus``) and its own design;
 c. emulate (``calib.inference.loglik_emulator`` inside the focus region,
-   ``calib.inference.emulator`` elsewhere) and sample with NUTS
+   ``calib.inference.emulator`` elsewhere; for the DEM's one input per size, the
+   posterior averaged over that emulator's realisations,
+   ``calib.inference.quantile_realisations``) and sample with NUTS
    (``calib.inference.bayes``), chains screened against the simulator
    (``calib.inference.chains``);
 d. CRSP, until settled: widen a focus face the posterior piles against (at
@@ -44,6 +46,7 @@ from calib.inference.design_waves import Design
 from calib.inference.emulator import fit_emulator, holdout_error
 from calib.inference.focus import MAX_WIDEN, FocusRegion
 from calib.inference.loglik_emulator import at_posterior, fit_loglik_emulator, loglik_holdout
+from calib.inference.quantile_realisations import expected_posterior, sample_expected
 from calib.inference.realisations import realisation_check
 
 __all__ = ["bayes_stage", "best_point_bar"]
@@ -124,13 +127,22 @@ class _Stage:
 
             def target(theta, lemu=lemu):
                 return lemu.predict(self.forward.to_input(theta))[0][None]
+            self.loglik_kind = "summed"
         else:  # GPs of the runout quantiles (calib.inference.emulator)
             self.emu_check = holdout_error(x_emu, r_emu, self.ibox.lo, self.ibox.hi,
                                            self.budget.n_levels,
                                            kernel_var_m2=self.rows.kernel_var_m2)
             emu = fit_emulator(x_emu, r_emu, self.ibox.lo, self.ibox.hi, self.budget.n_levels)
-            target = self.rows.emulated(emu, self.forward.emulator_inputs,
-                                        self.emu_check["variance_inflation"])
+            inflation = self.emu_check["variance_inflation"]
+            if emu.x_unit.shape[1] == 1:  # the DEM's alpha per size: averaged over realisations
+                target, self.expected_grid, self.emu_check["expected_posterior"] = (
+                    expected_posterior(emu, self.forward.emulator_inputs, self.rows,
+                                       self.nuts_box, jax.random.fold_in(self.k_pilot, 2),
+                                       inflation))
+                self.loglik_kind = "expected"
+            else:
+                target = self.rows.emulated(emu, self.forward.emulator_inputs, inflation)
+                self.loglik_kind = "pointwise"
         self.emu_check["n_design"] = int(x_emu.shape[0])
         self.emu_check["n_blocks_per_point"] = int(r_emu.shape[-1])
         self.timings["emulator_s"] += time.perf_counter() - t0
@@ -142,9 +154,15 @@ class _Stage:
         t0 = time.perf_counter()
         self.n_nuts += 1  # each run its own bar, numbered (re-runs after refinement or waves)
         self.tick(f"nuts run {self.n_nuts}", 0, 1)
+        if self.loglik_kind == "expected":  # drawn from its grid, not by NUTS
+            self.posterior = sample_expected(target, self.expected_grid, tuple(self.box.names),
+                                             self.k_nuts, b.nuts_chains, b.nuts_samples)
+            self.tick(f"nuts run {self.n_nuts}", 1, 1)
+            self.timings["nuts_s"] += time.perf_counter() - t0
+            return
         self.posterior = run_nuts(
             target, self.nuts_box, self.k_nuts, b.nuts_warmup, b.nuts_samples, b.nuts_chains,
-            loglik_kind="summed" if focus else "pointwise",
+            loglik_kind=self.loglik_kind,
             init=(chain_starts(fw.from_input(x_emu), ll_emu, self.nuts_box, b.nuts_chains)
                   if focus else None))
         if hasattr(fw, "from_input") and self.posterior.n_chains > 1:
