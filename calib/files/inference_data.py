@@ -44,8 +44,8 @@ SUMMED_NOTE = ("emulated: the expected rows' summed simulated log-likelihood, ca
                "re-simulation, and no per-row values")
 EXPECTED_NOTE = ("emulated: the log of the posterior averaged over realisations of the "
                  "Gaussian processes of the runout quantiles, less the log prior "
-                 "(calib.inference.quantile_realisations), the density NUTS sampled; not a "
-                 "re-simulation, and no per-row values")
+                 "(calib.inference.quantile_realisations), the density the draws were taken "
+                 "from on a grid; not a re-simulation, and no per-row values")
 _ONE_COLUMN = {"summed": SUMMED_NOTE, "expected": EXPECTED_NOTE}
 
 

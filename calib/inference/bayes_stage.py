@@ -10,9 +10,9 @@ b. CRSP: the focus region (``calib.inference.focus``) and its own design;
 c. emulate (``calib.inference.loglik_emulator`` inside the focus region,
    ``calib.inference.emulator`` elsewhere; for the DEM's one input per size, the
    posterior averaged over that emulator's realisations,
-   ``calib.inference.quantile_realisations``) and sample with NUTS
-   (``calib.inference.bayes``), chains screened against the simulator
-   (``calib.inference.chains``);
+   ``calib.inference.quantile_realisations``, drawn from its grid) and sample
+   the rest with NUTS (``calib.inference.bayes``), chains screened against the
+   simulator (``calib.inference.chains``);
 d. CRSP, until settled: widen a focus face the posterior piles against (at
    most ``focus.MAX_WIDEN`` times); where a design point's simulated
    log-likelihood beats every chain's by more than ``best_point_bar``, narrow
