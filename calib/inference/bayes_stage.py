@@ -152,14 +152,15 @@ class _Stage:
         """NUTS on ``target``; CRSP: chains screened against the simulator."""
         b, fw = self.budget, self.forward
         t0 = time.perf_counter()
-        self.n_nuts += 1  # each run its own bar, numbered (re-runs after refinement or waves)
-        self.tick(f"nuts run {self.n_nuts}", 0, 1)
         if self.loglik_kind == "expected":  # drawn from its grid, not by NUTS
+            self.tick("posterior draws", 0, 1)
             self.posterior = sample_expected(target, self.expected_grid, tuple(self.box.names),
                                              self.k_nuts, b.nuts_chains, b.nuts_samples)
-            self.tick(f"nuts run {self.n_nuts}", 1, 1)
+            self.tick("posterior draws", 1, 1)
             self.timings["nuts_s"] += time.perf_counter() - t0
             return
+        self.n_nuts += 1  # each run its own bar, numbered (re-runs after refinement or waves)
+        self.tick(f"nuts run {self.n_nuts}", 0, 1)
         self.posterior = run_nuts(
             target, self.nuts_box, self.k_nuts, b.nuts_warmup, b.nuts_samples, b.nuts_chains,
             loglik_kind=self.loglik_kind,
