@@ -57,6 +57,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import logsumexp
 
+from calib.inference.bayes import diagnosed
 from calib.inference.emulator import QuantileEmulator, se_kernel
 from calib.inference.likelihood import log_likelihood
 from calib.model.priors import Box
@@ -177,8 +178,6 @@ def sample_expected(log_density, grid, names: tuple[str, ...], key: jax.Array,
     Returns:
         ``calib.inference.bayes.Posterior`` with ``loglik_kind`` "expected".
     """
-    from calib.inference.bayes import diagnosed
-
     centres, widths, w = grid
     k_cell, k_in = jax.random.split(key)
     n = n_chains * n_draws
