@@ -157,7 +157,8 @@ class _Stage:
             self.posterior = sample_expected(target, self.expected_grid, tuple(self.box.names),
                                              self.k_nuts, b.nuts_chains, b.nuts_samples)
             self.tick("posterior draws", 1, 1)
-            self.timings["nuts_s"] += time.perf_counter() - t0
+            self.timings["draws_s"] = (self.timings.get("draws_s", 0.0)
+                                       + time.perf_counter() - t0)
             return
         self.n_nuts += 1  # each run its own bar, numbered (re-runs after refinement or waves)
         self.tick(f"nuts run {self.n_nuts}", 0, 1)
@@ -175,7 +176,7 @@ class _Stage:
             self.posterior, self.chain_screen, self.screened = screen_chains(
                 self.posterior, screen_runs, self.rows)
         self.tick(f"nuts run {self.n_nuts}", 1, 1)
-        self.timings["nuts_s"] += time.perf_counter() - t0
+        self.timings["nuts_s"] = self.timings.get("nuts_s", 0.0) + time.perf_counter() - t0
 
     # -- d: settle --------------------------------------------------------------
     def settled(self) -> bool:
@@ -330,7 +331,7 @@ def bayes_stage(forward, rows, budget, keys, tick, tally, timings: dict):
     s = _Stage(forward, rows, budget, keys, tick, tally, timings)
     s.first_designs()
     focus = s.focus_region()
-    timings["emulator_s"] = timings["nuts_s"] = 0.0
+    timings["emulator_s"] = 0.0
     if focus:
         timings["realisations_s"] = 0.0
     while True:
