@@ -401,6 +401,13 @@ def _print_parameters(result: dict, models) -> None:
                        if "reference" in s else "")
                 print(f"{model:5} {'alpha(' + L + ')':{w}} {s['map']:9.3f} {_fmt(s['mean']):>8} "
                       f"{iv:>19}{ref}")
+    for model in models:
+        c = result[model].get("estimate_choice")
+        if c and c["chosen"] == "posterior_mode":
+            print(f"{model.upper()} estimate: the posterior's mode, which the simulator scores "
+                  f"at {c['posterior_mode']['loglik']:.1f} nats against "
+                  f"{_fmt(c['gradient']['loglik'], 1)} at the gradient stage's end point "
+                  f"(margin {c['margin_nats']:.1f}; calibration.json: {model}.estimate_choice)")
 
 
 def _print_rows(result: dict, models) -> None:

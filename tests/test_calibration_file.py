@@ -55,7 +55,8 @@ def _write_fit(folder, model: str, box, estimate, samples, form=None) -> str:
                           estimate_source="posterior_mode", posterior=post, gradient=None,
                           quality=[], unfinished=None, adequacy=None, timings_s={},
                           budget=SimpleNamespace(), check_runouts=np.zeros((1, 1)),
-                          emulator_check=None, focus=None, chain_screen=None)
+                          emulator_check=None, focus=None, chain_screen=None,
+                          estimate_choice=None)
     run = DemRun(stiffness_scale=0.02, max_time_s=140.0)  # not the defaults: must travel
     sec = model_section(model, fit, SimpleNamespace(box=box, run=run), form)
     doc = {"schema": SCHEMA, "profile_csv": PROFILE_CSV, "release_x_m": 0.0, model: sec}

@@ -308,6 +308,7 @@ def test_model_section_writes_the_effects_and_the_posterior_columns():
         emulator_check: dict | None = None
         focus: dict | None = None
         chain_screen: dict | None = None
+        estimate_choice: dict | None = None
 
     sec = model_section("crsp", _Fit(names, samples[0], _Post(samples)), fw)
     assert sec["effects"] == ["vegetation_belt"]

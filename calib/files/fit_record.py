@@ -69,6 +69,7 @@ def model_section(name: str, fit, forward, law_form: str | None = None) -> dict:
     ``posterior_netcdf`` name the files written next to it."""
     post = fit.posterior
     sec = {"parameters": list(fit.names), "estimate_source": fit.estimate_source,
+           "estimate_choice": fit.estimate_choice,
            "fit_quality": fit.quality, "unfinished_blocks": fit.unfinished,
            "adequacy": fit.adequacy,
            "timings_s": fit.timings_s,
