@@ -98,6 +98,8 @@ from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfi
 __all__ = ["ESTIMATE_MARGIN_SD", "Budget", "ModelFit", "ModelRun", "calibrate", "fit_model",
            "point_estimate", "presets"]
 
+ESTIMATE_MARGIN_SD = 2.0  # MC sds by which the posterior mode must beat the gradient point
+
 
 @dataclasses.dataclass
 class ModelFit:
@@ -216,9 +218,6 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
                     focus_record, chain_screen, choice)
 
 
-ESTIMATE_MARGIN_SD = 2.0  # MC sds by which the posterior mode must beat the gradient point
-
-
 def point_estimate(forward, rows: RowLikelihood, gfit: GradientFit | None,
                    posterior: Posterior | None) -> tuple[np.ndarray, str, dict | None]:
     """The fit's point estimate, its source and, where both stages ran, the record
@@ -234,9 +233,11 @@ def point_estimate(forward, rows: RowLikelihood, gfit: GradientFit | None,
     estimate" must not be one the fit's own simulations score clearly below
     another point it found. Why (measured on the Tschamut runs, all 62, seeds
     1-3, 2026-12-05): from its starts and 40 steps the gradient stage ended
-    13-26 nats below the posterior's mode (-300, -300, -293 against -287,
-    -274, -275), at points outside the posterior's 90 % intervals (phi_r 38.9
-    and 39.4 deg against 29.5-35.8 and 35.0-37.4).
+    at -300, -300 and -293 nats (the check's blocks) where the posterior's
+    mode scored -287, -274 and -275 (the design's), at points outside the
+    posterior's 90 % intervals (phi_r 38.9 and 39.4 deg against 29.5-35.8
+    and 35.0-37.4); scored with the same blocks, seed 1's two points gave
+    -297.2 and -287.1 (docs/studies.md, "The point estimate").
 
     Returns:
         (estimate (d,), "gradient" or "posterior_mode", record or None): the
