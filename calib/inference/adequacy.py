@@ -299,7 +299,7 @@ def _better_problem(better: dict | None) -> str | None:
 
 def fit_adequacy(forward, obs: Observations, rows, posterior, estimate: np.ndarray,
                  at_rows: np.ndarray, design: tuple | None, budget, key: jax.Array,
-                 tally) -> dict:
+                 tally, mode_loglik: float | None = None) -> dict:
     """The adequacy record of one fit (``adequacy_record``).
 
     Its predictive: runouts at ``n_predictive_draws`` posterior draws spread
@@ -324,6 +324,9 @@ def fit_adequacy(forward, obs: Observations, rows, posterior, estimate: np.ndarr
         budget: ``calib.inference.budget.Budget``.
         key: PRNG key of the predictive's blocks.
         tally: records unfinished blocks per stage.
+        mode_loglik: the posterior mode's summed simulated log-likelihood on
+            the design's own blocks where the caller has it
+            (``calibrate.point_estimate``); None: simulated here.
     """
     better = None
     if design is not None:
@@ -332,8 +335,9 @@ def fit_adequacy(forward, obs: Observations, rows, posterior, estimate: np.ndarr
         else:  # the check records no passage speeds: the design's own blocks
             fitted = {"estimate": float(rows.summed(*rows.simulate(forward, estimate[None]))[0])}
         if posterior is not None:  # its mode with the design's own blocks
-            fitted["posterior mode"] = float(rows.summed(
-                *rows.simulate(forward, posterior.map[None]))[0])
+            fitted["posterior mode"] = (float(rows.summed(
+                *rows.simulate(forward, posterior.map[None]))[0]) if mode_loglik is None
+                else float(mode_loglik))
         better = better_design_point(forward.box.names, *design, fitted, rows.n_rows)
     release = forward.entries.release_x_m
     slopes_deg = release_slopes_deg(forward.profile, release, forward.entries.profiles)

@@ -208,8 +208,12 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     scored = ((design.theta, design.ll)
               if design is not None and hasattr(forward, "from_input")  # CRSP: theta space
               else None)
+    mode_ll = None  # the mode's score, where the estimate's choice already simulated it
+    if choice is not None:
+        v = choice["posterior_mode"]["loglik"]
+        mode_ll = -np.inf if v is None else v
     adequacy = fit_adequacy(forward, obs, rows, posterior, estimate, check.at_rows, scored,
-                            budget, jax.random.fold_in(k_check, 1), tally)
+                            budget, jax.random.fold_in(k_check, 1), tally, mode_ll)
     timings["adequacy_s"] = time.perf_counter() - t0
     record = unfinished_record(tallies, f"{type(forward).__name__} calibration")
     warn_unfinished(record)
