@@ -8,7 +8,7 @@ ESS >= ``ESS_MIN``), at least 4 chains and every one kept by the chain
 screening, the log-likelihood GP's realisation check, and no parameter with
 more than ``calib.inference.adequacy.BOUND_FLAG`` of its posterior within
 ``BOUND_BAND`` of a prior bound (``bayes.ok`` and the adequacy record of
-``calibration.json``). Each fit took 5.5-6.5 minutes on 2 cores: ``-m slow``.
+``calibration.json``). Each fit took 11.5-12.5 minutes on 2 cores: ``-m slow``.
 """
 
 from __future__ import annotations
@@ -22,22 +22,23 @@ from calib.inference.adequacy import BOUND_FLAG
 DATA = "data/tschamut2014/observations.csv"
 
 # What each seed's fit measured (2026-12-05, 2 cores, one fit at a time, the same call as
-# ``python -m calib.fit DATA --model crsp --seed S``). docs/studies.md, "The three seeds
-# again, on the current code", reads the same failures: the best region at the edge of
-# the Kt box (where the simulator's own posterior lies too), and a log-likelihood GP
-# whose uncertainty spans the box.
+# ``python -m calib.fit DATA --model crsp --seed S``, with 12 realisation waves).
+# docs/studies.md, "Twelve realisation waves", reads the same failures: the best region
+# at the edge of the Kt box (where the simulator's own posterior lies too), and a
+# log-likelihood GP whose realisations put their peaks anywhere in the box.
 _MEASURED = {
-    1: "measured 2026-12-05 (330 s): R-hat <= 1.002, bulk ESS >= 1,431, 4 of 4 chains "
-       "kept, at most 0.2 % of Kn near a bound; the GP realisation check fails: the "
-       "posterior medians of 32 GP realisations span Kn 0.29-0.59 and phi_r 6.4-38.4 deg "
-       "against 90 % intervals 0.461-0.559 and 29.5-35.8 deg",
-    2: "measured 2026-12-05 (359 s): R-hat <= 1.001, bulk ESS >= 4,421, 4 of 4 chains "
-       "kept; 89 % of Kt within 2 % of its upper bound 0.98 (90 % interval 0.971-0.979); "
-       "the GP realisation check fails (Kn 0.18-0.60 against 0.376-0.456)",
-    3: "measured 2026-12-05 (374 s): R-hat <= 1.002, bulk ESS >= 2,821, 4 of 4 chains "
-       "kept after a best-point wave; 77 % of Kt within 2 % of its upper bound 0.98 "
-       "(90 % interval 0.966-0.979); the GP realisation check fails (Kn 0.29-0.59 "
-       "against 0.361-0.488, phi_r 6.2-39.8 deg against 32.7-37.1)",
+    1: "measured 2026-12-05 (692 s): R-hat <= 1.001, bulk ESS >= 3,961, 4 of 4 chains "
+       "kept, 8.9 % of Kt within 2 % of its bound 0.98 (not flagged); the GP realisation "
+       "check fails: the posterior medians of 32 GP realisations span Kn 0.23-0.59 and "
+       "phi_r 5.7-38.3 deg against 90 % intervals 0.327-0.413 and 35.6-37.0 deg",
+    2: "measured 2026-12-05 (699 s): R-hat <= 1.003, bulk ESS >= 1,056, tail ESS of Kn "
+       "385 (< 400), 4 of 4 chains kept; 50 % of Kt within 2 % of its upper bound 0.98 "
+       "(90 % interval 0.940-0.979); the GP realisation check fails (Kn 0.34-0.60 "
+       "against 0.331-0.473)",
+    3: "measured 2026-12-05 (753 s): R-hat <= 1.002, bulk ESS >= 1,875, 4 of 4 chains "
+       "kept after a best-point wave; 39 % of Kt within 2 % of its upper bound 0.98 "
+       "(90 % interval 0.942-0.979); the GP realisation check fails (Kn 0.35-0.59 "
+       "against 0.353-0.431, phi_r 12.9-38.3 deg against 35.3-37.3)",
 }
 
 
