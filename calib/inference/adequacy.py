@@ -335,9 +335,13 @@ def fit_adequacy(forward, obs: Observations, rows, posterior, estimate: np.ndarr
         else:  # the check records no passage speeds: the design's own blocks
             fitted = {"estimate": float(rows.summed(*rows.simulate(forward, estimate[None]))[0])}
         if posterior is not None:  # its mode with the design's own blocks
-            fitted["posterior mode"] = (float(rows.summed(
-                *rows.simulate(forward, posterior.map[None]))[0]) if mode_loglik is None
-                else float(mode_loglik))
+            if mode_loglik is not None:
+                fitted["posterior mode"] = float(mode_loglik)
+            elif rows.velocities is not None and np.array_equal(estimate, posterior.map):
+                fitted["posterior mode"] = fitted["estimate"]  # that point, those blocks
+            else:
+                fitted["posterior mode"] = float(rows.summed(
+                    *rows.simulate(forward, posterior.map[None]))[0])
         better = better_design_point(forward.box.names, *design, fitted, rows.n_rows)
     release = forward.entries.release_x_m
     slopes_deg = release_slopes_deg(forward.profile, release, forward.entries.profiles)
