@@ -502,6 +502,14 @@ def _print_nuts_repairs(result: dict, models) -> None:
                   "from each realisation's posterior was simulated and joined the GP's "
                   "design, and NUTS ran again "
                   "(bayes.focus.realisation_waves)")
+        longer = focus.get("longer_run")
+        if longer:
+            print(f"\n{model.upper()} longer run: the chains agreed but their ESS fell short "
+                  f"(bulk {longer['ess_bulk_min_before']:.0f}, tail "
+                  f"{longer['ess_tail_min_before']:.0f}, at least {longer['ess_min']:.0f} asked); "
+                  "NUTS ran again "
+                  f"with {longer['draw_factor']} times the draws, "
+                  f"{longer['draws_per_chain']} per chain (bayes.focus.longer_run)")
         if screen.get("n_dropped"):
             lls = ", ".join(f"{v:.0f}" if v is not None else "none"
                             for v in screen["chain_loglik"])

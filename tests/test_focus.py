@@ -207,3 +207,60 @@ def test_chains_that_miss_the_designs_best_mode_narrow_the_focus_to_it():
     assert s._best_point_wave() and not s._best_point_wave()  # at most 2 waves
     assert not stage([-763.0, -829.0])._best_point_wave()  # a chain reached the best
     assert not stage([-829.0], refinements=0)._best_point_wave()
+
+
+def test_chains_that_agree_but_fall_short_of_the_ess_run_once_more_with_more_draws(
+        monkeypatch):
+    """After the repairs, a run whose chains agree (R-hat < 1.01, none dropped)
+    and whose ESS alone fails is sampled again with ``draw_factor`` times the
+    draws, once, and the fit records why; a run that then passes settles."""
+    import dataclasses
+
+    from test_bayes import _ar1_chains, _posterior
+
+    from calib.inference import bayes_stage as stage_module
+    from calib.inference.bayes import draw_factor
+    from calib.inference.bayes_stage import _Stage
+    from calib.inference.budget import Budget
+
+    short = _posterior(_ar1_chains(7.0 / 8.0, 4, 1000, seed=3))
+    k = draw_factor(short, 4)
+    assert not short.ok and k > 1
+
+    class Region:
+        record = {"refined": [], "realisation_waves": []}
+        n_widened, box = 0, None
+
+        def faces_holding(self, samples):
+            return []
+
+    s = _Stage.__new__(_Stage)
+    s.budget = Budget(refinements=0, n_realisations=0, nuts_samples=1000, nuts_chains=4)
+    s.forward = type("Fw", (), {"to_input": staticmethod(lambda t: t),
+                                "from_input": staticmethod(lambda x: x)})()
+    s.rows = type("Rows", (), {"summed": lambda self, r, v: r, "noise_var": lambda self, r, v: r})()
+    s.region, s.posterior, s.draw_factor, s.n_nuts = Region(), short, 1, 1
+    s.screened, s.lemu = (np.zeros((8, 2)), np.zeros(8), None), None
+    s.tick, s.tally, s.timings, s.k_nuts, s.box = (lambda *a: None), None, {}, None, None
+    monkeypatch.setattr(stage_module, "at_posterior", lambda *a: {"ok": True})
+    assert not s.settled()
+    assert s.draw_factor == k
+    rec = Region.record["longer_run"]
+    assert rec["draw_factor"] == k and rec["draws_per_chain"] == 1000 * k
+    assert rec["ess_tail_min_before"] == pytest.approx(short.ess_tail.min())
+
+    asked = {}
+
+    def run_nuts(target, box, key, warmup, samples, chains, **kw):
+        asked.update(samples=samples, chains=chains)
+        return dataclasses.replace(short, ok=True, problems=[],
+                                   ess_bulk=short.ess_bulk * k, ess_tail=short.ess_tail * k)
+    monkeypatch.setattr(stage_module, "run_nuts", run_nuts)
+    monkeypatch.setattr(stage_module, "chain_starts", lambda *a: None)
+    monkeypatch.setattr(stage_module, "screen_chains", lambda post, f, rows: (post, {}, s.screened))
+    s.loglik_kind = "summed"
+    s.sample(None, np.zeros((8, 2)), np.zeros(8), True)
+    assert asked == {"samples": 1000 * k, "chains": 4}
+    assert s.settled()  # once only, and this run passes
+    s.posterior = short
+    assert s.settled()  # even a run that fails again is not run longer a second time

@@ -32,6 +32,13 @@ for every parameter (100 per chain with 4 chains), no divergent transition.
 A run that misses one is returned with ``ok = False`` and the reasons; the
 command prints them loudly and records them in calibration.json; it never
 hides them.
+
+A run whose chains agree but are too short for the ESS threshold
+(``draw_factor``) is run again longer by the fit
+(``calib.inference.bayes_stage``): ESS = S / tau, with tau the integrated
+autocorrelation time of the chains (the paper's section 3), a property of
+the sampler on that density and not of the run's length, so the draws the
+threshold needs follow from the ESS the run reached.
 """
 
 from __future__ import annotations
@@ -48,12 +55,14 @@ from numpyro.infer import MCMC, NUTS
 
 from calib.model.priors import Box
 
-__all__ = ["ESS_MIN", "Posterior", "RHAT_MAX", "chain_diagnostics", "diagnosed", "keep_chains",
-           "run_nuts"]
+__all__ = ["ESS_MIN", "MAX_DRAW_FACTOR", "Posterior", "RHAT_MAX", "chain_diagnostics",
+           "diagnosed", "draw_factor", "keep_chains", "run_nuts"]
 
 RHAT_MAX = 1.01
 ESS_MIN = 400.0
 TAIL_PROB = 0.05  # tail ESS: the 5 % and 95 % quantiles
+MAX_DRAW_FACTOR = 4  # draw_factor: at most this many times the draws (our choice)
+_ESS_MARGIN = 1.25  # draw_factor: aim 25 % above ESS_MIN, for the ESS estimate's own error
 
 # NumPyro's extra fields -> ArviZ's sample_stats names (``arviz_base.from_numpyro``'s)
 _SAMPLE_STATS = {"diverging": "diverging", "accept_prob": "acceptance_rate",
@@ -216,6 +225,27 @@ def diagnosed(names: tuple[str, ...], by_chain: np.ndarray, log_density: np.ndar
     return Posterior(names, by_chain.reshape(-1, len(names)), log_density, pointwise, rhat,
                      ess_bulk, ess_tail, div, acc, not problems, problems, by_chain.shape[0],
                      sample_stats, loglik_kind)
+
+
+def draw_factor(post: Posterior, n_chains: int) -> int:
+    """How many times its draws per chain a NUTS run needs for its ESS to pass,
+    where ESS is all it fails; 1 where it is not.
+
+    The run's chains must agree and be whole: every R-hat below ``RHAT_MAX``,
+    no divergent transition, and ``n_chains`` chains (none dropped by a
+    screening). Its smallest bulk or tail ESS E below ``ESS_MIN`` then asks for
+    k = ceil(1.25 ESS_MIN / E) times the draws (ESS = S / tau, module
+    docstring; the 25 % margin covers the error of E itself). Our rule: k above
+    ``MAX_DRAW_FACTOR`` (E below 125 of ``ESS_MIN`` 400) gives 1, since chains
+    that slow are better repaired where the density is wrong (the fit's
+    refinements) than by running them longer."""
+    ess = float(min(np.min(post.ess_bulk), np.min(post.ess_tail)))
+    agree = bool(np.all(np.isfinite(post.rhat)) and np.all(post.rhat < RHAT_MAX))
+    if (not agree or post.divergences or post.n_chains < n_chains or not np.isfinite(ess)
+            or ess >= ESS_MIN or ess <= 0.0):
+        return 1
+    k = int(np.ceil(_ESS_MARGIN * ESS_MIN / ess))
+    return k if k <= MAX_DRAW_FACTOR else 1
 
 
 def keep_chains(post: Posterior, keep) -> Posterior:

@@ -47,6 +47,9 @@ Stages (each timed; ``Budget`` sets the sizes, ``QUICK`` / ``DEFAULT`` the prese
       the simulations settle what the realisations disagree on (Thompson
       sampling of the GP's posterior over functions; our choice of design
       rule). A spread that outlasts the waves is a problem of the posterior.
+      Last, a run whose chains agree but whose ESS falls short runs again with
+      as many times the draws as ``calib.inference.bayes.draw_factor`` asks
+      (once; ``bayes.focus.longer_run``).
 2. Gradient (``method`` includes "gradient"): Adam on the smoothed CRN
    objective of the SIMULATOR itself (``calib.inference.gradient``) from several starts:
    J(theta) = -sum_i log p(y_i | theta), the negative log-likelihood of
