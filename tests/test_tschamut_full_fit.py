@@ -31,10 +31,11 @@ _MEASURED = {
        "kept, 8.9 % of Kt within 2 % of its bound 0.98 (not flagged); the GP realisation "
        "check fails: the posterior medians of 32 GP realisations span Kn 0.23-0.59 and "
        "phi_r 5.7-38.3 deg against 90 % intervals 0.327-0.413 and 35.6-37.0 deg",
-    2: "measured 2026-12-05 (699 s): R-hat <= 1.003, bulk ESS >= 1,056, tail ESS of Kn "
-       "385 (< 400), 4 of 4 chains kept; 50 % of Kt within 2 % of its upper bound 0.98 "
-       "(90 % interval 0.940-0.979); the GP realisation check fails (Kn 0.34-0.60 "
-       "against 0.331-0.473)",
+    2: "measured 2026-12-05 (797 s, the last NUTS run with twice the draws for its tail "
+       "ESS of Kn, 385 before): R-hat <= 1.003, bulk ESS >= 1,875, tail ESS >= 717, 4 of 4 "
+       "chains kept; 49 % of Kt within 2 % of its upper bound 0.98 (90 % interval "
+       "0.937-0.979); the GP realisation check fails (Kn 0.29-0.59 against 0.331-0.494, "
+       "phi_r 16.3-36.6 deg against 35.8-37.0)",
     3: "measured 2026-12-05 (753 s): R-hat <= 1.002, bulk ESS >= 1,875, 4 of 4 chains "
        "kept after a best-point wave; 39 % of Kt within 2 % of its upper bound 0.98 "
        "(90 % interval 0.942-0.979); the GP realisation check fails (Kn 0.35-0.59 "
