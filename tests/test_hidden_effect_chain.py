@@ -64,19 +64,23 @@ _SPEEDS = {"vegetation_belt": ["--velocity-stations-m", "110", "--n-velocity", "
 _SHORT = {
     # measured with this test's chain (2026-11-27, docs/studies.md, "The loop closed on
     # a known truth"; again 2026-12-05, "The other three chains, rerun with the
-    # best-point waves"): everything else held; the requirement stays
+    # best-point waves"; "The fragmentation and belt chains with twelve realisation
+    # waves"): everything else held; the requirement stays
     "fragmentation": "0.2 m blocks: mean |P - P_truth| 0.010 with the effect against "
                      "0.009 for the baseline over 33 stations (0.5-2.0 m: 0.013-0.016 "
                      "against 0.021-0.119); again 2026-12-05: 0.0093 against 0.0090 "
-                     "(0.5-2.0 m: 0.013-0.017 against 0.021-0.119); small blocks seldom "
+                     "(0.5-2.0 m: 0.013-0.017 against 0.021-0.119); again 2026-12-05 with 12 "
+                     "realisation waves: 0.0093 against 0.0090; small blocks seldom "
                      "break, so the two fits differ there by Monte Carlo error",
     # measured with this test's chain, 180 runouts and 30 speeds at 110 m (2026-12-05,
-    # docs/studies.md, "The forest belt's chain, with its passage speeds")
+    # docs/studies.md, "The forest belt's chain, with its passage speeds"; again "The
+    # fragmentation and belt chains with twelve realisation waves")
     "vegetation_belt": "0.2 m blocks: mean |P - P_truth| 0.007 with the belt against 0.002 "
                        "for the baseline over 29 stations (0.5-2.0 m: 0.002-0.009 against "
-                       "0.032-0.079); 0.2 m blocks mostly stop above the belt (the fit's "
-                       "simulated median 110 m, the belt from 129 m), where the belt "
-                       "changes nothing",
+                       "0.032-0.079); again 2026-12-05 with 12 realisation waves: 0.0065 "
+                       "against 0.0032 (0.5-2.0 m: 0.002-0.009 against 0.025-0.076); 0.2 m "
+                       "blocks mostly stop above the belt (the fit's simulated median "
+                       "110 m, the belt from 129 m), where the belt changes nothing",
 }
 
 
