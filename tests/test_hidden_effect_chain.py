@@ -12,19 +12,16 @@ script's own bookkeeping is checked in the default run.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 
 import numpy as np
 import pandas as pd
 import pytest
+from cli_run import load_script
 
 from calib.discovery.synthetic import compare_exceedance
 
-_spec = importlib.util.spec_from_file_location("hidden_effect_chain",
-                                               "scripts/hidden_effect_chain.py")
-chain = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(chain)
+chain = load_script("hidden_effect_chain")
 
 
 def test_the_baseline_is_the_refit_command_without_its_effects():

@@ -132,13 +132,10 @@ def test_loglik_noise_script_measures_the_spread_over_block_sets(tmp_path, capsy
     takes each release's rows from its chosen block count, and the
     nearest-neighbour kernel is the tolerance kernel until the k-th nearest
     runout lies beyond the tolerance."""
-    import importlib.util
 
-    from cli_run import run_cli
+    from cli_run import load_script, run_cli
 
-    spec = importlib.util.spec_from_file_location("loglik_noise", "scripts/loglik_noise.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = load_script("loglik_noise")
     theta = np.array([[0.41, 0.87, 0.25, 30.0], [0.30, 0.80, 0.10, 20.0]])
     few = mod.loglik_spread("data/postignano.csv", theta, 32, 3)
     again = mod.loglik_spread("data/postignano.csv", theta, 32, 3)

@@ -6,7 +6,6 @@ the mean GP's posterior."""
 
 from __future__ import annotations
 
-import importlib.util
 import pickle
 import re
 
@@ -14,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from cli_run import load_script
 
 from calib.inference.loglik_emulator import fit_loglik_emulator
 from calib.model.priors import CRSP_ROLLING_BOX
@@ -21,14 +21,6 @@ from calib.model.warp import warp
 
 NAMES = CRSP_ROLLING_BOX.names
 PEAK = np.array([0.45, 0.93, 0.11, 33.0])
-
-
-def _study():
-    spec = importlib.util.spec_from_file_location("loglik_gp_study",
-                                                  "scripts/loglik_gp_study.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 @pytest.mark.slow  # a study script's check, about 40 s of GP fits and compilation: -m slow
@@ -53,7 +45,7 @@ def test_the_study_scores_a_smooth_loglik_gp_as_honest(tmp_path, capsys):
     with open(dump, "wb") as f:
         pickle.dump({"emu": fits, "cap_per_row": 10.0,
                      "rw": [dict(draws=draws, box_lo=lo, box_hi=hi, n_emu=2)]}, f)
-    assert _study().main(["analyse", str(dump), "--cap-per-row", "10"]) == 0
+    assert load_script("loglik_gp_study").main(["analyse", str(dump), "--cap-per-row", "10"]) == 0
     out = capsys.readouterr().out
     wave = re.search(r"64 -> 96: top (\d+): rmse ([\d.]+) nats, z_rms ([\d.]+)", out)
     assert wave and int(wave.group(1)) >= 24, out

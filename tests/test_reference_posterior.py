@@ -4,10 +4,9 @@ command refuses a malformed sub-box before it simulates anything."""
 
 from __future__ import annotations
 
-import importlib.util
-
 import numpy as np
 import pytest
+from cli_run import load_script
 from scipy.stats import norm, qmc
 
 from calib.model.priors import CRSP_ROLLING_BOX
@@ -15,11 +14,7 @@ from calib.model.priors import CRSP_ROLLING_BOX
 
 @pytest.fixture(scope="module")
 def script():
-    spec = importlib.util.spec_from_file_location("reference_posterior",
-                                                  "scripts/reference_posterior.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("reference_posterior")
 
 
 def test_mixture_weights_recover_a_known_posterior(script):
