@@ -7,7 +7,10 @@ uncertainty could move beyond its intervals. This script measures that GP
 
 * ``run``: ``python -m calib.fit`` with two of its constants changed for the
   study (``--n-blocks-design``: blocks per design point and release,
-  ``Budget.n_blocks_design``; ``--cap-per-row``: ``CAP_NATS_PER_ROW``), every
+  ``Budget.n_blocks_design``; ``--cap-per-row``: ``CAP_NATS_PER_ROW``), or
+  with a GP whose kernel is fitted on the values capped at
+  ``--kernel-cap-per-row`` while it is conditioned on the values at the
+  fit's own cap (``kernel_from_cap``: a what-if, not what the fit does), every
   GP fit's inputs (points, summed log-likelihoods, their Monte Carlo variances)
   and the realisation check's posterior draws saved to ``--dump`` (a pickle,
   written at every realisation check: a fit without one writes none).
@@ -25,7 +28,8 @@ Usage (the figures of docs/studies.md, "What the realisation check sees")::
     python scripts/loglik_gp_study.py run --dump s1.pkl -- \\
         data/tschamut2014/observations.csv --model crsp --seed 1 --out results/s1
     python scripts/loglik_gp_study.py run --n-blocks-design 1024 --dump s1b.pkl -- ...
-    python scripts/loglik_gp_study.py analyse s1.pkl --cap-per-row 10,3,2
+    python scripts/loglik_gp_study.py run --kernel-cap-per-row 2 --dump s1k.pkl -- ...
+    python scripts/loglik_gp_study.py analyse s1.pkl --cap-per-row 10,3,2 --kernel-cap-per-row 2
 """
 
 from __future__ import annotations
@@ -44,6 +48,41 @@ NAMES = ("Kn", "Kt", "roughness_m", "rolling_friction_deg")
 TOP_NATS = 30.0
 
 
+def kernel_from_cap(x, ll, noise_var, lo, hi, n_rows, level_of, kernel_cap_per_row: float):
+    """``loglik_emulator.fit_loglik_emulator`` with its kernel's hyperparameters
+    taken from a fit on the same points capped at ``kernel_cap_per_row`` nats
+    per row (length scales as they are; signal and nugget sd rescaled from that
+    fit's standardisation to this one's), conditioned on the values at the
+    module's own cap: the kernel follows the surface near the top while the
+    mean keeps the deep cap's slopes. A what-if of this study."""
+    import jax.numpy as jnp
+
+    import calib.inference.loglik_emulator as le
+    from calib.inference.emulator import QuantileEmulator, se_kernel
+
+    own = le.CAP_NATS_PER_ROW
+    le.CAP_NATS_PER_ROW = kernel_cap_per_row
+    try:
+        near = le.fit_loglik_emulator(x, ll, noise_var, lo, hi, n_rows, level_of)
+    finally:
+        le.CAP_NATS_PER_ROW = own
+    g, nv_g, cap, ceiling = le._log_deficit(ll, noise_var, n_rows)
+    lo, hi = jnp.asarray(lo, jnp.float64), jnp.asarray(hi, jnp.float64)
+    xu = (jnp.asarray(x) - lo) / (hi - lo)
+    level = g if level_of is None else g[np.asarray(level_of, bool)]
+    mu, sd = float(level.mean()), float(max(g.std(), 1e-3))
+    log_ls, log_sf, log_sn = (h[0, 0] for h in near.gp.hyp)
+    rescale = float(np.log(float(near.gp.y_std[0, 0]) / sd))
+    log_sf, log_sn = log_sf + rescale, log_sn + rescale
+    k = se_kernel(xu, xu, log_ls, log_sf) + jnp.diag(jnp.exp(2 * log_sn) + nv_g / sd**2 + 1e-8)
+    chol = jnp.linalg.cholesky(k)
+    alpha = jax.scipy.linalg.cho_solve((chol, True), jnp.asarray((g - mu) / sd))
+    hyp = (log_ls[None, None], jnp.asarray(log_sf)[None, None], jnp.asarray(log_sn)[None, None])
+    gp = QuantileEmulator(xu, lo, hi, alpha[None, None], chol[None, None], hyp,
+                          jnp.full((1, 1), mu), jnp.full((1, 1), sd), np.full(1, np.nan))
+    return le.LoglikEmulator(gp, cap, ceiling)
+
+
 def run(args, fit_args: list[str]) -> int:
     """``calib.fit`` with the study's constants, its GP inputs dumped."""
     import calib.inference.bayes_stage as bs
@@ -60,8 +99,13 @@ def run(args, fit_args: list[str]) -> int:
             b = presets(model, quick)
             return dataclasses.replace(b, n_blocks_design=args.n_blocks_design)
         cal.presets = more_blocks
-    out = {"emu": [], "rw": [], "cap_per_row": le.CAP_NATS_PER_ROW}
+    out = {"emu": [], "rw": [], "cap_per_row": le.CAP_NATS_PER_ROW,
+           "kernel_cap_per_row": args.kernel_cap_per_row}
     fit = bs.fit_loglik_emulator
+    if args.kernel_cap_per_row is not None:
+        def fit(x, ll, noise_var, lo, hi, n_rows, level_of=None):
+            return kernel_from_cap(x, ll, noise_var, lo, hi, n_rows, level_of,
+                                   args.kernel_cap_per_row)
 
     def fit_dumped(x, ll, noise_var, lo, hi, n_rows, level_of=None):
         out["emu"].append(dict(x=np.asarray(x), ll=np.asarray(ll), nv=np.asarray(noise_var),
@@ -179,6 +223,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="blocks per design point and release (default: the budget's)")
     r.add_argument("--cap-per-row", type=float, default=None,
                    help="the GP's cap, nats per row (default: CAP_NATS_PER_ROW)")
+    r.add_argument("--kernel-cap-per-row", type=float, default=None,
+                   help="fit the GP's kernel on the values capped here (kernel_from_cap)")
     a = sub.add_parser("analyse", help="the GP's errors on a dump")
     a.add_argument("dump")
     a.add_argument("--cap-per-row", type=lambda s: [float(v) for v in s.split(",")],

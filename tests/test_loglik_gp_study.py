@@ -63,3 +63,22 @@ def test_the_study_scores_a_smooth_loglik_gp_as_honest(tmp_path, capsys):
                        r"roughness_m (\d+), rolling_friction_deg (\d+)", out)
     assert counts and int(counts.group(1)) == 32, out
     assert all(0 <= int(c) <= 32 for c in counts.groups()[1:])
+
+
+@pytest.mark.slow  # a study script's check (GP fits): run with -m slow
+def test_a_kernel_from_the_fits_own_cap_is_the_fits_gp():
+    """``kernel_from_cap`` at the module's own cap is ``fit_loglik_emulator``."""
+    import calib.inference.loglik_emulator as le
+
+    rng = np.random.default_rng(1)
+    x = rng.random((40, 2))
+    ll = -50.0 - 300.0 * np.sum((x - 0.4) ** 2, axis=1) + rng.standard_normal(40)
+    nv = np.ones(40)
+    args = (x, ll, nv, np.zeros(2), np.ones(2), 10, None)
+    own = fit_loglik_emulator(*args)
+    same = load_script("loglik_gp_study").kernel_from_cap(*args, le.CAP_NATS_PER_ROW)
+    pts = jnp.asarray(rng.random((16, 2)))
+    for a, b in zip(jax.vmap(own.predict)(pts), jax.vmap(same.predict)(pts), strict=True):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-6, atol=1e-6)
+    other = load_script("loglik_gp_study").kernel_from_cap(*args, 2.0)
+    assert le.CAP_NATS_PER_ROW == 10.0 and other.cap == own.cap  # the module's cap restored
