@@ -10,7 +10,10 @@ uncertainty could move beyond its intervals. This script measures that GP
   ``Budget.n_blocks_design``; ``--cap-per-row``: ``CAP_NATS_PER_ROW``), or
   with a GP whose kernel is fitted on the values capped at
   ``--kernel-cap-per-row`` while it is conditioned on the values at the
-  fit's own cap (``kernel_from_cap``: a what-if, not what the fit does), every
+  fit's own cap (``kernel_from_cap``: a what-if, not what the fit does), or
+  with ``--independent-blocks``: every simulation of the Bayesian stage
+  (designs, chain screening, waves) with a block set of its own per parameter
+  set instead of the common random numbers (``independent_blocks``), every
   GP fit's inputs (points, summed log-likelihoods, their Monte Carlo variances)
   and the realisation check's posterior draws saved to ``--dump`` (a pickle,
   written at every realisation check: a fit without one writes none).
@@ -30,6 +33,11 @@ Usage (the figures of docs/studies.md, "What the realisation check sees")::
     python scripts/loglik_gp_study.py run --n-blocks-design 1024 --dump s1b.pkl -- ...
     python scripts/loglik_gp_study.py run --kernel-cap-per-row 2 --dump s1k.pkl -- ...
     python scripts/loglik_gp_study.py analyse s1.pkl --cap-per-row 10,3,2 --kernel-cap-per-row 2
+
+and "Per-zone rolling resistance and independent design blocks"::
+
+    python scripts/loglik_gp_study.py run --independent-blocks --dump i1.pkl -- \\
+        data/tschamut2014/observations.csv --model crsp --seed 1 --out results/i1
 """
 
 from __future__ import annotations
@@ -83,6 +91,35 @@ def kernel_from_cap(x, ll, noise_var, lo, hi, n_rows, level_of, kernel_cap_per_r
     return le.LoglikEmulator(gp, cap, ceiling)
 
 
+def independent_blocks(simulate_tasks, on: list[bool]):
+    """``solvers.crsp.simulate_tasks`` that, while ``on[0]``, gives every task a
+    block set of its own: block j of task t uses the key index
+    ``offset + o_t + j`` with o_t = 256 (crc32 of the task's parameters mod
+    2^20), so the same parameters (and release) draw the same blocks and
+    different ones independent blocks (up to 256 blocks per task). The fit's
+    forward models pass no ``task_offsets`` of their own: they share the
+    blocks, the common random numbers (``calib.model.forward``). A what-if of
+    this study: with common random numbers the design's Monte Carlo errors are
+    one random surface over the box (nearby points share their errors), which
+    the GP's noise model, independent from point to point, does not describe (Chen, Ankenman & Nelson 2012,
+    "The effects of common random numbers on stochastic kriging metamodels",
+    ACM TOMACS 22(2):7)."""
+    import zlib
+
+    import jax.numpy as jnp
+
+    def wrapped(params, block, key, *a, **k):
+        if not on[0] or k.get("task_offsets") is not None:
+            return simulate_tasks(params, block, key, *a, **k)
+        leaves = [np.asarray(v, np.float64) for v in jax.tree_util.tree_leaves(params)]
+        n = leaves[0].shape[0]
+        rows = np.concatenate([v.reshape(n, -1) for v in leaves], axis=1)
+        offs = np.array([zlib.crc32(r.tobytes()) % (1 << 20) for r in rows]) * 256
+        return simulate_tasks(params, block, key, *a, task_offsets=jnp.asarray(offs, jnp.int32),
+                              **k)
+    return wrapped
+
+
 def run(args, fit_args: list[str]) -> int:
     """``calib.fit`` with the study's constants, its GP inputs dumped."""
     import calib.inference.bayes_stage as bs
@@ -100,7 +137,22 @@ def run(args, fit_args: list[str]) -> int:
             return dataclasses.replace(b, n_blocks_design=args.n_blocks_design)
         cal.presets = more_blocks
     out = {"emu": [], "rw": [], "cap_per_row": le.CAP_NATS_PER_ROW,
-           "kernel_cap_per_row": args.kernel_cap_per_row}
+           "kernel_cap_per_row": args.kernel_cap_per_row,
+           "independent_blocks": args.independent_blocks}
+    if args.independent_blocks:
+        import calib.model.forward as fwd
+
+        on = [False]
+        fwd.crsp.simulate_tasks = independent_blocks(fwd.crsp.simulate_tasks, on)
+        stage = bs.bayes_stage
+
+        def stage_independent(*a, **k):
+            on[0] = True
+            try:
+                return stage(*a, **k)
+            finally:
+                on[0] = False
+        cal.bayes_stage = stage_independent
     fit = bs.fit_loglik_emulator
     if args.kernel_cap_per_row is not None:
         def fit(x, ll, noise_var, lo, hi, n_rows, level_of=None):
@@ -225,6 +277,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="the GP's cap, nats per row (default: CAP_NATS_PER_ROW)")
     r.add_argument("--kernel-cap-per-row", type=float, default=None,
                    help="fit the GP's kernel on the values capped here (kernel_from_cap)")
+    r.add_argument("--independent-blocks", action="store_true",
+                   help="a block set of its own per parameter set in the Bayesian stage "
+                        "(independent_blocks), not the common random numbers")
     a = sub.add_parser("analyse", help="the GP's errors on a dump")
     a.add_argument("dump")
     a.add_argument("--cap-per-row", type=lambda s: [float(v) for v in s.split(",")],

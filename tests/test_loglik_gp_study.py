@@ -82,3 +82,23 @@ def test_a_kernel_from_the_fits_own_cap_is_the_fits_gp():
         np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-6, atol=1e-6)
     other = load_script("loglik_gp_study").kernel_from_cap(*args, 2.0)
     assert le.CAP_NATS_PER_ROW == 10.0 and other.cap == own.cap  # the module's cap restored
+
+
+def test_independent_blocks_give_each_parameter_set_its_own_block_set():
+    study = load_script("loglik_gp_study")
+    seen = []
+
+    def inner(params, block, key, *a, **k):
+        seen.append(k.get("task_offsets"))
+        return "result"
+    on = [False]
+    tasks = study.independent_blocks(inner, on)
+    params = {"kn": jnp.asarray([0.3, 0.3, 0.4]), "kt": jnp.asarray([0.9, 0.9, 0.9])}
+    assert tasks(params, None, None) == "result" and seen[-1] is None  # off: shared blocks
+    on[0] = True
+    tasks(params, None, None)
+    offs = np.asarray(seen[-1])
+    assert offs[0] == offs[1] and offs[0] != offs[2]  # same parameters, same blocks
+    assert np.all(offs % 256 == 0) and np.all(offs < 2**28)  # 256 blocks per task, no overlap
+    tasks(params, None, None, task_offsets=jnp.zeros(3, jnp.int32))
+    assert np.all(np.asarray(seen[-1]) == 0)  # a caller's own offsets are kept
