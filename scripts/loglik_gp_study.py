@@ -101,9 +101,9 @@ def independent_blocks(simulate_tasks, on: list[bool]):
     blocks, the common random numbers (``calib.model.forward``). A what-if of
     this study: with common random numbers the design's Monte Carlo errors are
     one random surface over the box (nearby points share their errors), which
-    the GP's noise model, independent from point to point, does not describe (Chen, Ankenman & Nelson 2012,
-    "The effects of common random numbers on stochastic kriging metamodels",
-    ACM TOMACS 22(2):7)."""
+    the GP's noise model, independent from point to point, does not describe
+    (Chen, Ankenman & Nelson 2012, "The effects of common random numbers on
+    stochastic kriging metamodels", ACM TOMACS 22(2):7)."""
     import zlib
 
     import jax.numpy as jnp
