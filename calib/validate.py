@@ -36,7 +36,7 @@ from solvers.percentiles import few_blocks_warning
 PROG = "python -m calib.validate"
 SCHEMA = "rockfall-validation/1"
 
-__all__ = ["SCHEMA", "main", "print_summary", "read_summary", "run_validation"]
+__all__ = ["SCHEMA", "command_argv", "main", "print_summary", "read_summary", "run_validation"]
 
 
 def build_parser() -> OneLineParser:
@@ -101,6 +101,20 @@ def _load(args):
     return cal, heldout, calib_obs, data, profile
 
 
+def command_argv(args) -> list[str]:
+    """The arguments of this command that repeat the check of ``args`` (parsed
+    options: from this command's parser, or built by ``calib.fit``'s held-out
+    check, which runs it inside the fit), every option explicit: what its
+    provenance records, so that the command it names runs."""
+    argv = [args.calibration, args.heldout]
+    for opt, value in (("--model", args.model), ("--calibration-data", args.calibration_data),
+                       ("--n-posterior", args.n_posterior), ("--n-blocks", args.n_blocks),
+                       ("--seed", args.seed), ("--out", args.out)):
+        if value is not None:
+            argv += [opt, str(value)]
+    return argv
+
+
 def run_validation(args) -> dict:
     """Run the check of ``args`` (parsed options) and write its outputs; returns
     the summary written to validation.json."""
@@ -138,7 +152,8 @@ def run_validation(args) -> dict:
                "release_speed_sd_m_s": cal.release_speed_sd_m_s, "stalled_rows": stalls,
                "provenance": provenance(PROG, args.seed, {
                    "calibration": args.calibration, "heldout": args.heldout,
-                   "calibration_data": data, "profile": cal.profile_csv})}
+                   "calibration_data": data, "profile": cal.profile_csv},
+                   command_argv(args))}
     figs = validation_figures(check)
     files = {"validation.csv": check.rows.to_csv(index=False, float_format="%.6g"),
              "validation.json": json.dumps(summary, indent=1, allow_nan=False) + "\n"}

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
+import sys
 import types
 
 import jax
@@ -16,7 +18,7 @@ from calib.files.observations import Observations
 from calib.inference.predictive_check import score_rows
 from calib.model.entries import Entries
 from calib.model.forward import CrspForward
-from calib.validate import main, print_summary
+from calib.validate import build_parser, main, print_summary, run_validation
 from solvers.profile import load_profile
 
 PROFILE = load_profile("data/postignano_profile.csv")
@@ -151,6 +153,20 @@ def test_command_writes_scores_figures_and_provenance(cal_path, tmp_path, capsys
     assert len(s["provenance"]["inputs"]["heldout"]["sha256"]) == 64
     assert s["provenance"]["versions"]["scoringrules"]
     assert "mean CRPS" in capsys.readouterr().out
+
+
+def test_the_recorded_command_repeats_the_check_whoever_ran_it(cal_path, tmp_path, monkeypatch):
+    # calib.fit runs the check of its held-out rows inside its own process: the
+    # command recorded must be this one's, not the fit's arguments after it
+    held = tmp_path / "held rows.csv"
+    held.write_text("block_size_m,runout_m,runout_sd_m\n0.2,110,5\n2.0,220,15\n")
+    monkeypatch.setattr(sys, "argv", ["calib/fit.py", "data.csv", "--holdout-fraction", "0.3"])
+    args = build_parser().parse_args([cal_path, str(held), "--n-posterior", "2", "--n-blocks",
+                                      "8", "--seed", "4", "--out", str(tmp_path / "v")])
+    cmd = run_validation(args)["provenance"]["command"]
+    words = shlex.split(cmd)
+    assert words[:3] == ["python", "-m", "calib.validate"] and "--holdout-fraction" not in words
+    assert vars(build_parser().parse_args(words[3:])) == vars(args)  # the same check again
 
 
 @pytest.mark.parametrize("content, needle", [

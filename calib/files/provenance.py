@@ -7,6 +7,7 @@ from __future__ import annotations
 import hashlib
 import importlib.metadata as md
 import platform
+import shlex
 import sys
 
 __all__ = ["PACKAGES", "file_sha256", "provenance", "versions"]
@@ -35,18 +36,25 @@ def file_sha256(path: str) -> str:
     return h.hexdigest()
 
 
-def provenance(prog: str, seed: int | None, inputs: dict[str, str | None]) -> dict:
+def provenance(prog: str, seed: int | None, inputs: dict[str, str | None],
+               argv: list[str] | None = None) -> dict:
     """The provenance record of one run.
 
     Args:
         prog: the command, e.g. "python -m calib.validate".
         seed: the run's seed (None where it has none).
         inputs: role -> path of each input file (None: not used).
+        argv: the command's arguments that repeat the run (None: this
+            process's, ``sys.argv[1:]``; a command run inside another one,
+            e.g. ``calib.fit``'s held-out check, passes its own).
 
     Returns:
-        {"command", "seed", "inputs": {role: {"path", "sha256"}}, "versions"}.
+        {"command", "seed", "inputs": {role: {"path", "sha256"}}, "versions"};
+        the command is ``prog`` followed by the arguments quoted for a POSIX
+        shell (``shlex.join``).
     """
-    return {"command": " ".join([prog] + sys.argv[1:]), "seed": seed,
+    args = sys.argv[1:] if argv is None else argv
+    return {"command": " ".join([prog, shlex.join(args)]) if args else prog, "seed": seed,
             "inputs": {role: None if p is None else {"path": p, "sha256": file_sha256(p)}
                        for role, p in inputs.items()},
             "versions": versions()}
