@@ -53,6 +53,7 @@ import warnings
 import jax
 import numpy as np
 
+from calib.files.provenance import command_args, command_line
 from solvers.cli import CliError, OneLineParser, Progress, json_ready, run_guarded, write_outputs
 
 __all__ = ["main"]
@@ -248,7 +249,7 @@ def _result(args, inputs, velocities, combine, budget, d, t0: float) -> dict:
     obs = inputs.obs
     return {
         "schema": "rockfall-discovery/1",
-        "command": " ".join([PROG] + sys.argv[1:]),
+        "command": command_line(PROG),
         "data_csv": args.data, "profile_csv": inputs.profile_path, "model": args.model,
         "seed": args.seed, "quick": bool(args.quick), "n_observations": obs.n_obs,
         "rolling_resistance": args.rolling_resistance if args.model == "crsp" else None,
@@ -441,7 +442,8 @@ def _worst_fold(c: dict) -> str:
 
 
 def main(argv=None) -> int:
-    return run_guarded(PROG, _run, build_parser().parse_args(argv))
+    with command_args(argv):
+        return run_guarded(PROG, _run, build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -53,6 +53,7 @@ import warnings
 
 import jax
 
+from calib.files.provenance import command_args, command_running
 from calib.model.effects import CRSP_EFFECTS
 from calib.model.unfinished import UnfinishedBlocksWarning
 from calib.validate import print_summary as print_validation
@@ -66,7 +67,8 @@ from solvers.cli import (
 )
 from solvers.percentiles import few_blocks_warning
 
-__all__ = ["POINT_ESTIMATE_BLOCKS", "FitRun", "main", "run_fit", "validate_heldout"]
+__all__ = ["POINT_ESTIMATE_BLOCKS", "FitRun", "fit_argv", "main", "run_fit", "run_options",
+           "validate_heldout"]
 
 PROG = "python -m calib.fit"
 
@@ -208,6 +210,12 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
 
     t_start = time.perf_counter()
     say = report or (lambda line: None)
+    # the command this call is: main's own arguments, or a library call's equivalent
+    argv = None if command_running() else fit_argv(
+        data, out, profile=profile, models=models, methods=methods,
+        rolling_resistance=rolling_resistance, effects=effects, alpha_law=alpha_law,
+        seed=seed, quick=quick, holdout_fraction=holdout_fraction,
+        release_tolerance_m=release_tolerance_m, velocities=velocities)
     _check_effects(models, rolling_resistance, effects)
     if not release_tolerance_m >= 0:
         raise CliError(f"--release-tolerance-m must be >= 0, got {release_tolerance_m:g}")
@@ -252,7 +260,7 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
                 raise CliError(str(e)) from None
     options = FitOptions(provenance(PROG, seed, {"data": data, "profile": inputs.profile_path,
                                                  **({"velocities": velocities}
-                                                    if velocities else {})}),
+                                                    if velocities else {})}, argv),
                          data_csv, bool(quick), methods, grouped, release_tolerance_m)
     cal = fit_document(options, inputs, entries, fits, time.perf_counter() - t_start)
     files["calibration.json"] = cal.to_json()
@@ -266,15 +274,43 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
                   os.path.join(out, "heldout_rows.csv") if holdout_fraction else None)
 
 
+def fit_argv(data: str, out: str, *, profile: str | None = None,
+             models: tuple[str, ...] = ("crsp", "dem"),
+             methods: tuple[str, ...] = ("gradient", "bayes"), rolling_resistance: str = "fit",
+             effects: tuple[str, ...] = (), alpha_law: str = "power", seed: int = 0,
+             quick: bool = False, holdout_fraction: float = 0.0,
+             release_tolerance_m: float = 1.0, velocities: str | None = None) -> list[str]:
+    """The arguments of ``python -m calib.fit`` that run ``run_fit`` with these
+    options (its keywords less ``progress`` and ``report``), every option
+    explicit: the command a library call of ``run_fit`` records."""
+    argv = [data, "--out", out] + (["--profile", profile] if profile else [])
+    argv += ["--model", "both" if set(models) == {"crsp", "dem"} else models[0],
+             "--method", "both" if set(methods) == {"gradient", "bayes"} else methods[0],
+             "--rolling-resistance", rolling_resistance]
+    for e in effects:
+        argv += ["--effect", e]
+    argv += ["--alpha-law", alpha_law, "--seed", str(seed)] + (["--quick"] if quick else [])
+    argv += ["--holdout-fraction", repr(float(holdout_fraction)),
+             "--release-tolerance-m", repr(float(release_tolerance_m))]
+    return argv + (["--velocities", velocities] if velocities else [])
+
+
+def run_options(args) -> dict:
+    """``run_fit``'s keywords (less ``progress`` and ``report``) from the
+    command's parsed arguments; ``fit_argv`` is its inverse."""
+    return dict(data=args.data, out=args.out, profile=args.profile,
+                models=("crsp", "dem") if args.model == "both" else (args.model,),
+                methods=("gradient", "bayes") if args.method == "both" else (args.method,),
+                rolling_resistance=args.rolling_resistance, effects=tuple(args.effect),
+                alpha_law=args.alpha_law, seed=args.seed, quick=args.quick,
+                holdout_fraction=args.holdout_fraction,
+                release_tolerance_m=args.release_tolerance_m, velocities=args.velocities)
+
+
 def _run(args) -> int:
-    models = ("crsp", "dem") if args.model == "both" else (args.model,)
-    methods = ("gradient", "bayes") if args.method == "both" else (args.method,)
-    run = run_fit(args.data, args.out, profile=args.profile, models=models, methods=methods,
-                  rolling_resistance=args.rolling_resistance, effects=tuple(args.effect),
-                  alpha_law=args.alpha_law, seed=args.seed, quick=args.quick,
-                  holdout_fraction=args.holdout_fraction,
-                  release_tolerance_m=args.release_tolerance_m, velocities=args.velocities,
-                  progress=not args.no_progress, report=print)
+    options = run_options(args)
+    models = options["models"]
+    run = run_fit(**options, progress=not args.no_progress, report=print)
     _print_summary(run.calibration.doc, models, args.out)
     if args.holdout_fraction:
         for summary, folder in validate_heldout(args.out, models[0], args.seed,
@@ -526,7 +562,8 @@ def _print_nuts_repairs(result: dict, models) -> None:
 
 
 def main(argv=None) -> int:
-    return run_guarded(PROG, _run, build_parser().parse_args(argv))
+    with command_args(argv):
+        return run_guarded(PROG, _run, build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -44,6 +44,7 @@ import sys
 
 import numpy as np
 
+from calib.files.provenance import command_args, command_line
 from solvers.cli import (
     CliError,
     OneLineParser,
@@ -251,7 +252,7 @@ def _summarise(args, runs: list[dict], budget_name: str, speeds) -> None:
                          for c in table])
     write_csv_atomic(flat, os.path.join(args.out, "power.csv"))
     _write_json_atomic(os.path.join(args.out, "power.json"),
-                       {"schema": "rockfall-power/1", "command": " ".join([PROG] + sys.argv[1:]),
+                       {"schema": "rockfall-power/1", "command": command_line(PROG),
                         "budget": budget_name, "profile_csv": args.profile,
                         "passage_speeds": None if speeds is None else {
                             "stations_m": speeds[0], "rows_per_run": speeds[1],
@@ -281,7 +282,8 @@ def _summarise(args, runs: list[dict], budget_name: str, speeds) -> None:
 
 
 def main(argv=None) -> int:
-    return run_guarded(PROG, _run, build_parser().parse_args(argv))
+    with command_args(argv):
+        return run_guarded(PROG, _run, build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

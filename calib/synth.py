@@ -32,6 +32,7 @@ import os
 import shutil
 import sys
 
+from calib.files.provenance import command_args, command_line
 from solvers.cli import (
     CliError,
     OneLineParser,
@@ -170,7 +171,7 @@ def _run(args) -> int:
                       "velocity_stations_m": speeds[0], "n_velocity": args.n_velocity,
                       "velocity_sd_m_s": args.velocity_sd_m_s})
     truth.update({"observations_csv": args.out, "profile_csv": stem + "_profile.csv",
-                  "profile_source": args.profile, "command": " ".join([PROG] + sys.argv[1:]),
+                  "profile_source": args.profile, "command": command_line(PROG),
                   "note": "the truth is kept out of the observations on purpose"})
     write_all_atomic({
         args.out: text_writer(observations_csv_text(obs, args.seed)),
@@ -189,7 +190,8 @@ def _run(args) -> int:
 
 
 def main(argv=None) -> int:
-    return run_guarded(PROG, _run, build_parser().parse_args(argv))
+    with command_args(argv):
+        return run_guarded(PROG, _run, build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

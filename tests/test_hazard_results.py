@@ -7,6 +7,7 @@ samples without simulating (also used by ``test_design.py``)."""
 from __future__ import annotations
 
 import math
+import shlex
 
 import jax
 import jax.numpy as jnp
@@ -275,7 +276,11 @@ def test_run_writes_hazard_nc_and_its_csv_tables_come_from_it(cli_run):
     assert exceedance_table(ds).to_csv(index=False) == (out / "exceedance.csv").read_text()
     prov = json_attr(ds, "provenance_json")
     assert prov["inputs"]["calibration"]["sha256"] == file_sha256(cal)
-    assert prov["seed"] == 0 and "calib.hazard" in prov["command"]
+    # the command run in this process with its own arguments, not pytest's
+    from test_hazard_cli import SMALL
+
+    assert prov["seed"] == 0 and prov["command"] == "python -m calib.hazard " + shlex.join(
+        [cal, *SMALL, "--release-rate-per-year", "0.2", "--out", str(out)])
     assert float(ds.attrs["release_rate_per_year"]) == 0.2
     assert ds.sizes["draw"] == 3 and ds.sizes["percentile"] == 3
     # per-draw percentiles inside their own intervals, pooled ones bracketed by draws

@@ -19,6 +19,7 @@ import sys
 from calib.design._factors import DEFAULTS, GAMMA_E, free_board_m
 from calib.design._kits import CATEGORIES, KitError, load_kits
 from calib.design._report import posterior_warning
+from calib.files.provenance import command_args
 from solvers.cli import (
     CliError,
     DefaultsHelpFormatter,
@@ -108,7 +109,8 @@ def build_parser() -> OneLineParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return run_guarded(PROG, _checked, args)
+    with command_args(argv):
+        return run_guarded(PROG, _checked, args)
 
 
 def _checked(args) -> int:

@@ -170,6 +170,13 @@ def _positive_int(name: str, v: int) -> None:
 def main(argv: list[str] | None = None) -> int:
     """The command: options checked, the run prepared from the files, simulated,
     its results written at once; bad input one line on stderr and exit status 2."""
+    from calib.files.provenance import command_args
+
+    with command_args(argv):
+        return _main(argv)
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     prog = parser.prog
