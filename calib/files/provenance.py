@@ -66,9 +66,10 @@ def file_sha256(path: str) -> str:
 def command_line(prog: str, argv: list[str] | None = None) -> str:
     """``prog`` followed by the arguments that repeat the run, quoted for a POSIX
     shell (``shlex.join``): ``argv``, else those of the enclosing
-    ``command_args``, else this process's (``sys.argv[1:]``)."""
+    ``command_args``, else none: outside a command's ``main`` (a library call
+    from a notebook, say) the process's arguments are not the run's, and
+    ``prog`` is what the caller names it."""
     args = argv if argv is not None else _COMMAND_ARGS.get()
-    args = sys.argv[1:] if args is None else args
     return " ".join([prog, shlex.join(args)]) if args else prog
 
 
@@ -81,9 +82,9 @@ def provenance(prog: str, seed: int | None, inputs: dict[str, str | None],
         seed: the run's seed (None where it has none).
         inputs: role -> path of each input file (None: not used).
         argv: the command's arguments that repeat the run (None: those of the
-            enclosing ``command_args``, else this process's, ``sys.argv[1:]``;
-            a command run inside another one, e.g. ``calib.fit``'s held-out
-            check, passes its own).
+            enclosing ``command_args``, a command's ``main``; a command run
+            inside another one, e.g. ``calib.fit``'s held-out check, passes
+            its own).
 
     Returns:
         {"command", "seed", "inputs": {role: {"path", "sha256"}}, "versions"};
