@@ -77,7 +77,9 @@ def perturbed_profile(profile, group: int, **field):
 def vary_terrain(simulate_tasks, groups: int, **field):
     """``solvers.crsp.simulate_tasks`` whose ``n_per_task`` blocks run in ``groups``
     parts, part g (block indices ``offset + g q .. ``) on ``perturbed_profile(g)``;
-    results joined along the block axis in block order."""
+    results joined along the block axis in block order. A call with ``n_slots``,
+    ``task_offsets`` or more positional arguments runs unvaried (the calibration's
+    forward models make none)."""
     import jax.numpy as jnp
 
     cache = {}
