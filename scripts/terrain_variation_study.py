@@ -17,9 +17,10 @@ the profile with its vertex heights moved by a field of that error
 
 Our choices, a what-if of this study and not what the toolkit does:
 
-* knots independent from one raster cell to the next (the raster's error
-  between cells is not measured; independent errors 5 m apart give slopes
-  about 10 deg off on steep ground, an upper end);
+* knots independent of each other (the raster's error between points is
+  not measured); by default 10 m apart, the scale below which the proxy's
+  README calls slope details uncertain: errors of 0.6 m 10 m apart tilt a
+  segment by about 5 deg, 5 m apart (one raster cell) by about 10 deg;
 * the grounds are the same for every parameter set (common random numbers,
   as the blocks are), part g keeps the block indices it has without the
   split, so with sd 0 the results are the unsplit run's exactly;
@@ -112,12 +113,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("cmd", choices=("fit", "validate"),
                    help="python -m calib.fit or calib.validate, its arguments after --")
     p.add_argument("--groups", type=int, default=8, help="grounds per parameter set")
-    p.add_argument("--spacing-m", type=float, default=5.0, help="knot spacing (raster cell), m")
+    p.add_argument("--spacing-m", type=float, default=10.0,
+                   help="knot spacing, m (the Tschamut proxy's README: slope details finer than "
+                        "~10 m are uncertain)")
     p.add_argument("--sd-gentle-m", type=float, default=0.15,
                    help="the field's sd where the slope is below --slope-break-deg, m")
     p.add_argument("--sd-steep-m", type=float, default=0.6,
                    help="the field's sd on steeper ground, m")
-    p.add_argument("--slope-break-deg", type=float, default=10.0)
+    p.add_argument("--slope-break-deg", type=float, default=10.0,
+                   help="slope over a knot's cell from which --sd-steep-m applies, deg")
     p.add_argument("--seed", type=int, default=0, help="the grounds' seed")
     args = p.parse_args(argv)
     import calib.model.forward as fwd
