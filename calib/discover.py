@@ -135,25 +135,23 @@ def build_parser() -> argparse.ArgumentParser:
 def refit_command(args, named: tuple[str, ...]) -> str | None:
     """The ``python -m calib.fit`` command that calibrates the model discovery
     ended with (the baseline plus the ``named`` effects) on the same data,
-    profile, release grouping and, for CRSP, rolling-resistance baseline and
-    passage speeds; None
-    where calib.fit cannot fit it (the DEM's bonded fragments)."""
-    cmd = ["python", "-m", "calib.fit", args.data]
-    if args.profile:
-        cmd += ["--profile", args.profile]
+    profile, release grouping and seed and, for CRSP, rolling-resistance
+    baseline and passage speeds, every option explicit (``calib.fit.fit_argv``, the one
+    builder of that command's arguments); None where calib.fit cannot fit it
+    (the DEM's bonded fragments)."""
+    from calib.fit import fit_argv
+
     if args.model == "crsp":
-        cmd += ["--model", "crsp", "--rolling-resistance", args.rolling_resistance]
-        for e in named:
-            cmd += ["--effect", e]
+        model = dict(models=("crsp",), rolling_resistance=args.rolling_resistance,
+                     effects=tuple(named), velocities=args.velocities)
     elif "fragmentation" in named:
         return None
     else:  # the DEM's size dependence is its power law
-        cmd += ["--model", "dem", "--alpha-law",
-                "power" if "size_dissipation" in named else "constant"]
-    cmd += ["--release-tolerance-m", f"{args.release_tolerance_m:g}"]
-    if args.velocities:  # CRSP: the passage speeds are fitted too
-        cmd += ["--velocities", args.velocities]
-    return shlex.join(cmd)
+        model = dict(models=("dem",),
+                     alpha_law="power" if "size_dissipation" in named else "constant")
+    return shlex.join(["python", "-m", "calib.fit", *fit_argv(
+        args.data, None, profile=args.profile, release_tolerance_m=args.release_tolerance_m,
+        seed=args.seed, **model)])
 
 
 def _fit_section(f) -> dict:

@@ -274,7 +274,7 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
                   os.path.join(out, "heldout_rows.csv") if holdout_fraction else None)
 
 
-def fit_argv(data: str, out: str, *, profile: str | None = None,
+def fit_argv(data: str, out: str | None, *, profile: str | None = None,
              models: tuple[str, ...] = ("crsp", "dem"),
              methods: tuple[str, ...] = ("gradient", "bayes"), rolling_resistance: str = "fit",
              effects: tuple[str, ...] = (), alpha_law: str = "power", seed: int = 0,
@@ -282,8 +282,11 @@ def fit_argv(data: str, out: str, *, profile: str | None = None,
              release_tolerance_m: float = 1.0, velocities: str | None = None) -> list[str]:
     """The arguments of ``python -m calib.fit`` that run ``run_fit`` with these
     options (its keywords less ``progress`` and ``report``), every option
-    explicit: the command a library call of ``run_fit`` records."""
-    argv = [data, "--out", out] + (["--profile", profile] if profile else [])
+    explicit: the command a library call of ``run_fit`` records, and (``out``
+    None: the command's default folder) the one ``calib.discover`` prints to
+    refit with the effects it named."""
+    argv = [data] + (["--out", out] if out is not None else [])
+    argv += ["--profile", profile] if profile else []
     argv += ["--model", "both" if set(models) == {"crsp", "dem"} else models[0],
              "--method", "both" if set(methods) == {"gradient", "bayes"} else methods[0],
              "--rolling-resistance", rolling_resistance]

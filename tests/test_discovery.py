@@ -199,7 +199,7 @@ def test_discover_names_a_strong_hidden_effect_and_shrinks_the_gap(discover_run)
     assert r["named_effects"][0] == "size_dissipation" and st[-1]["named"] in ("none",
                                                                                 st[-1]["best"])
     assert r["refit_command"].startswith("python -m calib.fit ") and (
-        " --model crsp --rolling-resistance profile --effect size_dissipation" in
+        " --model crsp --method both --rolling-resistance profile --effect size_dissipation" in
         r["refit_command"])
     assert f"calibrate the final model: {r['refit_command']}" in proc.stdout
     for c in r["candidates"]:  # k-hat per fold, flagged above 0.7, in the json and summary

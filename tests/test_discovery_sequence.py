@@ -163,8 +163,9 @@ def test_discover_command_reports_each_step_and_the_refit_command(tmp_path, caps
     assert set(r["fits"]) == {"none", "slope", "kink", "noise", "+".join(named),
                               named[0] + "+noise", "+".join(named) + "+noise"}
     refit = (f"python -m calib.fit {data} --profile data/postignano_profile.csv --model crsp "
-             f"--rolling-resistance profile --effect {named[0]} --effect {named[1]} "
-             "--release-tolerance-m 1")
+             f"--method both --rolling-resistance profile --effect {named[0]} --effect "
+             f"{named[1]} --alpha-law power --seed 0 --holdout-fraction 0.0 "
+             "--release-tolerance-m 1.0")
     assert r["refit_command"] == refit
     assert f"calibrate the final model: {refit}" in text
     assert "multiple testing: " in text and "Bonferroni" in text
@@ -185,13 +186,15 @@ def test_refit_command_of_each_model():
 
     args = argparse.Namespace(data="my data.csv", profile=None, model="crsp",
                               rolling_resistance="fit", release_tolerance_m=0.5,
-                              velocities=None)
-    assert refit_command(args, ()) == ("python -m calib.fit 'my data.csv' --model crsp "
-                                       "--rolling-resistance fit --release-tolerance-m 0.5")
-    assert refit_command(args, ("fragmentation", "vegetation_belt")).endswith(
-        "--effect fragmentation --effect vegetation_belt --release-tolerance-m 0.5")
+                              velocities=None, seed=3)
+    assert refit_command(args, ()) == (
+        "python -m calib.fit 'my data.csv' --model crsp --method both --rolling-resistance fit "
+        "--alpha-law power --seed 3 --holdout-fraction 0.0 --release-tolerance-m 0.5")
+    assert ("--rolling-resistance fit --effect fragmentation --effect vegetation_belt "
+            "--alpha-law") in refit_command(args, ("fragmentation", "vegetation_belt"))
     dem = argparse.Namespace(**{**vars(args), "model": "dem"})
-    assert "--model dem --alpha-law power" in refit_command(dem, ("size_dissipation",))
+    assert "--model dem --method both --rolling-resistance fit --alpha-law power" in (
+        refit_command(dem, ("size_dissipation",)))
     assert "--alpha-law constant" in refit_command(dem, ())
     assert refit_command(dem, ("fragmentation",)) is None
 

@@ -177,10 +177,11 @@ def test_discovery_refit_command_carries_the_speeds():
 
     args = argparse.Namespace(data="rows.csv", profile="p.csv", model="crsp",
                               rolling_resistance="profile", release_tolerance_m=1.0,
-                              velocities="speeds.csv")
+                              velocities="speeds.csv", seed=0)
     assert refit_command(args, ("vegetation_belt",)) == (
-        "python -m calib.fit rows.csv --profile p.csv --model crsp --rolling-resistance "
-        "profile --effect vegetation_belt --release-tolerance-m 1 --velocities speeds.csv")
+        "python -m calib.fit rows.csv --profile p.csv --model crsp --method both "
+        "--rolling-resistance profile --effect vegetation_belt --alpha-law power --seed 0 "
+        "--holdout-fraction 0.0 --release-tolerance-m 1.0 --velocities speeds.csv")
 
 
 def test_the_inputs_carry_the_speeds_checked_on_their_profile(speed_data, tmp_path):
