@@ -53,7 +53,7 @@ import warnings
 import jax
 import numpy as np
 
-from calib.files.provenance import command_args, command_line
+from calib.files.provenance import command_args, command_line, versions
 from solvers.cli import CliError, OneLineParser, Progress, json_ready, run_guarded, write_outputs
 
 __all__ = ["main"]
@@ -242,7 +242,6 @@ def _result(args, inputs, velocities, combine, budget, d, t0: float) -> dict:
     from calib.discovery.candidate_fit import GAP_METRIC
     from calib.discovery.discrepancy import MULTIPLE_TESTING, STOPPING_RULE
     from calib.discovery.scores import ELPD_MIN, Z_MIN
-    from calib.files.provenance import versions
 
     obs = inputs.obs
     return {
