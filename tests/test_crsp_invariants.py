@@ -186,6 +186,37 @@ def test_median_runout_does_not_increase_with_roughness_paper_rolling_resistance
     _assert_non_increasing(meds, ses)
 
 
+
+@pytest.mark.xfail(strict=True, reason=(
+    "measured 2026-12-06 (512 blocks, key 0): the runouts' 5/50/95 % quantiles are "
+    "16.2/103.5/126.2 m at the default 0.5 m/s (32 % of the blocks within 40 m), "
+    "16.4/109.8/129.0 m at 0.25 (6 %), 95.3/111.5/129.3 m at 0.125 (1 %), "
+    "95.7/111.6/129.4 m at 0.02, 0.01 and 0.005 m/s (none): the cutoff settles from "
+    "about 0.05 m/s down. A default of 0.02 m/s fails ten other tests, nine of them "
+    "written for the stalls, and the median runout's fall with roughness at a rolling "
+    "resistance of 8 deg: every micro-hop becomes a CRSP impact costing Kt "
+    "(docs/studies.md, 'The rolling threshold')"))
+def test_runouts_do_not_depend_on_the_rolling_threshold_below_the_default():
+    """The rolling threshold (a rebound slower than it keeps the rock on the
+    ground, rolling) is a numerical cutoff: halving or quartering the default
+    must leave the runouts' 5/50/95 % quantiles where they are (within 2 m, 512
+    blocks, the same keys). Setting: the Tschamut east spot's profile cut from
+    the proxy raster, a slow release just below its top bench (x 40.4 m, 0.45 m
+    up, 0.35 m/s, the site's release errors), a 0.37 m block, parameters fitted
+    on the main line (rolling resistance 36 deg, above the 24-30 deg stretch at
+    57-73 m, where a rolling rock stalls)."""
+    prof = load_profile("data/tschamut2014/east_spot_profile.csv")
+    quantiles = []
+    for factor in (1.0, 0.5, 0.25):
+        r = _runs(prof, 0.3677 / 2, 512, 0, Kn=0.316, Kt=0.979, roughness_m=0.0965,
+                  rolling_friction_deg=36.27, release_x_m=40.4, release_height_m=0.45,
+                  release_vx_m_s=0.35, release_height_sd_m=0.6, release_speed_sd_m_s=0.3,
+                  rolling_threshold_m_s=factor * crsp.ROLLING_THRESHOLD_M_S)
+        assert np.all(np.isin(r.status, [STOPPED, LEFT_PROFILE])), np.unique(r.status)
+        quantiles.append(np.quantile(r.runout_m, [0.05, 0.5, 0.95]))
+    q = np.array(quantiles)
+    assert np.max(np.abs(q[1:] - q[0])) <= 2.0, q.round(1).tolist()
+
 # slow: a 150-vertex profile's compilation, 19 s; the default run keeps collinear vertices at 0.5
 # m
 @pytest.mark.slow

@@ -37,9 +37,17 @@ from solvers.crsp._model import (
     State,
     simulate,
 )
-from solvers.crsp._params import Block, Params, Settings, make_block, params_from_profile
+from solvers.crsp._params import (
+    ROLLING_THRESHOLD_M_S,
+    Block,
+    Params,
+    Settings,
+    make_block,
+    params_from_profile,
+)
 
 __all__ = [
+    "ROLLING_THRESHOLD_M_S",
     "BUDGET",
     "CONTACT",
     "FLIGHT",
