@@ -34,6 +34,15 @@ does; E = 0 is its score.
 distance to the K-th nearest simulated runout (``nearest_neighbour_loglik``):
 another what-if on the observation model, not what ``calib.fit`` does.
 
+``--rolling-threshold-m-s T`` (comma-separated values) runs the solver with
+that rolling threshold in place of its default
+(``solvers.crsp.ROLLING_THRESHOLD_M_S``: a rebound or a landing slower than
+it, normal to the mean slope, keeps the rock on the ground, where it rolls
+against the rolling resistance), and ``--entries`` prints every simulated
+release's 5/50/95 % runouts: whether that numerical cutoff changes the
+results (docs/studies.md, "The rolling threshold"). A what-if, not what
+``calib.fit`` does.
+
 ``--allocate-cost C`` scores the points once more with each simulated release's
 block count chosen among ``--n-blocks`` by its measured share of the noise at
 the first ``--theta`` (``release_allocation``), within C times the blocks of
@@ -44,6 +53,7 @@ than the same blocks spread evenly.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import sys
 import time
@@ -57,14 +67,35 @@ jax.config.update("jax_enable_x64", True)
 from calib.inference.likelihood import log_likelihood as _tolerance_kernel  # noqa: E402
 
 
+@contextlib.contextmanager
+def rolling_threshold(value_m_s: float | None):
+    """Within it, ``solvers.crsp.params_from_profile`` (which every CRSP forward
+    simulation of ``calib.model.forward`` starts from) gives the rolling
+    threshold ``value_m_s`` unless told otherwise; None: the solver's default."""
+    import solvers.crsp as crsp
+
+    if value_m_s is None:
+        yield
+        return
+    default = crsp.params_from_profile
+    crsp.params_from_profile = lambda profile, **kw: default(
+        profile, **{"rolling_threshold_m_s": value_m_s, **kw})
+    try:
+        yield
+    finally:
+        crsp.params_from_profile = default
+
+
 def loglik_spread(data: str, thetas: np.ndarray, n_blocks: int, replicates: int,
                   release_tolerance_m: float = 1.0, profile: str | None = None,
-                  out: str = ".", extra_sd_m: float = 0.0, knn_k: int = 0) -> dict:
+                  out: str = ".", extra_sd_m: float = 0.0, knn_k: int = 0,
+                  rolling_threshold_m_s: float | None = None) -> dict:
     """Summed log-likelihood of the rows of ``data`` at ``thetas`` (P, 4) under
     ``replicates`` block sets of ``n_blocks`` blocks per simulated entry, the
     point rows' tolerance widened to sqrt(sd^2 + ``extra_sd_m``^2); with
     ``knn_k`` > 0 the point rows are scored by ``nearest_neighbour_loglik``
-    (the bootstrap sd is then not computed: NaN).
+    (the bootstrap sd is then not computed: NaN); the solver run with
+    ``rolling_threshold_m_s`` (``rolling_threshold``; None: its default).
 
     Returns:
         dict with ``summed`` (R, P) nats, ``mean`` and ``sd`` (P,) over the sets
@@ -91,7 +122,8 @@ def loglik_spread(data: str, thetas: np.ndarray, n_blocks: int, replicates: int,
     for r in range(replicates):
         fw = CrspForward(inputs.profile, entries, n_blocks, jax.random.key(100 + r),
                          box=CRSP_ROLLING_BOX)
-        runs = fw.runouts(np.asarray(thetas, float))
+        with rolling_threshold(rolling_threshold_m_s):
+            runs = fw.runouts(np.asarray(thetas, float))
         if knn_k:
             idx = np.asarray(entries.index)
             pw = np.asarray(jax.vmap(lambda r: nearest_neighbour_loglik(
@@ -272,6 +304,13 @@ def main(argv=None) -> int:
                    help="also score the point rows with a kernel at least as wide as the "
                         "distance to the k-th nearest simulated runout, comma-separated k "
                         "values (a what-if on the observation model; 0 is calib.fit's score)")
+    p.add_argument("--rolling-threshold-m-s", type=_comma_list(float, 1e-6, "speed (m/s)"),
+                   default=[None],
+                   help="run the solver with these rolling thresholds, comma-separated, m/s "
+                        "(a what-if; default: the solver's own, "
+                        "solvers.crsp.ROLLING_THRESHOLD_M_S)")
+    p.add_argument("--entries", action="store_true",
+                   help="also print every simulated release's 5/50/95 %% runouts (first set)")
     p.add_argument("--rows", type=int, default=0,
                    help="also print, per point, the rows whose log-likelihood varies most "
                         "between block sets, with their release's simulated 5/50/95 %% "
@@ -297,23 +336,30 @@ def main(argv=None) -> int:
     from calib.files.inputs import InputError
 
     thetas = np.array(a.theta)
-    for extra, knn_k in [(e, k) for e in a.extra_sd_m for k in a.knn_k]:
+    for extra, knn_k, thr in [(e, k, t) for e in a.extra_sd_m for k in a.knn_k
+                              for t in a.rolling_threshold_m_s]:
         runs = []
         for n in a.n_blocks:
             try:
                 s = loglik_spread(a.data, thetas, n, a.replicates, a.release_tolerance_m,
-                                  a.profile, extra_sd_m=extra, knn_k=knn_k)
+                                  a.profile, extra_sd_m=extra, knn_k=knn_k,
+                                  rolling_threshold_m_s=thr)
             except InputError as e:
                 print(f"error: {e}", file=sys.stderr)
                 return 2
             runs.append(s)
             kernel = f", kernel to the {knn_k}-th nearest runout" if knn_k else ""
+            cutoff = f", rolling threshold {thr:g} m/s" if thr is not None else ""
             print(f"{n} blocks per entry, {a.replicates} block sets, extra sd {extra:g} m"
-                  f"{kernel} ({s['seconds']:.0f} s)")
+                  f"{kernel}{cutoff} ({s['seconds']:.0f} s)")
             for j, t in enumerate(thetas):
                 print(f"  theta {_label(t):28s} mean "
                       f"{s['mean'][j]:9.1f}  sd {s['sd'][j]:5.2f}  bootstrap sd of one set "
                       f"{s['bootstrap_sd'][j]:5.2f}")
+                if a.entries:
+                    q = np.round(s["entry_quantiles_m"][:, j]).astype(int)
+                    print("    releases' 5/50/95 % runouts (m): "
+                          + "  ".join(f"{lo}/{mid}/{hi}" for lo, mid, hi in q.T))
                 row_sd = s["pointwise"][:, j].std(axis=0, ddof=1)
                 for i in np.argsort(row_sd)[::-1][:a.rows]:
                     e = s["row_entry"][i]

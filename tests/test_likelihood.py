@@ -190,3 +190,20 @@ def test_loglik_noise_script_measures_the_spread_over_block_sets(tmp_path, capsy
     direct = mod.loglik_spread(str(wide), theta, 32, 2, profile=profile)
     np.testing.assert_allclose(widened["summed"], direct["summed"], rtol=1e-12)
     assert not np.allclose(widened["summed"], few["summed"][:2])
+    # --rolling-threshold-m-s: the solver's default is the plain score; another
+    # cutoff changes the runs, and the solver's default is back afterwards
+    from solvers import crsp, load_profile
+
+    same = mod.loglik_spread("data/postignano.csv", theta, 32, 3,
+                             rolling_threshold_m_s=crsp.ROLLING_THRESHOLD_M_S)
+    np.testing.assert_array_equal(same["summed"], few["summed"])
+    low = mod.loglik_spread("data/postignano.csv", theta, 32, 3, rolling_threshold_m_s=0.02)
+    assert not np.array_equal(low["summed"], few["summed"])
+    prof = load_profile("data/postignano_profile.csv")
+    assert float(crsp.params_from_profile(prof).rolling_threshold_m_s) == (
+        crsp.ROLLING_THRESHOLD_M_S)
+    rc, text, _ = run_cli(mod.main, ["data/postignano.csv", "--theta", "0.41,0.87,0.25,30",
+                                     "--n-blocks", "32", "--replicates", "2",
+                                     "--rolling-threshold-m-s", "0.5,0.02", "--entries"], capsys)
+    assert rc == 0 and "rolling threshold 0.02 m/s" in text, text
+    assert text.count("releases' 5/50/95 % runouts (m): ") == 2, text
