@@ -305,9 +305,9 @@ def main(argv=None) -> int:
                         "distance to the k-th nearest simulated runout, comma-separated k "
                         "values (a what-if on the observation model; 0 is calib.fit's score)")
     p.add_argument("--rolling-threshold-m-s", type=_comma_list(float, 1e-6, "speed (m/s)"),
-                   default=[None],
+                   default=None,
                    help="run the solver with these rolling thresholds, comma-separated, m/s "
-                        "(a what-if; default: the solver's own, "
+                        "(a what-if; None: the solver's own, "
                         "solvers.crsp.ROLLING_THRESHOLD_M_S)")
     p.add_argument("--entries", action="store_true",
                    help="also print every simulated release's 5/50/95 %% runouts (first set)")
@@ -337,7 +337,7 @@ def main(argv=None) -> int:
 
     thetas = np.array(a.theta)
     for extra, knn_k, thr in [(e, k, t) for e in a.extra_sd_m for k in a.knn_k
-                              for t in a.rolling_threshold_m_s]:
+                              for t in (a.rolling_threshold_m_s or [None])]:
         runs = []
         for n in a.n_blocks:
             try:
