@@ -60,7 +60,7 @@ def test_exceedance_is_a_step_at_the_analytic_runout(tmp_path):
     (the mass and radius cancel), so P(runout > x) is 1 before and 0 after, in
     every draw."""
     beta, phi, k = math.radians(25.0), math.radians(20.0), 0.4
-    kn, kt, threshold = 0.4, 0.8, 0.5
+    kn, kt, threshold = 0.4, 0.8, crsp.ROLLING_THRESHOLD_M_S
     (tmp_path / "ramp_profile.csv").write_text(
         f"x_m,z_m,zone\n0,{20 * math.tan(beta):.12f},ramp\n20,0,flat\n60,0,\n")
     (tmp_path / "ramp_materials.csv").write_text(
