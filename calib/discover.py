@@ -218,7 +218,8 @@ def _checked_inputs(args):
         raise CliError(f"--release-tolerance-m must be >= 0, got {args.release_tolerance_m:g}")
     try:
         cands, combine = candidate_set(args.model, args.effects, inputs.profile,
-                                       args.rolling_resistance)
+                                       args.rolling_resistance,
+                                       inputs.site.rolling_threshold_m_s)
     except ValueError as e:
         raise CliError(str(e)) from None
     if args.max_steps is not None and args.max_steps < 1:
@@ -253,6 +254,8 @@ def _result(args, inputs, velocities, combine, budget, d, t0: float) -> dict:
         "release_groups": _release_record(d.entries, obs.n_obs, args.release_tolerance_m),
         "release_height_sd_m": inputs.site.release_height_sd_m,
         "release_speed_sd_m_s": inputs.site.release_speed_sd_m_s,
+        "rolling_threshold_m_s": (inputs.site.rolling_threshold_m_s if args.model == "crsp"
+                                  else None),
         "velocities_csv": args.velocities,
         "n_velocity_observations": 0 if velocities is None else velocities.n_obs,
         "velocity_stations_m": ([] if velocities is None

@@ -58,6 +58,7 @@ from calib.model.effects import CRSP_EFFECTS
 from calib.model.unfinished import UnfinishedBlocksWarning
 from calib.validate import print_summary as print_validation
 from calib.validate import run_validation
+from solvers import crsp
 from solvers.cli import (
     CliError,
     OneLineParser,
@@ -425,6 +426,10 @@ def _print_parameters(result: dict, models) -> None:
     if effects:
         print(f"CRSP effects: {', '.join(effects)} (their parameters follow the baseline's; "
               "calibration.json: crsp.effects)")
+    threshold = result.get("rolling_threshold_m_s")
+    if "crsp" in models and threshold is not None and threshold != crsp.ROLLING_THRESHOLD_M_S:
+        print(f"CRSP rolling threshold: {threshold:g} m/s, the site's (solver default "
+              f"{crsp.ROLLING_THRESHOLD_M_S:g}; {result.get('rolling_threshold_source')})")
     print(f"{'model':5} {'parameter':{w}} {'estimate':>9} {'mean':>8} {'90% interval':>19}")
     for model in models:
         sec = result[model]

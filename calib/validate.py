@@ -150,6 +150,8 @@ def run_validation(args) -> dict:
                "n_blocks_per_draw_and_group": int(n_blocks), **check.summary,
                "release_height_sd_m": cal.release_height_sd_m,
                "release_speed_sd_m_s": cal.release_speed_sd_m_s, "stalled_rows": stalls,
+               "rolling_threshold_m_s": (cal.rolling_threshold_m_s if cal.model == "crsp"
+                                         else None),
                "provenance": provenance(PROG, args.seed, {
                    "calibration": args.calibration, "heldout": args.heldout,
                    "calibration_data": data, "profile": cal.profile_csv},
@@ -180,6 +182,7 @@ def read_summary(path: str) -> dict:
 
 def print_summary(s: dict, out: str) -> None:
     from calib.inference.predictive_check import stall_message
+    from solvers.crsp import ROLLING_THRESHOLD_M_S
 
     def f(v, fmt="{:.1f}"):
         return "-" if v is None else fmt.format(v)
@@ -192,6 +195,9 @@ def print_summary(s: dict, out: str) -> None:
         print(f"  release errors       each block's release height and speed drawn about the "
               f"rows' (sd {s['release_height_sd_m']:g} m, {s['release_speed_sd_m_s']:g} m/s, "
               "the calibration's)")
+    if s.get("rolling_threshold_m_s") not in (None, ROLLING_THRESHOLD_M_S):
+        print(f"  rolling threshold    {s['rolling_threshold_m_s']:g} m/s (the calibration's; "
+              f"solver default {ROLLING_THRESHOLD_M_S:g})")
     print(f"  mean CRPS            {f(s['mean_crps_m'], '{:.2f}')} m")
     print(f"  climatology CRPS     {f(s['mean_crps_climatology_m'], '{:.2f}')} m (all "
           f"calibration rows), {f(s['mean_crps_climatology_size_m'], '{:.2f}')} m (per size)")

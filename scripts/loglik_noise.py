@@ -35,13 +35,13 @@ distance to the K-th nearest simulated runout (``nearest_neighbour_loglik``):
 another what-if on the observation model, not what ``calib.fit`` does.
 
 ``--rolling-threshold-m-s T`` (comma-separated values) runs the solver with
-that rolling threshold in place of its default
-(``solvers.crsp.ROLLING_THRESHOLD_M_S``: a rebound or a landing slower than
+that rolling threshold in place of the site's (``calib.files.site``; without
+one the solver's ``solvers.crsp.ROLLING_THRESHOLD_M_S``: a rebound or a landing slower than
 it, normal to the mean slope, keeps the rock on the ground, where it rolls
 against the rolling resistance), and ``--entries`` prints every simulated
 release's 5/50/95 % runouts: whether that numerical cutoff changes the
-results (docs/studies.md, "The rolling threshold"). A what-if, not what
-``calib.fit`` does.
+results (docs/studies.md, "The rolling threshold"): how a site's
+``rolling_threshold_m_s`` is chosen.
 
 ``--allocate-cost C`` scores the points once more with each simulated release's
 block count chosen among ``--n-blocks`` by its measured share of the noise at
@@ -53,7 +53,6 @@ than the same blocks spread evenly.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
 import sys
 import time
@@ -67,25 +66,6 @@ jax.config.update("jax_enable_x64", True)
 from calib.inference.likelihood import log_likelihood as _tolerance_kernel  # noqa: E402
 
 
-@contextlib.contextmanager
-def rolling_threshold(value_m_s: float | None):
-    """Within it, ``solvers.crsp.params_from_profile`` (which every CRSP forward
-    simulation of ``calib.model.forward`` starts from) gives the rolling
-    threshold ``value_m_s`` unless told otherwise; None: the solver's default."""
-    import solvers.crsp as crsp
-
-    if value_m_s is None:
-        yield
-        return
-    default = crsp.params_from_profile
-    crsp.params_from_profile = lambda profile, **kw: default(
-        profile, **{"rolling_threshold_m_s": value_m_s, **kw})
-    try:
-        yield
-    finally:
-        crsp.params_from_profile = default
-
-
 def loglik_spread(data: str, thetas: np.ndarray, n_blocks: int, replicates: int,
                   release_tolerance_m: float = 1.0, profile: str | None = None,
                   out: str = ".", extra_sd_m: float = 0.0, knn_k: int = 0,
@@ -95,7 +75,7 @@ def loglik_spread(data: str, thetas: np.ndarray, n_blocks: int, replicates: int,
     point rows' tolerance widened to sqrt(sd^2 + ``extra_sd_m``^2); with
     ``knn_k`` > 0 the point rows are scored by ``nearest_neighbour_loglik``
     (the bootstrap sd is then not computed: NaN); the solver run with
-    ``rolling_threshold_m_s`` (``rolling_threshold``; None: its default).
+    ``rolling_threshold_m_s`` (None: the site's, ``calib.files.site``).
 
     Returns:
         dict with ``summed`` (R, P) nats, ``mean`` and ``sd`` (P,) over the sets
@@ -117,13 +97,14 @@ def loglik_spread(data: str, thetas: np.ndarray, n_blocks: int, replicates: int,
     if extra_sd_m:
         obs = dataclasses.replace(obs, runout_sd_m=np.hypot(obs.runout_sd_m, extra_sd_m))
     rows = RowLikelihood(obs, entries.index)
+    threshold = (inputs.site.rolling_threshold_m_s if rolling_threshold_m_s is None
+                 else rolling_threshold_m_s)
     t0 = time.perf_counter()
     summed, pointwise, boot, quantiles = [], [], None, None
     for r in range(replicates):
         fw = CrspForward(inputs.profile, entries, n_blocks, jax.random.key(100 + r),
-                         box=CRSP_ROLLING_BOX)
-        with rolling_threshold(rolling_threshold_m_s):
-            runs = fw.runouts(np.asarray(thetas, float))
+                         box=CRSP_ROLLING_BOX, rolling_threshold_m_s=threshold)
+        runs = fw.runouts(np.asarray(thetas, float))
         if knn_k:
             idx = np.asarray(entries.index)
             pw = np.asarray(jax.vmap(lambda r: nearest_neighbour_loglik(
@@ -307,7 +288,7 @@ def main(argv=None) -> int:
     p.add_argument("--rolling-threshold-m-s", type=_comma_list(float, 1e-6, "speed (m/s)"),
                    default=None,
                    help="run the solver with these rolling thresholds, comma-separated, m/s "
-                        "(a what-if; None: the solver's own, "
+                        "(a what-if; None: the site's, else the solver's "
                         "solvers.crsp.ROLLING_THRESHOLD_M_S)")
     p.add_argument("--entries", action="store_true",
                    help="also print every simulated release's 5/50/95 %% runouts (first set)")

@@ -138,6 +138,7 @@ def impact_angles(cal, values: np.ndarray, names, profile, x_m: float, size_m: f
     for d, row in enumerate(values):
         p = crsp.params_from_profile(profile, release_x_m=float(release_x_m),
                                      barrier_x_m=float(x_m),
+                                     rolling_threshold_m_s=cal.rolling_threshold_m_s,
                                      **draw_overrides(cal.effects, names, row, profile))
         key = jax.random.fold_in(jax.random.key(seed), d)
         res = crsp.run_blocks(p, block, key, n_blocks, profile, settings=settings)

@@ -19,6 +19,7 @@ from calib.discovery.candidate_fit import Candidate
 from calib.model.effects import CRSP_EFFECTS, DEM_EFFECTS, effect_names, full_box, model_label
 from calib.model.forward import CrspForward
 from calib.model.priors import CRSP_BOX, CRSP_ROLLING_BOX, Box, has_rolling
+from solvers.crsp import ROLLING_THRESHOLD_M_S
 
 __all__ = ["DEM_DEFAULT", "candidate_set", "crsp_candidates", "crsp_model"]
 
@@ -27,34 +28,41 @@ __all__ = ["DEM_DEFAULT", "candidate_set", "crsp_candidates", "crsp_model"]
 DEM_DEFAULT = ("none", "size_dissipation")
 
 
-def _crsp_forward(profile, effect, base, entries, n_blocks, key, stations_x_m=()):
+def _crsp_forward(profile, effect, base, threshold, entries, n_blocks, key, stations_x_m=()):
     return CrspForward(profile, entries, n_blocks, key, box=base, effect=effect,
-                       stations_x_m=tuple(stations_x_m))
+                       stations_x_m=tuple(stations_x_m), rolling_threshold_m_s=threshold)
 
 
-def crsp_model(profile, effects, base: Box = CRSP_BOX) -> Candidate:
+def crsp_model(profile, effects, base: Box = CRSP_BOX,
+               rolling_threshold_m_s: float = ROLLING_THRESHOLD_M_S) -> Candidate:
     """The baseline ``base`` with ``effects`` (one name, or several switched on
     together in that order, ``calib.model.effects.effect_names``) as a
-    ``Candidate`` named by ``model_label`` (e.g. ``size_dissipation+fragmentation``)."""
+    ``Candidate`` named by ``model_label`` (e.g. ``size_dissipation+fragmentation``),
+    simulated with the rolling threshold ``rolling_threshold_m_s`` (the site's,
+    ``calib.files.site``)."""
     names = effect_names(effects)
     effect = names if len(names) > 1 else (names[0] if names else "none")
     return Candidate(model_label(names), full_box(names, profile, base=base),
-                     functools.partial(_crsp_forward, profile, effect, base))
+                     functools.partial(_crsp_forward, profile, effect, base,
+                                       float(rolling_threshold_m_s)))
 
 
-def crsp_candidates(profile, effects=CRSP_EFFECTS, base: Box = CRSP_BOX) -> list[Candidate]:
+def crsp_candidates(profile, effects=CRSP_EFFECTS, base: Box = CRSP_BOX,
+                    rolling_threshold_m_s: float = ROLLING_THRESHOLD_M_S) -> list[Candidate]:
     """Baseline first, then one candidate per effect. Blocks start where
     ``calib.discovery.discrepancy.discover`` releases them (each row's own
     point, or the profile's first vertex). With a baseline that fits the
     rolling resistance (``base = CRSP_ROLLING_BOX``) the ``rolling_resistance``
-    effect is part of the baseline and is left out."""
+    effect is part of the baseline and is left out. Every candidate runs with
+    the rolling threshold ``rolling_threshold_m_s``."""
     names = ["none"] + [e for e in effects if e != "none"]
     if has_rolling(base.names):
         names = [e for e in names if e != "rolling_resistance"]
-    return [crsp_model(profile, e, base) for e in names]
+    return [crsp_model(profile, e, base, rolling_threshold_m_s) for e in names]
 
 
-def candidate_set(model: str, effects=None, profile=None, rolling: str = "profile"):
+def candidate_set(model: str, effects=None, profile=None, rolling: str = "profile",
+                  rolling_threshold_m_s: float = ROLLING_THRESHOLD_M_S):
     """The candidates of one discovery run and how later steps combine effects.
 
     Args:
@@ -66,6 +74,8 @@ def candidate_set(model: str, effects=None, profile=None, rolling: str = "profil
             resistance, Kn, Kt, S fitted) or "fit" (the rolling resistance angle
             fitted too, ``CRSP_ROLLING_BOX``; the ``rolling_resistance`` effect is
             then part of the baseline and left out).
+        rolling_threshold_m_s: CRSP's rolling threshold, m/s (the site's,
+            ``calib.files.site``); the DEM has none.
 
     Returns:
         (candidates, baseline first, as ``calib.discovery.discrepancy.discover``
@@ -97,8 +107,9 @@ def candidate_set(model: str, effects=None, profile=None, rolling: str = "profil
             base = CRSP_ROLLING_BOX
         else:
             base = CRSP_BOX
-        return (crsp_candidates(profile, chosen, base),
-                functools.partial(crsp_model, profile, base=base))
+        return (crsp_candidates(profile, chosen, base, rolling_threshold_m_s),
+                functools.partial(crsp_model, profile, base=base,
+                                  rolling_threshold_m_s=rolling_threshold_m_s))
     if rolling == "fit":
         raise ValueError("--rolling-resistance fit: the rolling resistance is a CRSP "
                          "parameter; the DEM candidates have none")

@@ -31,6 +31,11 @@ the notebooks), never by re-parsing the JSON with its own names. Schema
   with which the CRSP fit drew its blocks' releases (the site's,
   ``calib.files.site``; absent in older files: 0); ``calib.validate``
   draws the held-out rows' releases with the same.
+* ``rolling_threshold_m_s`` (with ``rolling_threshold_source``): CRSP's
+  rolling threshold the fit ran with (the site's, ``calib.files.site``; absent
+  in older files: ``solvers.crsp.ROLLING_THRESHOLD_M_S``, which they ran
+  with); ``calib.validate``, ``calib.discover``, ``calib.hazard`` and
+  ``calib.design`` simulate the fitted model with it.
 
 ``posterior_csv`` is relative to the folder of the json file; ``profile_csv``
 is relative to the working directory (as ``calib.fit`` writes it, run from the
@@ -54,6 +59,7 @@ import numpy as np
 from calib.model.alpha_law import FORMS, PARAMETER_RANGES
 from calib.model.effects import EFFECTS, check_combination, effect_columns, effect_names
 from calib.model.priors import base_name, rolling_zone
+from solvers.crsp import ROLLING_THRESHOLD_M_S
 from solvers.dem import check_run_numerics
 from solvers.material import ROCK_DENSITY_KG_M3
 
@@ -114,6 +120,8 @@ class Calibration(NamedTuple):
         effects: CRSP: the effects the fit switched on (key ``crsp.effects``;
             ``calib.model.effects``), whose columns are the last of ``names``
             (``effect_columns``); () without any, and for the DEM.
+        rolling_threshold_m_s: CRSP's rolling threshold the fit ran with, m/s
+            (key of the same name; older files: the solver's default).
     """
 
     path: str
@@ -133,6 +141,7 @@ class Calibration(NamedTuple):
     release_height_sd_m: float = 0.0
     release_speed_sd_m_s: float = 0.0
     effects: tuple[str, ...] = ()
+    rolling_threshold_m_s: float = ROLLING_THRESHOLD_M_S
 
     @property
     def base_names(self) -> tuple[str, ...]:
@@ -350,6 +359,10 @@ def _model_from_doc(path: str, doc: dict, model: str | None) -> Calibration:
                        release_heights=(model == "crsp" and _with_heights(doc))
                        or model in _grouped(doc, "speed_and_height_models"),
                        rock_density_kg_m3=rho, effects=effects,
+                       rolling_threshold_m_s=_number(
+                           path, "rolling_threshold_m_s",
+                           doc.get("rolling_threshold_m_s", ROLLING_THRESHOLD_M_S),
+                           0.0, 10.0, False),
                        **{k: _number(path, k, doc.get(k, 0.0), 0.0, math.inf, True)
                           for k in ("release_height_sd_m", "release_speed_sd_m_s")})
 

@@ -171,6 +171,8 @@ def fit_document(options: FitOptions, inputs, entries, fits: dict,
            "release_height_source": inputs.site.release_height_source or None,
            "release_speed_sd_m_s": inputs.site.release_speed_sd_m_s,
            "release_speed_source": inputs.site.release_speed_source or None,
+           "rolling_threshold_m_s": inputs.site.rolling_threshold_m_s,
+           "rolling_threshold_source": inputs.site.rolling_threshold_source,
            "block_size_mapping": BLOCK_SIZE_MAPPING,
            "likelihood": "point: (1/n) sum_j N(y; r_j, sd^2 + v_j); interval: (1/n) sum_j "
                          "[Phi((b-r_j)/w_j) - Phi((a-r_j)/w_j)] (calib/inference/likelihood.py)",

@@ -29,7 +29,8 @@ runs with release conditions: ``release_json``, ``fitted_block_size_min_m`` /
 ``_max_m`` / ``fitted_block_sizes_source``, ``design_block_json``; runs with a
 barrier: ``barrier_x_m``, ``barrier_height_m``, ``barrier_capacity_kJ``; CRSP runs:
 ``crsp_max_events``, the event budget per block, an integer or ``"profile"`` for the
-solver's size- and profile-derived budget, ``crsp_event_budget`` reads it),
+solver's size- and profile-derived budget, ``crsp_event_budget`` reads it, and
+``rolling_threshold_m_s``, the calibration's rolling threshold it ran with),
 what its numbers mean (``energy_basis``, ``height_convention``), and where it
 came from (``provenance_json``: command, seed, SHA-256 of the inputs, package
 versions, ``calib.files.provenance``; ``adequacy_json``: the calibration's own

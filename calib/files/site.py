@@ -17,6 +17,7 @@ comes from)::
      "rock_density_kg_m3": 2350, "rock_density_source": "...",
      "release_height_sd_m": 0.6, "release_height_source": "...",
      "release_speed_sd_m_s": 0.3, "release_speed_source": "...",
+     "rolling_threshold_m_s": 0.05, "rolling_threshold_source": "...",
      "station_of_interest": {"x_m": 230.0, "label": "road", "source": "..."},
      "alpha_reference": {"label": "paper, Table 1", "L_m": [0.2, 0.9, 1.8],
                          "alpha": [0.90, 0.43, 0.30], "source": "..."}}
@@ -36,6 +37,17 @@ block's release height and speed from truncated normals about the rows'
 values (``solvers.crsp.init``); ``calibration.json`` records the sds. Each
 needs its ``*_source`` text (where the number comes from). Without them: 0,
 the tracked values taken as exact.
+``rolling_threshold_m_s`` is the CRSP rolling threshold every simulation of
+the site runs with (``solvers.crsp.ROLLING_THRESHOLD_M_S``, 0.5 m/s, where the
+site file gives none): the rebound or landing normal speed below which a rock
+stays on the ground and rolls. It is a numerical cutoff of the solver (RocFall
+exposes its counterpart as an engine setting, the "normal velocity cutoff"),
+set per site where the default is not converged there: a site gives the value
+from which its releases' runouts no longer change when it is lowered
+(``scripts/loglik_noise.py --rolling-threshold-m-s ... --entries``), with its
+``rolling_threshold_source``. The fit records it in ``calibration.json`` and
+the predictive check, the discrepancy workflow, the hazard run and the design
+run the calibration's value.
 ``station_of_interest`` is where ``calib.hazard`` reports the reach probability
 and design values (``--road-x-m`` overrides it); ``alpha_reference`` is drawn
 on the DEM damping-law figure and reported next to the fitted alpha(L). A
@@ -50,6 +62,7 @@ import json
 import math
 import os
 
+from solvers.crsp import ROLLING_THRESHOLD_M_S
 from solvers.material import ROCK_DENSITY_KG_M3
 
 __all__ = ["Site", "SiteError", "load_site", "site_path"]
@@ -79,6 +92,9 @@ class Site:
         release_height_source: where it comes from ("" where 0 by default).
         release_speed_sd_m_s: sd of a tracked release speed's error, m/s.
         release_speed_source: where it comes from.
+        rolling_threshold_m_s: the CRSP rolling threshold of the site's
+            simulations, m/s (the solver's default where the site gives none).
+        rolling_threshold_source: where it comes from ("default" without one).
     """
 
     name: str = ""
@@ -93,6 +109,8 @@ class Site:
     release_height_source: str = ""
     release_speed_sd_m_s: float = 0.0
     release_speed_source: str = ""
+    rolling_threshold_m_s: float = ROLLING_THRESHOLD_M_S
+    rolling_threshold_source: str = "default (solvers.crsp.ROLLING_THRESHOLD_M_S)"
 
 
 def site_path(profile_path: str) -> str:
@@ -161,18 +179,24 @@ def load_site(profile_path: str) -> Site:
     errors = [_release_error(path, doc, key, src) for key, src in (
         ("release_height_sd_m", "release_height_source"),
         ("release_speed_sd_m_s", "release_speed_source"))]
+    threshold = (Site.rolling_threshold_m_s, Site.rolling_threshold_source)
+    if "rolling_threshold_m_s" in doc or "rolling_threshold_source" in doc:
+        threshold = _release_error(path, doc, "rolling_threshold_m_s",
+                                   "rolling_threshold_source", lo=1e-4, hi=10.0)
     return Site(name, x, label, ref, ref_label, path, rho, rho_source,
-                *errors[0], *errors[1])
+                *errors[0], *errors[1], *threshold)
 
 
-def _release_error(path: str, doc: dict, key: str, source_key: str) -> tuple[float, str]:
-    """(sd, source) of a release error: the key's value >= 0 with its source text
-    (required with it), or (0, "")."""
+def _release_error(path: str, doc: dict, key: str, source_key: str, lo: float = 0.0,
+                   hi: float = 100.0) -> tuple[float, str]:
+    """(value, source) of a sourced number (a release error, the rolling
+    threshold): the key's value in [lo, hi] with its source text (required with
+    it), or (0, "")."""
     if key not in doc:
         if source_key in doc:
             raise SiteError(f"{path}: key {source_key!r}: given without {key!r}")
         return 0.0, ""
-    sd = _number(path, key, doc[key], 0.0, 100.0)
+    sd = _number(path, key, doc[key], lo, hi)
     source = doc.get(source_key)
     if not isinstance(source, str) or not source.strip():
         raise SiteError(f"{path}: key {source_key!r}: expected text saying where {key} "

@@ -155,7 +155,8 @@ def calibration_record(prog: str, seed: int, cal, path: str) -> dict:
     posterior) and the rock
     density the run simulated, where the calibration file states it (key
     ``rock_density_kg_m3``; older files fall back on the solvers' default, and
-    ``hazard.nc`` then names no density)."""
+    ``hazard.nc`` then names no density), and CRSP's rolling threshold it
+    simulated with (the calibration's; None for the DEM)."""
     import os
 
     from calib.files.calibration_file import CalibrationFile
@@ -178,6 +179,9 @@ def calibration_record(prog: str, seed: int, cal, path: str) -> dict:
         "rock_density_source": (f"{path}: rock_density_kg_m3"
                                 + (f" ({source})" if isinstance(source, str) else ""))
         if stated else None,
+        # the CRSP rolling threshold the run simulated with (the calibration's)
+        "rolling_threshold_m_s": (float(cal.rolling_threshold_m_s) if cal.model == "crsp"
+                                  else None),
     }
 
 

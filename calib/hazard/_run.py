@@ -274,9 +274,11 @@ def _work_units(cal, draws, profile, entries: Entries, release, barrier, sizes_m
                 n_blocks, seed, chunk, offsets, pool, settings, dem_run):
     """The run's work units: seeded CRSP units with release conditions, else
     CRSP units of the sizes, else DEM units (after checking the DEM draws);
-    a barrier enters every CRSP draw as parameter overrides."""
+    a barrier and the calibration's rolling threshold enter every CRSP draw as
+    parameter overrides."""
     st_dev = jnp.asarray(stations)
-    extra = {} if barrier is None else barrier.overrides()
+    extra = {"rolling_threshold_m_s": cal.rolling_threshold_m_s,
+             **({} if barrier is None else barrier.overrides())}
     if release is not None:
         return _seeded_units(draws, profile, release, entries.density_kg_m3, st_dev, n_blocks,
                              seed, chunk, offsets, pool, settings, extra, cal.effects)

@@ -337,7 +337,8 @@ def fit_model(model: str, inputs, entries: Entries, key: jax.Array, *,
         forward = CrspForward(profile, entries, budget.n_blocks_design,
                               jax.random.fold_in(key, 1), box=box,
                               effect=tuple(effects) or "none",  # columns after box's
-                              stations_x_m=stations)
+                              stations_x_m=stations,
+                              rolling_threshold_m_s=inputs.site.rolling_threshold_m_s)
         extra = np.geomspace(0.2, 2.0, 6)  # the check's sizes for the runout-vs-size figure
     else:
         forward = DemForward(profile, entries, budget.n_blocks_design,

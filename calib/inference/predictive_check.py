@@ -354,7 +354,8 @@ def predictive_runouts(cal, heldout: Observations, profile, n_posterior: int,
         # the fitted model: the baseline's box, the effects' columns after it
         # (calib.model.effects), mapped onto the solver as the fit mapped them
         fw = CrspForward(profile, entries, n_blocks or 100, key, box=crsp_box(cal.base_names),
-                         effect=cal.effects or "none")
+                         effect=cal.effects or "none",
+                         rolling_threshold_m_s=cal.rolling_threshold_m_s)
     else:
         from calib.model.dem_run import DEM_RUN, DemRun
 

@@ -238,6 +238,10 @@ class CrspForward:
             parameters follow the baseline's in theta, effect after effect.
         stations_x_m: abscissae (m) at which ``simulate`` records passage speeds.
         settings: CRSP solver settings (event budget, search window).
+        rolling_threshold_m_s: CRSP's rolling threshold, m/s (the normal speed
+            below which a landing or rebound rolls on, ``solvers.crsp.Params``):
+            the site's (``calib.files.site``), recorded in ``calibration.json``;
+            default ``solvers.crsp.ROLLING_THRESHOLD_M_S``.
     """
 
     profile: Profile
@@ -250,6 +254,7 @@ class CrspForward:
     effect: str | tuple[str, ...] = "none"
     stations_x_m: tuple[float, ...] = ()
     settings: crsp.Settings = crsp.Settings()
+    rolling_threshold_m_s: float = crsp.ROLLING_THRESHOLD_M_S
 
     def __post_init__(self):
         self.entries = as_entries(self.entries, self.profile)
@@ -287,7 +292,8 @@ class CrspForward:
         for all zones, the rolling resistance for all zones or per zone."""
         theta = np.atleast_2d(np.asarray(theta, float))
         n_core = 3 + self.n_rolling
-        p = _crsp_params(crsp.params_from_profile(self.profile),
+        p = _crsp_params(crsp.params_from_profile(
+                             self.profile, rolling_threshold_m_s=self.rolling_threshold_m_s),
                          jnp.asarray(theta[:, :n_core], jnp.float64),
                          rolling_columns(self.box.names[:n_core], self.profile))
         if self.effect == "none":
