@@ -429,7 +429,7 @@ def _print_parameters(result: dict, models) -> None:
     threshold = result.get("rolling_threshold_m_s")
     if "crsp" in models and threshold is not None and threshold != crsp.ROLLING_THRESHOLD_M_S:
         print(f"CRSP rolling threshold: {threshold:g} m/s, the site's (solver default "
-              f"{crsp.ROLLING_THRESHOLD_M_S:g}; {result.get('rolling_threshold_source')})")
+              f"{crsp.ROLLING_THRESHOLD_M_S:g} m/s; calibration.json: rolling_threshold_source)")
     print(f"{'model':5} {'parameter':{w}} {'estimate':>9} {'mean':>8} {'90% interval':>19}")
     for model in models:
         sec = result[model]
