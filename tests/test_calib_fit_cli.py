@@ -126,6 +126,12 @@ def _check_every_output(proc, out, n_draws_min):
         assert "posterior predictive" in a["predictive"]
         if not a["ok"]:
             assert f"{m.upper()} CALIBRATION: the model may not" in proc.stderr
+    # the rolling threshold's convergence at the estimate (CRSP only): Postignano's
+    # two sizes, the solver's 0.5 m/s against 0.05 m/s
+    thr = cal["crsp"]["adequacy"]["rolling_threshold"]
+    assert (thr["threshold_m_s"], len(thr["entries"])) == (0.5, 2)
+    assert thr["compared_m_s"] == pytest.approx(0.05)
+    assert cal["dem"]["adequacy"]["rolling_threshold"] is None
     assert "inside their predictive bands" in proc.stdout
     return cal
 

@@ -189,3 +189,29 @@ def test_discovery_candidates_run_with_the_sites_threshold():
     default, _ = candidate_set("crsp", ["vegetation_belt"], load_profile(TSCHAMUT), "fit")
     assert default[0].forward(entries, 4, jax.random.key(0)).rolling_threshold_m_s == \
         crsp.ROLLING_THRESHOLD_M_S
+
+
+def test_the_fits_check_flags_a_threshold_that_is_not_converged():
+    """Check 6 of ``calib.inference.adequacy``: the shoulder release at the
+    solver's 0.5 m/s stalls and at a tenth of it runs on, so the check flags it
+    and names the site file's key; at the site's 0.05 m/s it runs on either way
+    and nothing is flagged; a release on the steep slope below moves by no
+    more than the check's tolerance at either threshold."""
+    from calib.inference.adequacy import _threshold_problem, threshold_convergence
+
+    e = Entries.at_sizes([0.3677], SHOULDER_X_M, release_speed_m_s=0.39,
+                         release_height_m=0.0, density_kg_m3=2650.0).concat(
+        Entries.at_sizes([0.3677], 41.5, release_speed_m_s=0.8, release_height_m=0.3,
+                         density_kg_m3=2650.0))
+    records = {thr: threshold_convergence(
+        CrspForward(load_profile(TSCHAMUT), e, 128, jax.random.key(3), box=CRSP_ROLLING_BOX,
+                    rolling_threshold_m_s=thr), THETA[0]) for thr in (0.5, 0.05)}
+    default, site = records[0.5], records[0.05]
+    assert default["compared_m_s"] == pytest.approx(0.05)
+    assert [x["flagged"] for x in default["entries"]] == [True, False], default
+    assert default["entries"][0]["quantiles_m"][1] < 1.0 < 100.0 < \
+        default["entries"][0]["quantiles_compared_m"][1]
+    message = _threshold_problem(default)
+    assert "not converged" in message and "rolling_threshold_m_s" in message
+    assert "x = 38.7 m" in message
+    assert site["n_flagged"] == 0 and _threshold_problem(site) is None, site

@@ -72,6 +72,19 @@ reported per fit (``calib.inference.calibrate``; ``calibration.json`` under
    a raster put below its ground and that is taken as exact (no
    ``release_height_sd_m``), stalls every simulated block.
 
+6. **The rolling threshold converged** (CRSP). The solver's rolling threshold
+   (a landing or rebound slower than it, normal to the slope, rolls on,
+   ``solvers.crsp.Params.rolling_threshold_m_s``) is a numerical cutoff; its
+   value must not decide the runouts. At the point estimate, every simulated
+   entry is run with the fit's threshold and with ``THRESHOLD_FACTOR`` (a
+   tenth) of it, with the same blocks (common random numbers), and an entry
+   is flagged when its 5, 50 or 95 % runout moves by more than
+   ``THRESHOLD_SHIFT_M`` (5 m) and ``THRESHOLD_SHIFT_FRACTION`` (10 %) of
+   it. A tenth, not a half: at Tschamut the default's stalls survive a
+   halving and vanish from about a tenth (docs/studies.md, "The rolling
+   threshold"); the thresholds are our own choice. A flag names the site
+   file's ``rolling_threshold_m_s`` (``calib.files.site``) as the fix.
+
 Without a posterior (gradient-only fits) the predictive distribution is that
 of the point estimate (plug-in), and the record says so.
 
@@ -297,6 +310,64 @@ def _better_problem(better: dict | None) -> str | None:
             "not describe the best fit found")
 
 
+THRESHOLD_FACTOR = 0.1
+THRESHOLD_SHIFT_M = 5.0
+THRESHOLD_SHIFT_FRACTION = 0.1
+
+
+def threshold_convergence(forward, estimate: np.ndarray,
+                          factor: float = THRESHOLD_FACTOR) -> dict:
+    """Check 6 (module docstring): each simulated entry's 5/50/95 % runouts at
+    ``estimate`` with the forward model's rolling threshold and with ``factor``
+    times it, the same blocks.
+
+    Args:
+        forward: a ``CrspForward`` (its entries, blocks and key).
+        estimate: (d,) the parameter set.
+
+    Returns:
+        dict with ``threshold_m_s``, ``compared_m_s``, ``n_blocks``,
+        ``entries`` (per entry: ``release_x_m``, ``size_m``, ``quantiles_m``
+        and ``quantiles_compared_m`` (5/50/95 %), ``shift_m`` (the largest
+        move), ``flagged``), and ``n_flagged``.
+    """
+    theta = np.atleast_2d(np.asarray(estimate, float))
+    lower = dataclasses.replace(forward, rolling_threshold_m_s=factor
+                                * forward.rolling_threshold_m_s)
+    probs = (0.05, 0.5, 0.95)
+    at, low = (np.nanquantile(fw.runouts(theta)[0], probs, axis=-1).T for fw in (forward, lower))
+    shift = np.abs(low - at)
+    flagged = np.any((shift > THRESHOLD_SHIFT_M)
+                     & (shift > THRESHOLD_SHIFT_FRACTION * np.abs(at)), axis=1)
+    e = forward.entries
+    entries = [{"release_x_m": float(e.release_x_m[i]), "size_m": float(e.sizes_m[i]),
+                "quantiles_m": [round(float(v), 2) for v in at[i]],
+                "quantiles_compared_m": [round(float(v), 2) for v in low[i]],
+                "shift_m": round(float(np.max(shift[i])), 2), "flagged": bool(flagged[i])}
+               for i in range(at.shape[0])]
+    return {"threshold_m_s": float(forward.rolling_threshold_m_s),
+            "compared_m_s": float(lower.rolling_threshold_m_s),
+            "n_blocks": int(forward.n_blocks), "entries": entries,
+            "n_flagged": int(flagged.sum())}
+
+
+def _threshold_problem(record: dict | None) -> str | None:
+    """The flag of check 6, naming the entry that moves most and the fix."""
+    if not record or not record["n_flagged"]:
+        return None
+    worst = max((x for x in record["entries"] if x["flagged"]), key=lambda x: x["shift_m"])
+    q, q2 = ("/".join(str(round(v)) for v in worst[k])  # round: no "-0"
+             for k in ("quantiles_m", "quantiles_compared_m"))
+    return (f"CRSP's rolling threshold ({record['threshold_m_s']:g} m/s) is not converged at "
+            f"the estimate: at {record['compared_m_s']:g} m/s the 5/50/95 % runouts of "
+            f"{record['n_flagged']} of {len(record['entries'])} simulated releases move by more "
+            f"than {THRESHOLD_SHIFT_M:g} m and {THRESHOLD_SHIFT_FRACTION:.0%} (most: "
+            f"{worst['size_m']:.2f} m blocks released at x = {worst['release_x_m']:.1f} m, "
+            f"{q} m against {q2} m); state the value the site's runouts converge at in its "
+            "site file (rolling_threshold_m_s, measured with scripts/loglik_noise.py "
+            "--rolling-threshold-m-s ... --entries)")
+
+
 def fit_adequacy(forward, obs: Observations, rows, posterior, estimate: np.ndarray,
                  at_rows: np.ndarray, design: tuple | None, budget, key: jax.Array,
                  tally, mode_loglik: float | None = None) -> dict:
@@ -365,13 +436,15 @@ def fit_adequacy(forward, obs: Observations, rows, posterior, estimate: np.ndarr
         runouts = pool_draws(runs)
         source = (f"posterior predictive, {len(pick)} draws x {budget.n_blocks_predictive} "
                   "blocks per size")
+    threshold = (threshold_convergence(forward, estimate)
+                 if isinstance(forward, CrspForward) else None)
     return adequacy_record(samples, forward.box, obs, runouts, source, rows.index, release,
-                           slopes_deg, better, rolling(theta))
+                           slopes_deg, better, rolling(theta), threshold)
 
 def adequacy_record(samples: np.ndarray | None, box: Box, obs: Observations,
                     runouts: np.ndarray, source: str, index=None, release_x_m=None,
                     release_slope_deg=None, better: dict | None = None,
-                    release_rolling_deg=None) -> dict:
+                    release_rolling_deg=None, threshold: dict | None = None) -> dict:
     """The checks and one message (None when nothing is flagged).
 
     Args:
@@ -388,6 +461,7 @@ def adequacy_record(samples: np.ndarray | None, box: Box, obs: Observations,
         release_rolling_deg: (S, T) the rolling-resistance angle at each
             entry's release in each draw (CRSP; None: unknown), for the rows
             that stall at their release (check 5, ``stalled_rows``).
+        threshold: the ``threshold_convergence`` record (check 6; CRSP), or None.
     """
     bounds = None if samples is None else bound_mass(samples, box)
     stalls = stalled_releases(obs, runouts, index, release_x_m, release_slope_deg)
@@ -408,7 +482,8 @@ def adequacy_record(samples: np.ndarray | None, box: Box, obs: Observations,
             problems.append(f"only {c['n_covered']} of {c['n_rows']} calibration rows lie "
                             f"inside their {float(p):.0%} predictive band (one-sided binomial "
                             f"p = {c['p_value']:.2g})")
-    for extra in (_stall_problem(stalls), stall_message(stalled), _better_problem(better)):
+    for extra in (_stall_problem(stalls), stall_message(stalled), _better_problem(better),
+                  _threshold_problem(threshold)):
         if extra:
             problems.append(extra)
     message = None
@@ -419,5 +494,6 @@ def adequacy_record(samples: np.ndarray | None, box: Box, obs: Observations,
     return {"bound_band_fraction": BOUND_BAND, "bound_flag_fraction": BOUND_FLAG,
             "bounds": bounds, "coverage": cov, "stalls": stalls, "stalled_rows": stalled,
             "predictive": source,
-            "better_design_point": better, "ok": not problems,
+            "better_design_point": better, "rolling_threshold": threshold,
+            "ok": not problems,
             "problems": problems, "message": message}
