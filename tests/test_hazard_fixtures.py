@@ -17,7 +17,7 @@ def _summary(v):
 
 def write_calibration(folder, *, crsp=(0.41, 0.87, 2.0), dem=(0.40, 0.5), profile=PROFILE,
                       crsp_posterior=None, dem_posterior=None, name="calibration.json",
-                      crsp_names=None):
+                      crsp_names=None, extra=None):
     """Write ``calibration.json`` (and posterior CSVs) into ``folder``.
 
     Args:
@@ -28,6 +28,7 @@ def write_calibration(folder, *, crsp=(0.41, 0.87, 2.0), dem=(0.40, 0.5), profil
         dem: (a, b) of alpha = a L^-b, or None for no DEM section.
         crsp_posterior: (R, 3) rows for crsp_posterior.csv, or None (null).
         dem_posterior: (R, 2) rows for dem_posterior.csv, or None.
+        extra: more top-level keys of the file (e.g. ``rock_density_kg_m3``).
 
     Returns:
         Path of the json file.
@@ -53,6 +54,7 @@ def write_calibration(folder, *, crsp=(0.41, 0.87, 2.0), dem=(0.40, 0.5), profil
         if dem_posterior is not None:
             doc["dem"]["posterior_csv"] = "dem_posterior.csv"
             _write_rows(os.path.join(folder, "dem_posterior.csv"), "a,b", dem_posterior)
+    doc.update(extra or {})
     path = os.path.join(folder, name)
     with open(path, "w") as fh:
         json.dump(doc, fh)

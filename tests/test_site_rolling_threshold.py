@@ -6,6 +6,7 @@ simulate the calibration's value (older files: the solver's default)."""
 from __future__ import annotations
 
 import json
+import os
 import pathlib
 
 import jax
@@ -109,21 +110,16 @@ def test_calibration_files_carry_the_threshold_and_older_ones_the_default(tmp_pa
 
 
 def _tschamut_calibration(folder, threshold=None) -> str:
-    point = {"map": None, "mean": None, "q05": None, "q95": None}
-    doc = {"schema": "rockfall-calibration/1", "profile_csv": TSCHAMUT,
-           "data_csv": "data/tschamut2014/observations.csv", "seed": 0,
-           "rock_density_kg_m3": 2650.0,
-           # a fit that released its rows at their tracked heights and speeds
-           "release_groups": {"tolerance_m": 1.0, "models": ["crsp"],
-                              "groups": [{"release_height_m": 0.0}]},
-           "crsp": {n: dict(point, map=v) for n, v in zip(
-               ("Kn", "Kt", "roughness_m", "rolling_friction_deg"), THETA[0], strict=True)}}
-    doc["crsp"]["posterior_csv"] = None
+    """A CRSP calibration on the Tschamut line at ``THETA`` whose fit released
+    its rows at their tracked heights and speeds, with ``threshold`` (None: a
+    file without the key)."""
+    extra = {"rock_density_kg_m3": 2650.0,
+             "release_groups": {"tolerance_m": 1.0, "models": ["crsp"],
+                                "groups": [{"release_height_m": 0.0}]}}
     if threshold is not None:
-        doc["rolling_threshold_m_s"] = threshold
-    path = folder / "calibration.json"
-    path.write_text(json.dumps(doc))
-    return str(path)
+        extra["rolling_threshold_m_s"] = threshold
+    return write_calibration(folder, crsp=tuple(THETA[0]), dem=None,
+                             profile=os.path.abspath(TSCHAMUT), extra=extra)
 
 
 def test_the_predictive_check_simulates_with_the_calibrations_threshold(tmp_path):
