@@ -211,3 +211,21 @@ def test_the_fits_check_flags_a_threshold_that_is_not_converged():
     assert "not converged" in message and "rolling_threshold_m_s" in message
     assert "x = 38.7 m" in message
     assert site["n_flagged"] == 0 and _threshold_problem(site) is None, site
+
+
+def test_the_hazard_run_says_when_the_site_and_the_calibration_disagree(tmp_path, capsys):
+    """An older Tschamut calibration (fitted at the solver's 0.5 m/s) run where
+    the site file now gives 0.05 m/s: the hazard run simulates the fitted model
+    and says so in one line; a calibration at the site's value says nothing."""
+    from calib.hazard.__main__ import main as hazard_main
+
+    args = ["--n-posterior", "1", "--n-blocks", "64", "--block-sizes-m", "0.3",
+            "--release-x-m", "40", "--stations-m", "60:120:30", "--no-progress"]
+    for thr, said in ((None, True), (0.05, False)):
+        folder = tmp_path / str(thr)
+        folder.mkdir()
+        assert hazard_main([_tschamut_calibration(folder, thr), *args,
+                            "--out", str(folder / "hazard")]) == 0
+        out = capsys.readouterr().out
+        assert ("fitted at a CRSP rolling threshold of 0.5 m/s" in out
+                and "gives 0.05 m/s" in out) == said, out

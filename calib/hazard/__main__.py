@@ -298,7 +298,9 @@ def _prepare(args, sizes) -> _Run:
 def _station_of_interest(args, cal, profile, stations) -> tuple[float, str, str]:
     """The station where the summary reports: ``--road-x-m``, else the site file's
     station of interest, else the last station (said on stdout); with its name and
-    where it came from. Also checks the site's rock density against the calibration's."""
+    where it came from. Also checks the site's rock density against the calibration's,
+    and says so where the site's CRSP rolling threshold is not the one the
+    calibration was fitted at (the run keeps the calibration's: the fitted model)."""
     from calib.files.site import load_site, site_path
 
     lo, hi = profile.x_range_m
@@ -306,6 +308,11 @@ def _station_of_interest(args, cal, profile, stations) -> tuple[float, str, str]
     site = load_site(cal.profile_csv)
     cal.check_density(site.rock_density_kg_m3, f"the site file {site.path}"
                       if site.path else "the solvers' default")
+    if cal.model == "crsp" and site.rolling_threshold_m_s != cal.rolling_threshold_m_s:
+        print(f"{cal.path} was fitted at a CRSP rolling threshold of "
+              f"{cal.rolling_threshold_m_s:g} m/s and {site.path or 'the solver default'} "
+              f"gives {site.rolling_threshold_m_s:g} m/s: this run simulates the fitted model "
+              "(the calibration's value); refit to run at the site's")
     if road_x is None:
         road_x, label = site.station_x_m, site.station_label
         where = f"{site.path}: station_of_interest.x_m"
