@@ -176,18 +176,18 @@ def load_site(profile_path: str) -> Site:
         rho_source = doc.get("rock_density_source", path)
         if not isinstance(rho_source, str):
             raise SiteError(f"{path}: key 'rock_density_source': expected text")
-    errors = [_release_error(path, doc, key, src) for key, src in (
+    errors = [_sourced_number(path, doc, key, src) for key, src in (
         ("release_height_sd_m", "release_height_source"),
         ("release_speed_sd_m_s", "release_speed_source"))]
     threshold = (Site.rolling_threshold_m_s, Site.rolling_threshold_source)
     if "rolling_threshold_m_s" in doc or "rolling_threshold_source" in doc:
-        threshold = _release_error(path, doc, "rolling_threshold_m_s",
+        threshold = _sourced_number(path, doc, "rolling_threshold_m_s",
                                    "rolling_threshold_source", lo=1e-4, hi=10.0)
     return Site(name, x, label, ref, ref_label, path, rho, rho_source,
                 *errors[0], *errors[1], *threshold)
 
 
-def _release_error(path: str, doc: dict, key: str, source_key: str, lo: float = 0.0,
+def _sourced_number(path: str, doc: dict, key: str, source_key: str, lo: float = 0.0,
                    hi: float = 100.0) -> tuple[float, str]:
     """(value, source) of a sourced number (a release error, the rolling
     threshold): the key's value in [lo, hi] with its source text (required with
@@ -196,9 +196,9 @@ def _release_error(path: str, doc: dict, key: str, source_key: str, lo: float = 
         if source_key in doc:
             raise SiteError(f"{path}: key {source_key!r}: given without {key!r}")
         return 0.0, ""
-    sd = _number(path, key, doc[key], lo, hi)
+    value = _number(path, key, doc[key], lo, hi)
     source = doc.get(source_key)
     if not isinstance(source, str) or not source.strip():
         raise SiteError(f"{path}: key {source_key!r}: expected text saying where {key} "
                         "comes from")
-    return sd, source
+    return value, source
