@@ -546,6 +546,13 @@ def _print_nuts_repairs(result: dict, models) -> None:
                   "from each realisation's posterior was simulated and joined the GP's "
                   "design, and NUTS ran again "
                   "(bayes.focus.realisation_waves)")
+        careful = focus.get("careful_run")
+        if careful:
+            print(f"\n{model.upper()} careful run: the chains agreed but had "
+                  f"{careful['divergences_before']} divergent transitions; NUTS ran again "
+                  f"with a smaller step size (target acceptance "
+                  f"{careful['target_accept_prob']:g} for "
+                  f"{careful['target_accept_prob_before']:g}; bayes.focus.careful_run)")
         longer = focus.get("longer_run")
         if longer:
             print(f"\n{model.upper()} longer run: the chains agreed but their ESS fell short "

@@ -5,16 +5,23 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from calib.inference.bayes import (
+    CAREFUL_TARGET_ACCEPT,
     ESS_MIN,
     MAX_DRAW_FACTOR,
     RHAT_MAX,
+    TARGET_ACCEPT,
+    careful_run,
     chain_diagnostics,
     diagnosed,
     draw_factor,
+    run_nuts,
 )
+from calib.model.priors import Box
 
 
 def test_well_mixed_chains_pass_and_a_stuck_chain_fails():
@@ -103,3 +110,38 @@ def test_no_longer_run_where_more_draws_are_not_the_repair():
     agreeing = dataclasses.replace(_posterior(short), rhat=np.array([1.001, 1.002]))
     assert draw_factor(dataclasses.replace(agreeing, ess_tail=np.array([130.0, 900.0])), 4) == 4
     assert draw_factor(dataclasses.replace(agreeing, ess_tail=np.array([120.0, 900.0])), 4) == 1
+
+
+def test_divergences_in_chains_that_agree_ask_for_a_careful_run():
+    """Well-mixed chains with divergent transitions are repaired by a smaller
+    step; the same chains without divergences need nothing, and chains that
+    disagree or lost one of the run's chains are repaired elsewhere."""
+    rng = np.random.default_rng(6)
+    good = rng.standard_normal((4, 1000, 2))
+    assert careful_run(_posterior(good, divergences=4), 4)
+    assert not careful_run(_posterior(good), 4)
+    stuck = good.copy()
+    stuck[0, :, 0] += 3.0
+    assert not careful_run(_posterior(stuck, divergences=4), 4)
+    assert not careful_run(_posterior(good[:3], divergences=4), 4)
+
+
+def test_a_larger_target_acceptance_adapts_a_smaller_step():
+    """``run_nuts`` hands its target acceptance to NumPyro's step-size
+    adaptation: on the same correlated Gaussian (correlation 0.99, inside a
+    wide box), key and warm-up, the careful target ends with a smaller step
+    and a higher mean acceptance than the default."""
+    cov_inv = jnp.linalg.inv(jnp.array([[1.0, 0.99], [0.99, 1.0]]))
+
+    def loglik(theta):
+        return (-0.5 * theta @ cov_inv @ theta)[None]
+
+    box = Box(("a", "b"), (-10.0, -10.0), (10.0, 10.0))
+    step, acc = {}, {}
+    for target in (TARGET_ACCEPT, CAREFUL_TARGET_ACCEPT):
+        post = run_nuts(loglik, box, jax.random.key(0), num_warmup=300, num_samples=200,
+                        num_chains=2, loglik_kind="summed", target_accept_prob=target)
+        step[target] = float(np.mean(post.sample_stats["step_size"]))
+        acc[target] = post.accept_prob
+    assert step[CAREFUL_TARGET_ACCEPT] < 0.8 * step[TARGET_ACCEPT], step
+    assert acc[CAREFUL_TARGET_ACCEPT] > acc[TARGET_ACCEPT], acc

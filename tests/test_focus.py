@@ -240,6 +240,7 @@ def test_chains_that_agree_but_fall_short_of_the_ess_run_once_more_with_more_dra
                                 "from_input": staticmethod(lambda x: x)})()
     s.rows = type("Rows", (), {"summed": lambda self, r, v: r, "noise_var": lambda self, r, v: r})()
     s.region, s.posterior, s.draw_factor, s.n_nuts = Region(), short, 1, 1
+    s.target_accept = 0.9
     s.screened, s.lemu = (np.zeros((8, 2)), np.zeros(8), None), None
     s.tick, s.tally, s.timings, s.k_nuts, s.box = (lambda *a: None), None, {}, None, None
     monkeypatch.setattr(stage_module, "at_posterior", lambda *a: {"ok": True})
@@ -264,3 +265,60 @@ def test_chains_that_agree_but_fall_short_of_the_ess_run_once_more_with_more_dra
     assert s.settled()  # once only, and this run passes
     s.posterior = short
     assert s.settled()  # even a run that fails again is not run longer a second time
+
+
+def test_chains_that_agree_but_diverge_run_once_more_with_a_smaller_step(monkeypatch):
+    """After the repairs, a run whose chains agree (R-hat < 1.01, none dropped)
+    and whose only sampler problem is divergent transitions is sampled again,
+    once, with the careful target acceptance, and the fit records why; a
+    second divergent run is not repeated."""
+    import dataclasses
+
+    from test_bayes import _posterior
+
+    from calib.inference import bayes_stage as stage_module
+    from calib.inference.bayes import CAREFUL_TARGET_ACCEPT, TARGET_ACCEPT
+    from calib.inference.bayes_stage import _Stage
+    from calib.inference.budget import Budget
+
+    rng = np.random.default_rng(6)
+    diverged = _posterior(rng.standard_normal((4, 1000, 2)), divergences=4)
+    assert not diverged.ok and diverged.problems == ["4 divergent transitions"]
+
+    class Region:
+        record = {"refined": [], "realisation_waves": []}
+        n_widened, box = 0, None
+
+        def faces_holding(self, samples):
+            return []
+
+    s = _Stage.__new__(_Stage)
+    s.budget = Budget(refinements=0, n_realisations=0, nuts_samples=1000, nuts_chains=4)
+    s.forward = type("Fw", (), {"to_input": staticmethod(lambda t: t),
+                                "from_input": staticmethod(lambda x: x)})()
+    s.rows = type("Rows", (), {"summed": lambda self, r, v: r, "noise_var": lambda self, r, v: r})()
+    s.region, s.posterior, s.draw_factor, s.n_nuts = Region(), diverged, 1, 1
+    s.target_accept = TARGET_ACCEPT
+    s.screened, s.lemu = (np.zeros((8, 2)), np.zeros(8), None), None
+    s.tick, s.tally, s.timings, s.k_nuts, s.box = (lambda *a: None), None, {}, None, None
+    monkeypatch.setattr(stage_module, "at_posterior", lambda *a: {"ok": True})
+    assert not s.settled()
+    assert s.target_accept == CAREFUL_TARGET_ACCEPT
+    assert Region.record["careful_run"] == {
+        "target_accept_prob": CAREFUL_TARGET_ACCEPT, "target_accept_prob_before": TARGET_ACCEPT,
+        "divergences_before": 4, "problems_before": ["4 divergent transitions"]}
+
+    asked = {}
+
+    def run_nuts(target, box, key, warmup, samples, chains, **kw):
+        asked.update(kw)
+        return dataclasses.replace(diverged, ok=True, problems=[], divergences=0)
+    monkeypatch.setattr(stage_module, "run_nuts", run_nuts)
+    monkeypatch.setattr(stage_module, "chain_starts", lambda *a: None)
+    monkeypatch.setattr(stage_module, "screen_chains", lambda post, f, rows: (post, {}, s.screened))
+    s.loglik_kind = "summed"
+    s.sample(None, np.zeros((8, 2)), np.zeros(8), True)
+    assert asked["target_accept_prob"] == CAREFUL_TARGET_ACCEPT
+    assert s.settled()  # this run passes
+    s.posterior = diverged
+    assert s.settled()  # a careful run that diverges again is not repeated

@@ -33,6 +33,10 @@ A run that misses one is returned with ``ok = False`` and the reasons; the
 command prints them loudly and records them in calibration.json; it never
 hides them.
 
+A run whose chains agree but had divergent transitions (``careful_run``) is
+run again by the fit with a smaller step size (``CAREFUL_TARGET_ACCEPT``); a
+divergence in that run still fails it.
+
 A run whose chains agree but are too short for the ESS threshold
 (``draw_factor``) is run again longer by the fit
 (``calib.inference.bayes_stage``): ESS = S / tau, with tau the integrated
@@ -55,14 +59,25 @@ from numpyro.infer import MCMC, NUTS
 
 from calib.model.priors import Box
 
-__all__ = ["ESS_MIN", "MAX_DRAW_FACTOR", "Posterior", "RHAT_MAX", "chain_diagnostics",
-           "diagnosed", "draw_factor", "keep_chains", "run_nuts"]
+__all__ = ["CAREFUL_TARGET_ACCEPT", "ESS_MIN", "MAX_DRAW_FACTOR", "Posterior", "RHAT_MAX",
+           "TARGET_ACCEPT", "careful_run", "chain_diagnostics", "diagnosed", "draw_factor",
+           "keep_chains", "run_nuts"]
 
 RHAT_MAX = 1.01
 ESS_MIN = 400.0
 TAIL_PROB = 0.05  # tail ESS: the 5 % and 95 % quantiles
 MAX_DRAW_FACTOR = 4  # draw_factor: at most this many times the draws (our choice)
 _ESS_MARGIN = 1.25  # draw_factor: aim 25 % above ESS_MIN, for the ESS estimate's own error
+# NUTS's target acceptance probability during warm-up (Stan's adapt_delta): the step
+# size adapts until proposals are accepted at this rate. 0.9 by default (our choice,
+# above Stan's 0.8); CAREFUL_TARGET_ACCEPT where a run's only sampler problem is
+# divergent transitions (``careful_run``): a larger target gives a smaller step size
+# and fewer divergences, the repair Stan's documentation gives for them ("increase
+# adapt_delta ... to a value closer to 1 (e.g. from 0.95 to 0.99)", rstanarm's
+# ``adapt_delta`` page, citing the Stan Reference Manual), at the cost of more
+# leapfrog steps per draw.
+TARGET_ACCEPT = 0.9
+CAREFUL_TARGET_ACCEPT = 0.99
 
 # NumPyro's extra fields -> ArviZ's sample_stats names (``arviz_base.from_numpyro``'s)
 _SAMPLE_STATS = {"diverging": "diverging", "accept_prob": "acceptance_rate",
@@ -162,7 +177,8 @@ def chain_diagnostics(draws: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nda
 
 def run_nuts(pointwise_loglik: Callable[[jax.Array], jax.Array], box: Box, key: jax.Array,
              num_warmup: int = 500, num_samples: int = 1000, num_chains: int = 4,
-             loglik_kind: str = "pointwise", init: np.ndarray | None = None) -> Posterior:
+             loglik_kind: str = "pointwise", init: np.ndarray | None = None,
+             target_accept_prob: float = TARGET_ACCEPT) -> Posterior:
     """Sample theta ~ p(theta | D) with NUTS.
 
     Args:
@@ -175,6 +191,9 @@ def run_nuts(pointwise_loglik: Callable[[jax.Array], jax.Array], box: Box, key: 
             "summed" or "expected" (1,) (``Posterior.loglik_kind``).
         init: (num_chains, d) starting points inside the box; None: NumPyro's
             default (uniform in (-2, 2) in the unconstrained coordinates).
+        target_accept_prob: the acceptance rate the step size adapts to
+            (``TARGET_ACCEPT``; ``CAREFUL_TARGET_ACCEPT`` where divergences are
+            repaired).
     """
     lo, hi = jnp.asarray(box.lo), jnp.asarray(box.hi)
     # NumPyro also runs the model on concrete values, outside its sampler's
@@ -189,7 +208,7 @@ def run_nuts(pointwise_loglik: Callable[[jax.Array], jax.Array], box: Box, key: 
         f = pointwise_loglik if isinstance(theta, jax.core.Tracer) else loglik
         numpyro.factor("loglik", jnp.sum(f(theta)))
 
-    mcmc = MCMC(NUTS(model, target_accept_prob=0.9), num_warmup=num_warmup,
+    mcmc = MCMC(NUTS(model, target_accept_prob=target_accept_prob), num_warmup=num_warmup,
                 num_samples=num_samples, num_chains=num_chains, chain_method="vectorized",
                 progress_bar=False)
     if init is not None:
@@ -246,6 +265,17 @@ def draw_factor(post: Posterior, n_chains: int) -> int:
         return 1
     k = int(np.ceil(_ESS_MARGIN * ESS_MIN / ess))
     return k if k <= MAX_DRAW_FACTOR else 1
+
+
+def careful_run(post: Posterior, n_chains: int) -> bool:
+    """Whether a NUTS run's divergent transitions are what a run with a smaller
+    step size (``CAREFUL_TARGET_ACCEPT``) should repair: it has divergences, its
+    chains agree (every R-hat below ``RHAT_MAX``) and all ``n_chains`` of them
+    are kept. Chains that disagree or were dropped are repaired where the
+    density is wrong (the fit's refinements), not by a smaller step. Our rule,
+    after Stan's advice for divergences (``TARGET_ACCEPT``)."""
+    agree = bool(np.all(np.isfinite(post.rhat)) and np.all(post.rhat < RHAT_MAX))
+    return bool(post.divergences > 0 and agree and post.n_chains >= n_chains)
 
 
 def keep_chains(post: Posterior, keep) -> Posterior:

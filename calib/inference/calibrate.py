@@ -47,6 +47,9 @@ Stages (each timed; ``Budget`` sets the sizes, ``QUICK`` / ``DEFAULT`` the prese
       the simulations settle what the realisations disagree on (Thompson
       sampling of the GP's posterior over functions; our choice of design
       rule). A spread that outlasts the waves is a problem of the posterior.
+      A run whose chains agree but that had divergent transitions runs again
+      with a smaller step size (once; ``bayes.focus.careful_run``,
+      ``calib.inference.bayes.careful_run``).
       Last, a run whose chains agree but whose ESS falls short runs again with
       as many times the draws as ``calib.inference.bayes.draw_factor`` asks
       (once; ``bayes.focus.longer_run``).
