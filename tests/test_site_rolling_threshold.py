@@ -229,3 +229,46 @@ def test_the_hazard_run_says_when_the_site_and_the_calibration_disagree(tmp_path
         out = capsys.readouterr().out
         assert ("fitted at a CRSP rolling threshold of 0.5 m/s" in out
                 and "gives 0.05 m/s" in out) == said, out
+
+
+def test_the_threshold_check_measures_the_whole_distribution_not_one_quantile():
+    """An entry with an atom of blocks stalled at the release: 6 % of 200
+    blocks at 0 m at the fit's threshold, 4 % at a tenth of it, the rest
+    unchanged. Its 5 % quantile jumps from 0 m to the others' runouts, but the
+    distribution moves by W1 = the 4 moved blocks' runouts / 200, about
+    0.02 x 81 m, under the check's 5 m: not flagged. Had 30 % stalled at the
+    fit's threshold, W1 is about 22 m: flagged, with the distance in the
+    message."""
+    import dataclasses
+
+    from calib.inference.adequacy import _threshold_problem, threshold_convergence
+
+    runs = np.linspace(80.0, 100.0, 200)
+
+    def stalled(fraction):
+        r = runs.copy()
+        r[:round(fraction * r.size)] = 0.0
+        return r
+
+    @dataclasses.dataclass(frozen=True)
+    class Forward:
+        rolling_threshold_m_s: float
+        first: float  # stalled fraction at the fit's threshold
+        entries: object = dataclasses.field(default_factory=lambda: type(
+            "E", (), {"release_x_m": np.array([38.6]), "sizes_m": np.array([0.31])})())
+        n_blocks: int = 200
+
+        def runouts(self, theta):
+            f = self.first if self.rolling_threshold_m_s == 0.05 else 0.04
+            return stalled(f)[None, None, :]
+
+    atom = threshold_convergence(Forward(0.05, 0.06), THETA[0])
+    x, = atom["entries"]
+    assert x["quantiles_m"][0] == 0.0 and x["quantiles_compared_m"][0] > 79.0  # the jump
+    assert x["shift_m"] == pytest.approx(runs[8:12].sum() / 200, abs=0.05)
+    assert 1.0 < x["shift_m"] < 5.0 and not x["flagged"]
+    assert _threshold_problem(atom) is None
+    real = threshold_convergence(Forward(0.05, 0.30), THETA[0])
+    x, = real["entries"]
+    assert x["shift_m"] == pytest.approx(runs[8:60].sum() / 200, abs=0.5) and x["flagged"]
+    assert "Wasserstein-1" in _threshold_problem(real)
