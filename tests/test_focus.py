@@ -220,29 +220,13 @@ def test_chains_that_agree_but_fall_short_of_the_ess_run_once_more_with_more_dra
 
     from calib.inference import bayes_stage as stage_module
     from calib.inference.bayes import draw_factor
-    from calib.inference.bayes_stage import _Stage
-    from calib.inference.budget import Budget
 
     short = _posterior(_ar1_chains(7.0 / 8.0, 4, 1000, seed=3))
     k = draw_factor(short, 4)
     assert not short.ok and k > 1
 
-    class Region:
-        record = {"refined": [], "realisation_waves": []}
-        n_widened, box = 0, None
-
-        def faces_holding(self, samples):
-            return []
-
-    s = _Stage.__new__(_Stage)
-    s.budget = Budget(refinements=0, n_realisations=0, nuts_samples=1000, nuts_chains=4)
-    s.forward = type("Fw", (), {"to_input": staticmethod(lambda t: t),
-                                "from_input": staticmethod(lambda x: x)})()
-    s.rows = type("Rows", (), {"summed": lambda self, r, v: r, "noise_var": lambda self, r, v: r})()
-    s.region, s.posterior, s.draw_factor, s.n_nuts = Region(), short, 1, 1
-    s.target_accept = 0.9
-    s.screened, s.lemu = (np.zeros((8, 2)), np.zeros(8), None), None
-    s.tick, s.tally, s.timings, s.k_nuts, s.box = (lambda *a: None), None, {}, None, None
+    s = _settling_stage(short)
+    Region = s.region
     monkeypatch.setattr(stage_module, "at_posterior", lambda *a: {"ok": True})
     assert not s.settled()
     assert s.draw_factor == k
@@ -278,29 +262,13 @@ def test_chains_that_agree_but_diverge_run_once_more_with_a_smaller_step(monkeyp
 
     from calib.inference import bayes_stage as stage_module
     from calib.inference.bayes import CAREFUL_TARGET_ACCEPT, TARGET_ACCEPT
-    from calib.inference.bayes_stage import _Stage
-    from calib.inference.budget import Budget
 
     rng = np.random.default_rng(6)
     diverged = _posterior(rng.standard_normal((4, 1000, 2)), divergences=4)
     assert not diverged.ok and diverged.problems == ["4 divergent transitions"]
 
-    class Region:
-        record = {"refined": [], "realisation_waves": []}
-        n_widened, box = 0, None
-
-        def faces_holding(self, samples):
-            return []
-
-    s = _Stage.__new__(_Stage)
-    s.budget = Budget(refinements=0, n_realisations=0, nuts_samples=1000, nuts_chains=4)
-    s.forward = type("Fw", (), {"to_input": staticmethod(lambda t: t),
-                                "from_input": staticmethod(lambda x: x)})()
-    s.rows = type("Rows", (), {"summed": lambda self, r, v: r, "noise_var": lambda self, r, v: r})()
-    s.region, s.posterior, s.draw_factor, s.n_nuts = Region(), diverged, 1, 1
-    s.target_accept = TARGET_ACCEPT
-    s.screened, s.lemu = (np.zeros((8, 2)), np.zeros(8), None), None
-    s.tick, s.tally, s.timings, s.k_nuts, s.box = (lambda *a: None), None, {}, None, None
+    s = _settling_stage(diverged)
+    Region = s.region
     monkeypatch.setattr(stage_module, "at_posterior", lambda *a: {"ok": True})
     assert not s.settled()
     assert s.target_accept == CAREFUL_TARGET_ACCEPT
@@ -322,3 +290,30 @@ def test_chains_that_agree_but_diverge_run_once_more_with_a_smaller_step(monkeyp
     assert s.settled()  # this run passes
     s.posterior = diverged
     assert s.settled()  # a careful run that diverges again is not repeated
+
+
+def _settling_stage(posterior):
+    """A ``bayes_stage._Stage`` after its repairs (no refinement or realisation
+    left), holding ``posterior`` and screened draws, for the settling step's
+    last repairs (the careful and the longer run)."""
+    from calib.inference.bayes import TARGET_ACCEPT
+    from calib.inference.bayes_stage import _Stage
+    from calib.inference.budget import Budget
+
+    class Region:
+        record = {"refined": [], "realisation_waves": []}
+        n_widened, box = 0, None
+
+        def faces_holding(self, samples):
+            return []
+
+    s = _Stage.__new__(_Stage)
+    s.budget = Budget(refinements=0, n_realisations=0, nuts_samples=1000, nuts_chains=4)
+    s.forward = type("Fw", (), {"to_input": staticmethod(lambda t: t),
+                                "from_input": staticmethod(lambda x: x)})()
+    s.rows = type("Rows", (), {"summed": lambda self, r, v: r, "noise_var": lambda self, r, v: r})()
+    s.region, s.posterior, s.draw_factor, s.n_nuts = Region(), posterior, 1, 1
+    s.target_accept = TARGET_ACCEPT
+    s.screened, s.lemu = (np.zeros((8, 2)), np.zeros(8), None), None
+    s.tick, s.tally, s.timings, s.k_nuts, s.box = (lambda *a: None), None, {}, None, None
+    return s
