@@ -259,9 +259,8 @@ def draw_factor(post: Posterior, n_chains: int) -> int:
     that slow are better repaired where the density is wrong (the fit's
     refinements) than by running them longer."""
     ess = float(min(np.min(post.ess_bulk), np.min(post.ess_tail)))
-    agree = bool(np.all(np.isfinite(post.rhat)) and np.all(post.rhat < RHAT_MAX))
-    if (not agree or post.divergences or post.n_chains < n_chains or not np.isfinite(ess)
-            or ess >= ESS_MIN or ess <= 0.0):
+    if (not _chains_agree(post) or post.divergences or post.n_chains < n_chains
+            or not np.isfinite(ess) or ess >= ESS_MIN or ess <= 0.0):
         return 1
     k = int(np.ceil(_ESS_MARGIN * ESS_MIN / ess))
     return k if k <= MAX_DRAW_FACTOR else 1
@@ -274,8 +273,12 @@ def careful_run(post: Posterior, n_chains: int) -> bool:
     are kept. Chains that disagree or were dropped are repaired where the
     density is wrong (the fit's refinements), not by a smaller step. Our rule,
     after Stan's advice for divergences (``TARGET_ACCEPT``)."""
-    agree = bool(np.all(np.isfinite(post.rhat)) and np.all(post.rhat < RHAT_MAX))
-    return bool(post.divergences > 0 and agree and post.n_chains >= n_chains)
+    return bool(post.divergences > 0 and _chains_agree(post) and post.n_chains >= n_chains)
+
+
+def _chains_agree(post: Posterior) -> bool:
+    """Every parameter's R-hat finite and below ``RHAT_MAX``."""
+    return bool(np.all(np.isfinite(post.rhat)) and np.all(post.rhat < RHAT_MAX))
 
 
 def keep_chains(post: Posterior, keep) -> Posterior:
