@@ -8,6 +8,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from calib.inference.bayes import (
     CAREFUL_TARGET_ACCEPT,
@@ -126,6 +127,8 @@ def test_divergences_in_chains_that_agree_ask_for_a_careful_run():
     assert not careful_run(_posterior(good[:3], divergences=4), 4)
 
 
+# two NUTS runs, 26 s on 2 cores (2026-12-06); the careful-run rule stays in the default run
+@pytest.mark.slow
 def test_a_larger_target_acceptance_adapts_a_smaller_step():
     """``run_nuts`` hands its target acceptance to NumPyro's step-size
     adaptation: on the same correlated Gaussian (correlation 0.99, inside a

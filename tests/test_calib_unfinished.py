@@ -98,6 +98,7 @@ def test_calibration_counts_unfinished_blocks_and_warns(budget_case):
     assert fit.quality[1]["sim_n_finished"] > 0  # 2 m
 
 
+@pytest.mark.slow  # 37 s on 2 cores (2026-12-06): a whole discrepancy fit
 def test_discrepancy_fit_counts_unfinished_blocks_and_warns(budget_case):
     """The discovery workflow's fit of one candidate on 2 m rows: unfinished blocks
     are counted in the design and the predictive, one warning, and every design

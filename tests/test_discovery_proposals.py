@@ -184,6 +184,7 @@ def _toy_fold_design(rng):
                    25 * 0.05**2, simulate, 2), fold
 
 
+@pytest.mark.slow  # 49 s on 2 cores (2026-12-06): a staged proposal study
 def test_fold_stages_cover_the_training_posterior_the_design_missed():
     """The toy design (``_toy_fold_design``), 256 points for 25 rows in five
     folds: fold 0's five rows pin the posterior at A (sd 0.03 per coordinate),

@@ -112,6 +112,9 @@ def speed_data(tmp_path):
     return data, speeds
 
 
+# a whole fit with speeds (tiny budgets), 147 s on 2 cores (2026-12-06), mostly
+# compilation; the speeds' design and the refusals stay in the default run
+@pytest.mark.slow
 def test_fit_with_speeds_runs_bayes_and_records_them(speed_data, tmp_path, capsys,
                                                      monkeypatch):
     """calib.fit --velocities (tiny budgets): Bayesian only, said in a line; the

@@ -28,6 +28,7 @@ def _peak(x):
     return -40.0 - 4000.0 * ((x[..., 0] - 0.3) ** 2 + 0.5 * (x[..., 1] - 0.6) ** 2)
 
 
+@pytest.mark.slow  # 29 s on 2 cores (2026-12-06): a GP fit on a sharp peak
 def test_the_emulator_finds_the_peak_and_caps_the_wall():
     """Fitted on 96 Sobol points with 4 nats^2 of noise: held-out points above the
     cap within a fifth of the 100 nats the values span there (the GP cannot

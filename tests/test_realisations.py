@@ -34,6 +34,7 @@ def _design(seed, n=24):
     return x, _loglik(x) + NOISE_SD * rng.standard_normal(n), rng
 
 
+@pytest.mark.slow  # 30 s on 2 cores (2026-12-06): a sampling study
 def test_realisations_follow_the_gp_posterior():
     """Pathwise draws (random Fourier features + Matheron's rule) have the GP's
     posterior mean and variance of log(T - y) at design and off-design points
