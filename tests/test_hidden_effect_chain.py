@@ -1,15 +1,16 @@
 """The discovery loop end to end on a synthetic site with a known hidden effect
 (``scripts/hidden_effect_chain.py``): discover names the effect, the fit with it
 scores better than the baseline on rows of the same site that no fit saw, and
-its hazard exceedance lies closer to the truth's.
+its hazard exceedance moves towards the truth's: at the road, and, a stricter
+verdict, at every station the truth or a fit passes.
 
 The chains themselves are slow (``pytest -m slow tests/test_hidden_effect_chain.py``:
-about 20 minutes per effect on 2 cores (size dissipation, 2026-12-03: 1212 s), 180 rows,
-the default budgets; the vegetation belt with 30 passage speeds at 110 m as well, the
-design docs/studies.md found it needs, fitted by discover and by both fits); the
-script's own bookkeeping is checked in the default run.
+about 10-35 minutes per effect on 2 cores, 180 rows, the default budgets; the
+vegetation belt with 30 passage speeds at 110 m as well, the design
+docs/studies.md found it needs, fitted by discover and by both fits); each runs
+once and both verdicts read it. The script's own bookkeeping is checked in the
+default run.
 """
-
 from __future__ import annotations
 
 import json
@@ -58,17 +59,12 @@ def test_exceedance_comparison_counts_live_stations_and_the_band():
 # every effect"): runouts and sizes alone cannot tell it from a lower Kt
 _SPEEDS = {"vegetation_belt": ["--velocity-stations-m", "110", "--n-velocity", "30"]}
 
+# Fragmentation's 0.2 m blocks sit at Monte Carlo level: mean |P - P_truth| 0.010 with
+# the effect against 0.009 (2026-11-27), 0.0093 against 0.0090 (2026-12-05, twice), and
+# 0.0089 against 0.0092 (2026-12-06, another machine and installation; docs/studies.md,
+# "The chains at the road"): small blocks seldom break, so the two fits differ there by
+# noise, and the verdict at that size can go either way from one run to the next.
 _SHORT = {
-    # measured with this test's chain (2026-11-27, docs/studies.md, "The loop closed on
-    # a known truth"; again 2026-12-05, "The other three chains, rerun with the
-    # best-point waves"; "The fragmentation and belt chains with twelve realisation
-    # waves"): everything else held; the requirement stays
-    "fragmentation": "0.2 m blocks: mean |P - P_truth| 0.010 with the effect against "
-                     "0.009 for the baseline over 33 stations (0.5-2.0 m: 0.013-0.016 "
-                     "against 0.021-0.119); again 2026-12-05: 0.0093 against 0.0090 "
-                     "(0.5-2.0 m: 0.013-0.017 against 0.021-0.119); again 2026-12-05 with 12 "
-                     "realisation waves: 0.0093 against 0.0090; small blocks seldom "
-                     "break, so the two fits differ there by Monte Carlo error",
     # measured with this test's chain, 180 runouts and 30 speeds at 110 m (2026-12-05,
     # docs/studies.md, "The forest belt's chain, with its passage speeds"; again "The
     # fragmentation and belt chains with twelve realisation waves")
@@ -81,19 +77,69 @@ _SHORT = {
 }
 
 
+EFFECTS = ("size_dissipation", "rolling_resistance", "fragmentation", "vegetation_belt")
+# a size is live at a station where the truth or a fit exceeds it with more than this
+# (``calib.discovery.synthetic.compare_exceedance``'s own threshold)
+LIVE_P = 0.005
+
+_NO_ROAD = {
+    # measured with this test's chain (2026-12-05, docs/studies.md, "The forest belt's
+    # chain, with its passage speeds")
+    "vegetation_belt": "no block size reaches the road (x 230 m) with more than 0.005 in "
+                       "the truth or either fit: the belt stops blocks far above it, so "
+                       "the road cannot show the belt",
+}
+
+
+@pytest.fixture(scope="module")
+def chains(tmp_path_factory):
+    """effect -> the chain's ``chain.json``; each effect's chain runs once."""
+    done = {}
+
+    def run(effect):
+        if effect not in done:
+            out = tmp_path_factory.mktemp(f"chain-{effect}")
+            assert chain.main(["--effect", effect, *_SPEEDS.get(effect, []),
+                               "--out", str(out)]) == 0
+            done[effect] = json.loads((out / "chain.json").read_text())
+        return done[effect]
+    return run
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("effect", [
-    pytest.param(e, marks=pytest.mark.xfail(reason=_SHORT[e], strict=True)) if e in _SHORT
-    else e for e in ("size_dissipation", "rolling_resistance", "fragmentation",
-                     "vegetation_belt")])
-def test_the_named_effect_refits_scores_better_and_moves_the_hazard_to_the_truth(
-        effect, tmp_path):
-    assert chain.main(["--effect", effect, *_SPEEDS.get(effect, []),
-                       "--out", str(tmp_path)]) == 0
-    r = json.loads((tmp_path / "chain.json").read_text())
+@pytest.mark.parametrize("effect", EFFECTS)
+def test_discover_names_the_effect_and_its_fit_scores_better_on_unseen_rows(effect, chains):
+    r = chains(effect)
     assert r["named_effects"][:1] == [effect], r["named_effects"]
     v = r["validation"]
     assert v["effect"]["mean_crps_m"] < v["baseline"]["mean_crps_m"], v
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("effect", [
+    pytest.param(e, marks=pytest.mark.xfail(reason=_NO_ROAD[e], strict=True)) if e in _NO_ROAD
+    else e for e in EFFECTS])
+def test_the_effect_moves_the_road_exceedance_to_the_truth(effect, chains):
+    """At the road, every size the truth or a fit brings there lies at least as close
+    to the truth with the effect as without, and at least one size gets there."""
+    r = chains(effect)
+    road = {d: e["road"] for d, e in r["exceedance"].items()}
+    live = [d for d, x in road.items()
+            if max(x["truth"], x["baseline"][0], x["effect"][0]) > LIVE_P]
+    assert live, road
+    for d in live:
+        x = road[d]
+        assert abs(x["effect"][0] - x["truth"]) <= abs(x["baseline"][0] - x["truth"]), (d, x)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("effect", [
+    pytest.param(e, marks=pytest.mark.xfail(reason=_SHORT[e], strict=True)) if e in _SHORT
+    else e for e in EFFECTS])
+def test_the_effect_brings_every_station_closer_to_the_truth(effect, chains):
+    """The stricter verdict: at every size, the mean |P - P_truth| over the stations
+    the truth or a fit passes is no larger with the effect than without."""
+    r = chains(effect)
     closer = [e["effect"]["mean_abs_error"] <= e["baseline"]["mean_abs_error"]
               for e in r["exceedance"].values() if e["n_stations"]]
     assert closer and all(closer), r["exceedance"]
