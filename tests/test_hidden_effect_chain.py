@@ -8,9 +8,10 @@ The chains themselves are slow (``pytest -m slow tests/test_hidden_effect_chain.
 about 10-35 minutes per effect on 2 cores, 180 rows, the default budgets; the
 vegetation belt with 30 passage speeds at 110 m as well, the design
 docs/studies.md found it needs, fitted by discover and by both fits); each runs
-once and both verdicts read it. The script's own bookkeeping is checked in the
+once and the three verdicts below read it. The script's own bookkeeping is checked in the
 default run.
 """
+
 from __future__ import annotations
 
 import json
