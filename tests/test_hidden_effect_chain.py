@@ -21,7 +21,7 @@ import pandas as pd
 import pytest
 from cli_run import load_script
 
-from calib.discovery.synthetic import compare_exceedance
+from calib.discovery.synthetic import LIVE_P_EXCEED, compare_exceedance
 
 chain = load_script("hidden_effect_chain")
 
@@ -79,9 +79,6 @@ _SHORT = {
 
 
 EFFECTS = ("size_dissipation", "rolling_resistance", "fragmentation", "vegetation_belt")
-# a size is live at a station where the truth or a fit exceeds it with more than this
-# (``calib.discovery.synthetic.compare_exceedance``'s own threshold)
-LIVE_P = 0.005
 
 _NO_ROAD = {
     # measured with this test's chain (2026-12-05, docs/studies.md, "The forest belt's
@@ -126,7 +123,7 @@ def test_the_effect_moves_the_road_exceedance_to_the_truth(effect, chains):
     r = chains(effect)
     road = {d: e["road"] for d, e in r["exceedance"].items()}
     live = [d for d, x in road.items()
-            if max(x["truth"], x["baseline"][0], x["effect"][0]) > LIVE_P]
+            if max(x["truth"], x["baseline"][0], x["effect"][0]) > LIVE_P_EXCEED]
     assert live, road
     for d in live:
         x = road[d]

@@ -20,12 +20,15 @@ import numpy as np
 from calib.files.observations import Observations, Velocities
 from calib.model.forward import CrspForward, DemForward
 
-__all__ = ["SYNTH_SIZES_M", "compare_exceedance", "observations_csv_text", "synthesize",
-           "synthesize_effect", "synthesize_velocities", "truth_exceedance",
+__all__ = ["LIVE_P_EXCEED", "SYNTH_SIZES_M", "compare_exceedance", "observations_csv_text",
+           "synthesize", "synthesize_effect", "synthesize_velocities", "truth_exceedance",
            "velocities_csv_text"]
 
 # size classes of synthetic data with hidden effects (0.2-2.0 m, the paper's range)
 SYNTH_SIZES_M = (0.2, 0.4, 0.7, 1.0, 1.4, 2.0)
+# a station is live for a size where the truth or a fit exceeds it with more than this
+# probability (``compare_exceedance``): below it, fits differ by Monte Carlo error alone
+LIVE_P_EXCEED = 0.005
 
 
 def _finished_runouts(fw, theta, n: int) -> np.ndarray:
@@ -223,7 +226,8 @@ def compare_exceedance(tables: dict, truth_p: np.ndarray, sizes_m, stations_x_m,
         road_x_m: the station of interest (the nearest station is reported).
 
     Returns:
-        {str(size): {"n_stations": stations where the truth or a fit exceeds 0.005,
+        {str(size): {"n_stations": stations where the truth or a fit exceeds
+        ``LIVE_P_EXCEED``,
         label: {"mean_abs_error": mean |P_fit - P_truth| over those stations,
         "truth_in_band": share of them whose truth lies in the fit's 5-95 % band}
         (None where no station is live), "road": {"x_m", "truth", label: [mean, q05,
@@ -235,9 +239,9 @@ def compare_exceedance(tables: dict, truth_p: np.ndarray, sizes_m, stations_x_m,
         rows = {k: t[np.isclose(t["block_size_m"], d)].set_index("x_m").loc[stations_x_m]
                 for k, t in tables.items()}
         p_t = truth_p[s]
-        live = p_t > 0.005
+        live = p_t > LIVE_P_EXCEED
         for r in rows.values():
-            live |= r["p_exceed_mean"].to_numpy() > 0.005
+            live |= r["p_exceed_mean"].to_numpy() > LIVE_P_EXCEED
         entry = {"n_stations": int(live.sum())}
         i_road = int(np.argmin(np.abs(stations_x_m - road_x_m)))
         entry["road"] = {"x_m": float(stations_x_m[i_road]), "truth": float(p_t[i_road])}
