@@ -83,9 +83,9 @@ EFFECTS = ("size_dissipation", "rolling_resistance", "fragmentation", "vegetatio
 _NO_ROAD = {
     # measured with this test's chain (2026-12-05, docs/studies.md, "The forest belt's
     # chain, with its passage speeds")
-    "vegetation_belt": "no block size reaches the road (x 230 m) with more than 0.005 in "
-                       "the truth or either fit: the belt stops blocks far above it, so "
-                       "the road cannot show the belt",
+    "vegetation_belt": f"no block size reaches the road (x 230 m) with more than "
+                       f"{LIVE_P_EXCEED:g} in the truth or either fit: the belt stops blocks "
+                       "far above it, so the road cannot show the belt",
 }
 
 
