@@ -109,6 +109,31 @@ def test_calibration_files_carry_the_threshold_and_older_ones_the_default(tmp_pa
     assert load_calibration(path, "crsp").rolling_threshold_m_s == 0.05
 
 
+def test_site_and_calibration_files_take_the_same_thresholds(tmp_path):
+    """One range (``solvers.crsp.ROLLING_THRESHOLD_RANGE_M_S``) for both files:
+    a calibration file holds the threshold its site stated, so a value one
+    reader refuses the other refuses too, and its ends are taken by both."""
+    lo, hi = crsp.ROLLING_THRESHOLD_RANGE_M_S
+    (tmp_path / "site").mkdir()
+    site_json = tmp_path / "site" / "profile_site.json"
+    path = write_calibration(tmp_path, crsp=(0.41, 0.87, 2.0), dem=None)
+    doc = json.loads(pathlib.Path(path).read_text())
+    for value in (lo / 2, lo, 0.05, hi, hi * 1.01):
+        site_json.write_text(json.dumps({"rolling_threshold_m_s": value,
+                                         "rolling_threshold_source": "test"}))
+        doc["rolling_threshold_m_s"] = value
+        pathlib.Path(path).write_text(json.dumps(doc))
+        taken = []
+        for load, error in ((lambda: load_site(str(tmp_path / "site" / "profile.csv")),
+                             SiteError),
+                            (lambda: load_calibration(path, "crsp"), CalibrationError)):
+            try:
+                taken.append(load().rolling_threshold_m_s == value)
+            except error:
+                taken.append(False)
+        assert taken == [lo <= value <= hi] * 2, (value, taken)
+
+
 def _tschamut_calibration(folder, threshold=None) -> str:
     """A CRSP calibration on the Tschamut line at ``THETA`` whose fit released
     its rows at their tracked heights and speeds, with ``threshold`` (None: a

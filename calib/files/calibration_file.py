@@ -59,7 +59,7 @@ import numpy as np
 from calib.model.alpha_law import FORMS, PARAMETER_RANGES
 from calib.model.effects import EFFECTS, check_combination, effect_columns, effect_names
 from calib.model.priors import base_name, rolling_zone
-from solvers.crsp import ROLLING_THRESHOLD_M_S
+from solvers.crsp import ROLLING_THRESHOLD_M_S, ROLLING_THRESHOLD_RANGE_M_S
 from solvers.dem import check_run_numerics
 from solvers.material import ROCK_DENSITY_KG_M3
 
@@ -362,7 +362,7 @@ def _model_from_doc(path: str, doc: dict, model: str | None) -> Calibration:
                        rolling_threshold_m_s=_number(
                            path, "rolling_threshold_m_s",
                            doc.get("rolling_threshold_m_s", ROLLING_THRESHOLD_M_S),
-                           0.0, 10.0, False),
+                           *ROLLING_THRESHOLD_RANGE_M_S, True),
                        **{k: _number(path, k, doc.get(k, 0.0), 0.0, math.inf, True)
                           for k in ("release_height_sd_m", "release_speed_sd_m_s")})
 

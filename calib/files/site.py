@@ -62,7 +62,7 @@ import json
 import math
 import os
 
-from solvers.crsp import ROLLING_THRESHOLD_M_S
+from solvers.crsp import ROLLING_THRESHOLD_M_S, ROLLING_THRESHOLD_RANGE_M_S
 from solvers.material import ROCK_DENSITY_KG_M3
 
 __all__ = ["Site", "SiteError", "load_site", "site_path"]
@@ -182,7 +182,8 @@ def load_site(profile_path: str) -> Site:
     threshold = (Site.rolling_threshold_m_s, Site.rolling_threshold_source)
     if "rolling_threshold_m_s" in doc or "rolling_threshold_source" in doc:
         threshold = _sourced_number(path, doc, "rolling_threshold_m_s",
-                                   "rolling_threshold_source", lo=1e-4, hi=10.0)
+                                   "rolling_threshold_source",
+                                   *ROLLING_THRESHOLD_RANGE_M_S)
     return Site(name, x, label, ref, ref_label, path, rho, rho_source,
                 *errors[0], *errors[1], *threshold)
 

@@ -39,6 +39,7 @@ from solvers.crsp._model import (
 )
 from solvers.crsp._params import (
     ROLLING_THRESHOLD_M_S,
+    ROLLING_THRESHOLD_RANGE_M_S,
     Block,
     Params,
     Settings,
@@ -48,6 +49,7 @@ from solvers.crsp._params import (
 
 __all__ = [
     "ROLLING_THRESHOLD_M_S",
+    "ROLLING_THRESHOLD_RANGE_M_S",
     "BUDGET",
     "CONTACT",
     "FLIGHT",

@@ -19,8 +19,8 @@ import numpy as np
 from solvers.material import ROCK_DENSITY_KG_M3
 from solvers.profile import Profile
 
-__all__ = ["ROLLING_THRESHOLD_M_S", "Block", "Params", "Settings", "make_block",
-           "params_from_profile"]
+__all__ = ["ROLLING_THRESHOLD_M_S", "ROLLING_THRESHOLD_RANGE_M_S", "Block", "Params", "Settings",
+           "make_block", "params_from_profile"]
 
 # The default rolling threshold, m/s: a rebound (or a landing, or a release on the
 # ground) whose normal speed relative to the mean segment is below it keeps the
@@ -34,6 +34,13 @@ __all__ = ["ROLLING_THRESHOLD_M_S", "Block", "Params", "Settings", "make_block",
 # the strict xfail ``tests/test_crsp_invariants.py::
 # test_runouts_do_not_depend_on_the_rolling_threshold_below_the_default``).
 ROLLING_THRESHOLD_M_S = 0.5
+
+# The rolling thresholds a site or a calibration file may state, m/s (closed
+# interval). Our choice: the cutoff must stay positive, or nothing ends the
+# sequence of ever smaller hops; 1e-4 m/s (a rebound of about half a micrometre)
+# lies far below where runouts settle (about 0.05 m/s, above); at 10 m/s nearly
+# every landing of a rockfall would already roll.
+ROLLING_THRESHOLD_RANGE_M_S = (1e-4, 10.0)
 
 _INERTIA_RATIO = {"sphere": 0.4, "cylinder": 0.5, "disc": 0.5}
 
