@@ -16,8 +16,9 @@
   writing. JAX then warns ("Error reading persistent compilation cache
   entry ...") and compiles the program itself, so a torn read costs one
   compilation and changes no result (``tests/test_compilation_cache.py``);
-  the run lets that one warning pass (``pyproject.toml`` for the test
-  processes, ``PYTHONWARNINGS`` for the processes they start). JAX locks its
+  the run lets that one warning pass (a ``filterwarnings`` line added to
+  the test processes' settings, ``PYTHONWARNINGS`` for the processes they
+  start). JAX locks its
   cache only when it has a size limit, and then rescans every entry at each
   write (``jax/_src/lru_cache.py``): over the run's ~1,400 entries that cost
   more than the compilations it shared (docs/testing.md).
@@ -38,8 +39,7 @@ import pytest
 
 _CACHE_VARIABLE = "JAX_COMPILATION_CACHE_DIR"
 _OWN_CACHE = pytest.StashKey[str]()
-# the warning of a torn cache read (``jax._src.compiler``): the program is compiled
-# instead; the same text as the ignore rule in pyproject.toml's filterwarnings
+# the warning of a torn cache read (``jax._src.compiler``): the program is compiled instead
 TORN_READ_WARNING = "Error reading persistent compilation cache entry"
 
 
@@ -48,6 +48,7 @@ def pytest_configure(config):
     inherit the environment): the run's compilation cache."""
     os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
     rule = f"ignore:{TORN_READ_WARNING}:UserWarning"
+    config.addinivalue_line("filterwarnings", rule)  # after "error": this one wins
     kept = os.environ.get("PYTHONWARNINGS", "")
     if rule not in kept.split(","):
         os.environ["PYTHONWARNINGS"] = ",".join(filter(None, (kept, rule)))

@@ -47,9 +47,8 @@ def test_a_half_written_cache_entry_is_compiled_again(tmp_path):
 
 
 def test_the_test_processes_let_the_torn_read_warning_pass():
-    """pyproject.toml's filterwarnings turn every warning into an error but
-    this one (the text JAX writes, ``jax._src.compiler``); another stays an
-    error."""
+    """The test settings turn every warning into an error but this one (the
+    text JAX writes, ``jax._src.compiler``); another stays an error."""
     warnings.warn(f"{TORN_READ_WARNING} for 'jit_f': ZstdError: truncated")
     try:
         warnings.warn("Error reading something else")
