@@ -93,8 +93,9 @@ def _road_past_the_belt_m() -> float:
     """
     from calib.model import effects
     from solvers.profile import load_profile
-    profile = load_profile("data/postignano_profile.csv")
-    start_m = effects.truth("vegetation_belt", 1.0, profile)[-2]
+    defaults = chain.build_parser()  # the chain's own profile and strength
+    profile = load_profile(defaults.get_default("profile"))
+    start_m = effects.truth("vegetation_belt", defaults.get_default("strength"), profile)[-2]
     end_m = start_m + effects.belt_geometry_m(profile)[2]
     return float(10.0 * np.ceil(end_m / 10.0))
 
