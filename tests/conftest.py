@@ -18,10 +18,10 @@
   compilation and changes no result (``tests/test_compilation_cache.py``);
   the run lets that one warning pass (a ``filterwarnings`` line added to
   the test processes' settings, ``PYTHONWARNINGS`` for the processes they
-  start). JAX locks its
-  cache only when it has a size limit, and then rescans every entry at each
-  write (``jax/_src/lru_cache.py``): over the run's ~1,400 entries that cost
-  more than the compilations it shared (docs/testing.md).
+  start). JAX locks its cache only when it has a size limit, and then
+  rescans every entry at each write (``jax/_src/lru_cache.py``): over the
+  run's ~1,400 entries that cost more than the compilations it shared
+  (docs/testing.md).
 * The default run spreads its test files over two worker processes
   (pytest-xdist, ``-n 2 --dist loadfile`` in ``pyproject.toml``): one per
   core of a 2-core machine; a file's tests share one worker and its fixtures.

@@ -100,10 +100,9 @@ def _road_past_the_belt_m() -> float:
     return float(10.0 * np.ceil(end_m / 10.0))
 
 
-# per effect, the chain's options beyond the defaults: the belt's data design (its
-# passage speeds) and its road
-_OPTIONS = {"vegetation_belt": [*_SPEEDS["vegetation_belt"],
-                                "--road-x-m", f"{_road_past_the_belt_m():g}"]}
+# the effects whose site puts its road elsewhere than the chain's default (computed
+# when the chain runs, not when the default run imports this file)
+_ROADS = {"vegetation_belt": _road_past_the_belt_m}
 
 
 @pytest.fixture(scope="module")
@@ -114,7 +113,8 @@ def chains(tmp_path_factory):
     def run(effect):
         if effect not in done:
             out = tmp_path_factory.mktemp(f"chain-{effect}")
-            assert chain.main(["--effect", effect, *_OPTIONS.get(effect, []),
+            road = (["--road-x-m", f"{_ROADS[effect]():g}"] if effect in _ROADS else [])
+            assert chain.main(["--effect", effect, *_SPEEDS.get(effect, []), *road,
                                "--out", str(out)]) == 0
             done[effect] = json.loads((out / "chain.json").read_text())
         return done[effect]
