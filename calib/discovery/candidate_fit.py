@@ -118,7 +118,11 @@ from calib.inference.likelihood import (
     observed_rows,
     velocity_rows_loglik,
 )
-from calib.inference.loglik_emulator import fit_loglik_emulator, smoothed_at_design
+from calib.inference.loglik_emulator import (
+    fit_loglik_emulator,
+    predict_batch,
+    smoothed_at_design,
+)
 from calib.inference.predictive_check import pool_draws
 from calib.model.entries import Entries
 from calib.model.priors import Box
@@ -661,10 +665,9 @@ def _surrogate_fit(z, total, log_q, noise_var: float, n_rows: int, rng, log_jac)
     d = z.shape[1]
     emu = fit_loglik_emulator(z, total, np.full(z.shape[0], noise_var), np.zeros(d),
                               np.ones(d), n_rows)
-    gp_mean = jax.jit(jax.vmap(lambda x: emu.predict(x)[0]))
 
     def mean_ll(x):
-        return np.asarray(gp_mean(jnp.asarray(x)))
+        return np.asarray(predict_batch(emu, jnp.asarray(x))[0])
 
     mean, cov = gaussian_fit(z, psis_weights(mean_ll(z) - log_q)[0])
     for _ in range(SURROGATE_ROUNDS):

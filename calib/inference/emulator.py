@@ -80,6 +80,7 @@ def _fit_one(x, y, nv):
     return h
 
 
+@jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class QuantileEmulator:
     """Fitted GPs: outputs (S, K) at per-size inputs x (S, d).
@@ -93,6 +94,9 @@ class QuantileEmulator:
         y_mean, y_std: (S, K) output standardisation, m.
         levels: (K,) probability levels (NaN where the GPs emulate something
             else: ``calib.inference.loglik_emulator``).
+
+    A pytree (every field an array leaf), so that compiled functions take it as
+    an argument (``predict_batch``).
     """
 
     x_unit: jax.Array
@@ -126,6 +130,19 @@ class QuantileEmulator:
                           self.y_std)
         # quantiles must not cross: sort the means (a permutation, continuous in x)
         return jnp.sort(mean, axis=-1), var
+
+
+@jax.jit
+def predict_batch(emu: QuantileEmulator, x: jax.Array):
+    """``emu.predict`` over a leading batch axis: x (B, S, d) -> means and latent
+    variances (B, S, K) each.
+
+    Compiled with the emulator as an argument, not a constant: a closure over
+    ``emu`` folds its arrays (the Cholesky factors: n^2 per GP) into the program,
+    which is then compiled anew for every fitted emulator and never found in the
+    compilation cache; as an argument, one program serves every emulator of the
+    same array shapes."""
+    return jax.vmap(emu.predict)(x)
 
 
 def _bootstrap_var(runouts: np.ndarray, levels: np.ndarray, n_boot: int = 64) -> np.ndarray:
@@ -274,7 +291,7 @@ def holdout_error(x: np.ndarray, runouts: np.ndarray, lo, hi, n_levels: int = 10
     noise = _bootstrap_var(runouts[test], emu.levels)  # (n_test, S, K)
     xt = np.stack([per_size_inputs(row) if per_size_inputs
                    else np.broadcast_to(row, (n_s, len(row))) for row in x[test]])
-    mean, var = jax.jit(jax.vmap(emu.predict))(jnp.asarray(xt))
+    mean, var = predict_batch(emu, jnp.asarray(xt))
     errs = np.asarray(mean) - q
     zs = errs / np.sqrt(np.asarray(var) + noise + 1e-6)
     return {"rmse_m": float(np.sqrt(np.mean(errs**2))),

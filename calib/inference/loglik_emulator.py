@@ -83,11 +83,13 @@ N_FEATURES = 1024  # random Fourier features of a realisation (``realisation_dra
 Z_AT_POSTERIOR_MAX = 3.0  # RMS standardised error at the posterior's draws (``at_posterior``)
 
 
+@jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class LoglikEmulator:
     """A fitted GP of the log deficit of the capped summed log-likelihood
     (module docstring): one GP of ``calib.inference.emulator`` (one "size", one
-    "level"), its cap and its ceiling T = max_j y_j + delta."""
+    "level"), its cap and its ceiling T = max_j y_j + delta. A pytree, so that
+    compiled functions take it as an argument (``predict_batch``)."""
 
     gp: QuantileEmulator
     cap: float
@@ -153,6 +155,14 @@ class LoglikEmulator:
         f = (self._prior_features(w, omega, b, xu)[0]
              + se_kernel(xu, gp.x_unit, gp.hyp[0][0, 0], gp.hyp[1][0, 0])[0] @ coef)
         return self.ceiling - jnp.exp(gp.y_mean[0, 0] + gp.y_std[0, 0] * f)
+
+
+@jax.jit
+def predict_batch(emu: LoglikEmulator, x: jax.Array):
+    """``emu.predict`` at each row of x (n, d): means (n,) and variances (n,),
+    nats and nats^2. The emulator is an argument, not a constant of the program
+    (``calib.inference.emulator.predict_batch``: why)."""
+    return jax.vmap(emu.predict)(x)
 
 
 def _capped(ll: np.ndarray, n_rows: int) -> tuple[np.ndarray, float]:
@@ -286,7 +296,7 @@ def at_posterior(emu: LoglikEmulator, x: np.ndarray, ll: np.ndarray, noise_var: 
         dict with ``z_rms``, ``z_median``, ``emulated_median_nats``,
         ``simulated_median_nats``, ``z_max`` (the bar) and ``ok``.
     """
-    mean, var = jax.vmap(emu.predict)(jnp.asarray(x))
+    mean, var = predict_batch(emu, jnp.asarray(x))
     y = np.maximum(np.where(np.isfinite(ll), ll, -np.inf), emu.cap)
     z = (y - np.asarray(mean)) / np.sqrt(np.asarray(var) + np.asarray(noise_var) + 1e-9)
     z_rms = float(np.sqrt(np.mean(z**2)))
@@ -314,7 +324,7 @@ def loglik_holdout(x: np.ndarray, ll: np.ndarray, noise_var: np.ndarray, lo, hi,
     train = np.setdiff1d(np.arange(n), test)
     emu = fit_loglik_emulator(x[train], ll[train], noise_var[train], lo, hi, n_rows,
                               None if level_of is None else np.asarray(level_of)[train])
-    mean, var = jax.vmap(emu.predict)(jnp.asarray(x[test]))
+    mean, var = predict_batch(emu, jnp.asarray(x[test]))
     y = np.maximum(np.where(np.isfinite(ll[test]), ll[test], -np.inf), emu.cap)
     err = np.asarray(mean) - y
     z = err / np.sqrt(np.asarray(var) + np.asarray(noise_var)[test] + 1e-9)
