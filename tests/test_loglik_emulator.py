@@ -248,3 +248,23 @@ def test_chains_start_at_the_best_design_points_spread_apart():
     assert np.allclose(starts[0], [0.5, 0.5])
     assert {tuple(p) for p in starts[1:]} == {(0.9, 0.1), (0.1, 0.9)}
     assert chain_starts(theta[-1:], ll[-1:], box, 2) is None  # outside the box
+
+
+def test_emulators_of_one_shape_share_one_compiled_prediction():
+    """Two emulators fitted to different designs of the same size go through
+    ``predict_batch`` as arguments: one compiled program for both, and each
+    gives its own ``predict``'s values (a closure over the emulator would fold
+    its arrays into a program of its own)."""
+    from calib.inference.loglik_emulator import predict_batch
+
+    x = qmc.Sobol(2, scramble=True, seed=3).random_base2(4)
+    pts = jnp.asarray(qmc.Sobol(2, scramble=True, seed=4).random_base2(3))
+    emus = [fit_loglik_emulator(x, _peak(x) + shift, np.full(len(x), 1.0), LO, HI, 10)
+            for shift in (0.0, 5.0)]
+    before = predict_batch._cache_size()
+    for emu in emus:
+        mean, var = predict_batch(emu, pts)
+        one = [emu.predict(p) for p in pts]
+        np.testing.assert_allclose(mean, [float(m) for m, _ in one], rtol=1e-10)
+        np.testing.assert_allclose(var, [float(v) for _, v in one], rtol=1e-10)
+    assert predict_batch._cache_size() - before <= 1  # 0 where an earlier test compiled it
