@@ -118,11 +118,7 @@ from calib.inference.likelihood import (
     observed_rows,
     velocity_rows_loglik,
 )
-from calib.inference.loglik_emulator import (
-    fit_loglik_emulator,
-    predict_batch,
-    smoothed_at_design,
-)
+from calib.inference.loglik_emulator import fit_loglik_emulator, predict_batch, smoothed_at_design
 from calib.inference.predictive_check import pool_draws
 from calib.model.entries import Entries
 from calib.model.priors import Box
