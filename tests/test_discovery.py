@@ -378,6 +378,7 @@ def test_design_scale_multiplies_the_main_designs_points():
     assert scaled_design(base, 1.0) == base
 
 
+@pytest.mark.slow  # 21 s inside the default run (2026-12-06); it keeps scaled_design's own test
 def test_discover_design_scale_reaches_every_fit(tmp_path, capsys):
     """``--design-scale 2`` at the quick budget: the budget recorded and every
     candidate's design carry twice the points (15 s on 2 cores)."""
