@@ -255,7 +255,7 @@ def test_emulators_of_one_shape_share_one_compiled_prediction():
     ``predict_batch`` as arguments: one compiled program for both, and each
     gives its own ``predict``'s values (a closure over the emulator would fold
     its arrays into a program of its own)."""
-    from calib.inference.loglik_emulator import predict_batch
+    from calib.inference.emulator import predict_batch
 
     x = qmc.Sobol(2, scramble=True, seed=3).random_base2(4)
     pts = jnp.asarray(qmc.Sobol(2, scramble=True, seed=4).random_base2(3))

@@ -104,6 +104,7 @@ from calib.discovery.proposals import PROPOSAL_DF, gaussian_fit, mixture_log_q, 
 from calib.discovery.residuals import point_view
 from calib.discovery.scores import crps_ensemble, cv_elpd, training_sums
 from calib.inference.budget import DiscoveryBudget
+from calib.inference.emulator import predict_batch
 from calib.inference.importance import (
     KHAT_MAX,
     MIN_POINTS,
@@ -118,7 +119,7 @@ from calib.inference.likelihood import (
     observed_rows,
     velocity_rows_loglik,
 )
-from calib.inference.loglik_emulator import fit_loglik_emulator, predict_batch, smoothed_at_design
+from calib.inference.loglik_emulator import fit_loglik_emulator, smoothed_at_design
 from calib.inference.predictive_check import pool_draws
 from calib.model.entries import Entries
 from calib.model.priors import Box

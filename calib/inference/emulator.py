@@ -133,9 +133,11 @@ class QuantileEmulator:
 
 
 @jax.jit
-def predict_batch(emu: QuantileEmulator, x: jax.Array):
-    """``emu.predict`` over a leading batch axis: x (B, S, d) -> means and latent
-    variances (B, S, K) each.
+def predict_batch(emu, x: jax.Array):
+    """``emu.predict`` over a leading batch axis of x, for either emulator
+    pytree: a ``QuantileEmulator``, x (B, S, d) -> means and latent variances
+    (B, S, K) each; a ``calib.inference.loglik_emulator.LoglikEmulator``, x
+    (n, d) -> means (n,) and variances (n,), nats and nats^2.
 
     Compiled with the emulator as an argument, not a constant: a closure over
     ``emu`` folds its arrays (the Cholesky factors: n^2 per GP) into the program,

@@ -73,7 +73,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from calib.inference.emulator import QuantileEmulator, fit_gps, se_kernel
+from calib.inference.emulator import QuantileEmulator, fit_gps, predict_batch, se_kernel
 
 __all__ = ["CAP_NATS_PER_ROW", "Z_AT_POSTERIOR_MAX", "LoglikEmulator", "at_posterior",
            "fit_loglik_emulator", "loglik_holdout", "smoothed_at_design"]
@@ -155,14 +155,6 @@ class LoglikEmulator:
         f = (self._prior_features(w, omega, b, xu)[0]
              + se_kernel(xu, gp.x_unit, gp.hyp[0][0, 0], gp.hyp[1][0, 0])[0] @ coef)
         return self.ceiling - jnp.exp(gp.y_mean[0, 0] + gp.y_std[0, 0] * f)
-
-
-@jax.jit
-def predict_batch(emu: LoglikEmulator, x: jax.Array):
-    """``emu.predict`` at each row of x (n, d): means (n,) and variances (n,),
-    nats and nats^2. The emulator is an argument, not a constant of the program
-    (``calib.inference.emulator.predict_batch``: why)."""
-    return jax.vmap(emu.predict)(x)
 
 
 def _capped(ll: np.ndarray, n_rows: int) -> tuple[np.ndarray, float]:
