@@ -55,6 +55,7 @@ import jax
 
 from calib.files.provenance import command_args, command_running
 from calib.model.effects import CRSP_EFFECTS
+from calib.model.priors import CRSP_ROLLING_BOX, ROLLING, NoRestError
 from calib.model.unfinished import UnfinishedBlocksWarning
 from calib.validate import print_summary as print_validation
 from calib.validate import run_validation
@@ -94,7 +95,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "emulator, posterior) or both (default)")
     p.add_argument("--rolling-resistance", choices=["fit", "zones", "profile"], default="fit",
                    help="CRSP rolling resistance angle: fit it as a 4th parameter, one value "
-                        "for the slope, prior 5-40 deg, with S from 0.01 m (default); 'zones': "
+                        "for the slope, prior 5-40 deg (from the profile's flattest slope "
+                        "where that is steeper: below it no block can rest on the profile), "
+                        "with S from 0.01 m (default); 'zones': "
                         "fit one angle per material zone of the profile(s), "
                         "rolling_friction_deg[<zone>], same prior; 'profile': keep the "
                         "profile's per-zone rolling_friction_deg and S from 0.25 m")
@@ -245,11 +248,14 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
         bar = Progress(progress, model.upper())
         with warnings.catch_warnings():  # reported in the summary and the json
             warnings.simplefilter("ignore", UnfinishedBlocksWarning)
-            fits[model] = fit_model(model, inputs, entries, jax.random.fold_in(key, i),
-                                    methods=methods, quick=quick,
-                                    rolling_resistance=rolling_resistance,
-                                    effects=tuple(effects), alpha_law=alpha_law,
-                                    progress=bar)
+            try:
+                fits[model] = fit_model(model, inputs, entries, jax.random.fold_in(key, i),
+                                        methods=methods, quick=quick,
+                                        rolling_resistance=rolling_resistance,
+                                        effects=tuple(effects), alpha_law=alpha_law,
+                                        progress=bar)
+            except NoRestError as e:
+                raise CliError(f"{inputs.profile_path}: {e}") from None
         bar.close()
         if model == "dem":
             fit = fits[model].fit
@@ -430,6 +436,13 @@ def _print_parameters(result: dict, models) -> None:
     if "crsp" in models and threshold is not None and threshold != crsp.ROLLING_THRESHOLD_M_S:
         print(f"CRSP rolling threshold: {threshold:g} m/s, the site's (solver default "
               f"{crsp.ROLLING_THRESHOLD_M_S:g} m/s; calibration.json: rolling_threshold_source)")
+    floor = result.get("crsp", {}).get("prior", {}).get(ROLLING, (None,))[0] \
+        if "crsp" in models else None
+    published = CRSP_ROLLING_BOX.lower[CRSP_ROLLING_BOX.names.index(ROLLING)]
+    if floor is not None and floor > published:
+        print(f"CRSP rolling resistance: prior from {floor:.1f} deg, the flattest slope of the "
+              f"profile (below it no block can come to rest on it; published range from "
+              f"{published:g} deg)")
     print(f"{'model':5} {'parameter':{w}} {'estimate':>9} {'mean':>8} {'90% interval':>19}")
     for model in models:
         sec = result[model]

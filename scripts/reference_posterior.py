@@ -71,15 +71,15 @@ class Scorer:
     def __init__(self, data: str, release_tolerance_m: float, chunk: int, pool: int | None,
                  task_chunk: int | None):
         from calib.files.inputs import load_inputs
+        from calib.inference.calibrate import crsp_prior_box
         from calib.inference.likelihood import RowLikelihood
-        from calib.model.priors import CRSP_ROLLING_BOX
 
         inputs = load_inputs(data, None, ".")
         self.entries = inputs.entries(release_tolerance_m)
         self.profile = inputs.profile
         self.rows = RowLikelihood(inputs.obs, self.entries.index)
         self.n_rows = inputs.obs.n_obs
-        self.box = CRSP_ROLLING_BOX
+        self.box = crsp_prior_box("fit", inputs.profile, self.entries)  # the fit's
         self.chunk, self.pool, self.task_chunk = chunk, pool, task_chunk
         self.blocks_simulated = 0
         self.sim_seconds = 0.0

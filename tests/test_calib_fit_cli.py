@@ -148,6 +148,27 @@ def test_main_job_writes_every_output(small_run):
         "refined", "best_point_waves", "realisation_waves", "widened"))
 
 
+def test_the_rolling_prior_starts_where_a_block_can_rest_on_the_profile(small_run):
+    """Postignano's profile falls at 6.0 deg or more everywhere: below that
+    rolling resistance angle no block comes to rest on it (tests/
+    test_rolling_parameter.py), so the fit's prior starts there, not at the
+    published 5 deg, and the summary says so; no posterior draw lies below it."""
+    import numpy as np
+    import pandas as pd
+
+    from calib.model.priors import flattest_slope_deg
+    from solvers.profile import load_profile
+
+    proc, out = small_run
+    floor = flattest_slope_deg(load_profile(PROFILE))
+    cal = json.loads((out / "calibration.json").read_text())
+    lower, upper = cal["crsp"]["prior"]["rolling_friction_deg"]
+    assert (lower, upper) == (pytest.approx(floor, abs=1e-5), 40.0)
+    assert "CRSP rolling resistance: prior from 6.0 deg, the flattest slope" in proc.stdout
+    draws = pd.read_csv(out / "crsp_posterior.csv")["rolling_friction_deg"].to_numpy()
+    assert np.all(draws >= lower)
+
+
 def test_the_summary_counts_every_nuts_run(capsys):
     """The summary says how often NUTS ran (the record's count, every repair
     wave included) and names each kind of wave."""
@@ -208,6 +229,28 @@ def test_bad_input_one_line_exit_2_nothing_written(tmp_path, content, needle, ca
     assert needle in err, err
     assert len(err.strip().splitlines()) == 1, err
     assert "Traceback" not in err
+    assert not out.exists()
+
+
+def test_a_profile_where_no_block_can_rest_is_refused(tmp_path, capsys):
+    """A profile steeper than the rolling resistance prior's 40 deg everywhere:
+    no fitted angle lets a block come to rest on it, so the observed runouts
+    cannot be fitted; one line naming the profile, exit 2, nothing written."""
+    from calib.fit import main
+
+    profile = tmp_path / "wall_profile.csv"
+    profile.write_text("x_m,z_m,zone\n0,300,rock\n100,180,rock\n200,0,\n")  # 50.2, 60.9 deg
+    (tmp_path / "wall_materials.csv").write_text(
+        "zone,Kn,Kt,roughness_m,rolling_friction_deg,phi_deg\nrock,0.4,0.9,0.5,30,30\n")
+    data = tmp_path / "wall.csv"
+    data.write_text("block_size_m,runout_m,runout_sd_m\n0.5,150,10\n")
+    out = tmp_path / "out"
+    rc, _, err = run_cli(main, [str(data), "--profile", str(profile), "--model", "crsp",
+                                "--out", str(out), "--quick", "--no-progress"], capsys)
+    assert rc == 2, err
+    assert "wall_profile.csv: no block can come to rest on the profile below a rolling " \
+           "resistance angle of 50.2 deg, above the prior's 40 deg" in err, err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
     assert not out.exists()
 
 

@@ -79,3 +79,62 @@ def test_emulator_coordinates_invert():
         fw = CrspForward(PROFILE, np.array([0.4]), 4, jax.random.key(0), box=box)
         theta = box.from_unit(rng.random((64, box.dim)))
         np.testing.assert_allclose(fw.from_input(fw.to_input(theta)), theta, rtol=1e-12)
+
+
+def test_no_block_rests_on_a_profile_steeper_than_its_rolling_resistance():
+    """Postignano's profile falls at 6.0 deg or more everywhere (its lowest zone,
+    110-300 m): with a rolling resistance angle just below that no block comes to
+    rest on it, every block runs to the profile's end; just above, blocks of
+    every size come to rest on it (64 blocks of 0.2 and 2 m)."""
+    from calib.model.priors import flattest_slope_deg
+
+    floor = flattest_slope_deg(PROFILE)
+    assert floor == pytest.approx(6.0, abs=1e-3)
+    four = CrspForward(PROFILE, np.array([0.2, 2.0]), 64, jax.random.key(5),
+                       box=CRSP_ROLLING_BOX)
+    below, above = (four.runouts([[0.45, 0.90, 0.3, floor + d]])[0] for d in (-0.1, 0.5))
+    end = float(PROFILE.x_m[-1])
+    np.testing.assert_array_equal(below, end)
+    assert np.all(np.min(above, axis=-1) < end - 100.0)
+
+
+def test_the_rolling_prior_starts_where_a_block_can_rest():
+    """``rest_possible_box`` raises the one rolling angle's lower bound to the
+    flattest slope of the profiles (the largest of their minima), and leaves
+    alone boxes without that angle, zoned angles and profiles with a flatter
+    stretch than the published 5 deg."""
+    from calib.model.priors import NoRestError, rest_possible_box, zoned_rolling_box
+    from solvers.profile import make_profile
+
+    tschamut = load_profile("data/tschamut2014/profile.csv")  # flat beyond ~65 m
+    box = rest_possible_box(CRSP_ROLLING_BOX, [PROFILE])
+    assert box.names == CRSP_ROLLING_BOX.names and box.upper == CRSP_ROLLING_BOX.upper
+    assert box.lower[:3] == CRSP_ROLLING_BOX.lower[:3]
+    assert box.lower[3] == pytest.approx(6.0, abs=1e-3)
+    assert rest_possible_box(CRSP_ROLLING_BOX, [PROFILE, tschamut]) == box
+    assert rest_possible_box(CRSP_ROLLING_BOX, [tschamut]) == CRSP_ROLLING_BOX
+    assert rest_possible_box(CRSP_BOX, [PROFILE]) == CRSP_BOX
+    zoned = zoned_rolling_box(PROFILE.zone_names)
+    assert rest_possible_box(zoned, [PROFILE]) == zoned
+    wall = make_profile([0.0, 10.0, 20.0], [30.0, 15.0, 0.0], ["rock", "rock"],
+                        {"rock": {"Kn": 0.4, "Kt": 0.9, "roughness_m": 0.5,
+                                  "rolling_friction_deg": 30.0, "phi_deg": 30.0}})
+    with pytest.raises(NoRestError, match="56.3 deg"):
+        rest_possible_box(CRSP_ROLLING_BOX, [wall])
+
+
+def test_discovery_candidates_start_the_rolling_prior_where_calib_fit_does():
+    """``calib.discover --rolling-resistance fit``: the baseline and the effects
+    that leave the rolling resistance alone start phi_r at the profile's
+    flattest slope, as the fit does; the forest belt, which lets blocks rest in
+    it, keeps the published 5 deg."""
+    from calib.discovery.candidates import candidate_set
+
+    cands, combine = candidate_set("crsp", ["none", "size_dissipation", "vegetation_belt"],
+                                   PROFILE, rolling="fit")
+    lower = {c.effect: c.box.lower[c.box.names.index("rolling_friction_deg")] for c in cands}
+    assert lower["none"] == pytest.approx(6.0, abs=1e-3)
+    assert lower["size_dissipation"] == lower["none"]
+    assert lower["vegetation_belt"] == 5.0
+    both = combine(["size_dissipation", "vegetation_belt"])
+    assert both.box.lower[both.box.names.index("rolling_friction_deg")] == 5.0

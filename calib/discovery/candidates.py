@@ -16,7 +16,14 @@ from __future__ import annotations
 import functools
 
 from calib.discovery.candidate_fit import Candidate
-from calib.model.effects import CRSP_EFFECTS, DEM_EFFECTS, effect_names, full_box, model_label
+from calib.model.effects import (
+    CRSP_EFFECTS,
+    DEM_EFFECTS,
+    effect_names,
+    full_box,
+    model_label,
+    rest_possible_base,
+)
 from calib.model.forward import CrspForward
 from calib.model.priors import CRSP_BOX, CRSP_ROLLING_BOX, Box, has_rolling
 from solvers.crsp import ROLLING_THRESHOLD_M_S
@@ -39,9 +46,11 @@ def crsp_model(profile, effects, base: Box = CRSP_BOX,
     together in that order, ``calib.model.effects.effect_names``) as a
     ``Candidate`` named by ``model_label`` (e.g. ``size_dissipation+fragmentation``),
     simulated with the rolling threshold ``rolling_threshold_m_s`` (the site's,
-    ``calib.files.site``)."""
+    ``calib.files.site``). A fitted rolling angle starts where a block can rest
+    on ``profile``, as in ``calib.fit`` (``calib.model.effects.rest_possible_base``)."""
     names = effect_names(effects)
     effect = names if len(names) > 1 else (names[0] if names else "none")
+    base = rest_possible_base(base, [profile], names)
     return Candidate(model_label(names), full_box(names, profile, base=base),
                      functools.partial(_crsp_forward, profile, effect, base,
                                        float(rolling_threshold_m_s)))

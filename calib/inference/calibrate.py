@@ -101,8 +101,8 @@ from calib.model.entries import Entries
 from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfinished
 
 # Budget and presets are re-exported: the fit driver's API in one place
-__all__ = ["ESTIMATE_MARGIN_SD", "Budget", "ModelFit", "ModelRun", "calibrate", "fit_model",
-           "point_estimate", "presets"]
+__all__ = ["ESTIMATE_MARGIN_SD", "Budget", "ModelFit", "ModelRun", "calibrate", "crsp_prior_box",
+           "fit_model", "point_estimate", "presets"]
 
 ESTIMATE_MARGIN_SD = 2.0  # MC sds by which the posterior mode must beat the gradient point
 
@@ -288,6 +288,26 @@ class ModelRun(NamedTuple):
     alpha_form: str | None
 
 
+def crsp_prior_box(rolling_resistance: str, profile, entries: Entries, effects=()):
+    """CRSP's prior box of a fit (without the effects' columns, which
+    ``CrspForward`` appends): ``CRSP_ROLLING_BOX`` ("fit"), ``CRSP_BOX``
+    ("profile") or one angle per zone of the profiles ("zones",
+    ``zoned_rolling_box``); the one angle of "fit" starts at the flattest slope
+    of the profiles that carry rows where that is steeper than the published
+    range (``calib.model.priors.rest_possible_box``), unless an effect adds
+    rolling resistance. A ``NoRestError`` where no angle of the box lets a block
+    rest on them."""
+    from calib.model import priors
+    from calib.model.effects import rest_possible_base
+
+    profiles = [p for p in (q if q is not None else profile for q in entries.profiles)
+                if p is not None]
+    box = {"fit": priors.CRSP_ROLLING_BOX, "profile": priors.CRSP_BOX}.get(rolling_resistance) \
+        or priors.zoned_rolling_box(dict.fromkeys(
+            z for pr in (profile, *profiles) if pr is not None for z in pr.zone_names))
+    return rest_possible_base(box, list({id(p): p for p in profiles}.values()), tuple(effects))
+
+
 def fit_model(model: str, inputs, entries: Entries, key: jax.Array, *,
               methods: tuple[str, ...] = ("gradient", "bayes"), quick: bool = False,
               rolling_resistance: str = "fit", effects: tuple[str, ...] = (),
@@ -321,7 +341,6 @@ def fit_model(model: str, inputs, entries: Entries, key: jax.Array, *,
         progress: optional callable(stage, done, total).
     """
     from calib.model.forward import CrspForward, DemForward
-    from calib.model.priors import CRSP_BOX, CRSP_ROLLING_BOX, zoned_rolling_box
 
     budget = presets(model, quick)
     profile = inputs.profile
@@ -333,10 +352,7 @@ def fit_model(model: str, inputs, entries: Entries, key: jax.Array, *,
         vel_rows = VelocityRows.of(velocities, vel_entry)
         stations = vel_rows.stations_x_m
     if model == "crsp":
-        box = {"fit": CRSP_ROLLING_BOX, "profile": CRSP_BOX}.get(rolling_resistance) \
-            or zoned_rolling_box(dict.fromkeys(
-                z for pr in (profile, *entries.profiles) if pr is not None
-                for z in pr.zone_names))
+        box = crsp_prior_box(rolling_resistance, profile, entries, effects)
         forward = CrspForward(profile, entries, budget.n_blocks_design,
                               jax.random.fold_in(key, 1), box=box,
                               effect=tuple(effects) or "none",  # columns after box's

@@ -51,7 +51,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from calib.model.priors import CRSP_BOX, DEM_BOXES, Box, has_rolling
+from calib.model.priors import CRSP_BOX, DEM_BOXES, Box, has_rolling, rest_possible_box
 
 __all__ = [
     "CRSP_EFFECTS",
@@ -70,6 +70,7 @@ __all__ = [
     "effect_names",
     "full_box",
     "model_label",
+    "rest_possible_base",
     "truth",
 ]
 
@@ -128,6 +129,9 @@ class Effect:
         dem_box: () -> the DEM candidate's whole prior box, or None (no DEM form).
         dem_truth: strength -> the DEM candidate's parameters in synthetic data.
         dem_grid: points per axis of the DEM candidate's design grid.
+        adds_rolling_resistance: the effect raises the rolling resistance
+            somewhere, so blocks may come to rest where the baseline's angle
+            alone lets none (``calib.model.priors.rest_possible_box``).
     """
 
     name: str
@@ -139,6 +143,7 @@ class Effect:
     dem_box: Callable[[], Box] | None = None
     dem_truth: Callable[[float], list] | None = None
     dem_grid: tuple[int, ...] | None = None
+    adds_rolling_resistance: bool = False
 
 
 _ANY = (-math.inf, math.inf, True)
@@ -160,9 +165,11 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            dem_box=_fragment_box, dem_truth=lambda s: [0.40, 5.0 - s], dem_grid=(4, 3)),
     Effect("rolling_resistance", ("delta_mu",), lambda profile: Box(("delta_mu",), (0.0,), (1.0,)),
            lambda e, profile: {"rolling_resistance": e[:, 0]},
-           lambda s, profile: [0.4 * s], valid={"delta_mu": (0.0, math.inf, True)}),
+           lambda s, profile: [0.4 * s], valid={"delta_mu": (0.0, math.inf, True)},
+           adds_rolling_resistance=True),
     Effect("vegetation_belt", ("belt_start_m", "belt_loss"), _belt_box, _belt_overrides,
-           _belt_truth, valid={"belt_start_m": _ANY, "belt_loss": (0.0, 1.0 - 1e-9, True)}),
+           _belt_truth, valid={"belt_start_m": _ANY, "belt_loss": (0.0, 1.0 - 1e-9, True)},
+           adds_rolling_resistance=True),
 )}
 
 EFFECT_NAMES = tuple(EFFECTS)
@@ -236,6 +243,16 @@ def check_combination(effects, base_names) -> tuple[str, ...]:
                          "baseline already fits (rolling_friction_deg): the two are one "
                          "parameter")
     return names
+
+
+def rest_possible_base(base: Box, profiles, effects=()) -> Box:
+    """The CRSP baseline box ``base`` with its one rolling angle bounded below
+    where a block can rest on ``profiles`` (``calib.model.priors.
+    rest_possible_box``), unless one of ``effects`` adds rolling resistance
+    (the forest belt lets blocks rest where the angle alone does not)."""
+    if any(EFFECTS[n].adds_rolling_resistance for n in effect_names(effects)):
+        return base
+    return rest_possible_box(base, profiles)
 
 
 def full_box(name, profile, model: str = "crsp", base: Box = CRSP_BOX) -> Box:

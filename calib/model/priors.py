@@ -42,6 +42,30 @@ CRSP (restitution coefficients are velocity ratios, dimensionless):
   at the same point whatever Kn, Kt and phi_r). Assumption; the three-parameter
   ``CRSP_BOX`` of the discrepancy studies keeps 0.25 m.
 
+* Where a block can come to rest (``rest_possible_box``, applied to the box
+  above by ``python -m calib.fit`` and ``calib.discover``'s candidates): a
+  rolling block stops only on a segment whose downhill angle beta has
+  tan(beta) <= mu = tan(phi_r) (``solvers.crsp._contact``: on a steeper
+  segment gravity beats the rolling
+  resistance and the roughness only caps the speed; a pit needs such a segment
+  on one side, ``solvers.crsp._vertex``). With phi_r below the flattest slope of
+  a profile no block can come to rest anywhere on it: every block leaves the
+  profile, and each observed runout (a block at rest on that profile) keeps only
+  the observation model's defensive floor (``calib.inference.likelihood``,
+  -13.8 nats a row). The posterior the simulator implies has no mass there,
+  but the log-likelihood GP smooths that cliff and NUTS sampled it: on Postignano
+  (lowest zone 6.0 deg down to the profile's end) 2 % of a main job's draws lay
+  at 5-6 deg, and the hazard run made every block of those draws creep off the
+  profile past the road (docs/studies.md, "Rest where the profile allows it").
+  So the lower bound of the one phi_r is raised, before fitting and from the
+  profiles alone, to the flattest downhill angle of the profiles that carry
+  observed rows (the largest of their minima: rows rest on each). Our choice;
+  left as it is where that angle is below the published 5 deg (Tschamut's
+  profiles have flat or rising stretches), for zoned angles (rest on the
+  profile then needs any one zone's angle above that zone's flattest slope, not
+  a box) and for effects that add rolling resistance (the forest belt makes
+  rest possible where phi_r alone does not, ``calib.model.effects``).
+
 * Zoned rolling resistance (``zoned_rolling_box``, ``python -m calib.fit
   --rolling-resistance zones``): one phi_r per material zone of the profile,
   named ``rolling_friction_deg[<zone>]``, each with the same 5-40 deg box. Our
@@ -67,8 +91,9 @@ import re
 
 import numpy as np
 
-__all__ = ["Box", "CRSP_BOX", "CRSP_ROLLING_BOX", "DEM_BOXES", "ROLLING", "base_name",
-           "crsp_box", "has_rolling", "rolling_zone", "zoned_name", "zoned_rolling_box"]
+__all__ = ["Box", "CRSP_BOX", "CRSP_ROLLING_BOX", "DEM_BOXES", "ROLLING", "NoRestError",
+           "base_name", "crsp_box", "flattest_slope_deg", "has_rolling", "rest_possible_box",
+           "rolling_zone", "zoned_name", "zoned_rolling_box"]
 
 ROLLING = "rolling_friction_deg"
 
@@ -147,6 +172,42 @@ def zoned_rolling_box(zones) -> Box:
     b = CRSP_ROLLING_BOX
     return Box(b.names[:3] + tuple(zoned_name(z) for z in zones),
                b.lower[:3] + (b.lower[3],) * len(zones), b.upper[:3] + (b.upper[3],) * len(zones))
+
+
+class NoRestError(ValueError):
+    """No rolling-resistance angle of the prior box lets a block rest on the profile."""
+
+
+def flattest_slope_deg(profile) -> float:
+    """The smallest downhill angle of a profile's segments, deg (blocks travel
+    towards +x; a flat or rising segment gives 0 or less)."""
+    x, z = np.asarray(profile.x_m, float), np.asarray(profile.z_m, float)
+    return float(np.degrees(np.arctan2(-np.diff(z), np.diff(x))).min())
+
+
+def rest_possible_box(box: Box, profiles) -> Box:
+    """``box`` with the lower bound of its one rolling-resistance angle raised to
+    the flattest downhill angle of ``profiles`` (the largest of their minima),
+    where that is above it: below it no block can come to rest on one of them
+    (module docstring). Boxes without that angle, or with one angle per zone,
+    are returned as they are.
+
+    Args:
+        box: a CRSP prior box (``CRSP_ROLLING_BOX`` or a narrower one).
+        profiles: the ``solvers.profile.Profile``s the observed rows lie on.
+    """
+    if ROLLING not in box.names or not profiles:
+        return box
+    i = box.names.index(ROLLING)
+    floor_deg = max(flattest_slope_deg(p) for p in profiles)
+    if floor_deg <= box.lower[i]:
+        return box
+    if floor_deg >= box.upper[i]:
+        raise NoRestError(f"no block can come to rest on the profile below a rolling "
+                         f"resistance angle of {floor_deg:.1f} deg, above the prior's "
+                         f"{box.upper[i]:g} deg")
+    lower = box.lower[:i] + (round(floor_deg, 6),) + box.lower[i + 1:]
+    return Box(box.names, lower, box.upper)
 
 
 def crsp_box(names) -> Box:
