@@ -104,7 +104,7 @@ def test_the_rolling_prior_starts_where_a_block_can_rest():
     alone boxes without that angle, zoned angles and profiles with a flatter
     stretch than the published 5 deg."""
     from calib.model.priors import NoRestError, rest_possible_box, zoned_rolling_box
-    from solvers.profile import make_profile
+    from solvers.profile import make_profile, refine
 
     tschamut = load_profile("data/tschamut2014/profile.csv")  # flat beyond ~65 m
     box = rest_possible_box(CRSP_ROLLING_BOX, [PROFILE])
@@ -112,6 +112,8 @@ def test_the_rolling_prior_starts_where_a_block_can_rest():
     assert box.lower[:3] == CRSP_ROLLING_BOX.lower[:3]
     assert box.lower[3] == pytest.approx(6.0, abs=1e-3)
     assert rest_possible_box(CRSP_ROLLING_BOX, [PROFILE, tschamut]) == box
+    # collinear vertices every 7 m change no slope, so not the bound
+    assert rest_possible_box(CRSP_ROLLING_BOX, [refine(PROFILE, 7.0)]) == box
     assert rest_possible_box(CRSP_ROLLING_BOX, [tschamut]) == CRSP_ROLLING_BOX
     assert rest_possible_box(CRSP_BOX, [PROFILE]) == CRSP_BOX
     zoned = zoned_rolling_box(PROFILE.zone_names)
