@@ -215,8 +215,7 @@ def test_help_explains():
 ])
 def test_bad_input_one_line_exit_2_nothing_written(tmp_path, content, needle, capsys):
     """The command's ``main`` in this process (a fresh interpreter per case would
-    cost a JAX import each); test_missing_default_profile_is_explained runs the
-    command as a process."""
+    cost a JAX import each); test_help_explains runs the command as a process."""
     from calib.fit import main
 
     data = tmp_path / "site.csv"
@@ -254,12 +253,14 @@ def test_a_profile_where_no_block_can_rest_is_refused(tmp_path, capsys):
     assert not out.exists()
 
 
-def test_missing_default_profile_is_explained(tmp_path):
+def test_missing_default_profile_is_explained(tmp_path, capsys):
+    from calib.fit import main
+
     data = tmp_path / "elsewhere.csv"
     data.write_text("block_size_m,runout_m,runout_sd_m\n0.5,100,10\n")
-    proc = run(str(data), "--out", str(tmp_path / "out"))
-    assert proc.returncode == 2
-    assert "elsewhere_profile.csv: no such profile file (give --profile)" in proc.stderr
+    rc, _, err = run_cli(main, [str(data), "--out", str(tmp_path / "out")], capsys)
+    assert rc == 2
+    assert "elsewhere_profile.csv: no such profile file (give --profile)" in err
 
 
 def test_notebook_01_calibration_runs(small_run, tmp_path):

@@ -187,6 +187,7 @@ def test_median_runout_does_not_increase_with_roughness_paper_rolling_resistance
 
 
 
+@pytest.mark.slow  # a measured gap, 10-15 s; the default run keeps the tests of the threshold's use
 @pytest.mark.xfail(strict=True, reason=(
     "measured 2026-12-06 (512 blocks, key 0): the runouts' 5/50/95 % quantiles are "
     "16.2/103.5/126.2 m at the default 0.5 m/s (32 % of the blocks within 40 m), "

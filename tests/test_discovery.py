@@ -560,6 +560,8 @@ class _NoisyLine(_Line):
         return self.mean(theta)[0][None, :, None] + 10.0 * noise, None
 
 
+@pytest.mark.slow  # a smoothed fit for one record field, 17 s inside the default run; the
+# smoothing itself runs in tests/test_discovery_proposals.py's default tests
 def test_the_fit_records_the_noise_variance_its_smoothing_assumed():
     """The variance of the summed log-likelihood that the GP smoothing of the
     weights assumed is each fit's ``smoothing_noise_var_nats2`` (measured over

@@ -238,6 +238,7 @@ def test_the_fits_check_flags_a_threshold_that_is_not_converged():
     assert site["n_flagged"] == 0 and _threshold_problem(site) is None, site
 
 
+@pytest.mark.slow  # two hazard commands for one line of output, 16 s inside the default run
 def test_the_hazard_run_says_when_the_site_and_the_calibration_disagree(tmp_path, capsys):
     """An older Tschamut calibration (fitted at the solver's 0.5 m/s) run where
     the site file now gives 0.05 m/s: the hazard run simulates the fitted model
