@@ -62,6 +62,7 @@ __all__ = [
     "load_profile",
     "make_profile",
     "refine",
+    "segment_angles_rad",
     "segment_index",
 ]
 
@@ -374,6 +375,12 @@ def segment_index(profile: Profile, x_m: jax.Array) -> jax.Array:
     """
     idx = jnp.searchsorted(profile.x_m, x_m, side="right") - 1
     return jnp.clip(idx, 0, profile.x_m.shape[0] - 2).astype(jnp.int32)
+
+
+def segment_angles_rad(profile: Profile) -> jax.Array:
+    """(V-1,) angle of each segment above the horizontal, rad (positive where
+    the ground rises towards +x, the direction blocks travel; jit-able)."""
+    return jnp.arctan2(jnp.diff(profile.z_m), jnp.diff(profile.x_m))
 
 
 def ground_z(profile: Profile, x_m: jax.Array) -> jax.Array:

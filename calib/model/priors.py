@@ -181,8 +181,9 @@ class NoRestError(ValueError):
 def flattest_slope_deg(profile) -> float:
     """The smallest downhill angle of a profile's segments, deg (blocks travel
     towards +x; a flat or rising segment gives 0 or less)."""
-    x, z = np.asarray(profile.x_m, float), np.asarray(profile.z_m, float)
-    return float(np.degrees(np.arctan2(-np.diff(z), np.diff(x))).min())
+    from solvers.profile import segment_angles_rad
+
+    return float(-np.degrees(np.asarray(segment_angles_rad(profile))).max())
 
 
 def rest_possible_box(box: Box, profiles) -> Box:

@@ -84,7 +84,7 @@ from solvers.crsp._params import Block, Params, Settings
 from solvers.crsp._stations import Passage, empty_values, first_beyond, write
 from solvers.crsp._stations import record as station_record
 from solvers.crsp._vertex import vertex_transition
-from solvers.profile import Profile, ground_z, segment_index
+from solvers.profile import Profile, ground_z, segment_angles_rad, segment_index
 from solvers.stations import StationRecord
 from solvers.status import (
     BUDGET,
@@ -271,7 +271,7 @@ def segment_table(profile: Profile, params: Params, block: Block) -> SegmentTabl
     fragment of it."""
     dx = jnp.diff(profile.x_m)
     dz = jnp.diff(profile.z_m)
-    beta = jnp.arctan2(dz, dx)
+    beta = segment_angles_rad(profile)
     zone = profile.zone_id
     r = block.radius_m
     r_frag = r * params.frag_radius_ratio
