@@ -34,8 +34,8 @@ def test_each_compiled_call_runs_blocks_of_one_size():
     """A vmapped call runs until its slowest lane stops, and a small block takes
     many more (shorter) steps than a large one (``calib.model.forward.
     lane_order``): 2 parameter sets x 3 entries x 2 blocks = 12 lanes in calls
-    of 4 hold one size each (8 lanes of 0.2 m, then 4 of 2 m). The old order
-    (parameter set, entry, block) put both sizes in every call."""
+    of 4 hold one size each (8 lanes of 0.2 m, then 4 of 2 m); filled in
+    (parameter set, entry, block) order, every call would hold both."""
     fw = DemForward(PROFILE, ENTRIES, 2, jax.random.key(0), form="constant", lane_batch=4)
     sides = _spied(fw)
     r = fw.runouts_at_alpha(ALPHA)

@@ -151,10 +151,10 @@ def lane_order(side_m, alpha) -> np.ndarray:
     stable step shrinks with the block (``solvers.dem.stable_dt``), and on
     Postignano a 0.2 m block at alpha 0.95 creeps to rest in about 1.3 million
     steps (142 s of simulated time) against about 0.1 million for a 2 m block
-    (measured in the main job's DEM gradient stage, whose every call held both
-    sizes; the gradient stage 221 s -> 110 s, the design 57 s -> 41 s, one run
-    each, docs/studies.md). Within a side the damping sets how fast a block
-    moves.
+    (measured in the main job's DEM gradient stage: a call holding both sizes
+    runs for the 0.2 m blocks' steps on all its lanes; docs/studies.md, "The
+    DEM's lanes by block size"). Within a side the damping sets how fast a
+    block moves.
 
     The order changes which Monte Carlo realisation a lane gives, not its
     distribution: a lane's result can differ in its last bits with its place
