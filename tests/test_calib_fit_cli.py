@@ -56,8 +56,9 @@ def small_run(tmp_path_factory):
         mp.setattr(calibrate, "presets", lambda model, quick: SMALL[model])
         # 8 DEM blocks per compiled call, not 32: this budget's stages simulate 4-24
         # blocks at a time, and a call costs in proportion to its lanes, padding
-        # included (the DEM's stage times summed 80 s -> 48 s). Vectorised over fewer lanes,
-        # the runouts differ in their last bits, which this test does not read.
+        # included (the DEM's stage times summed 80 s -> 48 s). A block's result does not
+        # depend on the lanes that share its call (solvers.dem._sums), so the runouts
+        # are those of the default.
         mp.setattr(forward, "DemForward", functools.partial(forward.DemForward, lane_batch=8))
         try:
             rc = main([DATA, "--out", str(out), "--no-progress"])

@@ -156,13 +156,9 @@ def lane_order(side_m, alpha) -> np.ndarray:
     DEM's lanes by block size"). Within a side the damping sets how fast a
     block moves.
 
-    The order changes which Monte Carlo realisation a lane gives, not its
-    distribution: a lane's result can differ in its last bits with its place
-    in the call (measured on 2 cores: of 32 identical lanes, 2 m at alpha
-    0.41, lanes 28-31 stopped at 111.626 m and the others at 111.618 m; the
-    cause inside the compiled program is not traced), and a bouncing block carries
-    such a difference into another trajectory. Results are reproducible for a
-    given order."""
+    The order sets the cost of a call, not its results: a lane's result does
+    not depend on the lanes it shares a call with or on its place in it
+    (``solvers.dem._sums``; tests/test_dem_lanes.py)."""
     return np.lexsort((np.asarray(alpha, float), np.asarray(side_m, float)))
 
 

@@ -43,6 +43,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from solvers.dem._geometry import Joints, cross2, rotate
+from solvers.dem._sums import ordered_sum
 
 __all__ = ["WallContact", "joint_forces", "pair_forces", "pair_list_forces",
            "penetration_force", "wall_forces"]
@@ -178,11 +179,11 @@ def pair_forces(pos, cs, sn, vel, omega, r_corner, nbr, bonded, active, h, kn_c,
     vt = jnp.sum((v_i - v_j) * t_w, axis=-1)
     ft = -tan_phi * jnp.maximum(fn, 0.0) * jnp.tanh(vt / eps)
     f = fn[..., None] * n_w + ft[..., None] * t_w                     # on i, (N,K,4,2)
-    f_i = jnp.sum(f, axis=(1, 2))
-    t_i = jnp.sum(cross2(r_corner[:, None], f), axis=(1, 2))
-    f_j = jax.ops.segment_sum(-jnp.sum(f, axis=2).reshape(-1, 2), nbr.reshape(-1),
+    f_i = ordered_sum(f, (1, 2))
+    t_i = ordered_sum(cross2(r_corner[:, None], f), (1, 2))
+    f_j = jax.ops.segment_sum(-ordered_sum(f, 2).reshape(-1, 2), nbr.reshape(-1),
                               num_segments=n_frag)
-    t_j = jax.ops.segment_sum(cross2(d, -f).sum(axis=2).reshape(-1), nbr.reshape(-1),
+    t_j = jax.ops.segment_sum(ordered_sum(cross2(d, -f), 2).reshape(-1), nbr.reshape(-1),
                               num_segments=n_frag)
     if not info:
         return f_i + f_j, t_i + t_j
@@ -311,7 +312,7 @@ def _corners_into(xa, za, ca, sa, vxa, vza, wa, xb, zb, cb, sb, vxb, vzb, wb, ok
     # elastic energy of the normal springs (J/m; linear law only), for diagnostics:
     # unused by the step, so XLA drops it there
     energy = jnp.sum(jnp.where(touch, 0.5 * kn_c * jnp.maximum(delta, 0.0) ** 2, 0.0), axis=0)
-    return (*(jnp.sum(out[k], axis=0) for k in range(4)),
+    return (*(ordered_sum(out[k], 0) for k in range(4)),
             *(jnp.max(out[k], axis=0) for k in (4, 5)), energy)
 
 

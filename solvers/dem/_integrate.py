@@ -35,8 +35,10 @@ max_steps because blocks stop at very different times (a scan would pay for
 max_steps every time); the price is no reverse-mode AD, which NOTES.md shows is
 useless past ~0.5 s of contact anyway (finite differences with common random
 numbers are the calibration route). Under ``vmap`` the loop runs until the
-slowest lane ends; finished lanes are frozen by the ``status`` mask, so a
-block's result does not depend on its batch.
+slowest lane ends; finished lanes are frozen by the ``status`` mask, and the
+sums over corners and contacts are fixed chains of additions (``_sums``),
+which round alike in every lane, so a block's result does not depend on its
+batch or on its place in it.
 """
 
 from __future__ import annotations
@@ -67,6 +69,7 @@ from solvers.dem._params import (
     contact_damping_ratio,
     stable_dt,
 )
+from solvers.dem._sums import ordered_sum
 from solvers.profile import ground_z
 from solvers.stations import StationRecord, empty_record, record_passage
 from solvers.status import BUDGET, INVALID, LEFT_PROFILE, RUNNING, STOPPED
@@ -235,8 +238,8 @@ def _forces(st: State, params: Params, c: Consts, nbr, options: Options, n_side:
                        cn=c.cn_wall[:, None], margin=margin,
                        slip_tol=c.ks_c * params.rest_slip_m_s * c.dt)
     fw, fs = wall.force, wall.fs
-    force = fw.sum(axis=1)
-    torque = cross2(r, fw).sum(axis=1)
+    force = ordered_sum(fw, 1)
+    torque = ordered_sum(cross2(r, fw), 1)
     touching = jnp.any(wall.touching, axis=1)
     near = jnp.any(wall.near_limit, axis=1)
     slipped = jnp.any(wall.slipped, axis=1)
