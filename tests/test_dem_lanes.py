@@ -79,3 +79,41 @@ def test_a_block_runs_alike_wherever_it_sits_in_a_call():
     x_fwd, x_rev = np.asarray(fwd.runout_m)[:, 0], np.asarray(rev.runout_m)[::-1, 0]
     assert np.all(np.isfinite(x_fwd)) and len(set(x_fwd.tolist())) > 16, x_fwd
     np.testing.assert_array_equal(x_fwd, x_rev)
+
+
+def test_fragment_candidate_runs_one_size_per_call(monkeypatch):
+    """``calib.discover``'s DEM fragmentation candidate (2 x 2 bonded fragments)
+    runs each block side in calls of its own, all of one width, and its
+    runouts (the furthest fragment of each block) are those of one call of
+    every lane."""
+    from calib.discovery import dem_candidates as dc
+    from calib.model.unfinished import mask_unfinished
+
+    entries = Entries.at_sizes([1.0, 2.0, 1.0], 150.0)
+    fw = dc.DemEffectForward(PROFILE, entries, 2, jax.random.key(0), effect="fragmentation")
+    calls, real = [], dc.dem_lanes
+
+    def spy(params, blocks, keys, options):
+        calls.append(np.asarray(blocks.size_m).tolist())
+        return real(params, blocks, keys, options)
+
+    monkeypatch.setattr(dc, "dem_lanes", spy)
+    r = fw.runouts(np.array([[0.5, 4.0]]))  # alpha 0.5, joints of 10^4 Pa
+    assert calls == [[1.0] * 4, [2.0] * 4], calls
+    assert r.shape == (1, 3, 2) and np.all(np.isfinite(r)), r
+
+    # the same lanes in one call, in entry order
+    strength = 1e4
+    params = DEM_RUN.params(PROFILE, c_joint_pa=strength, t_joint_pa=strength,
+                            rho=entries.density_kg_m3)
+    sides = entries.dem_side_m
+    options = DEM_RUN.options(params, sides, n_fragments=dc.N_FRAGMENTS, adaptive=False)
+    lanes = [make_block(float(L), alpha=0.5, n_fragments=dc.N_FRAGMENTS, release_x_m=float(x),
+                        release_speed_m_s=float(v), release_height_m=float(h))
+             for L, x, v, h in zip(sides, entries.release_x_m, entries.release_speed_m_s,
+                                   entries.dem_release_height_m(), strict=True)
+             for _ in range(2)]
+    keys = jax.numpy.stack([jax.random.fold_in(jax.random.key(0), j) for j in [0, 1] * 3])
+    res = real(params, stack_trees(lanes), keys, options)
+    one_call = mask_unfinished(np.max(np.asarray(res.runout_m), axis=-1), res.status)
+    np.testing.assert_array_equal(r[0].ravel(), one_call)

@@ -112,10 +112,25 @@ class DemEffectForward:
                                          e.dem_release_height_m(), strict=True)]
         options = self.run.options(params, sides, n_fragments=N_FRAGMENTS, adaptive=False)
         lanes = [b for b in blocks for _ in range(self.n_blocks)]
-        keys = jax.vmap(lambda j: jax.random.fold_in(self.key, j))(
-            jnp.asarray(np.tile(np.arange(self.n_blocks), len(blocks)), jnp.uint32))
-        res = dem_lanes(params, stack_trees(lanes), keys, options)
-        furthest = mask_unfinished(np.max(np.asarray(res.runout_m), axis=-1), res.status)
+        lane_keys = np.tile(np.arange(self.n_blocks), len(blocks))
+        lane_sides = np.repeat(sides, self.n_blocks)
+        # one call per block side: a call runs until its slowest lane stops, and
+        # small blocks take many more steps than large ones (as in
+        # ``calib.model.forward.lane_order``); every call has the lanes of the
+        # most common side (shorter groups repeat their last lane), so one
+        # program serves them all. A lane's result does not depend on the lanes
+        # that share its call (``solvers.dem._sums``): the runouts are those of
+        # one call of every lane.
+        groups = [np.flatnonzero(lane_sides == L) for L in np.unique(lane_sides)]
+        width = max(len(g) for g in groups)
+        furthest = np.empty(len(lanes))
+        for g in groups:
+            idx = np.concatenate([g, np.full(width - len(g), g[-1])])
+            keys = jax.vmap(lambda j: jax.random.fold_in(self.key, j))(
+                jnp.asarray(lane_keys[idx], jnp.uint32))
+            res = dem_lanes(params, stack_trees([lanes[i] for i in idx]), keys, options)
+            far = mask_unfinished(np.max(np.asarray(res.runout_m), axis=-1), res.status)
+            furthest[g] = far[:len(g)]
         return furthest.reshape(len(blocks), self.n_blocks)
 
 
