@@ -31,7 +31,8 @@ from solvers.crsp import ROLLING_THRESHOLD_M_S
 __all__ = ["DEM_DEFAULT", "candidate_set", "crsp_candidates", "crsp_model"]
 
 # The DEM's fragmentation candidate (2 x 2 bonded fragments) is opt-in: on
-# Postignano its 12-point grid took 1548 s of a 1738 s run (2 cores, under load).
+# Postignano its 12-point grid took 1548 s of a 1738 s run (2 cores, under load),
+# and 1517 s of 1865 s with each block side in calls of its own (2026-12-07).
 DEM_DEFAULT = ("none", "size_dissipation")
 
 
