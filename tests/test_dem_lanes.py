@@ -11,7 +11,7 @@ import numpy as np
 import calib  # noqa: F401  (x64)
 from calib.model.dem_run import DEM_RUN
 from calib.model.entries import Entries
-from calib.model.forward import DemForward, dem_lanes, stack_trees
+from calib.model.forward import DemForward, dem_lanes, lane_calls, stack_trees
 from solvers.dem import make_block
 from solvers.profile import load_profile
 
@@ -21,12 +21,15 @@ ENTRIES = Entries.at_sizes([0.2, 2.0, 0.2], 150.0)
 ALPHA = np.array([[0.9, 0.3, 0.5], [0.2, 0.6, 0.95]])  # (T, S): one alpha per entry
 
 
-def _spied(fw: DemForward) -> list[list[float]]:
-    """Record the block sides of every compiled call ``fw`` makes."""
+def _spied(fw: DemForward, widths: list | None = None) -> list[list[float]]:
+    """Record the block sides of every compiled call ``fw`` makes (and its
+    number of lanes in ``widths``)."""
     fn, sides = fw._compiled(), []
 
     def spy(blocks, keys):
         sides.append(sorted(set(np.asarray(blocks.size_m).tolist())))
+        if widths is not None:
+            widths.append(len(np.asarray(blocks.size_m)))
         return fn(blocks, keys)
 
     fw._fn = spy
@@ -36,7 +39,7 @@ def _spied(fw: DemForward) -> list[list[float]]:
 def test_each_compiled_call_runs_blocks_of_one_size():
     """A vmapped call runs until its slowest lane stops, and a small block takes
     many more (shorter) steps than a large one (``calib.model.forward.
-    lane_order``): 2 parameter sets x 3 entries x 2 blocks = 12 lanes in calls
+    lane_calls``): 2 parameter sets x 3 entries x 2 blocks = 12 lanes in calls
     of 4 hold one size each (8 lanes of 0.2 m, then 4 of 2 m); filled in
     (parameter set, entry, block) order, every call would hold both."""
     fw = DemForward(PROFILE, ENTRIES, 2, jax.random.key(0), form="constant", lane_batch=4)
@@ -44,6 +47,50 @@ def test_each_compiled_call_runs_blocks_of_one_size():
     r = fw.runouts_at_alpha(ALPHA)
     assert r.shape == (2, 3, 2) and np.all(np.isfinite(r)), r
     assert sides == [[0.2], [0.2], [2.0]], sides
+
+
+def test_a_side_whose_lanes_do_not_fill_its_calls_gets_a_padded_call_of_its_own():
+    """12 lanes (8 of 0.2 m, 4 of 2 m) in calls of at most 6: the 0.2 m lanes
+    take two calls, the second padded, and the 2 m lanes one (cut in running
+    order, the second call would hold 2 lanes of 0.2 m and 4 of 2 m, and run
+    all six for the small blocks' steps)."""
+    widths = []
+    fw = DemForward(PROFILE, ENTRIES, 2, jax.random.key(0), form="constant", lane_batch=6)
+    sides = _spied(fw, widths)
+    fw.runouts_at_alpha(ALPHA)
+    assert sides == [[0.2], [0.2], [2.0]], sides
+    assert widths == [6, 6, 6], widths
+
+
+def test_a_small_run_is_not_padded_to_the_call_width():
+    """One parameter set of 3 entries x 2 blocks (4 lanes of 0.2 m, 2 of 2 m)
+    with calls of at most 32: the calls are as wide as the largest side (4
+    lanes), not 32 lanes of which 26 repeat one lane."""
+    widths = []
+    fw = DemForward(PROFILE, ENTRIES, 2, jax.random.key(0), form="constant")
+    sides = _spied(fw, widths)
+    r = fw.runouts_at_alpha(ALPHA[:1])
+    assert sides == [[0.2], [2.0]] and widths == [4, 4], (sides, widths)
+    assert r.shape == (1, 3, 2) and np.all(np.isfinite(r)), r
+
+
+def test_lane_calls_cover_every_lane_once_in_calls_of_one_side():
+    """``lane_calls``: every lane in exactly one call (padding repeats a lane of
+    its own call), one side per call, alpha ascending within it, one width."""
+    rng = np.random.default_rng(0)
+    side = rng.choice([0.2, 0.5, 2.0], size=70)
+    alpha = rng.uniform(0.1, 0.9, size=70)
+    calls = lane_calls(side, alpha, 16)
+    assert {len(c) for c in calls} == {16}
+    for c in calls:
+        assert len(set(side[c])) == 1
+        real = list(dict.fromkeys(c.tolist()))  # first occurrences, in order
+        assert np.all(np.diff(alpha[real]) >= 0)
+        assert all(i == real[-1] for i in c[len(real):])
+    firsts = np.concatenate([list(dict.fromkeys(c.tolist())) for c in calls])
+    assert sorted(firsts.tolist()) == list(range(70))
+    few = lane_calls(np.repeat([0.2, 2.0], [3, 5]), 0.5, 32)
+    assert [c.tolist() for c in few] == [[0, 1, 2, 2, 2], [3, 4, 5, 6, 7]]
 
 
 def test_runouts_come_back_in_entry_order():

@@ -38,6 +38,7 @@ from calib.model.forward import (
     as_entries,
     dem_lanes,
     gather_entries,
+    lane_calls,
     split_by_profile,
     stack_trees,
 )
@@ -113,24 +114,16 @@ class DemEffectForward:
         options = self.run.options(params, sides, n_fragments=N_FRAGMENTS, adaptive=False)
         lanes = [b for b in blocks for _ in range(self.n_blocks)]
         lane_keys = np.tile(np.arange(self.n_blocks), len(blocks))
-        lane_sides = np.repeat(sides, self.n_blocks)
-        # one call per block side: a call runs until its slowest lane stops, and
-        # small blocks take many more steps than large ones (as in
-        # ``calib.model.forward.lane_order``); every call has the lanes of the
-        # most common side (shorter groups repeat their last lane), so one
-        # program serves them all. A lane's result does not depend on the lanes
-        # that share its call (``solvers.dem._sums``): the runouts are those of
-        # one call of every lane.
-        groups = [np.flatnonzero(lane_sides == L) for L in np.unique(lane_sides)]
-        width = max(len(g) for g in groups)
+        # calls of one block side each, of one width (``lane_calls``, as
+        # ``DemForward`` runs its lanes); a lane's result does not depend on the
+        # lanes that share its call (``solvers.dem._sums``)
+        calls = lane_calls(np.repeat(sides, self.n_blocks), a, DemForward.lane_batch)
         furthest = np.empty(len(lanes))
-        for g in groups:
-            idx = np.concatenate([g, np.full(width - len(g), g[-1])])
+        for idx in calls:
             keys = jax.vmap(lambda j: jax.random.fold_in(self.key, j))(
                 jnp.asarray(lane_keys[idx], jnp.uint32))
             res = dem_lanes(params, stack_trees([lanes[i] for i in idx]), keys, options)
-            far = mask_unfinished(np.max(np.asarray(res.runout_m), axis=-1), res.status)
-            furthest[g] = far[:len(g)]
+            furthest[idx] = mask_unfinished(np.max(np.asarray(res.runout_m), axis=-1), res.status)
         return furthest.reshape(len(blocks), self.n_blocks)
 
 

@@ -45,7 +45,7 @@ from calib.model.warp import unwarp, warp, warped_box
 from solvers.parallel import default_workers, map_ordered
 from solvers.profile import Profile, segment_index
 
-__all__ = ["CrspForward", "DemForward", "as_entries", "dem_lanes", "gather_entries", "lane_order",
+__all__ = ["CrspForward", "DemForward", "as_entries", "dem_lanes", "gather_entries", "lane_calls",
            "named_overrides", "release_rolling_deg", "release_slopes_deg", "rolling_columns",
            "split_by_profile", "stack_trees"]
 
@@ -141,10 +141,12 @@ def release_rolling_deg(names, theta, profile: Profile, entries: Entries) -> np.
     return out
 
 
-def lane_order(side_m, alpha) -> np.ndarray:
-    """The order in which DEM lanes (one block each, side ``side_m`` and damping
-    ``alpha``, arrays of one value per lane) go to ``dem_lanes`` calls: by side,
-    then by alpha (a stable sort).
+def lane_calls(side_m, alpha, max_width: int) -> list[np.ndarray]:
+    """The DEM lanes (one block each, side ``side_m`` and damping ``alpha``,
+    arrays of one value per lane) of each ``dem_lanes`` call, as index arrays:
+    every call holds lanes of one side only, ordered by alpha, and all calls
+    have one width, the smaller of ``max_width`` and the largest side's lane
+    count; a side's last call is padded by repeating its last lane.
 
     A vmapped call runs until its slowest lane stops, so lanes that take alike
     many steps belong in one call. The step count follows the side first: the
@@ -154,12 +156,24 @@ def lane_order(side_m, alpha) -> np.ndarray:
     (measured in the main job's DEM gradient stage: a call holding both sizes
     runs for the 0.2 m blocks' steps on all its lanes; docs/studies.md, "The
     DEM's lanes by block size"). Within a side the damping sets how fast a
-    block moves.
+    block moves. One width makes one compiled program serve every call; a
+    width no larger than the largest side keeps a small run from simulating
+    mostly padding.
 
-    The order sets the cost of a call, not its results: a lane's result does
-    not depend on the lanes it shares a call with or on its place in it
-    (``solvers.dem._sums``; tests/test_dem_lanes.py)."""
-    return np.lexsort((np.asarray(alpha, float), np.asarray(side_m, float)))
+    The calls set the cost of a run, not its results: a lane's result does not
+    depend on the lanes it shares a call with or on its place in it
+    (``solvers.dem._sums``; tests/test_dem_lanes.py), so a padded lane repeats
+    its original's result exactly."""
+    side = np.asarray(side_m, float)
+    order = np.lexsort((np.broadcast_to(np.asarray(alpha, float), side.shape), side))
+    groups = np.split(order, np.flatnonzero(np.diff(side[order]) != 0) + 1)
+    width = min(int(max_width), max(len(g) for g in groups))
+    calls = []
+    for g in groups:
+        for c0 in range(0, len(g), width):
+            idx = g[c0:c0 + width]
+            calls.append(np.concatenate([idx, np.full(width - len(idx), idx[-1])]))
+    return calls
 
 
 @functools.partial(jax.jit, static_argnames=("options",))
@@ -485,8 +499,8 @@ class DemForward:
         form: "power" or "constant" (``calib.model.alpha_law``).
         run: DEM numerics (stiffness scale, time limit, step bound;
             ``calib.model.dem_run``), the hazard run's too.
-        lane_batch: blocks per compiled call (the last call is padded), so every
-            call reuses one compiled program.
+        lane_batch: blocks per compiled call at most; the calls of one run hold
+            one block side each and share one width (``lane_calls``).
     """
 
     profile: Profile
@@ -550,23 +564,15 @@ class DemForward:
                 for j in range(self.n_blocks):
                     lanes.append(proto[s]._replace(alpha=jnp.full((1,), alpha[t, s])))
                     keys.append(j)
-        n_lanes = len(lanes)
-        order = lane_order(np.tile(np.repeat(e.dem_side_m, self.n_blocks), n_t),
-                           np.repeat(alpha, self.n_blocks, axis=1).ravel())
-        lanes, keys = [lanes[i] for i in order], [keys[i] for i in order]
-        pad = (-n_lanes) % self.lane_batch
-        lanes += [lanes[-1]] * pad
-        keys += [keys[-1]] * pad
+        calls = lane_calls(np.tile(np.repeat(e.dem_side_m, self.n_blocks), n_t),
+                           np.repeat(alpha, self.n_blocks, axis=1).ravel(), self.lane_batch)
         fn = self._compiled()
-        out = []
-        for c0 in range(0, len(lanes), self.lane_batch):
-            blocks = stack_trees(lanes[c0:c0 + self.lane_batch])
+        runouts = np.empty(len(lanes))
+        for idx in calls:
             k = jax.vmap(lambda j: jax.random.fold_in(self.key, j))(
-                jnp.asarray(keys[c0:c0 + self.lane_batch], jnp.uint32))
-            res = fn(blocks, k)  # runout_m (lanes, 1 fragment), status (lanes,)
-            out.append(mask_unfinished(np.asarray(res.runout_m)[:, 0], res.status))
-        runouts = np.empty(n_lanes)
-        runouts[order] = np.concatenate(out)[:n_lanes]
+                jnp.asarray([keys[i] for i in idx], jnp.uint32))
+            res = fn(stack_trees([lanes[i] for i in idx]), k)  # runout_m (lanes, 1), status
+            runouts[idx] = mask_unfinished(np.asarray(res.runout_m)[:, 0], res.status)
         return runouts.reshape(n_t, n_s, self.n_blocks)
 
     def alphas(self, theta) -> np.ndarray:
