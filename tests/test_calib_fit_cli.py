@@ -54,10 +54,12 @@ def small_run(tmp_path_factory):
     with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(stdout), \
             contextlib.redirect_stderr(stderr):
         mp.setattr(calibrate, "presets", lambda model, quick: SMALL[model])
-        # 8 DEM blocks per compiled call, not 32: this budget's stages simulate 4-24
-        # blocks at a time, and a call costs in proportion to its lanes, padding
-        # included (the DEM's stage times summed 80 s -> 48 s). A block's result does not
-        # depend on the lanes that share its call (solvers.dem._sums), so the runouts
+        # at most 8 DEM blocks per compiled call, not 32: this budget's stages simulate
+        # 4-24 blocks at a time, and a call costs in proportion to its lanes, padding
+        # included (the DEM's stage times summed 80 s -> 48 s with one 8-lane width; with
+        # calls as wide as the largest side, at most 32, this test took 151 s against
+        # 142 s at most 8: more widths, more programs to compile). A block's result does
+        # not depend on the lanes that share its call (solvers.dem._sums), so the runouts
         # are those of the default.
         mp.setattr(forward, "DemForward", functools.partial(forward.DemForward, lane_batch=8))
         try:

@@ -91,6 +91,7 @@ def test_lane_calls_cover_every_lane_once_in_calls_of_one_side():
     assert sorted(firsts.tolist()) == list(range(70))
     few = lane_calls(np.repeat([0.2, 2.0], [3, 5]), 0.5, 32)
     assert [c.tolist() for c in few] == [[0, 1, 2, 2, 2], [3, 4, 5, 6, 7]]
+    assert lane_calls(np.array([]), np.array([]), 32) == []
 
 
 def test_runouts_come_back_in_entry_order():

@@ -165,6 +165,8 @@ def lane_calls(side_m, alpha, max_width: int) -> list[np.ndarray]:
     (``solvers.dem._sums``; tests/test_dem_lanes.py), so a padded lane repeats
     its original's result exactly."""
     side = np.asarray(side_m, float)
+    if side.size == 0:
+        return []
     order = np.lexsort((np.broadcast_to(np.asarray(alpha, float), side.shape), side))
     groups = np.split(order, np.flatnonzero(np.diff(side[order]) != 0) + 1)
     width = min(int(max_width), max(len(g) for g in groups))
