@@ -145,8 +145,9 @@ def lane_calls(side_m, alpha, max_width: int) -> list[np.ndarray]:
     """The DEM lanes (one block each, side ``side_m`` and damping ``alpha``,
     arrays of one value per lane) of each ``dem_lanes`` call, as index arrays:
     every call holds lanes of one side only, ordered by alpha, and all calls
-    have one width, the smaller of ``max_width`` and the largest side's lane
-    count; a side's last call is padded by repeating its last lane.
+    have one width w; a side's last call is padded by repeating its last lane.
+    The largest side's n lanes need k = ceil(n / ``max_width``) calls, and w =
+    ceil(n / k) spreads them evenly (33 lanes: two calls of 17, not 32 + 1).
 
     A vmapped call runs until its slowest lane stops, so lanes that take alike
     many steps belong in one call. The step count follows the side first: the
@@ -157,8 +158,8 @@ def lane_calls(side_m, alpha, max_width: int) -> list[np.ndarray]:
     runs for the 0.2 m blocks' steps on all its lanes; docs/studies.md, "The
     DEM's lanes by block size"). Within a side the damping sets how fast a
     block moves. One width makes one compiled program serve every call; a
-    width no larger than the largest side keeps a small run from simulating
-    mostly padding.
+    width fitted to the largest side keeps a run from simulating mostly
+    padding.
 
     The calls set the cost of a run, not its results: a lane's result does not
     depend on the lanes it shares a call with or on its place in it
@@ -169,7 +170,8 @@ def lane_calls(side_m, alpha, max_width: int) -> list[np.ndarray]:
         return []
     order = np.lexsort((np.broadcast_to(np.asarray(alpha, float), side.shape), side))
     groups = np.split(order, np.flatnonzero(np.diff(side[order]) != 0) + 1)
-    width = min(int(max_width), max(len(g) for g in groups))
+    largest = max(len(g) for g in groups)
+    width = -(-largest // -(-largest // int(max_width)))  # its calls as even as they come
     calls = []
     for g in groups:
         for c0 in range(0, len(g), width):
