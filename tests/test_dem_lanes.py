@@ -11,7 +11,7 @@ import numpy as np
 import calib  # noqa: F401  (x64)
 from calib.model.dem_run import DEM_RUN
 from calib.model.entries import Entries
-from calib.model.forward import DemForward, dem_lanes, lane_calls, stack_trees
+from calib.model.forward import DemForward, dem_lanes, entry_blocks, lane_calls, stack_trees
 from solvers.dem import make_block
 from solvers.profile import load_profile
 
@@ -161,10 +161,7 @@ def test_fragment_candidate_runs_one_size_per_call(monkeypatch):
                             rho=entries.density_kg_m3)
     sides = entries.dem_side_m
     options = DEM_RUN.options(params, sides, n_fragments=dc.N_FRAGMENTS, adaptive=False)
-    lanes = [make_block(float(L), alpha=0.5, n_fragments=dc.N_FRAGMENTS, release_x_m=float(x),
-                        release_speed_m_s=float(v), release_height_m=float(h))
-             for L, x, v, h in zip(sides, entries.release_x_m, entries.release_speed_m_s,
-                                   entries.dem_release_height_m(), strict=True)
+    lanes = [b for b in entry_blocks(entries, 0.5, n_fragments=dc.N_FRAGMENTS)
              for _ in range(2)]
     keys = jax.numpy.stack([jax.random.fold_in(jax.random.key(0), j) for j in [0, 1] * 3])
     res = real(params, stack_trees(lanes), keys, options)

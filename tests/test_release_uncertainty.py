@@ -177,6 +177,85 @@ def test_the_sites_errors_change_the_blocks_of_a_release_above_the_ground():
     assert np.all(np.isfinite(r[3])) and np.mean(np.isfinite(r[4])) > 0.95
 
 
+# ---------------------------------------------------------------- the DEM's release
+
+
+def _dem_release(height_m, speed_m_s, height_sd_m, speed_sd_m_s, n_keys=400, errors=True):
+    """Heights of the lowest possible corner above the ground (m) and speeds
+    (m/s) of ``n_keys`` DEM releases of a 0.37 m block on the shoulder
+    (``errors``: the draws compiled, ``solvers.dem.Options.release_errors``)."""
+    from solvers.dem import make_block, make_params
+    from solvers.dem._integrate import _release
+
+    params = make_params(TSCHAMUT)
+    block = make_block(0.3677, alpha=0.5, release_x_m=SHOULDER_X_M,
+                       release_speed_m_s=speed_m_s, release_height_m=height_m,
+                       release_height_sd_m=height_sd_m, release_speed_sd_m_s=speed_sd_m_s)
+    keys = jax.random.split(jax.random.key(11), n_keys)
+    pose = jax.vmap(lambda k: _release(params, block, k, errors))(keys)
+    centre = np.asarray(pose.pos)[:, 0]
+    ground = float(ground_z(TSCHAMUT, jnp.asarray(SHOULDER_X_M)))
+    return centre[:, 1] - 0.3677 / np.sqrt(2.0) - ground, np.asarray(pose.vel)[:, 0, 0], pose
+
+
+def test_a_dem_release_below_the_ground_draws_its_height_from_the_error():
+    """The DEM's blocks draw a tracked release as CRSP's do: h = -0.5 m with the
+    site's sd 0.6 m is a height drawn from the truncated normal's tail, above
+    the ground (the DEM took the mean clipped to the ground before, every block
+    at 0); the tracked 0.39 m/s with sd 0.3 m/s is a truncated normal draw."""
+    h, v, _ = _dem_release(-0.5, 0.39, 0.6, 0.3)
+    assert np.all(h >= -1e-12) and np.mean(h > 0.05) > 0.5
+    for x, (mean, sd) in ((h, (-0.5, 0.6)), (v, (0.39, 0.3))):
+        t = _truncnorm(mean, sd)
+        assert abs(x.mean() - t.mean()) < 4 * t.std() / np.sqrt(x.size), (x.mean(), t.mean())
+
+
+def test_a_dem_release_with_exact_inputs_is_the_point_release():
+    """sd 0: the given height (on the ground where it is negative) and speed
+    exactly, and every other draw of the release (turn, offset) as with the
+    same key and no errors at all."""
+    h, v, pose = _dem_release(-0.5, 0.39, 0.0, 0.0, n_keys=8)
+    np.testing.assert_allclose(h, 0.0, atol=1e-12)
+    assert np.all(v == 0.39)
+    for height in (-0.5, 0.0):  # the same pose whether the draws are compiled or not
+        _, _, plain = _dem_release(height, 0.39, 0.0, 0.0, n_keys=8, errors=False)
+        np.testing.assert_array_equal(np.asarray(pose.pos), np.asarray(plain.pos))
+    _, _, drawn = _dem_release(0.0, 0.39, 0.6, 0.3, n_keys=8)
+    np.testing.assert_array_equal(np.asarray(drawn.theta), np.asarray(pose.theta))
+    with pytest.raises(ValueError, match="release_height_sd_m"):
+        from solvers.dem import make_block
+        make_block(0.5, alpha=0.5, release_height_sd_m=-0.1)
+
+
+def test_a_dem_program_without_the_draws_refuses_a_release_with_errors():
+    """A block with a positive sd in a program compiled without the draws
+    (``Options.release_errors`` False, the default) ends ``INVALID``: its
+    errors are never silently dropped."""
+    from solvers.dem import make_block, make_params, simulate
+    from solvers.status import INVALID
+
+    block = make_block(0.3677, alpha=0.5, release_x_m=SHOULDER_X_M, release_speed_m_s=0.39,
+                       release_height_m=-0.5, release_speed_sd_m_s=0.3)
+    res = jax.jit(lambda k: simulate(make_params(TSCHAMUT), block, k))(jax.random.key(0))
+    assert int(res.status) == INVALID
+
+
+def test_the_dem_forward_draws_each_blocks_release_from_the_entries_errors():
+    """``DemForward`` hands every block its entry's release errors: with the
+    site's sds the runouts of a release below the shoulder's ground differ
+    from block to block and from those of the exact release."""
+    from calib.model.forward import DemForward
+
+    exact = Entries.at_sizes([0.3677], SHOULDER_X_M, release_speed_m_s=0.39,
+                             release_height_m=-0.5, density_kg_m3=2650.0)
+    e = exact.concat(exact.with_release_errors(SITE.release_height_sd_m,
+                                               SITE.release_speed_sd_m_s))
+    r = DemForward(TSCHAMUT, e, 4, jax.random.key(2), form="constant").runouts_at_alpha(
+        np.array([[0.5, 0.5]]))[0]
+    assert np.all(np.isfinite(r)), r
+    assert np.all(r[0] != r[1]) and len(set(r[1].tolist())) == 4, r
+
+
 # ---------------------------------------------------------------- entries, site, files
 
 
@@ -192,8 +271,6 @@ def test_entries_carry_release_errors_only_where_a_release_is_tracked():
     np.testing.assert_array_equal(w.concat(e).release_speed_sd_m_s, [0.3, 0, 0.3, 0, 0, 0])
     rec = w.record("p.csv")
     assert rec[0]["release_height_sd_m"] == 0.6 and rec[0]["release_height_m"] == -0.4
-    # the DEM does not draw: it releases at the mean, on the ground where it is negative
-    np.testing.assert_array_equal(w.dem_release_height_m(), [0.0, 0.2, np.nan])
     with pytest.raises(ValueError, match="release_height_sd_m"):
         Entries.at_sizes([0.3], 10.0, release_height_m=0.5).with_release_errors(-0.1, 0.0)
 

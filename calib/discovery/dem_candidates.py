@@ -37,6 +37,7 @@ from calib.model.forward import (
     DemForward,
     as_entries,
     dem_lanes,
+    entry_blocks,
     gather_entries,
     lane_calls,
     split_by_profile,
@@ -98,8 +99,6 @@ class DemEffectForward:
         return np.stack([self._fragmented(a, s) for a, s in theta])
 
     def _fragmented(self, alpha: float, log10_strength: float) -> np.ndarray:
-        from solvers.dem import make_block
-
         strength = 10.0 ** float(log10_strength)
         e = self.entries
         params = self.run.params(self.profile, c_joint_pa=strength, t_joint_pa=strength,
@@ -107,11 +106,9 @@ class DemEffectForward:
         sides = e.dem_side_m
         # the one clipping rule of calib.model.alpha_law (the box stops at ALPHA_MAX already)
         a = float(alpha_of("constant", [alpha], sides[:1])[0])
-        blocks = [make_block(float(L), alpha=a, n_fragments=N_FRAGMENTS, release_x_m=float(x0),
-                             release_speed_m_s=float(v), release_height_m=float(h))
-                  for L, x0, v, h in zip(sides, e.release_x_m, e.release_speed_m_s,
-                                         e.dem_release_height_m(), strict=True)]
-        options = self.run.options(params, sides, n_fragments=N_FRAGMENTS, adaptive=False)
+        blocks = entry_blocks(e, a, n_fragments=N_FRAGMENTS)
+        options = self.run.options(params, sides, n_fragments=N_FRAGMENTS, adaptive=False,
+                                   release_errors=e.has_release_errors)
         lanes = [b for b in blocks for _ in range(self.n_blocks)]
         lane_keys = np.tile(np.arange(self.n_blocks), len(blocks))
         # calls of one block side each, of one width (``lane_calls``, as

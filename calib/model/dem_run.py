@@ -68,7 +68,7 @@ class DemRun:
             params: from ``params``.
             sides_m: (S,) square sides that the run simulates, m.
             n_fragments: fragments per block (the step is a fragment's).
-            **kw: other ``Options`` fields (e.g. ``adaptive``).
+            **kw: other ``Options`` fields (e.g. ``adaptive``, ``release_errors``).
 
         Returns:
             ``solvers.dem.Options`` (static: equal configurations give equal

@@ -23,10 +23,9 @@ Release state: a NaN release speed or height keeps the solver's own default
 tracked release height is kept as measured, negative values included (a
 release that a raster puts below its ground, ``calib.files.field_runs``), with
 the sds of its error and of the tracked speed's (``release_height_sd_m``,
-``release_speed_sd_m_s``: the site's, ``calib.files.site``; 0: exact): CRSP
-draws each block's height and speed from truncated normals about them
-(``solvers.crsp.init``); the DEM takes the mean height, on the ground where it
-is negative (``solvers.dem``'s release does not draw). The
+``release_speed_sd_m_s``: the site's, ``calib.files.site``; 0: exact): each
+block draws its height and speed from truncated normals about them, CRSP's
+(``solvers.crsp.init``) and the DEM's (``solvers.dem.Block``) alike. The
 density is one per site (``calib.files.site``), the solvers' default
 ``solvers.material.ROCK_DENSITY_KG_M3`` where the site says nothing.
 """
@@ -236,6 +235,12 @@ class Entries:
         return self.density_kg_m3 * np.pi * self.sizes_m**3 / 6.0
 
     @property
+    def has_release_errors(self) -> bool:
+        """True where some entry's release height or speed carries an error
+        (a DEM program must then compile the draws: ``solvers.dem.Options``)."""
+        return bool(np.any(self.release_height_sd_m > 0) or np.any(self.release_speed_sd_m_s > 0))
+
+    @property
     def own_profiles(self) -> bool:
         """True where some entry runs on a profile of its own."""
         return any(p is not None for p in self.profiles)
@@ -293,13 +298,6 @@ class Entries:
                                          float(height_sd_m), 0.0),
             release_speed_sd_m_s=np.where(np.isfinite(self.release_speed_m_s),
                                           float(speed_sd_m_s), 0.0))
-
-    def dem_release_height_m(self) -> np.ndarray:
-        """(E,) the DEM's release heights: the mean, on the ground (0) where it
-        is negative, NaN where none is given. The DEM does not draw the release
-        height (module docstring)."""
-        return np.where(np.isnan(self.release_height_m), np.nan,
-                        np.maximum(self.release_height_m, 0.0))
 
     def same_as(self, other: Entries) -> bool:
         """Same sizes, releases, release states and errors, profiles and density."""

@@ -45,9 +45,9 @@ from calib.model.warp import unwarp, warp, warped_box
 from solvers.parallel import default_workers, map_ordered
 from solvers.profile import Profile, segment_index
 
-__all__ = ["CrspForward", "DemForward", "as_entries", "dem_lanes", "gather_entries", "lane_calls",
-           "named_overrides", "release_rolling_deg", "release_slopes_deg", "rolling_columns",
-           "split_by_profile", "stack_trees"]
+__all__ = ["CrspForward", "DemForward", "as_entries", "dem_lanes", "entry_blocks",
+           "gather_entries", "lane_calls", "named_overrides", "release_rolling_deg",
+           "release_slopes_deg", "rolling_columns", "split_by_profile", "stack_trees"]
 
 
 @functools.partial(jax.jit, static_argnames=("rolling_cols",))
@@ -178,6 +178,23 @@ def lane_calls(side_m, alpha, max_width: int) -> list[np.ndarray]:
             idx = g[c0:c0 + width]
             calls.append(np.concatenate([idx, np.full(width - len(idx), idx[-1])]))
     return calls
+
+
+def entry_blocks(entries: Entries, alpha: float, n_fragments: int = 1) -> list:
+    """One DEM block (``solvers.dem.make_block``) per entry: a square of side
+    ``Entries.dem_side_m`` damped by ``alpha``, released at the entry's point,
+    height and speed with their errors' sds (``solvers.dem.Block``: a block
+    draws a tracked height and speed as CRSP's blocks do; NaN keeps the DEM's
+    release rule)."""
+    from solvers.dem import make_block
+
+    e = entries
+    return [make_block(float(L), alpha=alpha, n_fragments=n_fragments, release_x_m=float(x),
+                       release_speed_m_s=float(v), release_height_m=float(h),
+                       release_height_sd_m=float(sh), release_speed_sd_m_s=float(sv))
+            for L, x, v, h, sh, sv in zip(e.dem_side_m, e.release_x_m, e.release_speed_m_s,
+                                          e.release_height_m, e.release_height_sd_m,
+                                          e.release_speed_sd_m_s, strict=True)]
 
 
 @functools.partial(jax.jit, static_argnames=("options",))
@@ -491,11 +508,9 @@ class DemForward:
             block sizes, as in ``CrspForward``. A NaN release speed or height
             keeps the DEM's release rule (``solvers.dem.Params``: 1 cm above the
             ground, speed uniform in 0-1 m/s); the DEM still offsets each block
-            up to 0.5 m downslope and turns it at random. The DEM does NOT draw
-            the release height and speed from the entries' errors (their sds
-            are ignored): it releases at the mean height, on the ground where
-            that is negative (``Entries.dem_release_height_m``), and the mean
-            speed. The density sets the
+            up to 0.5 m downslope and turns it at random. A tracked release
+            height and speed carry the entries' errors: each block draws them
+            as CRSP's blocks do (``entry_blocks``). The density sets the
             mass per metre of width, with which the contact and damping
             forces scale.
         n_blocks: blocks per (alpha, size); few, the DEM is expensive.
@@ -543,25 +558,21 @@ class DemForward:
 
     def _compiled(self):
         if self._fn is None:
-            options = self.run.options(self._params, self.entries.dem_side_m)
+            options = self.run.options(self._params, self.entries.dem_side_m,
+                                       release_errors=self.entries.has_release_errors)
             self._fn = functools.partial(dem_lanes, self._params, options=options)
         return self._fn
 
     def runouts_at_alpha(self, alpha) -> np.ndarray:
         """Runouts (T, S, n_blocks), m, for per-size damping alpha (T, S); NaN for
         a block that did not finish (status BUDGET or INVALID)."""
-        from solvers.dem import make_block
-
         alpha = np.asarray(alpha, float)
         n_t, n_s = alpha.shape
         if self._parts is not None:  # one forward per profile (Entries.profiles)
             return gather_entries(self._parts, n_s,
                                   lambda sub, idx: sub.runouts_at_alpha(alpha[:, idx]))
         e = self.entries
-        proto = [make_block(float(L), alpha=0.5, release_x_m=float(x),
-                            release_speed_m_s=float(v), release_height_m=float(h))
-                 for L, x, v, h in zip(e.dem_side_m, e.release_x_m, e.release_speed_m_s,
-                                       e.dem_release_height_m(), strict=True)]
+        proto = entry_blocks(e, alpha=0.5)
         lanes, keys = [], []
         for t in range(n_t):
             for s in range(n_s):

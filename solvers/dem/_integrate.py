@@ -73,6 +73,7 @@ from solvers.dem._sums import ordered_sum
 from solvers.profile import ground_z
 from solvers.stations import StationRecord, empty_record, record_passage
 from solvers.status import BUDGET, INVALID, LEFT_PROFILE, RUNNING, STOPPED
+from solvers.truncated_normal import nonnegative_normal
 
 __all__ = ["Consts", "Pose", "Result", "State", "init", "result", "rollout", "simulate",
            "simulate_batch", "step", "trajectory"]
@@ -186,21 +187,39 @@ def consts(params: Params, block: Block) -> Consts:
         ground_at_stations=ground_z(params.profile, block.stations_x_m))
 
 
-def _release(params: Params, block: Block, key: jax.Array) -> Pose:
+def _release(params: Params, block: Block, key: jax.Array, errors: bool = False) -> Pose:
     """Random release at the cliff edge: orientation U(0, pi/2), downslope offset
     U(0, jitter), horizontal speed U(0, speed) or the block's own
     (``Block.release_speed_m_s``), its lowest possible point ``release_gap_m``
     or the block's own height (``Block.release_height_m``) above the ground at
-    the release point; fragments laid out rigidly."""
+    the release point; fragments laid out rigidly.
+
+    A block's own height and speed are uncertain inputs, as in CRSP's release
+    (``solvers.crsp.init``): with their sds (``Block.release_height_sd_m``,
+    ``release_speed_sd_m_s``) positive each is a draw of a normal about the
+    given value truncated to >= 0 (``solvers.truncated_normal``), from two
+    uniforms of ``fold_in(key, 1)``, a stream of its own, so every other draw
+    of the release, and every release with both sds 0, is as without them. A
+    negative height is then a release from the error's tail above the ground;
+    with sd 0 it is clipped: on the ground. The draws are compiled only with
+    ``errors`` (``Options.release_errors``); without it a positive sd gives a
+    NaN height, which the step reports as ``INVALID``."""
     n = block.n_side
     k_theta, k_x, k_v = jax.random.split(key, 3)
     theta0 = jax.random.uniform(k_theta, (), minval=0.0, maxval=0.5 * math.pi)
     jitter = params.release_jitter_m * jax.random.uniform(k_x, ())
-    v0 = jnp.where(jnp.isnan(block.release_speed_m_s),
-                   params.release_speed_m_s * jax.random.uniform(k_v, ()),
-                   block.release_speed_m_s)
-    gap = jnp.where(jnp.isnan(block.release_height_m), params.release_gap_m,
-                    block.release_height_m)
+    h, sd_h = block.release_height_m, block.release_height_sd_m
+    v, sd_v = block.release_speed_m_s, block.release_speed_sd_m_s
+    if errors:
+        u_h, u_v = jax.random.uniform(jax.random.fold_in(key, 1), (2,), dtype=jnp.float64)
+        h_given, v_given = nonnegative_normal(u_h, h, sd_h), nonnegative_normal(u_v, v, sd_v)
+    else:
+        drops = (sd_h > 0.0) | (sd_v > 0.0)
+        h_given = jnp.where(drops, jnp.nan, jnp.maximum(h, 0.0))
+        v_given = jnp.maximum(v, 0.0)
+    v0 = jnp.where(jnp.isnan(v), params.release_speed_m_s * jax.random.uniform(k_v, ()),
+                   v_given)
+    gap = jnp.where(jnp.isnan(h), params.release_gap_m, h_given)
     big_r = block.size_m / math.sqrt(2.0)
     x0 = block.release_x_m + big_r + jitter
     z0 = ground_z(params.profile, block.release_x_m) + big_r + gap
@@ -373,7 +392,7 @@ def init(params: Params, block: Block, key: jax.Array, options: Options = Option
     """
     n = block.n_side
     c = consts(params, block)
-    pose = _release(params, block, key) if pose is None else pose
+    pose = _release(params, block, key, options.release_errors) if pose is None else pose
     n_frag, n_joint = n * n, len(joints_of(n).a)
     st = State(pos=jnp.asarray(pose.pos, jnp.float64), theta=jnp.asarray(pose.theta),
                vel=jnp.asarray(pose.vel), omega=jnp.asarray(pose.omega),
