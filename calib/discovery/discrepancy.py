@@ -192,9 +192,10 @@ def discover(candidates: list[Candidate], obs, profile, key: jax.Array, budget: 
     are each row's release plus its runout. Velocity rows are simulated from the
     median of the rows' releases. Otherwise every block starts at the
     profile's first vertex. Both solvers release each group at its rows' mean
-    speed and height where the rows give them; CRSP draws each block's height
-    and speed about them with the sds ``release_errors`` (m, m/s: the site's,
-    ``calib.files.site``; ``Entries.with_release_errors``). Rows on their own
+    speed and height where the rows give them; each block (CRSP's and the
+    DEM's) draws its height and speed about them with the sds
+    ``release_errors`` (m, m/s: the site's, ``calib.files.site``;
+    ``Entries.with_release_errors``). Rows on their own
     profiles (``Observations.profile``) are simulated on them; their stop
     positions enter the residual tests as abscissae of the command's profile
     (our choice: it assumes lines cut alike, e.g. the mean fall lines of

@@ -144,9 +144,9 @@ class Inputs:
                          f"release-speed shift {np.abs(gspeed - speed)[known].max():.2f} m/s)")
         site = self.site
         if site.release_height_sd_m or site.release_speed_sd_m_s:
-            lines.append(f"CRSP draws each block's release height and speed about its group's, "
-                         f"sd {site.release_height_sd_m:g} m and {site.release_speed_sd_m_s:g} "
-                         f"m/s (the site file {site.path}); the DEM releases at the means")
+            lines.append(f"each block (CRSP's and the DEM's) draws its release height and speed "
+                         f"about its group's, sd {site.release_height_sd_m:g} m and "
+                         f"{site.release_speed_sd_m_s:g} m/s (the site file {site.path})")
         high = np.isfinite(height)
         if high.any():
             lines.append(f"each group released at its rows' mean height above the ground, "
