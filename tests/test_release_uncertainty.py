@@ -234,10 +234,13 @@ def test_a_dem_program_without_the_draws_refuses_a_release_with_errors():
     from solvers.dem import make_block, make_params, simulate
     from solvers.status import INVALID
 
-    block = make_block(0.3677, alpha=0.5, release_x_m=SHOULDER_X_M, release_speed_m_s=0.39,
-                       release_height_m=-0.5, release_speed_sd_m_s=0.3)
-    res = jax.jit(lambda k: simulate(make_params(TSCHAMUT), block, k))(jax.random.key(0))
-    assert int(res.status) == INVALID
+    params = make_params(TSCHAMUT)
+    for h, sd_h in ((-0.5, 0.0), (np.nan, 0.0), (0.3, 0.6)):  # the speed's error, the height's
+        block = make_block(0.3677, alpha=0.5, release_x_m=SHOULDER_X_M, release_speed_m_s=0.39,
+                           release_height_m=h, release_height_sd_m=sd_h,
+                           release_speed_sd_m_s=0.3 if sd_h == 0.0 else 0.0)
+        res = jax.jit(lambda k, b=block: simulate(params, b, k))(jax.random.key(0))
+        assert int(res.status) == INVALID, (h, sd_h)
 
 
 def test_the_dem_forward_draws_each_blocks_release_from_the_entries_errors():

@@ -214,12 +214,12 @@ def _release(params: Params, block: Block, key: jax.Array, errors: bool = False)
         u_h, u_v = jax.random.uniform(jax.random.fold_in(key, 1), (2,), dtype=jnp.float64)
         h_given, v_given = nonnegative_normal(u_h, h, sd_h), nonnegative_normal(u_v, v, sd_v)
     else:
-        drops = (sd_h > 0.0) | (sd_v > 0.0)
-        h_given = jnp.where(drops, jnp.nan, jnp.maximum(h, 0.0))
-        v_given = jnp.maximum(v, 0.0)
+        h_given, v_given = jnp.maximum(h, 0.0), jnp.maximum(v, 0.0)
     v0 = jnp.where(jnp.isnan(v), params.release_speed_m_s * jax.random.uniform(k_v, ()),
                    v_given)
     gap = jnp.where(jnp.isnan(h), params.release_gap_m, h_given)
+    if not errors:  # errors this program cannot draw: a NaN release, reported INVALID
+        gap = jnp.where((sd_h > 0.0) | (sd_v > 0.0), jnp.nan, gap)
     big_r = block.size_m / math.sqrt(2.0)
     x0 = block.release_x_m + big_r + jitter
     z0 = ground_z(params.profile, block.release_x_m) + big_r + gap
