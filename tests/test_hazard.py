@@ -26,6 +26,7 @@ from calib.hazard import (
     summary_text,
 )
 from calib.hazard._units import draw_key
+from calib.model.release import ReleaseState
 from solvers import crsp, load_profile
 
 G = 9.81
@@ -434,6 +435,58 @@ def test_dem_counts_do_not_depend_on_chunking(tmp_path):
         np.testing.assert_array_equal(getattr(a, k), getattr(b, k), err_msg=k)
     for q in a.hist:
         np.testing.assert_array_equal(a.hist[q], b.hist[q], err_msg=q)
+
+
+def _dem_seeded(tmp_path, zone, state, n_blocks):
+    """``_dem_run``'s calibration, stations and 2 m blocks with release conditions."""
+    from calib.model.release import Seeder
+
+    path = write_calibration(tmp_path, dem=(0.40, 0.5))
+    cal = load_calibration(path, "dem")
+    profile = load_profile(cal.profile_csv)
+    draws = draw_parameters(cal, 1, 0)
+    stations = np.array([0.0, 20.0, 50.0, 115.0, 130.0, 160.0])
+    seeder = Seeder.fixed_sizes([2.0], zone, state)
+    return seeder, run_hazard(cal, draws, profile, None, stations, n_blocks, 5, release=seeder)
+
+
+def test_a_dem_release_at_one_point_in_the_solvers_state_is_the_plain_run(tmp_path):
+    """DEM blocks of a fixed size through the per-block release path
+    (``_units.dem_chunk`` with seeds) at one point, height and speed the solver's
+    own (NaN): every block is the block of the run without release conditions,
+    to the bit (the same key, the same release rule)."""
+    from calib.model.release import ReleaseZone
+
+    _, _, plain = _dem_run(tmp_path, 3)
+    _, seeded = _dem_seeded(tmp_path, ReleaseZone("point", (0.0,)), ReleaseState(), 3)
+    keep = [0, 2, 3, 4, 5]  # _dem_seeded's stations less 20 m are _dem_run's
+    for k in ("exceed", "reach", "e30", "e300"):
+        np.testing.assert_array_equal(getattr(seeded, k)[..., keep], getattr(plain, k),
+                                      err_msg=k)
+    np.testing.assert_array_equal(seeded.n_unfinished, plain.n_unfinished)
+    for q in plain.hist:
+        np.testing.assert_array_equal(seeded.hist[q][:, keep], plain.hist[q], err_msg=q)
+
+
+def test_dem_blocks_start_where_the_release_zone_draws_them(tmp_path):
+    """DEM blocks released in a zone of two points, 0 m and 30 m, at a drawn height
+    (1 m, sd 0.5 m) and speed (2 m/s, sd 0.5 m/s): a block passes the station at
+    20 m exactly when its drawn abscissa (``sample_release`` on its key) is the
+    upslope point (every block from 0 m passes the talus at 50 m, none from 30 m
+    climbs back to 20 m), and every block ends (none INVALID, none unfinished)."""
+    from calib.model.release import ReleaseZone, sample_release
+
+    zone = ReleaseZone("points", (0.0, 30.0), (0.5, 0.5))
+    n = 8
+    seeder, c = _dem_seeded(tmp_path, zone, ReleaseState(1.0, 0.5, 2.0, 0.5), n)
+    keys = [jax.random.fold_in(draw_key(5, 0), j) for j in range(n)]
+    drawn = np.asarray([float(sample_release(seeder.arrays(0), seeder.kinds, k)[2])
+                        for k in keys])
+    upslope = int((drawn == 0.0).sum())
+    assert 0 < upslope < n, drawn  # both points drawn (this key, these 8 blocks)
+    assert c.reach[0, 0, 1] == upslope and c.reach[0, 0, 2] >= upslope, c.reach
+    assert c.n_unfinished.sum() == 0
+    assert c.reach[0, 0, 0] == 0  # the station at the upslope point is not passed
 
 
 def test_dem_counts_equal_a_direct_batch_run(tmp_path):

@@ -414,7 +414,7 @@ def test_class_tables_hazard_nc_and_summary(class_run):
     (["--release-zone-m=-5:5"], "outside the profile"),
     (["--release-height-m", "-1"], "--release-height-m -1: expected a number >= 0"),
     (["--release-speed-sd-m-s", "0.5"], "needs --release-speed-m-s"),
-    (["--model", "dem", "--release-zone-m", "0:5"], "the DEM hazard run takes fixed sizes"),
+    (["--model", "dem", "--volume-law", LOGNORMAL], "the DEM hazard run takes fixed sizes"),
 ])
 def test_bad_release_options_one_line_exit_2_nothing_written(cal_path, tmp_path, capsys,
                                                              extra, message):

@@ -106,10 +106,11 @@ def build_parser() -> OneLineParser:
 
 def _release_options(p: OneLineParser) -> None:
     g = p.add_argument_group(
-        "release conditions (CRSP; calib/model/release.py)",
+        "release conditions (calib/model/release.py)",
         "Blocks drawn one by one: a volume from a block-volume distribution (a block of "
-        "volume V is the sphere of diameter d = (6 V / pi)^(1/3) and mass rho V), an "
-        "abscissa in a release zone, a height and a speed. The tables then report per "
+        "volume V is the sphere of diameter d = (6 V / pi)^(1/3) and mass rho V; CRSP "
+        "only), an abscissa in a release zone, a height and a speed (both models; the "
+        "DEM's blocks are the fixed sizes). The tables then report per "
         "volume class, each simulated with --n-blocks blocks per draw; with "
         "--release-rate-per-year (blocks per year of the whole distribution) a class's "
         "frequencies are scaled by its probability. Classes or sizes outside the block "
@@ -530,13 +531,10 @@ def _conditions(args, cal, profile, sizes, release_x: float, zone) -> _Condition
     )
 
     used = [o for o, v in (("--volumes-csv", args.volumes_csv), ("--volume-law", args.volume_law),
-                           ("--release-zone-m", args.release_zone_m),
-                           ("--release-height-m", args.release_height_m),
-                           ("--release-speed-m-s", args.release_speed_m_s),
                            ("--barrier-x-m", args.barrier_x_m)) if v is not None]
     if cal.model != "crsp" and used:
-        raise CliError(f"{used[0]}: the DEM hazard run takes fixed sizes released at one point "
-                       "without a barrier; use --model crsp")
+        raise CliError(f"{used[0]}: the DEM hazard run takes fixed sizes (a release zone, "
+                       "height and speed allowed) without a barrier; use --model crsp")
     try:
         law = (read_block_survey(args.volumes_csv, cal.rock_density_kg_m3) if args.volumes_csv
                else parse_volume_law(args.volume_law) if args.volume_law else None)

@@ -17,7 +17,9 @@ within the class, its own release abscissa, height and speed
 (``_units.seeded_chunk``: why each block is a task of its own is said there).
 Stratified, equal allocation: a class's counts are conditional on the class,
 and its weight (``VolumeClass.probability``) enters only the annual
-frequencies. A protection barrier (``Barrier``) is a CRSP parameter of every
+frequencies. The DEM takes release conditions of fixed sizes (a zone, heights
+and speeds; ``_units.dem_chunk``), not a volume distribution: each side is
+compiled with its own step bound. A protection barrier (``Barrier``) is a CRSP parameter of every
 draw (``solvers.crsp._barrier``); the DEM has none.
 """
 
@@ -212,8 +214,9 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
         dem_run: DEM numerics (``calib.model.dem_run``; default: the fit's).
         release_x_m: release abscissa of every block, m (None:
             ``default_release_x_m``); with ``release``: the zone's downslope end.
-        release: release conditions drawn per block (CRSP only); its classes
-            replace ``sizes_m`` (pass None).
+        release: release conditions drawn per block (the DEM: fixed sizes
+            only, ``Seeder.fixed_sizes``); its classes replace ``sizes_m``
+            (pass None).
         barrier: a protection barrier (CRSP only), or None.
         progress: called with the number of blocks finished after each unit.
         devices: JAX devices (default all).
@@ -226,7 +229,8 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
     _check_options(cal, release, barrier, fragments)
     if release is not None:
         sizes_m = release.sizes_m
-        chunk_blocks = min(chunk_blocks, _seeded_chunk_cap(profile))
+        if cal.model == "crsp":  # every block a CRSP task of its own
+            chunk_blocks = min(chunk_blocks, _seeded_chunk_cap(profile))
     sizes_m = np.asarray(sizes_m, dtype=np.float64)
     stations = np.asarray(stations_x_m, dtype=np.float64)
     chunk, offsets = _chunks(n_blocks, chunk_blocks)
@@ -261,10 +265,13 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
 
 
 def _check_options(cal: Calibration, release, barrier, fragments) -> None:
-    """Refuse the combinations ``run_hazard`` cannot run: release conditions or a
-    barrier without the CRSP model; fragments with release conditions."""
-    if cal.model != "crsp" and (release is not None or barrier is not None):
-        raise ValueError("release conditions and barriers need the CRSP model")
+    """Refuse the combinations ``run_hazard`` cannot run: a volume distribution or a
+    barrier without the CRSP model (the DEM takes fixed sizes, each in a program
+    of its own step bound, and has no barrier element); fragments with release
+    conditions."""
+    if cal.model != "crsp" and (barrier is not None or (release is not None
+                                                        and release.law is not None)):
+        raise ValueError("volume distributions and barriers need the CRSP model")
     if fragments is not None and release is not None:
         raise ValueError("fragments run from the fixed-size release; release conditions "
                          "drawn per block (a volume distribution) are not broken")
@@ -273,13 +280,14 @@ def _check_options(cal: Calibration, release, barrier, fragments) -> None:
 def _work_units(cal, draws, profile, entries: Entries, release, barrier, sizes_m, stations,
                 n_blocks, seed, chunk, offsets, pool, settings, dem_run):
     """The run's work units: seeded CRSP units with release conditions, else
-    CRSP units of the sizes, else DEM units (after checking the DEM draws);
+    CRSP units of the sizes, else DEM units (after checking the DEM draws; with
+    release conditions, each block's drawn in its unit);
     a barrier and the calibration's rolling threshold enter every CRSP draw as
     parameter overrides."""
     st_dev = jnp.asarray(stations)
     extra = {"rolling_threshold_m_s": cal.rolling_threshold_m_s,
              **({} if barrier is None else barrier.overrides())}
-    if release is not None:
+    if release is not None and cal.model == "crsp":
         return _seeded_units(draws, profile, release, entries.density_kg_m3, st_dev, n_blocks,
                              seed, chunk, offsets, pool, settings, extra, cal.effects)
     if cal.model == "crsp":
@@ -287,7 +295,7 @@ def _work_units(cal, draws, profile, entries: Entries, release, barrier, sizes_m
                            pool, settings, extra, cal.effects)
     check_dem_draws(cal, draws, sizes_m)
     return _dem_units(cal, draws, profile, entries, stations, n_blocks, seed, chunk,
-                      offsets, dem_run)
+                      offsets, dem_run, release)
 
 
 class _Tally:
@@ -419,11 +427,15 @@ def _seeded_units(draws, profile, release: Seeder, density, stations, n_blocks, 
 
 
 def _dem_units(cal, draws, profile, entries: Entries, stations, n_blocks, seed, chunk,
-               offsets, run: DemRun):
+               offsets, run: DemRun, seeder: Seeder | None = None):
+    """DEM units, one size each; with ``seeder`` (fixed sizes) its zone, heights
+    and speeds drawn per block (``_units.dem_chunk``)."""
     params = run.params(profile, rho=entries.density_kg_m3)
     sides, release = entries.dem_side_m, float(entries.release_x_m[0])
     # one static step bound for every size (one compilation; calib.model.dem_run)
-    fn = functools.partial(dem_chunk, n_chunk=chunk, options=run.options(params, sides))
+    fn = functools.partial(dem_chunk, n_chunk=chunk, options=run.options(params, sides),
+                           kinds=None if seeder is None else seeder.kinds)
+    seeds = [None if seeder is None else seeder.arrays(t) for t in range(len(sides))]
     alphas = np.asarray(alpha_of(cal.alpha_form, draws.values, sides))  # (D, T)
     for d in range(len(draws.values)):
         key = draw_key(seed, d)
@@ -433,8 +445,8 @@ def _dem_units(cal, draws, profile, entries: Entries, stations, n_blocks, seed, 
             for off in offsets:
                 n_valid = min(chunk, n_blocks - off)
 
-                def make_args(block=block, key=key, off=off, n_valid=n_valid):
+                def make_args(block=block, key=key, off=off, n_valid=n_valid, s=seeds[t]):
                     return (params, block, key, jnp.asarray(off, jnp.int32),
-                            jnp.asarray(n_valid, jnp.int32))
+                            jnp.asarray(n_valid, jnp.int32), s)
 
                 yield (d, slice(t, t + 1)), make_args, fn

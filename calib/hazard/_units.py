@@ -18,7 +18,9 @@ CRSP with release conditions drawn per block (``seeded_chunk``,
 ``calib.model.release``): one class (a volume class, or a fixed size) per unit,
 every block its own task of one block keyed as above, so that each block has its
 own volume, sphere, release abscissa, height and speed.
-DEM: one size per unit, ``jax.vmap`` of ``solvers.dem.simulate``. The 2D DEM
+DEM: one size per unit, ``jax.vmap`` of ``solvers.dem.simulate``; with release
+conditions (a fixed size's zone, height and speed) each block's drawn as for
+CRSP (``dem_chunk``). The 2D DEM
 gives kinetic energy per metre of thickness; it is multiplied by the square's
 side L, i.e. the block is taken as a prism of thickness L (a cube of side D for
 a block of average diameter D). This makes the energies kJ per block, as the
@@ -86,24 +88,45 @@ def _slotted_chunk(params, blocks, key, profile, stations_x_m, offset, n_valid, 
                         st.velocity_m_s, st.bounce_height_m, valid, stations_x_m)
 
 
-@functools.partial(jax.jit, static_argnames=("n_chunk", "options"))
-def dem_chunk(params, block, key, offset, n_valid, *, n_chunk: int, options) -> ChunkStats:
+@functools.partial(jax.jit, static_argnames=("n_chunk", "options", "kinds"))
+def dem_chunk(params, block, key, offset, n_valid, seeds: SeedArrays | None = None, *,
+              n_chunk: int, options, kinds: tuple[str, str] | None = None) -> ChunkStats:
     """DEM blocks ``offset .. offset + n_chunk - 1`` of one size, reduced (T = 1).
+
+    With ``seeds`` each block's release abscissa, height and speed are drawn from
+    its key by ``calib.model.release.sample_release`` (the CRSP run's draws, the
+    same numbers for block j) and replace the block's; the DEM draws its
+    orientation, offset and (a NaN speed) speed as without them
+    (``solvers.dem``'s release). Drawn here, the height and speed reach the
+    DEM as exact values (sds 0): a program without ``Options.release_errors``
+    runs them. With the zone a point and the state the solver's default (NaN),
+    every block is the block of the run without ``seeds``, to the bit.
 
     Args:
         params: DEM ``Params``.
         block: DEM ``Block`` (one un-fragmented square; stations inside).
         key: the draw's key (block j uses fold_in(key, j)).
         offset, n_valid: as for ``crsp_chunk``.
+        seeds: the size's ``SeedArrays`` (a fixed size), or None: every block
+            at ``block``'s release.
         n_chunk: static chunk size.
         options: static DEM ``Options``.
+        kinds: with ``seeds``, (law kind, zone kind), static (``Seeder.kinds``).
 
     Returns:
         ``ChunkStats`` with T = 1.
     """
     idx = (offset + jnp.arange(n_chunk)).astype(jnp.uint32)
     keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(idx)
-    res = jax.vmap(lambda k: dem_simulate(params, block, k, options))(keys)
+
+    def one(k):
+        b = block
+        if seeds is not None:
+            _, _, x, h, v = sample_release(seeds, kinds, k)
+            b = block._replace(release_x_m=x, release_height_m=h, release_speed_m_s=v)
+        return dem_simulate(params, b, k, options)
+
+    res = jax.vmap(one)(keys)
     st = res.stations  # fields (n, 1, S): one fragment
     valid = jnp.arange(n_chunk) < n_valid
     energy_kJ = st.energy_kJ[None, :, 0] * block.size_m  # per metre -> per block (cube)
