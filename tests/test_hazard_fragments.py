@@ -249,6 +249,10 @@ def test_command_writes_fragment_tables(tmp_path):
     (["--fragmentation", "crsp", "--frag-energy-kJ", "-1"], "expected a positive energy"),
     (["--model", "dem", "--fragments", "12"], "expected a perfect square"),
     (["--model", "dem", "--fragmentation", "crsp"], "the DEM breaks bonded fragments"),
+    (["--model", "dem", "--fragments", "4", "--release-zone-m", "0:5"],
+     "--release-zone-m: --fragmentation/--fragments break blocks of the fixed sizes"),
+    (["--model", "dem", "--fragments", "4", "--release-height-m", "1"],
+     "--release-height-m: --fragmentation/--fragments break blocks of the fixed sizes"),
 ])
 def test_command_refuses_bad_fragment_options_in_one_line(tmp_path, capsys, argv, expected):
     path = write_calibration(tmp_path)

@@ -289,9 +289,16 @@ def _prepare(args, sizes) -> _Run:
     except FragmentationError as e:
         raise CliError(str(e)) from None
     if fragments is not None and cond.seeder is not None:
-        raise CliError("--fragmentation/--fragments break blocks of the fixed sizes "
-                       "(--block-sizes-m); they do not combine with a volume "
-                       "distribution (--volumes-csv, --volume-law)")
+        given = next(o for o, v in (("--volumes-csv", args.volumes_csv),
+                                    ("--volume-law", args.volume_law),
+                                    ("--release-zone-m", args.release_zone_m),
+                                    ("--release-height-m", args.release_height_m),
+                                    ("--release-speed-m-s", args.release_speed_m_s))
+                     if v is not None)
+        raise CliError(f"{given}: --fragmentation/--fragments break blocks of the fixed "
+                       "sizes (--block-sizes-m) released at one point in the solver's "
+                       "release state; they do not combine with release conditions "
+                       "(a volume distribution, a zone, heights or speeds)")
     return _Run(cal, profile, stations, road_x, label, release_x, draws, n_blocks, cond,
                 fragments)
 
