@@ -375,7 +375,8 @@ def dem_units(spec: Fragmentation, units, cal, draws, sizes_m, dem_run):
 
     options = None
     for (d, t_sl), make_args, fn in units:
-        params, block, key, offset, n_valid = make_args()
+        # no release seeds: fragments run without release conditions (_run._check_options)
+        params, block, key, offset, n_valid, _ = make_args()
         side = float(block.size_m)
         fragmented = dem.make_block(
             side, alpha=dem_alpha(cal, draws.values[d], side * spec.size_ratio),
