@@ -74,9 +74,12 @@ def presets(model: str, quick: bool) -> Budget:
                           nuts_samples=400, nuts_chains=2, grad_starts=1, grad_steps=2,
                           grad_k=1, n_blocks_grad=4, n_check=4, n_predictive_draws=2,
                           n_blocks_predictive=2)
+        # the check at the estimate and the posterior predictive each simulate 32
+        # blocks per size: their 5/50/95 % runouts need 20
+        # (solvers.percentiles.few_blocks); 32 fills one DEM call (DemForward.lane_batch)
         return Budget(n_design=16, n_design2=0, n_design3=0, n_blocks_design=12, grad_starts=2,
-                      grad_steps=8, grad_k=1, n_blocks_grad=8, n_check=16,
-                      n_predictive_draws=4, n_blocks_predictive=4)
+                      grad_steps=8, grad_k=1, n_blocks_grad=8, n_check=32,
+                      n_predictive_draws=8, n_blocks_predictive=4)
     raise ValueError(f"unknown model {model!r}")
 
 
