@@ -54,6 +54,7 @@ import warnings
 import jax
 
 from calib.files.provenance import command_args, command_running
+from calib.model.dem_run import DEM_RUN
 from calib.model.effects import CRSP_EFFECTS
 from calib.model.priors import CRSP_ROLLING_BOX, ROLLING, NoRestError
 from calib.model.unfinished import UnfinishedBlocksWarning
@@ -67,6 +68,7 @@ from solvers.cli import (
     run_guarded,
     write_outputs,
 )
+from solvers.dem import check_run_numerics
 from solvers.percentiles import few_blocks_warning
 
 __all__ = ["POINT_ESTIMATE_BLOCKS", "FitRun", "fit_argv", "main", "run_fit", "run_options",
@@ -120,6 +122,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "also under --holdout-fraction. Default: none")
     p.add_argument("--alpha-law", choices=["power", "constant"], default="power",
                    help="DEM damping law: power alpha = a L^-b (default) or constant alpha")
+    p.add_argument("--dem-max-time-s", type=float, default=DEM_RUN.max_time_s,
+                   help="DEM only: simulated time every block gets, s; a block still moving "
+                        "then is unfinished and left out of the fit (the fit's summary "
+                        "counts them). calibration.json records it (dem.run.max_time_s), "
+                        "and calib.validate and calib.hazard run with it "
+                        f"(default {DEM_RUN.max_time_s:g}, calib/model/dem_run.py)")
     p.add_argument("--out", default="results", help="output folder (default: results/)")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed (default 0)")
     p.add_argument("--quick", action="store_true",
@@ -173,6 +181,7 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
             effects: tuple[str, ...] = (), alpha_law: str = "power", seed: int = 0,
             quick: bool = False, holdout_fraction: float = 0.0,
             release_tolerance_m: float = 1.0, velocities: str | None = None,
+            dem_max_time_s: float = DEM_RUN.max_time_s,
             progress: bool = False, report=None) -> FitRun:
     """Calibrate ``models`` on the rows of ``data`` and write every output into
     ``out`` (the files of the module docstring; the rows files of the split),
@@ -184,8 +193,8 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
             profile next to the data, ``calib.files.inputs.default_profile``).
         out: output folder.
         models, methods, rolling_resistance, effects, alpha_law, seed, quick,
-        holdout_fraction, release_tolerance_m, velocities: the command's
-            options of those names (``--model``, ``--method``, ...;
+        holdout_fraction, release_tolerance_m, velocities, dem_max_time_s: the
+            command's options of those names (``--model``, ``--method``, ...;
             ``build_parser``; with ``velocities``, methods ("gradient", "bayes")
             fit by "bayes" alone).
         progress: show progress bars on stderr.
@@ -219,10 +228,17 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
         data, out, profile=profile, models=models, methods=methods,
         rolling_resistance=rolling_resistance, effects=effects, alpha_law=alpha_law,
         seed=seed, quick=quick, holdout_fraction=holdout_fraction,
-        release_tolerance_m=release_tolerance_m, velocities=velocities)
+        release_tolerance_m=release_tolerance_m, velocities=velocities,
+        dem_max_time_s=dem_max_time_s)
     _check_effects(models, rolling_resistance, effects)
     if not release_tolerance_m >= 0:
         raise CliError(f"--release-tolerance-m must be >= 0, got {release_tolerance_m:g}")
+    try:  # the DEM numerics' one check
+        check_run_numerics(max_time_s=float(dem_max_time_s),
+                           names={"max_time_s": "--dem-max-time-s"})
+    except ValueError as e:
+        raise CliError(str(e)) from None
+    dem_run = dataclasses.replace(DEM_RUN, max_time_s=float(dem_max_time_s))
     methods = _check_velocities(velocities, models, methods, say)
     try:
         inputs = load_inputs(data, profile, out, velocities)
@@ -253,7 +269,7 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
                                         methods=methods, quick=quick,
                                         rolling_resistance=rolling_resistance,
                                         effects=tuple(effects), alpha_law=alpha_law,
-                                        progress=bar)
+                                        dem_run=dem_run, progress=bar)
             except NoRestError as e:
                 raise CliError(f"{inputs.profile_path}: {e}") from None
         bar.close()
@@ -286,12 +302,14 @@ def fit_argv(data: str, out: str | None, *, profile: str | None = None,
              methods: tuple[str, ...] = ("gradient", "bayes"), rolling_resistance: str = "fit",
              effects: tuple[str, ...] = (), alpha_law: str = "power", seed: int = 0,
              quick: bool = False, holdout_fraction: float = 0.0,
-             release_tolerance_m: float = 1.0, velocities: str | None = None) -> list[str]:
+             release_tolerance_m: float = 1.0, velocities: str | None = None,
+             dem_max_time_s: float = DEM_RUN.max_time_s) -> list[str]:
     """The arguments of ``python -m calib.fit`` that run ``run_fit`` with these
     options (its keywords less ``progress`` and ``report``), every option
-    explicit: the command a library call of ``run_fit`` records, and (``out``
-    None: the command's default folder) the one ``calib.discover`` prints to
-    refit with the effects it named."""
+    explicit (``--dem-max-time-s`` where the DEM is fitted): the command a
+    library call of ``run_fit`` records, and (``out`` None: the command's
+    default folder) the one ``calib.discover`` prints to refit with the
+    effects it named."""
     argv = [data] + (["--out", out] if out is not None else [])
     argv += ["--profile", profile] if profile else []
     argv += ["--model", "both" if set(models) == {"crsp", "dem"} else models[0],
@@ -302,6 +320,7 @@ def fit_argv(data: str, out: str | None, *, profile: str | None = None,
     argv += ["--alpha-law", alpha_law, "--seed", str(seed)] + (["--quick"] if quick else [])
     argv += ["--holdout-fraction", repr(float(holdout_fraction)),
              "--release-tolerance-m", repr(float(release_tolerance_m))]
+    argv += ["--dem-max-time-s", repr(float(dem_max_time_s))] if "dem" in models else []
     return argv + (["--velocities", velocities] if velocities else [])
 
 
@@ -314,7 +333,8 @@ def run_options(args) -> dict:
                 rolling_resistance=args.rolling_resistance, effects=tuple(args.effect),
                 alpha_law=args.alpha_law, seed=args.seed, quick=args.quick,
                 holdout_fraction=args.holdout_fraction,
-                release_tolerance_m=args.release_tolerance_m, velocities=args.velocities)
+                release_tolerance_m=args.release_tolerance_m, velocities=args.velocities,
+                dem_max_time_s=args.dem_max_time_s)
 
 
 def _run(args) -> int:

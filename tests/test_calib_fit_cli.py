@@ -301,3 +301,39 @@ def test_run_fit_refuses_bad_input_in_one_line_and_writes_nothing(tmp_path):
                                        "--model crsp only"):
         run_fit(DATA, str(out), effects=("fragmentation",))
     assert not out.exists()
+
+
+@pytest.mark.parametrize("value", ["0", "-5", "nan", "inf"])
+def test_a_dem_time_that_is_not_a_positive_time_is_refused(tmp_path, capsys, value):
+    from calib.fit import main
+
+    out = tmp_path / "out"
+    rc, _, err = run_cli(main, [DATA, "--model", "dem", f"--dem-max-time-s={value}",
+                                "--out", str(out), "--no-progress"], capsys)
+    assert rc == 2, err
+    assert f"--dem-max-time-s: expected a positive time, got {float(value):g}" in err, err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_the_dem_is_fitted_with_the_simulated_time_it_is_given(tmp_path, monkeypatch):
+    """--dem-max-time-s reaches the DEM forward model the fit runs (whose ``run``
+    calibration.json records as dem.run, read back by calib.validate and
+    calib.hazard: tests/test_calibration_file.py); the fit is stopped once the
+    forward model is made."""
+    import calib.inference.calibrate as calibrate
+    from calib.fit import build_parser, run_fit, run_options
+
+    class Made(Exception):
+        pass
+
+    def made(forward, *args, **kwargs):
+        raise Made(forward.run)
+
+    monkeypatch.setattr(calibrate, "calibrate", made)
+    args = build_parser().parse_args([DATA, "--model", "dem", "--dem-max-time-s", "210",
+                                      "--out", str(tmp_path / "out")])
+    with pytest.raises(Made) as exc:
+        run_fit(**run_options(args))
+    assert exc.value.args[0].max_time_s == 210.0
+    assert exc.value.args[0].stiffness_scale == 0.01  # the rest as the default

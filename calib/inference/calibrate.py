@@ -221,7 +221,11 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     adequacy = fit_adequacy(forward, obs, rows, posterior, estimate, check.at_rows, scored,
                             budget, jax.random.fold_in(k_check, 1), tally, mode_ll)
     timings["adequacy_s"] = time.perf_counter() - t0
-    record = unfinished_record(tallies, f"{type(forward).__name__} calibration")
+    run = getattr(forward, "run", None)  # the DEM's numerics (calib.model.dem_run)
+    remedy = ("raise CRSP's event budget (Settings.max_events)" if run is None else
+              f"give the DEM's blocks more simulated time (calib.fit --dem-max-time-s; "
+              f"this fit: {run.max_time_s:g} s)")
+    record = unfinished_record(tallies, f"{type(forward).__name__} calibration", remedy)
     warn_unfinished(record)
     return ModelFit(tuple(box.names), np.asarray(estimate), source, posterior, gfit, emu_check,
                     check.quality, sizes, check.runouts, timings, budget, record, adequacy,
@@ -311,7 +315,7 @@ def crsp_prior_box(rolling_resistance: str, profile, entries: Entries, effects=(
 def fit_model(model: str, inputs, entries: Entries, key: jax.Array, *,
               methods: tuple[str, ...] = ("gradient", "bayes"), quick: bool = False,
               rolling_resistance: str = "fit", effects: tuple[str, ...] = (),
-              alpha_law: str = "power",
+              alpha_law: str = "power", dem_run=None,
               progress: Callable[[str, int, int], None] | None = None) -> ModelRun:
     """Calibrate one model on a data set's rows, as ``python -m calib.fit`` does.
 
@@ -338,6 +342,8 @@ def fit_model(model: str, inputs, entries: Entries, key: jax.Array, *,
             the profile's angles).
         effects: CRSP candidate effects switched on (``calib.model.effects``).
         alpha_law: DEM damping law, "power" or "constant".
+        dem_run: the DEM's numerics (``calib.model.dem_run.DemRun``; None:
+            ``DEM_RUN``), recorded with the fit.
         progress: optional callable(stage, done, total).
     """
     from calib.model.forward import CrspForward, DemForward
@@ -361,7 +367,8 @@ def fit_model(model: str, inputs, entries: Entries, key: jax.Array, *,
         extra = np.geomspace(0.2, 2.0, 6)  # the check's sizes for the runout-vs-size figure
     else:
         forward = DemForward(profile, entries, budget.n_blocks_design,
-                             jax.random.fold_in(key, 1), form=alpha_law)
+                             jax.random.fold_in(key, 1), form=alpha_law,
+                             **({} if dem_run is None else {"run": dem_run}))
         extra = [0.2, 0.9, 2.0] if quick else [0.2, 0.5, 0.9, 1.4, 2.0]
     fit = calibrate(forward, inputs.obs, jax.random.fold_in(key, 2), methods, budget, progress,
                     extra_sizes_m=extra, velocities=vel_rows)

@@ -136,9 +136,12 @@ def _where(worst: dict | None) -> str:
     return at
 
 
-def unfinished_record(tallies: dict[str, UnfinishedTally], label: str) -> dict:
+def unfinished_record(tallies: dict[str, UnfinishedTally], label: str,
+                      remedy: str = "raise the solver's budget (CRSP Settings.max_events, "
+                                    "DEM max_time_s)") -> dict:
     """The JSON record of a fit's tallies, with its warning text (None if every
-    (point, size) stays at or below ``UNFINISHED_WARN_FRACTION``)."""
+    (point, size) stays at or below ``UNFINISHED_WARN_FRACTION``); ``remedy``
+    ends it (what the user of the fit can raise)."""
     stages = {k: t.as_dict() for k, t in tallies.items()}
     bad = {k: t for k, t in tallies.items() if t.n_over}
     message = None
@@ -151,8 +154,7 @@ def unfinished_record(tallies: dict[str, UnfinishedTally], label: str) -> dict:
                    f"(parameter point, block size) pairs of stage(s) {', '.join(bad)}; up "
                    f"to {t.max_fraction:.1%} in stage {k}{_where(t.worst)}. They were "
                    f"excluded from the fit (never read as runouts), which can bias it by "
-                   f"up to that fraction of probability; raise the solver's budget "
-                   f"(CRSP Settings.max_events, DEM max_time_s)")
+                   f"up to that fraction of probability; {remedy}")
     return {"threshold": UNFINISHED_WARN_FRACTION, "stages": stages, "warning": message}
 
 
