@@ -96,6 +96,24 @@ def test_calibration_counts_unfinished_blocks_and_warns(budget_case):
         assert q["sim_few_blocks"] == (0 < r.size < 20)  # solvers.percentiles.few_blocks
         assert q["sim_median_m"] == (pytest.approx(np.median(r)) if r.size else None)
     assert fit.quality[1]["sim_n_finished"] > 0  # 2 m
+    assert record["warning"].endswith("raise CRSP's event budget (Settings.max_events)")
+
+
+def test_the_warning_names_what_the_user_can_raise(budget_case):
+    """CRSP: its event budget; the DEM: calib.fit's --dem-max-time-s, with the
+    fit's own value."""
+    import dataclasses
+
+    from calib.inference.calibrate import unfinished_remedy
+    from calib.model.dem_run import DEM_RUN
+    from calib.model.forward import DemForward
+
+    profile, fw, _, _ = budget_case
+    assert "Settings.max_events" in unfinished_remedy(fw)
+    dem = DemForward(profile, SIZES, 2, jax.random.key(0),
+                     run=dataclasses.replace(DEM_RUN, max_time_s=210.0))
+    assert unfinished_remedy(dem) == ("give the DEM's blocks more simulated time "
+                                      "(calib.fit --dem-max-time-s; this fit: 210 s)")
 
 
 @pytest.mark.slow  # 37 s on 2 cores (2026-12-06): a whole discrepancy fit

@@ -19,8 +19,8 @@ Stratified, equal allocation: a class's counts are conditional on the class,
 and its weight (``VolumeClass.probability``) enters only the annual
 frequencies. The DEM takes release conditions of fixed sizes (a zone, heights
 and speeds; ``_units.dem_chunk``), not a volume distribution: each side is
-compiled with its own step bound. A protection barrier (``Barrier``) is a CRSP parameter of every
-draw (``solvers.crsp._barrier``); the DEM has none.
+compiled with its own step bound. A protection barrier (``Barrier``) is a CRSP
+parameter of every draw (``solvers.crsp._barrier``); the DEM has none.
 """
 
 from __future__ import annotations
@@ -273,8 +273,9 @@ def _check_options(cal: Calibration, release, barrier, fragments) -> None:
                                                         and release.law is not None)):
         raise ValueError("volume distributions and barriers need the CRSP model")
     if fragments is not None and release is not None:
-        raise ValueError("fragments run from the fixed-size release; release conditions "
-                         "drawn per block (a volume distribution) are not broken")
+        raise ValueError("fragments run from the fixed-size release; blocks with release "
+                         "conditions drawn per block (a volume, zone, height or speed) are "
+                         "not broken")
 
 
 def _work_units(cal, draws, profile, entries: Entries, release, barrier, sizes_m, stations,

@@ -102,7 +102,7 @@ from calib.model.unfinished import UnfinishedTally, unfinished_record, warn_unfi
 
 # Budget and presets are re-exported: the fit driver's API in one place
 __all__ = ["ESTIMATE_MARGIN_SD", "Budget", "ModelFit", "ModelRun", "calibrate", "crsp_prior_box",
-           "fit_model", "point_estimate", "presets"]
+           "fit_model", "point_estimate", "presets", "unfinished_remedy"]
 
 ESTIMATE_MARGIN_SD = 2.0  # MC sds by which the posterior mode must beat the gradient point
 
@@ -221,11 +221,8 @@ def calibrate(forward, obs: Observations, key: jax.Array, methods: tuple[str, ..
     adequacy = fit_adequacy(forward, obs, rows, posterior, estimate, check.at_rows, scored,
                             budget, jax.random.fold_in(k_check, 1), tally, mode_ll)
     timings["adequacy_s"] = time.perf_counter() - t0
-    run = getattr(forward, "run", None)  # the DEM's numerics (calib.model.dem_run)
-    remedy = ("raise CRSP's event budget (Settings.max_events)" if run is None else
-              f"give the DEM's blocks more simulated time (calib.fit --dem-max-time-s; "
-              f"this fit: {run.max_time_s:g} s)")
-    record = unfinished_record(tallies, f"{type(forward).__name__} calibration", remedy)
+    record = unfinished_record(tallies, f"{type(forward).__name__} calibration",
+                               unfinished_remedy(forward))
     warn_unfinished(record)
     return ModelFit(tuple(box.names), np.asarray(estimate), source, posterior, gfit, emu_check,
                     check.quality, sizes, check.runouts, timings, budget, record, adequacy,
@@ -275,6 +272,17 @@ def point_estimate(forward, rows: RowLikelihood, gfit: GradientFit | None,
               "posterior_mode": {"loglik": finite(ll[1]), "mc_sd": float(np.sqrt(var[1]))},
               "margin_nats": margin, "chosen": "posterior_mode" if mode_wins else "gradient"}
     return thetas[int(mode_wins)], record["chosen"], record
+
+
+def unfinished_remedy(forward) -> str:
+    """What a fit's warning about unfinished blocks tells its user to raise: the
+    DEM's simulated time per block (``calib.fit --dem-max-time-s``, the forward
+    model's ``run``), else CRSP's event budget."""
+    run = getattr(forward, "run", None)  # the DEM's numerics (calib.model.dem_run)
+    if run is None:
+        return "raise CRSP's event budget (Settings.max_events)"
+    return (f"give the DEM's blocks more simulated time (calib.fit --dem-max-time-s; "
+            f"this fit: {run.max_time_s:g} s)")
 
 
 class ModelRun(NamedTuple):
