@@ -72,6 +72,13 @@ def test_hazard_reports_at_the_site_station_or_the_last_station(tmp_path):
     cal2 = write_calibration(bare, crsp_posterior=None, profile=str(bare / "profile.csv"))
     printed, summary = _run(cal2, bare / "out")
     assert "no station of interest" in printed
+    assert f"no site file {bare / 'profile_site.json'} gives one" in printed
+    assert "last station at x = 300 m" in summary
+
+    (bare / "profile_site.json").write_text(json.dumps({"name": "a site without a road"}))
+    printed, summary = _run(cal2, bare / "out1")
+    assert (f"the site file {bare / 'profile_site.json'} gives no station_of_interest"
+            in printed), printed
     assert "last station at x = 300 m" in summary
 
     (bare / "profile_site.json").write_text(json.dumps(

@@ -326,9 +326,11 @@ def _station_of_interest(args, cal, profile, stations) -> tuple[float, str, str]
         where = f"{site.path}: station_of_interest.x_m"
         if road_x is None:
             road_x, label, where = max(stations), "last station", "the last station"
-            print(f"no station of interest (no --road-x-m, and no site file "
-                  f"{site_path(cal.profile_csv)} giving one): the summary reports at "
-                  f"the last station, x = {road_x:g} m")
+            site_says = (f"the site file {site.path} gives no station_of_interest"
+                         if site.path else
+                         f"no site file {site_path(cal.profile_csv)} gives one")
+            print(f"no station of interest (no --road-x-m, and {site_says}): the summary "
+                  f"reports at the last station, x = {road_x:g} m")
     else:
         where = "--road-x-m"
     if not (math.isfinite(road_x) and lo < road_x <= hi):
