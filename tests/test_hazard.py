@@ -447,7 +447,8 @@ def _dem_seeded(tmp_path, zone, state, n_blocks):
     draws = draw_parameters(cal, 1, 0)
     stations = np.array([0.0, 20.0, 50.0, 115.0, 130.0, 160.0])
     seeder = Seeder.fixed_sizes([2.0], zone, state)
-    return seeder, run_hazard(cal, draws, profile, None, stations, n_blocks, 5, release=seeder)
+    return seeder, profile, run_hazard(cal, draws, profile, None, stations, n_blocks, 5,
+                                       release=seeder)
 
 
 def test_a_dem_release_at_one_point_in_the_solvers_state_is_the_plain_run(tmp_path):
@@ -458,7 +459,7 @@ def test_a_dem_release_at_one_point_in_the_solvers_state_is_the_plain_run(tmp_pa
     from calib.model.release import ReleaseZone
 
     _, _, plain = _dem_run(tmp_path, 3)
-    _, seeded = _dem_seeded(tmp_path, ReleaseZone("point", (0.0,)), ReleaseState(), 3)
+    _, _, seeded = _dem_seeded(tmp_path, ReleaseZone("point", (0.0,)), ReleaseState(), 3)
     keep = [0, 2, 3, 4, 5]  # _dem_seeded's stations less 20 m are _dem_run's
     for k in ("exceed", "reach", "e30", "e300"):
         np.testing.assert_array_equal(getattr(seeded, k)[..., keep], getattr(plain, k),
@@ -470,23 +471,35 @@ def test_a_dem_release_at_one_point_in_the_solvers_state_is_the_plain_run(tmp_pa
 
 def test_dem_blocks_start_where_the_release_zone_draws_them(tmp_path):
     """DEM blocks released in a zone of two points, 0 m and 30 m, at a drawn height
-    (1 m, sd 0.5 m) and speed (2 m/s, sd 0.5 m/s): a block passes the station at
-    20 m exactly when its drawn abscissa (``sample_release`` on its key) is the
-    upslope point (every block from 0 m passes the talus at 50 m, none from 30 m
-    climbs back to 20 m), and every block ends (none INVALID, none unfinished)."""
+    (1 m, sd 0.5 m) and speed (2 m/s, sd 0.5 m/s): each block is the DEM run of
+    its own drawn release (``sample_release`` on its key: abscissa, height and
+    speed given to ``solvers.dem.simulate`` with the same key and the run's
+    numerics), counted beyond every station to the block; a block passes the
+    station at 20 m exactly when it starts at 0 m (every block from there passes
+    the talus at 50 m, none from 30 m climbs back); every block ends."""
     from calib.model.release import ReleaseZone, sample_release
+    from solvers import dem
 
     zone = ReleaseZone("points", (0.0, 30.0), (0.5, 0.5))
     n = 8
-    seeder, c = _dem_seeded(tmp_path, zone, ReleaseState(1.0, 0.5, 2.0, 0.5), n)
-    keys = [jax.random.fold_in(draw_key(5, 0), j) for j in range(n)]
-    drawn = np.asarray([float(sample_release(seeder.arrays(0), seeder.kinds, k)[2])
-                        for k in keys])
-    upslope = int((drawn == 0.0).sum())
-    assert 0 < upslope < n, drawn  # both points drawn (this key, these 8 blocks)
-    assert c.reach[0, 0, 1] == upslope and c.reach[0, 0, 2] >= upslope, c.reach
-    assert c.n_unfinished.sum() == 0
-    assert c.reach[0, 0, 0] == 0  # the station at the upslope point is not passed
+    seeder, profile, c = _dem_seeded(tmp_path, zone, ReleaseState(1.0, 0.5, 2.0, 0.5), n)
+    keys = jax.vmap(lambda i: jax.random.fold_in(draw_key(5, 0), i))(np.arange(n))
+    _, _, x, h, v = jax.vmap(lambda k: sample_release(seeder.arrays(0), seeder.kinds, k))(keys)
+    upslope = int((np.asarray(x) == 0.0).sum())
+    assert 0 < upslope < n, x  # both points drawn (this key, these 8 blocks)
+    # the run's numerics (calib.model.dem_run): the step bound of a 0.2 m square, 150 s
+    params = dem.make_params(profile, stiffness_scale=0.01)
+    block = dem.make_block(2.0, alpha=0.40 * 2.0**-0.5, release_x_m=30.0,
+                           stations=c.stations_x_m)
+    dt = float(dem.stable_dt(params, dem.make_block(0.2, alpha=0.0)))
+    options = dem.Options(max_steps=math.ceil(150.0 / dt))
+    blocks = jax.vmap(lambda x, h, v: block._replace(release_x_m=x, release_height_m=h,
+                                                     release_speed_m_s=v))(x, h, v)
+    res = jax.vmap(lambda b, k: dem.simulate(params, b, k, options))(blocks, keys)
+    stop = np.asarray(res.stop_x_m[:, 0])
+    np.testing.assert_array_equal(c.exceed[0, 0], (stop[:, None] > c.stations_x_m).sum(0))
+    np.testing.assert_array_equal(c.reach[0, 0], np.asarray(res.stations.passed[:, 0]).sum(0))
+    assert c.reach[0, 0, 1] == upslope and c.n_unfinished.sum() == 0
 
 
 def test_dem_counts_equal_a_direct_batch_run(tmp_path):
