@@ -249,10 +249,10 @@ def test_command_writes_fragment_tables(tmp_path):
     (["--fragmentation", "crsp", "--frag-energy-kJ", "-1"], "expected a positive energy"),
     (["--model", "dem", "--fragments", "12"], "expected a perfect square"),
     (["--model", "dem", "--fragmentation", "crsp"], "the DEM breaks bonded fragments"),
-    (["--model", "dem", "--fragments", "4", "--release-zone-m", "0:5"],
-     "--release-zone-m: --fragmentation/--fragments break blocks of the fixed sizes"),
-    (["--model", "dem", "--fragments", "4", "--release-height-m", "1"],
-     "--release-height-m: --fragmentation/--fragments break blocks of the fixed sizes"),
+    (["--fragmentation", "crsp", "--frag-energy-kJ", "100", "--release-zone-m", "0:5"],
+     "--release-zone-m: --fragmentation crsp breaks blocks of the fixed sizes"),
+    (["--fragmentation", "crsp", "--frag-energy-kJ", "100", "--release-height-m", "1"],
+     "--release-height-m: --fragmentation crsp breaks blocks of the fixed sizes"),
 ])
 def test_command_refuses_bad_fragment_options_in_one_line(tmp_path, capsys, argv, expected):
     path = write_calibration(tmp_path)
@@ -324,6 +324,42 @@ def test_dem_bonded_fragments_are_counted_per_fragment(tmp_path):
     np.testing.assert_array_equal(c.reach[0, 0] > 0, f["frag_n_reach"][0, 0] > 0)
     assert np.all(c.reach[0, 0] >= np.ceil(f["frag_n_reach"][0, 0] / 4))
     assert math.isclose(float(c.fragments.variables()["frag_size_m"][0]), 0.4)
+
+
+def _dem_fragments_released(tmp_path, zone, state=None):
+    """--model dem --fragments 4, two 0.8 m blocks for 4 s, released by ``zone``
+    (None: the plain run)."""
+    from calib.model.release import ReleaseState, Seeder
+
+    path = write_calibration(tmp_path, crsp=None)
+    cal = load_calibration(path, "dem")
+    draws = draw_parameters(cal, 1, 0)
+    spec = opts.Fragmentation("dem", 4, description="test")
+    run = dataclasses.replace(DEM_RUN, max_time_s=4.0)
+    seeder = (None if zone is None
+              else Seeder.fixed_sizes([0.8], zone, state or ReleaseState()))
+    return run_hazard(cal, draws, PROFILE, None if seeder else np.array([0.8]), STATIONS, 2,
+                      0, dem_run=run, fragments=spec, release=seeder)
+
+
+def test_dem_bonded_fragments_take_the_release_conditions(tmp_path):
+    """The DEM's bonded blocks through the release path: at one point in the
+    solver's release state every parent and fragment count is the plain run's,
+    to the bit; released at 30-31 m, below the station at 20 m, no parent and no
+    fragment passes that station, where the plain run's from 0 m do."""
+    from calib.model.release import ReleaseState, ReleaseZone
+
+    plain = _dem_fragments_released(tmp_path, None)
+    point = _dem_fragments_released(tmp_path, ReleaseZone("point", (0.0,)))
+    for k in ("exceed", "reach", "e30", "e300", "n_unfinished"):
+        np.testing.assert_array_equal(getattr(point, k), getattr(plain, k), err_msg=k)
+    for k, v in plain.fragments.counts.items():
+        np.testing.assert_array_equal(point.fragments.counts[k], v, err_msg=k)
+    below = _dem_fragments_released(tmp_path, ReleaseZone("uniform", (30.0, 31.0)),
+                                    ReleaseState(0.5, 0.2, 1.0, 0.2))
+    assert plain.reach[0, 0, 0] > 0 and plain.fragments.counts["frag_n_reach"][0, 0, 0] > 0
+    assert below.reach[0, 0, 0] == 0 and below.fragments.counts["frag_n_reach"][0, 0, 0] == 0
+    assert below.fragments.counts["frag_n_fragments"][0, 0] == 8
 
 
 # ------------------------------------------------------------------ the paper (slow)

@@ -57,6 +57,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from calib.hazard._stats import ChunkStats, reduce_chunk
+from calib.hazard._units import seeded_dem_block
 from solvers import crsp, dem
 from solvers.status import (
     BUDGET,
@@ -375,8 +376,7 @@ def dem_units(spec: Fragmentation, units, cal, draws, sizes_m, dem_run):
 
     options = None
     for (d, t_sl), make_args, fn in units:
-        # no release seeds: fragments run without release conditions (_run._check_options)
-        params, block, key, offset, n_valid, _ = make_args()
+        params, block, key, offset, n_valid, seeds = make_args()
         side = float(block.size_m)
         fragmented = dem.make_block(
             side, alpha=dem_alpha(cal, draws.values[d], side * spec.size_ratio),
@@ -385,18 +385,21 @@ def dem_units(spec: Fragmentation, units, cal, draws, sizes_m, dem_run):
         if options is None:
             options = dem_run.options(params, sizes_m, n_fragments=spec.n_per_break,
                                       adaptive=False)
-        args = (params, fragmented, key, offset, n_valid)
+        args = (params, fragmented, key, offset, n_valid, seeds)
         yield (d, t_sl), (lambda args=args: args), functools.partial(
-            dem_fragment_chunk, n_chunk=fn.keywords["n_chunk"], options=options)
+            dem_fragment_chunk, n_chunk=fn.keywords["n_chunk"], options=options,
+            kinds=fn.keywords["kinds"])
 
 
-@functools.partial(jax.jit, static_argnames=("n_chunk", "options"))
-def _dem_blocks(params, block, key, offset, *, n_chunk: int, options):
-    """DEM blocks ``offset .. offset + n_chunk - 1`` (block j keyed fold_in(key, j),
-    as ``_units.dem_chunk`` keys them), not reduced."""
+@functools.partial(jax.jit, static_argnames=("n_chunk", "options", "kinds"))
+def _dem_blocks(params, block, key, offset, seeds=None, *, n_chunk: int, options, kinds=None):
+    """DEM blocks ``offset .. offset + n_chunk - 1`` (block j keyed fold_in(key, j)
+    and released as ``seeds`` draw it, as ``_units.dem_chunk`` keys and releases
+    them), not reduced."""
     idx = (offset + jnp.arange(n_chunk)).astype(jnp.uint32)
     keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(idx)
-    return jax.vmap(lambda k: dem.simulate(params, block, k, options))(keys)
+    return jax.vmap(lambda k: dem.simulate(params, seeded_dem_block(block, seeds, kinds, k),
+                                           k, options))(keys)
 
 
 def dem_fragment_status(block_status, exited, stopped) -> np.ndarray:
@@ -410,18 +413,19 @@ def dem_fragment_status(block_status, exited, stopped) -> np.ndarray:
                     np.where(exited, LEFT_PROFILE, np.where(stopped, STOPPED, block)))
 
 
-def dem_fragment_chunk(params, block, key, offset, n_valid, *, n_chunk: int,
-                       options) -> FragmentStats:
+def dem_fragment_chunk(params, block, key, offset, n_valid, seeds=None, *, n_chunk: int,
+                       options, kinds=None) -> FragmentStats:
     """DEM blocks of N bonded fragments, reduced per parent and per fragment (T = 1).
 
-    The arguments are those of ``_units.dem_chunk``, ``block`` with N fragments.
+    The arguments are those of ``_units.dem_chunk``, ``block`` with N fragments
+    (with ``seeds``, each block released where and how its key draws it).
     Energies: the DEM's kJ per metre of width times the block's side D (module
     docstring).
     """
     from solvers.stations import StationRecord
 
-    res = jax.device_get(_dem_blocks(params, block, key, offset, n_chunk=n_chunk,
-                                     options=options))
+    res = jax.device_get(_dem_blocks(params, block, key, offset, seeds, n_chunk=n_chunk,
+                                     options=options, kinds=kinds))
     st_x = np.asarray(block.stations_x_m)
     n_frag, n_st = np.asarray(block.alpha).shape[0], st_x.shape[0]
     valid = np.arange(n_chunk) < int(n_valid)

@@ -267,15 +267,16 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
 def _check_options(cal: Calibration, release, barrier, fragments) -> None:
     """Refuse the combinations ``run_hazard`` cannot run: a volume distribution or a
     barrier without the CRSP model (the DEM takes fixed sizes, each in a program
-    of its own step bound, and has no barrier element); fragments with release
-    conditions."""
+    of its own step bound, and has no barrier element); CRSP's fragmentation
+    with release conditions (its fragment units run the fixed-size release; the
+    DEM's bonded fragments take the zone, heights and speeds of its sizes)."""
     if cal.model != "crsp" and (barrier is not None or (release is not None
                                                         and release.law is not None)):
         raise ValueError("volume distributions and barriers need the CRSP model")
-    if fragments is not None and release is not None:
-        raise ValueError("fragments run from the fixed-size release; blocks with release "
-                         "conditions drawn per block (a volume, zone, height or speed) are "
-                         "not broken")
+    if fragments is not None and release is not None and cal.model == "crsp":
+        raise ValueError("CRSP's fragments run from the fixed-size release; blocks with "
+                         "release conditions drawn per block (a volume, zone, height or "
+                         "speed) are not broken")
 
 
 def _work_units(cal, draws, profile, entries: Entries, release, barrier, sizes_m, stations,

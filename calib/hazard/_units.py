@@ -41,7 +41,7 @@ from calib.model.release import SeedArrays, sample_release
 from solvers.crsp import Block, Settings, make_block, simulate_tasks, task_slots
 from solvers.dem import simulate as dem_simulate
 
-__all__ = ["crsp_chunk", "dem_chunk", "draw_key", "seeded_chunk"]
+__all__ = ["crsp_chunk", "dem_chunk", "draw_key", "seeded_chunk", "seeded_dem_block"]
 
 
 def draw_key(seed: int, draw: int) -> jax.Array:
@@ -118,21 +118,25 @@ def dem_chunk(params, block, key, offset, n_valid, seeds: SeedArrays | None = No
     """
     idx = (offset + jnp.arange(n_chunk)).astype(jnp.uint32)
     keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(idx)
-
-    def one(k):
-        b = block
-        if seeds is not None:
-            _, _, x, h, v = sample_release(seeds, kinds, k)
-            b = block._replace(release_x_m=x, release_height_m=h, release_speed_m_s=v)
-        return dem_simulate(params, b, k, options)
-
-    res = jax.vmap(one)(keys)
+    res = jax.vmap(lambda k: dem_simulate(params, seeded_dem_block(block, seeds, kinds, k),
+                                          k, options))(keys)
     st = res.stations  # fields (n, 1, S): one fragment
     valid = jnp.arange(n_chunk) < n_valid
     energy_kJ = st.energy_kJ[None, :, 0] * block.size_m  # per metre -> per block (cube)
     return reduce_chunk(res.stop_x_m[None, :, 0], res.status[None], st.passed[None, :, 0],
                         energy_kJ, st.velocity_m_s[None, :, 0],
                         st.bounce_height_m[None, :, 0], valid, block.stations_x_m)
+
+
+def seeded_dem_block(block, seeds: SeedArrays | None, kinds, key):
+    """ONE DEM block (``solvers.dem.Block``, whole or in bonded fragments) released
+    as ``seeds`` draw it from ``key`` (``calib.model.release.sample_release``: its
+    abscissa, height and speed replace the block's, as exact values), or
+    ``block`` itself where ``seeds`` is None."""
+    if seeds is None:
+        return block
+    _, _, x, h, v = sample_release(seeds, kinds, key)
+    return block._replace(release_x_m=x, release_height_m=h, release_speed_m_s=v)
 
 
 @functools.partial(jax.jit, static_argnames=("n_chunk", "pool", "settings", "kinds"))
