@@ -132,7 +132,8 @@ def _release_options(p: OneLineParser) -> None:
     g.add_argument("--release-zone-m", help="release zone: 'A:B' (uniform on [A, B]) or "
                    "'x1:w1,x2:w2,...' (points with weights), m (default: --release-x-m)")
     g.add_argument("--release-height-m", type=float, help="release height above the ground, "
-                   "m (default: on the ground, the solver's)")
+                   "m: CRSP's lumped mass, the DEM square's lowest possible point, as the "
+                   "fit reads a tracked release (default: the solver's, on the ground)")
     g.add_argument("--release-height-sd-m", type=float, default=None,
                    help="standard deviation of the release height's error, m; each block's "
                         "height a normal truncated to >= 0 (default, with "
