@@ -240,6 +240,27 @@ def test_command_writes_fragment_tables(tmp_path):
     assert np.all(table["mass_fraction_beyond_mean"] <= table["p_exceed_parent_mean"] + 1e-12)
 
 
+def test_command_breaks_the_blocks_of_a_volume_law(tmp_path):
+    """--fragmentation crsp with --volume-law and a release zone: fragments.csv has
+    one row per volume class and station, and the summary's fragment lines name the
+    classes (each block breaks into fragments of its own diameter)."""
+    import pandas as pd
+
+    out = tmp_path / "out"
+    rc = main([_calibration(tmp_path), "--n-posterior", "1", "--n-blocks", str(N_BLOCKS),
+               "--volume-law", "lognormal:median_m3=1,sigma=1", "--volume-classes-m3",
+               "0.5,8", "--release-zone-m", "0:5", "--stations-m", "20:280:20",
+               "--road-x-m", "40", "--chunk-blocks", str(N_CHUNK), "--pool", str(N_CHUNK),
+               "--fragmentation", "crsp", "--frag-energy-kJ", "300", "--out", str(out),
+               "--no-progress"])
+    assert rc == 0
+    table = pd.read_csv(out / "fragments.csv")
+    assert len(table) == 3 * 14 and table["block_size_m"].nunique() == 3
+    lines = [ln for ln in (out / "summary.txt").read_text().splitlines()
+             if ln.startswith("  class ") and "P(break)" in ln]
+    assert len(lines) == 3 and all("x each block's diameter" in ln for ln in lines), lines
+
+
 @pytest.mark.parametrize("argv, expected", [
     (["--fragments", "16"], "--fragments 16: bonded fragments are the DEM's"),
     (["--fragmentation", "crsp"], "has no fitted fragmentation effect"),
@@ -249,10 +270,6 @@ def test_command_writes_fragment_tables(tmp_path):
     (["--fragmentation", "crsp", "--frag-energy-kJ", "-1"], "expected a positive energy"),
     (["--model", "dem", "--fragments", "12"], "expected a perfect square"),
     (["--model", "dem", "--fragmentation", "crsp"], "the DEM breaks bonded fragments"),
-    (["--fragmentation", "crsp", "--frag-energy-kJ", "100", "--release-zone-m", "0:5"],
-     "--release-zone-m: --fragmentation crsp breaks blocks of the fixed sizes"),
-    (["--fragmentation", "crsp", "--frag-energy-kJ", "100", "--release-height-m", "1"],
-     "--release-height-m: --fragmentation crsp breaks blocks of the fixed sizes"),
 ])
 def test_command_refuses_bad_fragment_options_in_one_line(tmp_path, capsys, argv, expected):
     path = write_calibration(tmp_path)
@@ -262,6 +279,60 @@ def test_command_refuses_bad_fragment_options_in_one_line(tmp_path, capsys, argv
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and expected in err, err
     assert not (tmp_path / "out").exists()
+
+
+def _released(path, release, spec=None):
+    """``_hazard``'s run (two chunks of 16 blocks, one draw, E_f = 300 kJ, 8
+    fragments) with the blocks' release conditions drawn by ``release``."""
+    cal = load_calibration(path, "crsp")
+    return run_hazard(cal, draw_parameters(cal, 1, 0), PROFILE, None, STATIONS, N_BLOCKS, 0,
+                      chunk_blocks=N_CHUNK, pool=N_CHUNK, settings=SETTINGS,
+                      fragments=spec or _spec(), release=release)
+
+
+def test_crsp_fragments_take_the_release_conditions(tmp_path):
+    """CRSP's break rule on blocks with release conditions drawn per block
+    (``_fragments.seeded_fragment_chunk``): 2 m blocks released at one point in the
+    solver's release state break into the fragments of the fixed-size run, every
+    parent and fragment count equal to the bit; released at 30-31 m, below the
+    station at 20 m, no parent and no fragment passes it."""
+    from calib.model.release import ReleaseState, ReleaseZone, Seeder
+
+    path = _calibration(tmp_path)
+    plain = _hazard(path, N_CHUNK, _spec())
+    point = _released(path, Seeder.fixed_sizes([2.0], ReleaseZone("point", (0.0,))))
+    for k in ("exceed", "reach", "e30", "e300", "n_unfinished", "n_left_profile"):
+        np.testing.assert_array_equal(getattr(point, k), getattr(plain, k), err_msg=k)
+    for k, v in plain.fragments.counts.items():
+        np.testing.assert_array_equal(point.fragments.counts[k], v, err_msg=k)
+    assert plain.fragments.counts["frag_n_broken"][0, 0] > 0
+    below = _released(path, Seeder.fixed_sizes([2.0], ReleaseZone("uniform", (30.0, 31.0)),
+                                                ReleaseState(0.5, 0.2, 1.0, 0.2)))
+    assert plain.reach[0, 0, 0] > 0 and plain.fragments.counts["frag_n_reach"][0, 0, 0] > 0
+    assert below.reach[0, 0, 0] == 0 and below.fragments.counts["frag_n_reach"][0, 0, 0] == 0
+    assert below.fragments.counts["frag_n_broken"][0, 0] > 0
+
+
+def test_blocks_of_a_volume_law_break_by_their_own_mass(tmp_path):
+    """Fragments of blocks drawn from a volume law, two classes: a class's blocks
+    break when their own impact energy exceeds E_f, so the class of the larger
+    volumes breaks at least as often (the smallest less often than the largest:
+    the same keys break blocks of one mass alike), and n fragments per break are
+    counted; a parent exceeds x when a piece does, bounded by its fragments
+    (``test_hazard_counts_parents_by_their_furthest_fragment``'s bounds)."""
+    from calib.model.release import ReleaseZone, Seeder, parse_volume_law, volume_classes
+
+    law = parse_volume_law("lognormal:median_m3=1,sigma=1")
+    seeder = Seeder(law, tuple(volume_classes(law, [0.05, 0.5, 8.0])),
+                    ReleaseZone("point", (0.0,)))
+    c = _released(_calibration(tmp_path), seeder)
+    f = c.fragments.counts
+    broken = f["frag_n_broken"][0]
+    assert np.all(np.diff(broken) >= 0) and broken[0] < broken[-1], broken
+    np.testing.assert_array_equal(f["frag_n_fragments"][0], 8 * broken)
+    n_ex, whole = c.exceed[0], f["frag_n_exceed_whole"][0]
+    assert np.all(n_ex >= np.ceil(f["frag_n_exceed"][0] / 8) + whole)
+    assert np.all(n_ex <= f["frag_n_exceed"][0] + whole)
 
 
 def _fitted(tmp_path, log10_energy):

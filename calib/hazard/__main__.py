@@ -289,18 +289,6 @@ def _prepare(args, sizes) -> _Run:
         fragments = fragmentation_from_args(args, cal, draws, profile)
     except FragmentationError as e:
         raise CliError(str(e)) from None
-    if fragments is not None and cond.seeder is not None and cal.model == "crsp":
-        given = next(o for o, v in (("--volumes-csv", args.volumes_csv),
-                                    ("--volume-law", args.volume_law),
-                                    ("--release-zone-m", args.release_zone_m),
-                                    ("--release-height-m", args.release_height_m),
-                                    ("--release-speed-m-s", args.release_speed_m_s))
-                     if v is not None)
-        raise CliError(f"{given}: --fragmentation crsp breaks blocks of the fixed sizes "
-                       "(--block-sizes-m) released at one point in the solver's release "
-                       "state; it does not combine with release conditions (a volume "
-                       "distribution, a zone, heights or speeds; the DEM's --fragments "
-                       "take a zone, heights and speeds)")
     return _Run(cal, profile, stations, road_x, label, release_x, draws, n_blocks, cond,
                 fragments)
 

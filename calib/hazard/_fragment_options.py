@@ -93,8 +93,9 @@ class Fragmentation:
 
         Args:
             units: the plain units of ``_run`` (``(tag, make_args, fn)``; ``fn`` a
-                ``functools.partial`` of ``_units.crsp_chunk`` or ``dem_chunk``,
-                whose arguments and static sizes the fragment units take).
+                ``functools.partial`` of ``_units.crsp_chunk``, ``seeded_chunk`` or
+                ``dem_chunk``, whose arguments and static sizes the fragment units
+                take).
             on_result: the run's ``on_result(tag, ChunkStats)``.
             cal, draws: the calibration and the draws (the DEM's alpha law).
             sizes_m, stations_x_m: (T,), (S,) the run's sizes and stations, m.
@@ -103,13 +104,20 @@ class Fragmentation:
         Returns:
             (units, on_result, ``FragmentCounts`` filled as the units finish).
         """
-        from calib.hazard._fragments import FragmentCounts, crsp_fragment_chunk, dem_units
+        from calib.hazard._fragments import (
+            FragmentCounts,
+            crsp_fragment_chunk,
+            dem_units,
+            seeded_fragment_chunk,
+        )
+        from calib.hazard._units import seeded_chunk
 
         counts = FragmentCounts.empty(self, len(draws.values), len(sizes_m),
                                       len(stations_x_m), sizes_m)
-        if self.model == "crsp":
-            new = ((tag, make_args, functools.partial(crsp_fragment_chunk, spec=self,
-                                                      **fn.keywords))
+        if self.model == "crsp":  # each CRSP chunk's fragment twin, on its arguments
+            twin = {seeded_chunk: seeded_fragment_chunk}
+            new = ((tag, make_args, functools.partial(twin.get(fn.func, crsp_fragment_chunk),
+                                                      spec=self, **fn.keywords))
                    for tag, make_args, fn in units)
         else:
             new = dem_units(self, units, cal, draws, sizes_m, dem_run)

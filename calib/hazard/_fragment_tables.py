@@ -27,7 +27,9 @@ FRAGMENT_COLUMNS = {
     "fragments_beyond_per_block_mean": "fragments beyond x per released block, mean over "
                                        "draws",
     "mass_fraction_beyond_mean": "fraction of the released mass that ends beyond x "
-                                 "(whole blocks and fragments), mean over draws",
+                                 "(whole blocks and fragments), mean over draws; over a "
+                                 "volume class, each block's fraction of its own mass, "
+                                 "averaged over the class's blocks (not weighted by volume)",
     "fragments_reach_per_block_mean": "fragments passing x per released block, mean over "
                                       "draws",
     "p_E_gt_30kJ_given_fragment_reach": "of the fragments passing x, the fraction with "
@@ -116,15 +118,25 @@ def fragment_summary(ds, table: pd.DataFrame, road_x_m: float, label: str = "roa
              f"  per fragment (fragments.csv, frag_* of hazard.nc), energies "
              f"{ds.attrs['fragment_energy_basis']}:"]
     at = table[np.isclose(table["x_m"], road_x_m)]
-    for r in at.itertuples():
-        line = (f"  D = {r.block_size_m:g} m ({r.n_fragments_per_break} fragments of "
-                f"{r.fragment_size_m:.3g} m): P(break) = {r.p_break_mean:.3g}; P(a piece "
+    classes = ds["class_label"].values if "class_label" in ds else None
+    for t, r in enumerate(at.itertuples()):
+        if classes is None:
+            what = (f"D = {r.block_size_m:g} m ({r.n_fragments_per_break} fragments of "
+                    f"{r.fragment_size_m:.3g} m)")
+        else:  # each block of a class breaks into fragments of its own diameter
+            ratio = r.fragment_size_m / r.block_size_m
+            what = (f"class {classes[t]} (D = {r.block_size_m:.3g} m; "
+                    f"{r.n_fragments_per_break} fragments of {ratio:.3g} x each block's "
+                    "diameter)")
+        line = (f"  {what}: P(break) = {r.p_break_mean:.3g}; P(a piece "
                 f"beyond the {label} at x = {road_x_m:g} m) = {r.p_exceed_parent_mean:.3g} "
                 f"[5-95 %: {r.p_exceed_parent_q05:.3g}-{r.p_exceed_parent_q95:.3g}]; "
                 f"fragments beyond it per block {r.fragments_beyond_per_block_mean:.3g}")
         if np.isfinite(r.p_exceed_fragment):
             line += f" ({r.p_exceed_fragment:.3g} of the fragments)"
-        line += f"; share of the released mass beyond it {r.mass_fraction_beyond_mean:.3g}"
+        line += (f"; share of the released mass beyond it {r.mass_fraction_beyond_mean:.3g}"
+                 if classes is None else "; mean share of a block's mass beyond it "
+                 f"{r.mass_fraction_beyond_mean:.3g}")
         if r.p_fragment_unfinished > 0:
             line += (f"; {r.p_fragment_unfinished:.2%} of the fragments unfinished, not "
                      "counted as runouts")

@@ -20,7 +20,10 @@ rockfall hazard evaluation". Two ways of breaking a block are offered:
   ``--frag-energy-kJ`` of a what-if. rho: ``--frag-radius-ratio`` (default the
   solver's, which the fit ran with), taken as n^(-1/3) for the nearest whole n
   so that the n fragments have the block's mass (our choice: the hazard run
-  needs whole fragments); the speed ratio is the solver's.
+  needs whole fragments); the speed ratio is the solver's. Blocks with release
+  conditions (a volume class, zone, heights, speeds) are drawn and run as
+  ``_units.seeded_chunk`` runs them, one task per block, and broken alike
+  (``seeded_fragment_chunk``).
 * DEM (``--model dem --fragments N``): the block is N bonded square fragments
   (``solvers.dem.make_block(..., n_fragments=N)``) whose joints break when their
   strength is exceeded (the DEM's own fracture, paper eq. 2, the joint
@@ -57,7 +60,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from calib.hazard._stats import ChunkStats, reduce_chunk
-from calib.hazard._units import seeded_dem_block
+from calib.hazard._units import block_keys, seeded_dem_block, seeded_tasks
 from solvers import crsp, dem
 from solvers.status import (
     BUDGET,
@@ -73,7 +76,7 @@ if TYPE_CHECKING:
 
 __all__ = ["FRAGMENT_BATCH", "VARIABLES", "FragmentCounts", "FragmentStats",
            "crsp_fragment_chunk", "dem_fragment_chunk", "dem_fragment_status", "dem_units",
-           "fragment_keys"]
+           "fragment_keys", "seeded_fragment_chunk"]
 
 # fragments run side by side in one vmapped call: at most this many (a power of
 # two, at least 16: XLA:CPU's vector loop and scalar tail round differently)
@@ -100,7 +103,9 @@ VARIABLES = {
     "frag_n_left_profile": (_DT, "1", "fragments that left the profile moving"),
     "frag_n_per_break": (("block_size_m",), "1", "fragments per broken block"),
     "frag_size_m": (("block_size_m",), "m", "fragment size (CRSP: sphere diameter rho D; "
-                                            "DEM: square side D / sqrt(N))"),
+                                            "DEM: square side D / sqrt(N)); over volume "
+                                            "classes, of the class's representative D (each "
+                                            "block breaks into rho times its own diameter)"),
 }
 
 
@@ -296,15 +301,61 @@ def crsp_fragment_chunk(params, blocks, key, profile, stations_x_m, offset, n_va
     the batch).
     """
     put = _on_device_of(stations_x_m)
-    p = params._replace(frag_radius_ratio=np.full(params.frag_radius_ratio.shape,
-                                                  spec.size_ratio))
-    if spec.energy_kJ is not None:
-        p = p._replace(frag_energy_kJ=np.full(p.frag_energy_kJ.shape, spec.energy_kJ))
-    p = put(p)
+    p = put(_break_params(params, spec))
     split = dataclasses.replace(settings, split_at_break=True)
     res = jax.device_get(crsp.simulate_tasks(p, blocks, key, profile, stations_x_m,
                                              n_per_task=n_chunk, pool=pool, settings=split,
                                              offset=offset))
+    return _fragments_of_pass(res, p, blocks, key, profile, stations_x_m, offset, n_valid,
+                              n_chunk=n_chunk, settings=settings, spec=spec, per_block=False)
+
+
+def seeded_fragment_chunk(params, seeds, density_kg_m3, key, profile, stations_x_m, offset,
+                          n_valid, *, n_chunk: int, pool: int, kinds: tuple[str, str],
+                          settings: crsp.Settings, spec: Fragmentation) -> FragmentStats:
+    """``crsp_fragment_chunk`` for blocks with release conditions: blocks ``offset ..
+    offset + n_chunk - 1`` of one class (T = 1), each drawn and run as its own task
+    (``_units.seeded_tasks``: its volume, sphere, release abscissa, height and speed
+    from its key, as ``_units.seeded_chunk`` draws them), broken and fragmented as
+    there. The arguments are those of ``_units.seeded_chunk``; a fragment of block j
+    is keyed as in the fixed-size run (``fragment_keys``), so a point zone in the
+    solver's release state breaks the blocks of the fixed-size run."""
+    put = _on_device_of(stations_x_m)
+    p = put(_break_params(params, spec))
+    tasks, blocks = _seeded_tasks(p, seeds, density_kg_m3, key, offset, n_chunk=n_chunk,
+                                  kinds=kinds)
+    split = dataclasses.replace(settings, split_at_break=True)
+    res = jax.device_get(crsp.simulate_tasks(
+        tasks, blocks, key, profile, stations_x_m, n_per_task=1, pool=pool, settings=split,
+        offset=offset, task_offsets=put(np.arange(n_chunk, dtype=np.int32))))
+    # (n_chunk tasks, 1 block) -> (1 class, n_chunk blocks): the same flat order
+    res = jax.tree_util.tree_map(lambda a: np.asarray(a).reshape((1, n_chunk) + a.shape[2:]),
+                                 res)
+    return _fragments_of_pass(res, tasks, blocks, key, profile, stations_x_m, offset, n_valid,
+                              n_chunk=n_chunk, settings=settings, spec=spec, per_block=True)
+
+
+_seeded_tasks = jax.jit(seeded_tasks, static_argnames=("n_chunk", "kinds"))
+
+
+def _break_params(params, spec: Fragmentation):
+    """``params`` (CRSP ``Params``, any leading axes) with the run's fragment radius
+    ratio and, in a what-if, its break energy."""
+    p = params._replace(frag_radius_ratio=np.full(np.shape(params.frag_radius_ratio),
+                                                  spec.size_ratio))
+    if spec.energy_kJ is not None:
+        p = p._replace(frag_energy_kJ=np.full(np.shape(p.frag_energy_kJ), spec.energy_kJ))
+    return p
+
+
+def _fragments_of_pass(res, p, blocks, key, profile, stations_x_m, offset, n_valid, *,
+                       n_chunk: int, settings: crsp.Settings, spec: Fragmentation,
+                       per_block: bool) -> FragmentStats:
+    """Pass 2 of a CRSP fragment chunk and the reduction: ``res`` the pass-1
+    ``Result`` on the host, (T, n_chunk) blocks; ``p`` and ``blocks`` the tasks'
+    ``Params`` and ``Block``: one per task T (``per_block`` False), or one per
+    block of the chunk (True: block j's own, T = 1)."""
+    put = _on_device_of(stations_x_m)
     st_x = np.asarray(stations_x_m)
     n_tasks, offset, n = res.status.shape[0], int(offset), spec.n_per_break
     valid = np.arange(n_chunk) < int(n_valid)
@@ -329,10 +380,11 @@ def crsp_fragment_chunk(params, blocks, key, profile, stations_x_m, offset, n_va
         m = par.size
         par_pad = np.concatenate([par, np.repeat(par[-1:], batch - m)])
         t, j = par_pad // n_chunk, par_pad % n_chunk
+        own = j if per_block else t  # the row of p and blocks
         keys = fragment_keys(key, *put((offset + j, np.concatenate(
             [item_fragment[a:a + batch], np.zeros(batch - m, np.uint32)]))))
         out = jax.device_get(crsp.simulate_fragments(
-            *put((_take(p, t), _take(blocks, t), _take(res.breakup, t, j))), keys,
+            *put((_take(p, own), _take(blocks, own), _take(res.breakup, t, j))), keys,
             put(_barrier_open(res.barrier, t, j)), profile, stations_x_m, settings))
         out = jax.tree_util.tree_map(lambda x: np.asarray(x)[:m], out)
         parents.fold(par, out.stop_x_m, out.status, out.stations, out.stations.energy_kJ)
@@ -396,8 +448,7 @@ def _dem_blocks(params, block, key, offset, seeds=None, *, n_chunk: int, options
     """DEM blocks ``offset .. offset + n_chunk - 1`` (block j keyed fold_in(key, j)
     and released as ``seeds`` draw it, as ``_units.dem_chunk`` keys and releases
     them), not reduced."""
-    idx = (offset + jnp.arange(n_chunk)).astype(jnp.uint32)
-    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(idx)
+    keys = block_keys(key, offset, n_chunk)
     return jax.vmap(lambda k: dem.simulate(params, seeded_dem_block(block, seeds, kinds, k),
                                            k, options))(keys)
 

@@ -21,6 +21,8 @@ frequencies. The DEM takes release conditions of fixed sizes (a zone, heights
 and speeds; ``_units.dem_chunk``), not a volume distribution: each side is
 compiled with its own step bound. A protection barrier (``Barrier``) is a CRSP
 parameter of every draw (``solvers.crsp._barrier``); the DEM has none.
+Fragmentation (``_fragments``) turns each unit into its fragment twin, with or
+without release conditions.
 """
 
 from __future__ import annotations
@@ -226,7 +228,7 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
     Returns:
         ``HazardCounts``.
     """
-    _check_options(cal, release, barrier, fragments)
+    _check_options(cal, release, barrier)
     if release is not None:
         sizes_m = release.sizes_m
         if cal.model == "crsp":  # every block a CRSP task of its own
@@ -264,19 +266,13 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
                         **tally.acc)
 
 
-def _check_options(cal: Calibration, release, barrier, fragments) -> None:
+def _check_options(cal: Calibration, release, barrier) -> None:
     """Refuse the combinations ``run_hazard`` cannot run: a volume distribution or a
     barrier without the CRSP model (the DEM takes fixed sizes, each in a program
-    of its own step bound, and has no barrier element); CRSP's fragmentation
-    with release conditions (its fragment units run the fixed-size release; the
-    DEM's bonded fragments take the zone, heights and speeds of its sizes)."""
+    of its own step bound, and has no barrier element)."""
     if cal.model != "crsp" and (barrier is not None or (release is not None
                                                         and release.law is not None)):
         raise ValueError("volume distributions and barriers need the CRSP model")
-    if fragments is not None and release is not None and cal.model == "crsp":
-        raise ValueError("CRSP's fragments run from the fixed-size release; blocks with "
-                         "release conditions drawn per block (a volume, zone, height or "
-                         "speed) are not broken")
 
 
 def _work_units(cal, draws, profile, entries: Entries, release, barrier, sizes_m, stations,

@@ -41,12 +41,21 @@ from calib.model.release import SeedArrays, sample_release
 from solvers.crsp import Block, Settings, make_block, simulate_tasks, task_slots
 from solvers.dem import simulate as dem_simulate
 
-__all__ = ["crsp_chunk", "dem_chunk", "draw_key", "seeded_chunk", "seeded_dem_block"]
+__all__ = ["block_keys", "crsp_chunk", "dem_chunk", "draw_key", "seeded_chunk", "seeded_dem_block",
+           "seeded_tasks"]
 
 
 def draw_key(seed: int, draw: int) -> jax.Array:
     """Key of draw ``draw`` of the run seeded ``seed``: fold_in(key(seed), draw)."""
     return jax.random.fold_in(jax.random.key(seed), draw)
+
+
+def block_keys(key, offset, n_chunk: int) -> jax.Array:
+    """Keys (n_chunk,) of blocks ``offset .. offset + n_chunk - 1`` of the draw keyed
+    ``key``: fold_in(key, offset + j), the module's rule (the CRSP pool folds the
+    same index in: ``solvers.crsp.simulate_tasks``)."""
+    idx = (offset + jnp.arange(n_chunk)).astype(jnp.uint32)
+    return jax.vmap(lambda i: jax.random.fold_in(key, i))(idx)
 
 
 def crsp_chunk(params, blocks, key, profile, stations_x_m, offset, n_valid, *, n_chunk: int,
@@ -116,8 +125,7 @@ def dem_chunk(params, block, key, offset, n_valid, seeds: SeedArrays | None = No
     Returns:
         ``ChunkStats`` with T = 1.
     """
-    idx = (offset + jnp.arange(n_chunk)).astype(jnp.uint32)
-    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(idx)
+    keys = block_keys(key, offset, n_chunk)
     res = jax.vmap(lambda k: dem_simulate(params, seeded_dem_block(block, seeds, kinds, k),
                                           k, options))(keys)
     st = res.stations  # fields (n, 1, S): one fragment
@@ -170,17 +178,8 @@ def seeded_chunk(params, seeds: SeedArrays, density_kg_m3, key, profile, station
     Returns:
         ``ChunkStats`` with T = 1.
     """
-    idx = (offset + jnp.arange(n_chunk)).astype(jnp.uint32)
-    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(idx)
-    volume, diameter, x, h, v = jax.vmap(lambda k: sample_release(seeds, kinds, k))(keys)
-    tasks = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (n_chunk,) + a.shape), params)
-    tasks = tasks._replace(
-        release_x_m=x, release_x_spread_m=jnp.zeros(n_chunk),
-        release_height_m=jnp.where(jnp.isnan(h), params.release_height_m, h),
-        release_vx_m_s=jnp.where(jnp.isnan(v), params.release_vx_m_s, v))
-    sphere = make_block(1.0).inertia_ratio  # I / (m r^2) of a sphere
-    blocks = Block(radius_m=0.5 * diameter, mass_kg=density_kg_m3 * volume,
-                   inertia_ratio=jnp.broadcast_to(sphere, (n_chunk,)))
+    tasks, blocks = seeded_tasks(params, seeds, density_kg_m3, key, offset, n_chunk=n_chunk,
+                                 kinds=kinds)
     res = simulate_tasks(tasks, blocks, key, profile, stations_x_m, n_per_task=1, pool=pool,
                          settings=settings, offset=offset,
                          task_offsets=jnp.arange(n_chunk, dtype=jnp.int32))
@@ -191,3 +190,32 @@ def seeded_chunk(params, seeds: SeedArrays, density_kg_m3, key, profile, station
                         st.velocity_m_s[None, :, 0], st.bounce_height_m[None, :, 0], valid,
                         stations_x_m)
 
+
+
+def seeded_tasks(params, seeds: SeedArrays, density_kg_m3, key, offset, *, n_chunk: int,
+                 kinds: tuple[str, str]):
+    """Blocks ``offset .. offset + n_chunk - 1`` of one class as CRSP tasks of one
+    block each (``seeded_chunk``; traced, not jitted).
+
+    Block j draws its volume V, diameter, release abscissa, height and speed from
+    fold_in(key, offset + j) (``calib.model.release.sample_release``); its task is
+    ``params`` with that release (a NaN height or speed keeps ``params``' own, the
+    solver's release state; no abscissa spread) and its block the sphere of that
+    diameter and mass rho V.
+
+    Returns:
+        (tasks, blocks): CRSP ``Params`` and ``Block`` with a leading axis
+        ``n_chunk``, for ``solvers.crsp.simulate_tasks`` with ``n_per_task=1`` and
+        ``task_offsets=arange(n_chunk)``.
+    """
+    keys = block_keys(key, offset, n_chunk)
+    volume, diameter, x, h, v = jax.vmap(lambda k: sample_release(seeds, kinds, k))(keys)
+    tasks = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (n_chunk,) + a.shape), params)
+    tasks = tasks._replace(
+        release_x_m=x, release_x_spread_m=jnp.zeros(n_chunk),
+        release_height_m=jnp.where(jnp.isnan(h), params.release_height_m, h),
+        release_vx_m_s=jnp.where(jnp.isnan(v), params.release_vx_m_s, v))
+    sphere = make_block(1.0).inertia_ratio  # I / (m r^2) of a sphere
+    blocks = Block(radius_m=0.5 * diameter, mass_kg=density_kg_m3 * volume,
+                   inertia_ratio=jnp.broadcast_to(sphere, (n_chunk,)))
+    return tasks, blocks
