@@ -269,6 +269,20 @@ def test_failed_posterior_diagnostics_are_loud(tmp_path, capsys):
     assert json.loads((out / "design.json").read_text())["posterior_check"]["ok"] is False
 
 
+def test_a_run_that_broke_its_blocks_is_said_so(tmp_path, capsys):
+    """A hazard file of a fragmentation run (attribute ``fragmentation``): the sheet
+    and stderr say that its values at the barrier are per parent block, the
+    largest among its pieces, against the unbroken block's design mass."""
+    path, _ = _hazard(tmp_path, attrs={"fragmentation": "CRSP WHAT-IF: E_f = 300 kJ"})
+    out = tmp_path / "d"
+    code, cap = _run([path, "--barrier-x-m", "100", "--kits", KITS, "--out", str(out)],
+                     capsys)
+    assert code == 0
+    for text in ((out / "design.md").read_text(), cap.err):
+        assert "broke its blocks (CRSP WHAT-IF: E_f = 300 kJ)" in text
+        assert "largest among its pieces" in text
+
+
 def test_the_hazard_record_carries_the_posterior_verdict():
     """The hazard file's calibration record keeps the posterior's verdict (the
     design sheet reads it); a fit without a posterior has none."""

@@ -174,7 +174,8 @@ def _read_inputs(args):
 def _design_options(ds, args, kits, pairing: list[str]):
     """The design block and the ``DesignOptions`` of the options, checked, with the
     warnings so far: the partial factors', ``pairing``, a hazard run that had a
-    barrier, the design block's and an extrapolated design class."""
+    barrier or broke its blocks, the design block's and an extrapolated design
+    class."""
     from calib.design._design import DesignOptions
     from calib.design._inputs import design_block, factors_from_args
     from calib.design._residual import barrier_of
@@ -185,6 +186,12 @@ def _design_options(ds, args, kits, pairing: list[str]):
         warnings.append(f"warning: {args.hazard} is a run with a barrier at x = "
                         f"{barrier_of(ds)[0]:g} m: its blocks downslope of it are those that "
                         "passed that barrier")
+    if "fragmentation" in ds.attrs:  # calib.hazard._fragments: values per parent block
+        warnings.append(f"warning: {args.hazard} broke its blocks ({ds.attrs['fragmentation']})"
+                        ": its speeds, heights and energies at the barrier are per parent "
+                        "block, the largest among its pieces that pass, and the design mass "
+                        "is the unbroken block's, so E_sd bounds the energy of any one piece "
+                        "from above; the run without breaking gives the unbroken block's")
     for name in ("protected_distance_m", "inspection_interval_yr"):
         v = getattr(args, name)
         if v is not None and not (math.isfinite(v) and v > 0):
@@ -270,6 +277,9 @@ def _impact_angle(ds, args, x_m: float, size_m: float) -> tuple[dict, list[str]]
         warnings.append(f"warning: --calibration {args.calibration} is not the file the hazard "
                         f"run read ({recorded.get('path')}): the angles come from its draws "
                         "only")
+    if "fragmentation" in ds.attrs:
+        warnings.append("warning: the hazard run broke its blocks; the impact-angle run "
+                        "follows unbroken blocks")
     if "release_json" in ds.attrs:
         warnings.append("warning: the hazard run had release conditions; the impact-angle run "
                         f"releases blocks of D = {size_m:g} m at x = "
