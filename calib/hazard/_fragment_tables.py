@@ -66,7 +66,7 @@ def add_variables(ds, counts: FragmentCounts) -> None:
 
 
 def fragment_table(ds) -> pd.DataFrame:
-    """``fragments.csv``: one row per block size and station, ``FRAGMENT_COLUMNS``
+    """``fragments.csv``: one row per block size (or volume class) and station, ``FRAGMENT_COLUMNS``
     (from a results Dataset with ``add_variables``' variables)."""
     n = int(ds.attrs["n_blocks_per_draw"])
     x = ds["x_m"].values
