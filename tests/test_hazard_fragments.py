@@ -313,6 +313,36 @@ def test_crsp_fragments_take_the_release_conditions(tmp_path):
     assert below.fragments.counts["frag_n_broken"][0, 0] > 0
 
 
+@pytest.mark.parametrize("released", [False, True], ids=["fixed", "zone"])
+def test_no_fragment_passes_an_unlimited_barrier(tmp_path, released):
+    """A barrier of unlimited height and capacity at x = 150 m stops every piece: a
+    fragment whose block broke before it meets it (``_barrier_open``), so neither a
+    parent nor a fragment reaches or ends beyond it; upslope of it the counts are
+    those of the run without it (common random numbers). For blocks of fixed sizes
+    at one point and for blocks released over a zone."""
+    from calib.hazard._run import Barrier
+    from calib.model.release import ReleaseState, ReleaseZone, Seeder
+
+    cal = load_calibration(_calibration(tmp_path), "crsp")
+    seeder = (Seeder.fixed_sizes([2.0], ReleaseZone("uniform", (0.0, 5.0)),
+                                 ReleaseState(1.0, 0.5, 1.0, 0.5)) if released else None)
+
+    def run(barrier):
+        return run_hazard(cal, draw_parameters(cal, 1, 0), PROFILE,
+                          None if released else np.array([2.0]), STATIONS, N_BLOCKS, 0,
+                          chunk_blocks=N_CHUNK, pool=N_CHUNK, settings=SETTINGS,
+                          fragments=_spec(), release=seeder, barrier=barrier)
+
+    without, with_ = run(None), run(Barrier(150.0))
+    beyond, upslope = STATIONS > 150.0, STATIONS < 150.0
+    f, g = with_.fragments.counts, without.fragments.counts
+    assert g["frag_n_broken"][0, 0] > 0 and g["frag_n_reach"][0, 0, beyond].sum() > 0
+    assert with_.reach[..., beyond].sum() == 0 and with_.exceed[..., beyond].sum() == 0
+    assert f["frag_n_reach"][..., beyond].sum() == 0 and f["frag_n_exceed"][..., beyond].sum() == 0
+    np.testing.assert_array_equal(with_.reach[..., upslope], without.reach[..., upslope])
+    np.testing.assert_array_equal(f["frag_n_reach"][..., upslope], g["frag_n_reach"][..., upslope])
+
+
 def test_blocks_of_a_volume_law_break_by_their_own_mass(tmp_path):
     """Fragments of blocks drawn from a volume law, two classes: a class's blocks
     break when their own impact energy exceeds E_f, so the class of the larger
