@@ -60,7 +60,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from calib.hazard._stats import ChunkStats, reduce_chunk
-from calib.hazard._units import block_keys, seeded_dem_block, seeded_tasks
+from calib.hazard._units import seeded_dem_block, seeded_tasks
 from solvers import crsp, dem
 from solvers.status import (
     BUDGET,
@@ -448,7 +448,7 @@ def _dem_blocks(params, block, key, offset, seeds=None, *, n_chunk: int, options
     """DEM blocks ``offset .. offset + n_chunk - 1`` (block j keyed fold_in(key, j)
     and released as ``seeds`` draw it, as ``_units.dem_chunk`` keys and releases
     them), not reduced."""
-    keys = block_keys(key, offset, n_chunk)
+    keys = crsp.block_keys(key, offset, n_chunk)
     return jax.vmap(lambda k: dem.simulate(params, seeded_dem_block(block, seeds, kinds, k),
                                            k, options))(keys)
 

@@ -59,9 +59,10 @@ def default_pool() -> int:
     return 256 if jax.default_backend() == "cpu" else 4096
 
 
-def block_keys(key: jax.Array, start: int, count: int) -> jax.Array:
-    """Keys of blocks ``start .. start + count - 1`` of a run keyed by ``key``."""
-    idx = jnp.arange(start, start + count, dtype=jnp.uint32)
+def block_keys(key: jax.Array, start, count: int) -> jax.Array:
+    """Keys of blocks ``start .. start + count - 1`` of a run keyed by ``key``:
+    fold_in(key, start + j) (``start`` may be traced, ``count`` static)."""
+    idx = (start + jnp.arange(count)).astype(jnp.uint32)
     return jax.vmap(lambda i: jax.random.fold_in(key, i))(idx)
 
 
