@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import json
 import math
 import os
 
@@ -415,6 +416,9 @@ def test_class_tables_hazard_nc_and_summary(class_run):
     (["--release-height-m", "-1"], "--release-height-m -1: expected a number >= 0"),
     (["--release-speed-sd-m-s", "0.5"], "needs --release-speed-m-s"),
     (["--model", "dem", "--volume-law", LOGNORMAL], "the DEM hazard run takes fixed sizes"),
+    (["--block-shape", "cube"], "--block-shape: expected sphere, cylinder, disc, got 'cube'"),
+    (["--block-shape", "disc,disc,disc"], "expected one shape or 4 (one per size"),
+    (["--model", "dem", "--block-shape", "disc"], "the DEM's blocks are squares"),
 ])
 def test_bad_release_options_one_line_exit_2_nothing_written(cal_path, tmp_path, capsys,
                                                              extra, message):
@@ -438,3 +442,73 @@ def test_design_on_an_extrapolated_class_warns(class_run, tmp_path, capsys):
     top = volume_classes(parse_volume_law(LOGNORMAL))[-1]
     assert f"D = {top.size_m:g} m" in stdout
     assert "of the blocks of the design class" in err and "extrapolation" in err
+
+
+# ------------------------------------------------------------ CRSP shape classes
+
+@pytest.mark.parametrize("shape", crsp.SHAPES)
+def test_a_shape_of_a_spheres_volume_has_the_spheres_mass(shape):
+    """``solvers.crsp.shape_constants``: the block of ``shape`` whose radius is s
+    times a sphere's weighs what the sphere weighs (make_block at its default
+    length), and k is the shape's inertia ratio."""
+    s, k = crsp.shape_constants(shape)
+    for r in (0.1, 0.7, 2.3):
+        block = crsp.make_block(s * r, shape)
+        assert math.isclose(float(block.mass_kg), float(crsp.make_block(r).mass_kg),
+                            rel_tol=1e-13)
+        assert float(block.inertia_ratio) == k
+    assert crsp.shape_constants("sphere")[0] == 1.0
+
+
+def test_each_block_is_the_shape_of_its_class():
+    """``_units.seeded_tasks``: a fixed size of a shape is that shape of diameter D
+    (radius D / 2, the mass make_block gives it, to the bit); a volume drawn from a
+    law is the block of that shape and volume (radius (V / (c pi))^(1/3), mass rho
+    V)."""
+    from calib.hazard._units import seeded_tasks
+
+    rho = 2350.0
+    p = crsp.params_from_profile(load_profile("data/postignano_profile.csv"))
+    key = draw_key(0, 0)
+    fixed = Seeder.fixed_sizes([0.5, 2.0], ReleaseZone("point", (0.0,)),
+                               shapes=("cylinder", "disc"))
+    for t, (d, shape) in enumerate(((0.5, "cylinder"), (2.0, "disc"))):
+        _, b = seeded_tasks(p, fixed.arrays(t), rho, key, 0, n_chunk=8, kinds=fixed.kinds)
+        want = crsp.make_block(0.5 * d, shape, density_kg_m3=rho)
+        assert np.all(np.asarray(b.radius_m) == 0.5 * d)
+        assert np.all(np.asarray(b.mass_kg) == float(want.mass_kg))
+        assert np.all(np.asarray(b.inertia_ratio) == float(want.inertia_ratio))
+    law = parse_volume_law(LOGNORMAL)
+    for shape, c in (("disc", 0.5), ("cylinder", 2.0), ("sphere", 4.0 / 3.0)):
+        seeder = Seeder(law, tuple(volume_classes(law)), ReleaseZone("point", (0.0,)),
+                        shapes=(shape,) * len(volume_classes(law)))
+        _, b = seeded_tasks(p, seeder.arrays(1), rho, key, 0, n_chunk=64, kinds=seeder.kinds)
+        volume = np.asarray(b.mass_kg) / rho
+        np.testing.assert_allclose(np.asarray(b.radius_m), np.cbrt(volume / (c * np.pi)),
+                                   rtol=1e-12)
+
+
+def test_the_command_runs_the_shape_it_is_given(cal_path, tmp_path, capsys):
+    """--block-shape cylinder: every block of the size the CRSP cylinder of diameter
+    D (hazard.nc's block_shape and block_mass_kg), the summary says so, and the
+    design sheet takes the cylinder's volume."""
+    import xarray as xr
+
+    from calib.design.__main__ import main as design
+
+    out = tmp_path / "out"
+    rc, _, err = run_cli(main, [cal_path, *SMALL, "--block-sizes-m", "2.0", "--block-shape",
+                                "cylinder", "--out", str(out)], capsys)
+    assert rc == 0, err
+    with xr.open_dataset(out / "hazard.nc", engine="h5netcdf") as ds:
+        assert [str(v) for v in ds["block_shape"].values] == ["cylinder"]
+        rho = load_calibration(cal_path, "crsp").rock_density_kg_m3
+        assert math.isclose(float(ds["block_mass_kg"].values[0]), rho * 2.0 * math.pi,
+                            rel_tol=1e-12)
+    assert "blocks: CRSP shape classes cylinder (D = 2 m)" in (out / "summary.txt").read_text()
+    rc, _, err = run_cli(design, [str(out / "hazard.nc"), "--barrier-x-m", "100", "--kits",
+                                  os.path.abspath("data/barrier_kits.csv"), "--out",
+                                  str(tmp_path / "design")], capsys)
+    assert rc == 0, err
+    record = json.loads((tmp_path / "design" / "design.json").read_text())
+    assert "cylinder" in json.dumps(record)

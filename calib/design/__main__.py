@@ -280,6 +280,10 @@ def _impact_angle(ds, args, x_m: float, size_m: float) -> tuple[dict, list[str]]
     if "fragmentation" in ds.attrs:
         warnings.append("warning: the hazard run broke its blocks; the impact-angle run "
                         "follows unbroken blocks")
+    if "block_shape" in ds:
+        warnings.append("warning: the hazard run's blocks were CRSP "
+                        f"{', '.join(sorted(set(map(str, ds['block_shape'].values))))}; the "
+                        "impact-angle run follows spheres")
     if "release_json" in ds.attrs:
         warnings.append("warning: the hazard run had release conditions; the impact-angle run "
                         f"releases blocks of D = {size_m:g} m at x = "

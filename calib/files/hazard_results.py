@@ -21,7 +21,8 @@ intervals (``calib.hazard._stats.percentile_interval``) and the same pooled over
 draws, per-draw histograms of energy and clearance (50 bins per decade), the
 simulated block masses, the drawn parameter values, the zone of each station
 and the profile; a run over volume classes adds the classes (``OPTIONAL_VARIABLES``:
-volume range, representative volume, probability, share of extrapolated sizes).
+volume range, representative volume, probability, share of extrapolated sizes), and a
+CRSP run of blocks other than spheres their shape classes (``block_shape``).
 Attributes: how the run was made (``model``,
 ``n_blocks_per_draw``, ``release_x_m``, ``seed``, ``draws_source``, optional
 ``release_rate_per_year``, ``road_x_m``, ``road_label``, ``rock_density_kg_m3``;
@@ -114,6 +115,9 @@ OPTIONAL_VARIABLES: dict[str, tuple[tuple[str, ...], str, str]] = {
     "extrapolated_fraction": (_T, "1", "fraction of the class's blocks (by the law) whose "
                                        "size lies outside the sizes the calibration was "
                                        "fitted on; NaN: not known"),
+    "block_shape": (_T, "", "CRSP shape class of the blocks (solvers.crsp.make_block: "
+                            "sphere, cylinder of length 2 r, disc of thickness r / 2); a "
+                            "fixed size is the shape's diameter 2 r; absent: spheres"),
 }
 
 # attributes every file has

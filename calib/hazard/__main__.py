@@ -62,6 +62,13 @@ def build_parser() -> OneLineParser:
                         f"squares of side d (default {DEFAULT_SIZES}; not with a volume "
                         "distribution, whose classes replace the sizes)")
     deprecated_alias(p, "--block-sizes", "--block-sizes-m")
+    p.add_argument("--block-shape", default=None,
+                   help="CRSP shape class of the blocks (solvers.crsp.make_block, CRSP 4.0): "
+                        "sphere, cylinder (length 2 r, rolling on its curved face) or disc "
+                        "(thickness r / 2, rolling on its rim); one for every size or volume "
+                        "class, or one per size (class), comma-separated. A size is the "
+                        "shape's diameter 2 r; a class's volume sets its radius (default "
+                        "sphere; CRSP only)")
     p.add_argument("--n-blocks", type=int, help="blocks per draw and size (or volume class) "
                    f"(default {DEFAULTS['crsp'][0]} CRSP, {DEFAULTS['dem'][0]} DEM)")
     p.add_argument("--n-posterior", type=int, help="posterior draws; 1 = the point "
@@ -395,7 +402,8 @@ def _simulate(args, run: _Run, sizes):
                         run.n_blocks, args.seed, chunk_blocks=args.chunk_blocks, pool=args.pool,
                         settings=dataclasses.replace(HAZARD_SETTINGS, max_events=args.max_events),
                         dem_run=dem_run, release_x_m=run.release_x, release=cond.seeder,
-                        barrier=cond.barrier, progress=bar.update, fragments=run.fragments)
+                        barrier=cond.barrier, progress=bar.update, fragments=run.fragments,
+                        shapes=cond.shapes if cond.seeder is None else None)
     wall = time.perf_counter() - t0
     bar.close()
     return counts, total, wall
@@ -506,12 +514,33 @@ class _Conditions(NamedTuple):
     """What the release and barrier options make of a run: ``seeder`` (None: every
     block at one release, the solver's state), ``barrier`` (or None), ``fitted``
     (the calibration's fitted block sizes and their source, or None), ``record``
-    (more hazard.nc attributes: the design block of a return period)."""
+    (more hazard.nc attributes: the design block of a return period), ``shapes``
+    (each size's or class's CRSP shape, or None: spheres)."""
 
     seeder: object
     barrier: object
     fitted: tuple | None
     record: dict
+    shapes: tuple[str, ...] | None = None
+
+
+def _shapes(args, cal, n: int) -> tuple[str, ...] | None:
+    """``--block-shape``: one CRSP shape per size or class (``n``), or None."""
+    from solvers.crsp import SHAPES
+
+    if args.block_shape is None:
+        return None
+    names = [v.strip() for v in args.block_shape.split(",")]
+    bad = [v for v in names if v not in SHAPES]
+    if bad:
+        raise CliError(f"--block-shape: expected {', '.join(SHAPES)}, got {bad[0]!r}")
+    if len(names) not in (1, n):
+        raise CliError(f"--block-shape: expected one shape or {n} (one per size or volume "
+                       f"class), got {len(names)}")
+    if cal.model != "crsp" and any(v != "sphere" for v in names):
+        raise CliError("--block-shape: CRSP's shape classes; the DEM's blocks are squares "
+                       "(use --model crsp)")
+    return tuple(names * n if len(names) == 1 else names)
 
 
 def _conditions(args, cal, profile, sizes, release_x: float, zone) -> _Conditions:
@@ -553,12 +582,13 @@ def _conditions(args, cal, profile, sizes, release_x: float, zone) -> _Condition
                        args.release_speed_m_s)))
     state = ReleaseState(nan if args.release_height_m is None else args.release_height_m, h_sd,
                          nan if args.release_speed_m_s is None else args.release_speed_m_s, v_sd)
+    shapes = _shapes(args, cal, len(sizes) if law is None else len(classes))
     seeder = None
     if law is not None or zone is not None or any(
             v is not None for v in (args.release_height_m, args.release_speed_m_s)):
         zone = zone or ReleaseZone("point", (float(release_x),))
-        seeder = (Seeder(law, tuple(classes), zone, state) if law is not None
-                  else Seeder.fixed_sizes(sizes, zone, state))
+        seeder = (Seeder(law, tuple(classes), zone, state, shapes) if law is not None
+                  else Seeder.fixed_sizes(sizes, zone, state, shapes))
         if args.return_period_yr is not None:
             try:
                 v_t = law.return_period_volume_m3(args.return_period_yr,
@@ -586,7 +616,7 @@ def _conditions(args, cal, profile, sizes, release_x: float, zone) -> _Condition
         inf = math.inf
         barrier = Barrier(x, inf if args.barrier_height_m is None else args.barrier_height_m,
                           inf if args.barrier_capacity_kJ is None else args.barrier_capacity_kJ)
-    return _Conditions(seeder, barrier, fitted_block_sizes_m(cal), record)
+    return _Conditions(seeder, barrier, fitted_block_sizes_m(cal), record, shapes)
 
 
 if __name__ == "__main__":

@@ -75,6 +75,8 @@ def hazard_dataset(c: HazardCounts, profile: Profile | None = None, *, seed: int
              "release_rate_per_year": release_rate_per_year}
     if c.release is not None:
         _add_release(c, fitted, data, attrs)
+    if c.shapes is not None and any(f != "sphere" for f in c.shapes):
+        data["block_shape"] = np.asarray(c.shapes, dtype=object)
     if c.crsp_settings is not None:  # what a run of the same blocks must use
         m = c.crsp_settings.max_events
         attrs["crsp_max_events"] = "profile" if m is None else int(m)

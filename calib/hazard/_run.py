@@ -126,6 +126,8 @@ class HazardCounts:
         crsp_settings: the CRSP settings the run simulated with (None for the
             DEM): a later run that must simulate the same blocks (``calib.design``'s
             impact angles, a run with a barrier) uses the same event budget.
+        shapes: (T,) the CRSP shape class of each size's (class's) blocks
+            (``solvers.crsp.SHAPES``), or None: spheres (and every DEM run).
     """
 
     model: str
@@ -150,6 +152,7 @@ class HazardCounts:
     barrier: Barrier | None = None
     fragments: object = None
     crsp_settings: crsp.Settings | None = None
+    shapes: tuple[str, ...] | None = None
 
 
 def dem_alpha(cal: Calibration, values: np.ndarray, size_m: float) -> float:
@@ -197,7 +200,7 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
                release_x_m: float | None = None, release: Seeder | None = None,
                barrier: Barrier | None = None,
                progress: Callable[[int], None] | None = None, devices=None,
-               fragments=None) -> HazardCounts:
+               fragments=None, shapes: tuple[str, ...] | None = None) -> HazardCounts:
     """Simulate ``n_blocks`` blocks per draw and size (or class); reduce at the stations.
 
     Args:
@@ -224,11 +227,16 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
         devices: JAX devices (default all).
         fragments: a ``_fragment_options.Fragmentation``: every block broken and every
             fragment run as its own block (None: unbroken blocks).
+        shapes: (T,) the CRSP shape class of each size's blocks
+            (``solvers.crsp.make_block``: a size is the diameter 2 r of its shape),
+            or None: spheres. With ``release``, its ``shapes`` (pass None).
 
     Returns:
         ``HazardCounts``.
     """
-    _check_options(cal, release, barrier)
+    if release is not None:
+        shapes = release.shapes
+    _check_options(cal, release, barrier, shapes)
     if release is not None:
         sizes_m = release.sizes_m
         if cal.model == "crsp":  # every block a CRSP task of its own
@@ -244,8 +252,11 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
 
     # what is simulated: each size at the release, at the calibration's rock density
     entries = Entries.at_sizes(sizes_m, release_x, density_kg_m3=cal.rock_density_kg_m3)
+    forms = shapes or ("sphere",) * len(sizes_m)
+    if len(forms) != len(sizes_m):
+        raise ValueError(f"{len(forms)} shapes for {len(sizes_m)} sizes")
     units = _work_units(cal, draws, profile, entries, release, barrier, sizes_m, stations,
-                        n_blocks, seed, chunk, offsets, pool, settings, dem_run)
+                        n_blocks, seed, chunk, offsets, pool, settings, dem_run, forms)
     on_result, frag = tally.on_result, None
     if fragments is not None:  # every fragment its own block (_fragments)
         units, on_result, frag = fragments.plan(units, on_result, cal, draws, sizes_m,
@@ -260,23 +271,28 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
                         energy_p95_per_draw_kJ=tally.e95,
                         percentiles={q: tuple(v) for q, v in tally.pct.items()},
                         pooled_percentiles=pooled, draw_hist=tally.kept,
-                        block_mass_kg=_block_mass_kg(cal.model, entries),
+                        block_mass_kg=_block_mass_kg(cal.model, entries, forms,
+                                                     release is not None
+                                                     and release.law is not None),
                         release=release, barrier=barrier, fragments=frag,
                         crsp_settings=settings if cal.model == "crsp" else None,
-                        **tally.acc)
+                        shapes=None if shapes is None else tuple(forms), **tally.acc)
 
 
-def _check_options(cal: Calibration, release, barrier) -> None:
-    """Refuse the combinations ``run_hazard`` cannot run: a volume distribution or a
-    barrier without the CRSP model (the DEM takes fixed sizes, each in a program
-    of its own step bound, and has no barrier element)."""
+def _check_options(cal: Calibration, release, barrier, shapes) -> None:
+    """Refuse the combinations ``run_hazard`` cannot run: a volume distribution, a
+    barrier or a CRSP shape other than the sphere without the CRSP model (the DEM
+    takes fixed sizes, each in a program of its own step bound, its blocks are
+    squares, and it has no barrier element)."""
     if cal.model != "crsp" and (barrier is not None or (release is not None
-                                                        and release.law is not None)):
-        raise ValueError("volume distributions and barriers need the CRSP model")
+                                                        and release.law is not None)
+                                or any(f != "sphere" for f in shapes or ())):
+        raise ValueError("volume distributions, barriers and block shapes need the CRSP "
+                         "model")
 
 
 def _work_units(cal, draws, profile, entries: Entries, release, barrier, sizes_m, stations,
-                n_blocks, seed, chunk, offsets, pool, settings, dem_run):
+                n_blocks, seed, chunk, offsets, pool, settings, dem_run, shapes):
     """The run's work units: seeded CRSP units with release conditions, else
     CRSP units of the sizes, else DEM units (after checking the DEM draws; with
     release conditions, each block's drawn in its unit);
@@ -290,7 +306,7 @@ def _work_units(cal, draws, profile, entries: Entries, release, barrier, sizes_m
                              seed, chunk, offsets, pool, settings, extra, cal.effects)
     if cal.model == "crsp":
         return _crsp_units(draws, profile, entries, st_dev, n_blocks, seed, chunk, offsets,
-                           pool, settings, extra, cal.effects)
+                           pool, settings, extra, cal.effects, shapes)
     check_dem_draws(cal, draws, sizes_m)
     return _dem_units(cal, draws, profile, entries, stations, n_blocks, seed, chunk,
                       offsets, dem_run, release)
@@ -351,25 +367,33 @@ def _draw_done(d: int, dh: dict, e95: np.ndarray, pct: dict, kept: dict) -> None
             kept[q][d] = rebin(counts, DRAW_SUB)
 
 
-def _block_mass_kg(model: str, entries: Entries) -> np.ndarray:
-    """(T,) mass of the simulated block of each size, kg: the CRSP sphere
-    ``_crsp_units`` simulates; the DEM square's mass per metre times its side (the
-    cube whose energy ``_units`` reports)."""
-    if model == "crsp":  # a volume class: the sphere of its representative volume
-        return np.array([float(crsp.make_block(float(r), density_kg_m3=entries.density_kg_m3)
-                               .mass_kg) for r in entries.crsp_radius_m])
+def _block_mass_kg(model: str, entries: Entries, shapes, classes: bool) -> np.ndarray:
+    """(T,) mass of the simulated block of each size, kg: the CRSP block of its
+    shape (``shapes``) that ``_crsp_units`` simulates, a size being its diameter,
+    or over volume ``classes`` the block of the class's representative volume (the
+    sphere of diameter D, radius s D / 2 in another shape:
+    ``solvers.crsp.shape_constants``); the DEM square's mass per metre times its
+    side (the cube whose energy ``_units`` reports)."""
+    if model == "crsp":
+        rho = entries.density_kg_m3
+        return np.array([float(crsp.make_block(
+            float(r) * (crsp.shape_constants(f)[0] if classes else 1.0), f,
+            density_kg_m3=rho).mass_kg) for r, f in zip(entries.crsp_radius_m, shapes,
+                                                         strict=True)])
     return float(entries.density_kg_m3) * np.asarray(entries.dem_side_m, np.float64) ** 3
 
 
 def _crsp_units(draws, profile, entries: Entries, stations, n_blocks, seed, chunk, offsets,
-                pool, settings, extra=None, effects=()):
+                pool, settings, extra=None, effects=(), shapes=None):
     """Per draw, the chunks of ``_units.crsp_chunk`` for every size at once;
     ``extra``: more solver parameters (a barrier's), ``effects``: the fitted
-    model's effects (``Calibration.effects``)."""
+    model's effects (``Calibration.effects``), ``shapes``: each size's CRSP shape
+    (None: spheres)."""
     extra = {} if extra is None else extra
     n_sizes, release_x = entries.n, float(entries.release_x_m[0])
-    blocks = stack_trees([crsp.make_block(float(r), density_kg_m3=entries.density_kg_m3)
-                          for r in entries.crsp_radius_m])
+    forms = shapes or ("sphere",) * n_sizes
+    blocks = stack_trees([crsp.make_block(float(r), f, density_kg_m3=entries.density_kg_m3)
+                          for r, f in zip(entries.crsp_radius_m, forms, strict=True)])
     fn = functools.partial(crsp_chunk, n_chunk=chunk, pool=pool, settings=settings)
     for d, values in enumerate(draws.values):
         # the fitted model: the baseline's parameters and the effects' (Calibration.effects)

@@ -106,6 +106,8 @@ class _Run:
             self.class_p = ds["class_probability"].values
             self.extrapolated = ds["extrapolated_fraction"].values
         self.release = json_attr(ds, "release_json")
+        self.shapes = ([str(v) for v in ds["block_shape"].values] if "block_shape" in ds
+                       else None)
         self.design_block = json_attr(ds, "design_block_json")
         self.fitted = (None if optional_attr(ds, "fitted_block_size_min_m") is None else
                        (float(ds.attrs["fitted_block_size_min_m"]),
@@ -305,6 +307,12 @@ def summary_text(results, table: pd.DataFrame, road_x_m: float,
         c.fitted)
     if c.release is not None and _state_text(c.release["state"]):
         lines.append("  release: " + _state_text(c.release["state"]))
+    if c.shapes is not None:
+        lines.append("  blocks: CRSP shape classes " + ", ".join(
+            f"{f} (D = {d:.3g} m)" for f, d in zip(c.shapes, c.sizes_m, strict=True))
+            + "; a cylinder is 2 r long and rolls on its curved face, a disc is r / 2 "
+            "thick and rolls on its rim (solvers.crsp.make_block); the fit simulates "
+            "spheres: another shape extrapolates the calibration")
     if c.barrier is not None:
         x, h, e = c.barrier
         lines.append(f"  barrier at x = {x:g} m, height {_limit(h, 'm')}, capacity "

@@ -38,24 +38,16 @@ import jax.numpy as jnp
 
 from calib.hazard._stats import ChunkStats, reduce_chunk
 from calib.model.release import SeedArrays, sample_release
-from solvers.crsp import Block, Settings, make_block, simulate_tasks, task_slots
+from solvers.crsp import Block, Settings, block_keys, simulate_tasks, task_slots
 from solvers.dem import simulate as dem_simulate
 
-__all__ = ["block_keys", "crsp_chunk", "dem_chunk", "draw_key", "seeded_chunk", "seeded_dem_block",
+__all__ = ["crsp_chunk", "dem_chunk", "draw_key", "seeded_chunk", "seeded_dem_block",
            "seeded_tasks"]
 
 
 def draw_key(seed: int, draw: int) -> jax.Array:
     """Key of draw ``draw`` of the run seeded ``seed``: fold_in(key(seed), draw)."""
     return jax.random.fold_in(jax.random.key(seed), draw)
-
-
-def block_keys(key, offset, n_chunk: int) -> jax.Array:
-    """Keys (n_chunk,) of blocks ``offset .. offset + n_chunk - 1`` of the draw keyed
-    ``key``: fold_in(key, offset + j), the module's rule (the CRSP pool folds the
-    same index in: ``solvers.crsp.simulate_tasks``)."""
-    idx = (offset + jnp.arange(n_chunk)).astype(jnp.uint32)
-    return jax.vmap(lambda i: jax.random.fold_in(key, i))(idx)
 
 
 def crsp_chunk(params, blocks, key, profile, stations_x_m, offset, n_valid, *, n_chunk: int,
@@ -197,11 +189,13 @@ def seeded_tasks(params, seeds: SeedArrays, density_kg_m3, key, offset, *, n_chu
     """Blocks ``offset .. offset + n_chunk - 1`` of one class as CRSP tasks of one
     block each (``seeded_chunk``; traced, not jitted).
 
-    Block j draws its volume V, diameter, release abscissa, height and speed from
+    Block j draws its volume V, diameter d, release abscissa, height and speed from
     fold_in(key, offset + j) (``calib.model.release.sample_release``); its task is
     ``params`` with that release (a NaN height or speed keeps ``params``' own, the
-    solver's release state; no abscissa spread) and its block the sphere of that
-    diameter and mass rho V.
+    solver's release state; no abscissa spread) and its block the class's CRSP
+    shape (``SeedArrays.shape``) of mass rho V: radius d / 2 for a fixed size (its
+    diameter), s d / 2 for a volume drawn from a law (d the volume's sphere
+    diameter, s the shape's radius scale: a sphere's s is 1).
 
     Returns:
         (tasks, blocks): CRSP ``Params`` and ``Block`` with a leading axis
@@ -215,7 +209,8 @@ def seeded_tasks(params, seeds: SeedArrays, density_kg_m3, key, offset, *, n_chu
         release_x_m=x, release_x_spread_m=jnp.zeros(n_chunk),
         release_height_m=jnp.where(jnp.isnan(h), params.release_height_m, h),
         release_vx_m_s=jnp.where(jnp.isnan(v), params.release_vx_m_s, v))
-    sphere = make_block(1.0).inertia_ratio  # I / (m r^2) of a sphere
-    blocks = Block(radius_m=0.5 * diameter, mass_kg=density_kg_m3 * volume,
-                   inertia_ratio=jnp.broadcast_to(sphere, (n_chunk,)))
+    scale, inertia_ratio = seeds.shape[0], seeds.shape[1]
+    radius = 0.5 * diameter if kinds[0] == "fixed" else 0.5 * diameter * scale
+    blocks = Block(radius_m=radius, mass_kg=density_kg_m3 * volume,
+                   inertia_ratio=jnp.broadcast_to(inertia_ratio, (n_chunk,)))
     return tasks, blocks

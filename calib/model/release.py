@@ -415,6 +415,9 @@ class SeedArrays(NamedTuple):
         zone_x_m: the zone's abscissae, m.
         zone_cum: cumulative weights of the points (points zones), else zeros.
         height_m, speed_m_s: (mean, sd) each (NaN mean: the solver's default).
+        shape: (s, k) of the class's CRSP shape (``solvers.crsp.shape_constants``:
+            the radius of a block of volume V is s (3 V / (4 pi))^(1/3); k = I /
+            (m r^2)).
     """
 
     law_values: jax.Array
@@ -424,6 +427,7 @@ class SeedArrays(NamedTuple):
     zone_cum: jax.Array
     height_m: jax.Array
     speed_m_s: jax.Array
+    shape: jax.Array
 
 
 @dataclasses.dataclass(frozen=True)
@@ -436,24 +440,37 @@ class Seeder:
         classes: the volume classes (a run of fixed sizes: one per size).
         zone: where blocks start.
         state: release heights and speeds.
+        shapes: the CRSP shape class of each class's blocks
+            (``solvers.crsp.SHAPES``), or None: spheres.
     """
 
     law: VolumeLaw | None
     classes: tuple[VolumeClass, ...]
     zone: ReleaseZone
     state: ReleaseState = ReleaseState()
+    shapes: tuple[str, ...] | None = None
 
     @classmethod
-    def fixed_sizes(cls, sizes_m, zone: ReleaseZone, state: ReleaseState = ReleaseState()
-                    ) -> Seeder:
+    def fixed_sizes(cls, sizes_m, zone: ReleaseZone, state: ReleaseState = ReleaseState(),
+                    shapes: tuple[str, ...] | None = None) -> Seeder:
         """Blocks of the given sizes d (m), one class each, released by ``zone`` and
-        ``state``."""
-        # the sphere's volume as solvers.crsp.make_block computes it, 4/3 pi r^3: the
+        ``state``; a size is the diameter 2 r of its shape (``shapes``, None:
+        spheres)."""
+        from solvers.crsp import make_block
+
+        # the volume as solvers.crsp.make_block computes it (a sphere's 4/3 pi r^3): the
         # block weighs, to the bit, what a run without release conditions simulates
-        vols = [4.0 / 3.0 * math.pi * (0.5 * float(d)) ** 3 for d in sizes_m]
+        forms = shapes or ("sphere",) * len(sizes_m)
+        vols = [float(make_block(0.5 * float(d), f, density_kg_m3=1.0).mass_kg)
+                for d, f in zip(sizes_m, forms, strict=True)]
         classes = tuple(VolumeClass(0.0, 1.0, v, v, v, float(d), f"D = {d:g} m")
                         for d, v in zip(sizes_m, vols, strict=True))
-        return cls(None, classes, zone, state)
+        return cls(None, classes, zone, state, shapes)
+
+    @property
+    def class_shapes(self) -> tuple[str, ...]:
+        """The CRSP shape class of each class's blocks."""
+        return self.shapes or ("sphere",) * len(self.classes)
 
     @property
     def sizes_m(self) -> np.ndarray:
@@ -473,8 +490,11 @@ class Seeder:
                else np.zeros(len(self.zone.x_m)))
         s = self.state
         f = _f64
+        from solvers.crsp import shape_constants
+
         return SeedArrays(f(values), f(c.p_lo), f(c.p_hi), f(self.zone.x_m), f(cum),
-                          f([s.height_m, s.height_sd_m]), f([s.speed_m_s, s.speed_sd_m_s]))
+                          f([s.height_m, s.height_sd_m]), f([s.speed_m_s, s.speed_sd_m_s]),
+                          f(shape_constants(self.class_shapes[t])))
 
     def extrapolated_fraction(self, fitted_sizes_m) -> np.ndarray:
         """(T,) the fraction of each class's blocks whose size lies outside the range
@@ -503,6 +523,7 @@ class Seeder:
                              "block_size_m": c.size_m, "probability": c.probability}
                             for c in self.classes] if self.law is not None else None,
                 "zone": self.zone.record(), "state": self.state.record(),
+                "shapes": list(self.class_shapes),
                 "sampling": "each class (or size) with --n-blocks blocks per draw; a block's "
                             "volume, abscissa, height and speed drawn from its key "
                             "(calib.model.release)"}

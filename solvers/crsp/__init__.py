@@ -40,16 +40,19 @@ from solvers.crsp._model import (
 from solvers.crsp._params import (
     ROLLING_THRESHOLD_M_S,
     ROLLING_THRESHOLD_RANGE_M_S,
+    SHAPES,
     Block,
     Params,
     Settings,
     make_block,
     params_from_profile,
+    shape_constants,
 )
 
 __all__ = [
     "ROLLING_THRESHOLD_M_S",
     "ROLLING_THRESHOLD_RANGE_M_S",
+    "SHAPES",
     "BUDGET",
     "CONTACT",
     "FLIGHT",
@@ -71,6 +74,7 @@ __all__ = [
     "fragment_key",
     "make_block",
     "params_from_profile",
+    "shape_constants",
     "roughness_tilt",
     "chunk_plan",
     "default_pool",

@@ -20,7 +20,7 @@ from solvers.material import ROCK_DENSITY_KG_M3
 from solvers.profile import Profile
 
 __all__ = ["ROLLING_THRESHOLD_M_S", "ROLLING_THRESHOLD_RANGE_M_S", "Block", "Params", "Settings",
-           "make_block", "params_from_profile"]
+           "make_block", "params_from_profile", "shape_constants", "SHAPES"]
 
 # The default rolling threshold, m/s: a rebound (or a landing, or a release on the
 # ground) whose normal speed relative to the mean segment is below it keeps the
@@ -43,6 +43,10 @@ ROLLING_THRESHOLD_M_S = 0.5
 ROLLING_THRESHOLD_RANGE_M_S = (1e-4, 10.0)
 
 _INERTIA_RATIO = {"sphere": 0.4, "cylinder": 0.5, "disc": 0.5}
+# V = c pi r^3 of each shape at its default length (``make_block``): sphere 4/3,
+# cylinder of length 2 r: 2, disc of thickness r / 2: 1/2
+_VOLUME_FACTOR = {"sphere": 4.0 / 3.0, "cylinder": 2.0, "disc": 0.5}
+SHAPES = tuple(_INERTIA_RATIO)
 
 
 class Block(NamedTuple):
@@ -92,6 +96,22 @@ def make_block(
         volume = np.pi * radius_m**2 * length
     return Block(jnp.asarray(float(radius_m)), jnp.asarray(float(volume * density_kg_m3)),
                  jnp.asarray(_INERTIA_RATIO[shape]))
+
+
+def shape_constants(shape: str) -> tuple[float, float]:
+    """(s, k) of a CRSP shape class at its default length (``make_block``).
+
+    s: the radius of the block of that shape with the volume of a sphere of
+    radius 1, (4/3 / c)^(1/3), where V = c pi r^3 (sphere c = 4/3, cylinder of
+    length 2 r c = 2, disc of thickness r / 2 c = 1/2): a block of volume V has
+    radius s (3 V / (4 pi))^(1/3). k = I / (m r^2) about the rolling axis.
+
+    Raises:
+        ValueError: unknown shape.
+    """
+    if shape not in _VOLUME_FACTOR:
+        raise ValueError(f"unknown block shape {shape!r}; expected one of {', '.join(SHAPES)}")
+    return (4.0 / 3.0 / _VOLUME_FACTOR[shape]) ** (1.0 / 3.0), _INERTIA_RATIO[shape]
 
 
 class Params(NamedTuple):
