@@ -254,14 +254,16 @@ def _run(cal_path, **kw):
 
 
 @pytest.mark.slow  # its own compiled program (about 30 s on 2 shared cores): -m slow
-def test_one_fixed_size_through_the_release_path_is_the_same_run(cal_path):
+@pytest.mark.parametrize("shapes", [None, ("cylinder", "disc")])
+def test_one_fixed_size_through_the_release_path_is_the_same_run(cal_path, shapes):
     """Blocks of fixed sizes released at one point through the per-block path
     (``_units.seeded_chunk``: every block its own task, keyed as block j of the draw)
     are the blocks of the run without release conditions: the same counts at every
-    station and the same histograms."""
-    plain = _run(cal_path, sizes=[0.5, 2.0])
+    station and the same histograms; spheres, and blocks of other shapes."""
+    plain = _run(cal_path, sizes=[0.5, 2.0], shapes=shapes)
     seeded = _run(cal_path, release=Seeder.fixed_sizes([0.5, 2.0],
-                                                       ReleaseZone("point", (0.0,))))
+                                                       ReleaseZone("point", (0.0,)),
+                                                       shapes=shapes))
     for k in ("exceed", "reach", "e30", "e300", "n_unfinished", "n_left_profile"):
         np.testing.assert_array_equal(getattr(seeded, k), getattr(plain, k), err_msg=k)
     for q in plain.hist:
