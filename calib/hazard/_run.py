@@ -292,7 +292,7 @@ def _check_options(cal: Calibration, release, barrier, shapes) -> None:
 
 
 def _work_units(cal, draws, profile, entries: Entries, release, barrier, sizes_m, stations,
-                n_blocks, seed, chunk, offsets, pool, settings, dem_run, shapes):
+                n_blocks, seed, chunk, offsets, pool, settings, dem_run, shapes=None):
     """The run's work units: seeded CRSP units with release conditions, else
     CRSP units of the sizes, else DEM units (after checking the DEM draws; with
     release conditions, each block's drawn in its unit);
