@@ -61,6 +61,8 @@ import os
 import numpy as np
 import pandas as pd
 
+from solvers.crsp import SHAPES
+
 __all__ = ["ObservationError", "Observations", "Velocities", "load_observations",
            "load_velocities", "on_command_profile", "read_table", "rows_on_profile"]
 
@@ -68,7 +70,6 @@ REQUIRED = ("block_size_m",)
 OPTIONAL = ("runout_m", "runout_sd_m", "runout_min_m", "runout_max_m", "source",
             "release_x_m", "release_speed_m_s", "run_id", "shape", "release_height_m",
             "profile")
-SHAPES = ("sphere", "cylinder", "disc")
 
 
 class ObservationError(ValueError):
