@@ -327,3 +327,32 @@ def test_stops_only_where_rest_is_possible():
             seg = min(max(j - 1, 0), len(beta) - 1)
             assert abs(math.tan(beta[seg])) <= mu + 1e-9, (xs, math.degrees(beta[seg]))
     assert np.all((res.status == STOPPED) | (res.status == LEFT_PROFILE))
+
+
+@pytest.mark.parametrize("path, refine_m, radius_m", [
+    ("data/tschamut2014/profile.csv", None, 0.3),  # the raster cut, 179 segments
+    (POSTIGNANO, 1.0, 0.5),                         # 1 m vertices with 5 cm survey noise
+])
+def test_every_shape_class_stays_above_ground_and_creates_no_energy(path, refine_m, radius_m):
+    """The hazard run releases CRSP's three shape classes (``--block-shape``): a
+    sphere, a cylinder and a disc of one radius each finish (no INVALID, none out of
+    its budget), end above the ground, and pass every station with at most the
+    energy their fall has released, m (v0^2 / 2 + g (z_release - z_ground(x)))."""
+    prof = load_profile(path)
+    if refine_m:
+        prof = refine(prof, refine_m, z_noise_m=0.05, seed=3)
+    st = jnp.asarray(np.arange(float(prof.x_m[0]) + 5.0, float(prof.x_m[-1]), 5.0))
+    p = crsp.params_from_profile(prof, Kn=0.4, Kt=0.9, roughness_m=0.2,
+                                 rolling_friction_deg=25.0)
+    z0 = float(ground_z(prof, jnp.asarray(float(p.release_x_m)))) + float(p.release_height_m)
+    drop = z0 - np.asarray(ground_z(prof, st))
+    for shape in crsp.SHAPES:
+        block = crsp.make_block(radius_m, shape)
+        res = crsp.run_blocks(p, block, jax.random.key(1), 300, prof, stations_x_m=st)
+        assert not np.any((res.status == INVALID) | (res.status == BUDGET)), shape
+        gz = np.asarray(ground_z(prof, jnp.asarray(res.stop_x_m)))
+        assert np.all(res.stop_z_m >= gz - 1e-3), shape
+        m = float(block.mass_kg)
+        bound_kJ = m * (0.5 * float(p.release_vx_m_s) ** 2 + G * drop) / 1000.0
+        e = np.where(res.stations.passed, res.stations.energy_kJ, 0.0)
+        assert np.all(e <= bound_kJ * (1 + 1e-9) + 1e-12), (shape, float(np.max(e - bound_kJ)))
