@@ -128,6 +128,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "counts them). calibration.json records it (dem.run.max_time_s), "
                         "and calib.validate and calib.hazard run with it "
                         f"(default {DEM_RUN.max_time_s:g}, calib/model/dem_run.py)")
+    p.add_argument("--row-shapes", action="store_true",
+                   help="CRSP only: simulate each row's block in its shape column's CRSP class "
+                        "(sphere, cylinder, disc; empty: sphere) of the volume of the sphere "
+                        "of its block_size_m; calibration.json records it (row_shapes) and "
+                        "calib.validate simulates held-out rows the same way. Default: every "
+                        "row a sphere (Tschamut's plate fits worse as a CRSP disc: "
+                        "docs/studies.md)")
     p.add_argument("--out", default="results", help="output folder (default: results/)")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed (default 0)")
     p.add_argument("--quick", action="store_true",
@@ -181,7 +188,7 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
             effects: tuple[str, ...] = (), alpha_law: str = "power", seed: int = 0,
             quick: bool = False, holdout_fraction: float = 0.0,
             release_tolerance_m: float = 1.0, velocities: str | None = None,
-            dem_max_time_s: float = DEM_RUN.max_time_s,
+            dem_max_time_s: float = DEM_RUN.max_time_s, row_shapes: bool = False,
             progress: bool = False, report=None) -> FitRun:
     """Calibrate ``models`` on the rows of ``data`` and write every output into
     ``out`` (the files of the module docstring; the rows files of the split),
@@ -193,7 +200,8 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
             profile next to the data, ``calib.files.inputs.default_profile``).
         out: output folder.
         models, methods, rolling_resistance, effects, alpha_law, seed, quick,
-        holdout_fraction, release_tolerance_m, velocities, dem_max_time_s: the
+        holdout_fraction, release_tolerance_m, velocities, dem_max_time_s,
+        row_shapes: the
             command's options of those names (``--model``, ``--method``, ...;
             ``build_parser``; with ``velocities``, methods ("gradient", "bayes")
             fit by "bayes" alone).
@@ -229,8 +237,11 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
         rolling_resistance=rolling_resistance, effects=effects, alpha_law=alpha_law,
         seed=seed, quick=quick, holdout_fraction=holdout_fraction,
         release_tolerance_m=release_tolerance_m, velocities=velocities,
-        dem_max_time_s=dem_max_time_s)
+        dem_max_time_s=dem_max_time_s, row_shapes=row_shapes)
     _check_effects(models, rolling_resistance, effects)
+    if row_shapes and "crsp" not in models:
+        raise CliError("--row-shapes: shape classes are CRSP's (the DEM's blocks are squares); "
+                       "give --model crsp or both")
     if not release_tolerance_m >= 0:
         raise CliError(f"--release-tolerance-m must be >= 0, got {release_tolerance_m:g}")
     try:  # the DEM numerics' one check
@@ -252,7 +263,7 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
             raise CliError(str(e)) from None
         inputs, data_csv, files = split.inputs, split.rows_path, dict(split.files)
         say(split.message)
-    entries = inputs.entries(release_tolerance_m)
+    entries = inputs.entries(release_tolerance_m, row_shapes)
     grouped = inputs.own_releases
     if grouped:
         for line in inputs.grouping_lines(entries, release_tolerance_m):
@@ -284,7 +295,8 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
     options = FitOptions(provenance(PROG, seed, {"data": data, "profile": inputs.profile_path,
                                                  **({"velocities": velocities}
                                                     if velocities else {})}, argv),
-                         data_csv, bool(quick), methods, grouped, release_tolerance_m)
+                         data_csv, bool(quick), methods, grouped, release_tolerance_m,
+                         bool(row_shapes))
     cal = fit_document(options, inputs, entries, fits, time.perf_counter() - t_start)
     files["calibration.json"] = cal.to_json()
     texts, writers = posterior_files(fits, inputs.obs)
@@ -303,7 +315,7 @@ def fit_argv(data: str, out: str | None, *, profile: str | None = None,
              effects: tuple[str, ...] = (), alpha_law: str = "power", seed: int = 0,
              quick: bool = False, holdout_fraction: float = 0.0,
              release_tolerance_m: float = 1.0, velocities: str | None = None,
-             dem_max_time_s: float = DEM_RUN.max_time_s) -> list[str]:
+             dem_max_time_s: float = DEM_RUN.max_time_s, row_shapes: bool = False) -> list[str]:
     """The arguments of ``python -m calib.fit`` that run ``run_fit`` with these
     options (its keywords less ``progress`` and ``report``), every option
     explicit (``--dem-max-time-s`` where the DEM is fitted): the command a
@@ -321,6 +333,7 @@ def fit_argv(data: str, out: str | None, *, profile: str | None = None,
     argv += ["--holdout-fraction", repr(float(holdout_fraction)),
              "--release-tolerance-m", repr(float(release_tolerance_m))]
     argv += ["--dem-max-time-s", repr(float(dem_max_time_s))] if "dem" in models else []
+    argv += ["--row-shapes"] if row_shapes else []
     return argv + (["--velocities", velocities] if velocities else [])
 
 
@@ -334,7 +347,7 @@ def run_options(args) -> dict:
                 alpha_law=args.alpha_law, seed=args.seed, quick=args.quick,
                 holdout_fraction=args.holdout_fraction,
                 release_tolerance_m=args.release_tolerance_m, velocities=args.velocities,
-                dem_max_time_s=args.dem_max_time_s)
+                dem_max_time_s=args.dem_max_time_s, row_shapes=args.row_shapes)
 
 
 def _run(args) -> int:

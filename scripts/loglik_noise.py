@@ -69,13 +69,15 @@ from calib.inference.likelihood import log_likelihood as _tolerance_kernel  # no
 def loglik_spread(data: str, thetas: np.ndarray, n_blocks: int, replicates: int,
                   release_tolerance_m: float = 1.0, profile: str | None = None,
                   out: str = ".", extra_sd_m: float = 0.0, knn_k: int = 0,
-                  rolling_threshold_m_s: float | None = None) -> dict:
+                  rolling_threshold_m_s: float | None = None, row_shapes: bool = False) -> dict:
     """Summed log-likelihood of the rows of ``data`` at ``thetas`` (P, 4) under
     ``replicates`` block sets of ``n_blocks`` blocks per simulated entry, the
     point rows' tolerance widened to sqrt(sd^2 + ``extra_sd_m``^2); with
     ``knn_k`` > 0 the point rows are scored by ``nearest_neighbour_loglik``
     (the bootstrap sd is then not computed: NaN); the solver run with
-    ``rolling_threshold_m_s`` (None: the site's, ``calib.files.site``).
+    ``rolling_threshold_m_s`` (None: the site's, ``calib.files.site``); with
+    ``row_shapes`` each row's block in its ``shape`` column's CRSP class
+    (``calib.fit --row-shapes``), else spheres.
 
     Returns:
         dict with ``summed`` (R, P) nats, ``mean`` and ``sd`` (P,) over the sets
@@ -92,7 +94,7 @@ def loglik_spread(data: str, thetas: np.ndarray, n_blocks: int, replicates: int,
     from calib.model.priors import CRSP_ROLLING_BOX
 
     inputs = load_inputs(data, profile, out)
-    entries = inputs.entries(release_tolerance_m)
+    entries = inputs.entries(release_tolerance_m, row_shapes)
     obs = inputs.obs
     if extra_sd_m:
         obs = dataclasses.replace(obs, runout_sd_m=np.hypot(obs.runout_sd_m, extra_sd_m))
@@ -309,6 +311,9 @@ def main(argv=None) -> int:
     p.add_argument("--release-tolerance-m", type=float, default=1.0,
                    help="as calib.fit's option of the same name")
     p.add_argument("--profile", help="profile CSV (default: as calib.fit finds it)")
+    p.add_argument("--row-shapes", action="store_true",
+                   help="as calib.fit's option of the same name: each row's block in its shape "
+                        "column's CRSP class (default: spheres)")
     a = p.parse_args(argv)
     if a.replicates < 2:
         p.error("--replicates must be >= 2")
@@ -324,7 +329,7 @@ def main(argv=None) -> int:
             try:
                 s = loglik_spread(a.data, thetas, n, a.replicates, a.release_tolerance_m,
                                   a.profile, extra_sd_m=extra, knn_k=knn_k,
-                                  rolling_threshold_m_s=thr)
+                                  rolling_threshold_m_s=thr, row_shapes=a.row_shapes)
             except InputError as e:
                 print(f"error: {e}", file=sys.stderr)
                 return 2
@@ -352,7 +357,7 @@ def main(argv=None) -> int:
             if a.tail_blocks:
                 more = loglik_spread(a.data, thetas, a.tail_blocks, a.replicates,
                                      a.release_tolerance_m, a.profile, extra_sd_m=extra,
-                                     knn_k=knn_k)
+                                     knn_k=knn_k, row_shapes=a.row_shapes)
                 mix = tail_mixture(s, more)
                 print(f"  with {a.tail_blocks} blocks for the tail releases "
                       f"({more['seconds']:.0f} s):")

@@ -463,10 +463,10 @@ def test_a_shape_of_a_spheres_volume_has_the_spheres_mass(shape):
 
 
 def test_each_block_is_the_shape_of_its_class():
-    """``_units.seeded_tasks``: a fixed size of a shape is that shape of diameter D
-    (radius D / 2, the mass make_block gives it, to the bit); a volume drawn from a
-    law is the block of that shape and volume (radius (V / (c pi))^(1/3), mass rho
-    V)."""
+    """``_units.seeded_tasks``: a fixed size D of a shape is the block of that shape
+    with the volume of the sphere of diameter D (radius s D / 2, the mass make_block
+    gives it, to the bit, rho pi D^3 / 6 to rounding); a volume drawn from a law is
+    the block of that shape and volume (radius (V / (c pi))^(1/3), mass rho V)."""
     from calib.hazard._units import seeded_tasks
 
     rho = 2350.0
@@ -476,9 +476,11 @@ def test_each_block_is_the_shape_of_its_class():
                                shapes=("cylinder", "disc"))
     for t, (d, shape) in enumerate(((0.5, "cylinder"), (2.0, "disc"))):
         _, b = seeded_tasks(p, fixed.arrays(t), rho, key, 0, n_chunk=8, kinds=fixed.kinds)
-        want = crsp.make_block(0.5 * d, shape, density_kg_m3=rho)
-        assert np.all(np.asarray(b.radius_m) == 0.5 * d)
+        want = crsp.make_block(0.5 * d * crsp.shape_constants(shape)[0], shape,
+                               density_kg_m3=rho)
+        assert np.all(np.asarray(b.radius_m) == float(want.radius_m))
         assert np.all(np.asarray(b.mass_kg) == float(want.mass_kg))
+        np.testing.assert_allclose(np.asarray(b.mass_kg), rho * np.pi * d**3 / 6, rtol=1e-12)
         assert np.all(np.asarray(b.inertia_ratio) == float(want.inertia_ratio))
     law = parse_volume_law(LOGNORMAL)
     for shape, c in (("disc", 0.5), ("cylinder", 2.0), ("sphere", 4.0 / 3.0)):
@@ -491,9 +493,10 @@ def test_each_block_is_the_shape_of_its_class():
 
 
 def test_the_command_runs_the_shape_it_is_given(cal_path, tmp_path, capsys):
-    """--block-shape cylinder: every block of the size the CRSP cylinder of diameter
-    D (hazard.nc's block_shape and block_mass_kg), the summary says so, and the
-    design sheet takes the cylinder's volume."""
+    """--block-shape cylinder: every block of the size the CRSP cylinder of the
+    volume of the sphere of diameter D (hazard.nc's block_shape and block_mass_kg),
+    the summary says so and that the fit simulated spheres only, and the design
+    sheet names the cylinder."""
     import xarray as xr
 
     from calib.design.__main__ import main as design
@@ -505,9 +508,11 @@ def test_the_command_runs_the_shape_it_is_given(cal_path, tmp_path, capsys):
     with xr.open_dataset(out / "hazard.nc", engine="h5netcdf") as ds:
         assert [str(v) for v in ds["block_shape"].values] == ["cylinder"]
         rho = load_calibration(cal_path, "crsp").rock_density_kg_m3
-        assert math.isclose(float(ds["block_mass_kg"].values[0]), rho * 2.0 * math.pi,
+        assert math.isclose(float(ds["block_mass_kg"].values[0]), rho * math.pi * 8 / 6,
                             rel_tol=1e-12)
-    assert "blocks: CRSP shape classes cylinder (D = 2 m)" in (out / "summary.txt").read_text()
+    summary = (out / "summary.txt").read_text()
+    assert "blocks: CRSP shape classes cylinder (D = 2 m)" in summary
+    assert "the fit simulated sphere only: cylinder extrapolates the calibration" in summary
     rc, _, err = run_cli(design, [str(out / "hazard.nc"), "--barrier-x-m", "100", "--kits",
                                   os.path.abspath("data/barrier_kits.csv"), "--out",
                                   str(tmp_path / "design")], capsys)

@@ -13,7 +13,6 @@ import numpy as np
 from calib.design._factors import GAMMA_E, Factors
 from calib.design._values import DesignBlock, station_index
 from calib.files.hazard_results import optional_attr
-from solvers.crsp import make_block
 
 __all__ = ["DEFAULT_DENSITY_KG_M3", "as_dict", "check_barrier", "design_block",
            "factors_from_args", "profile_range", "scan_positions"]
@@ -97,8 +96,8 @@ def design_block(ds, path: str, *, size_m=None, size_percentile=None, volume_m3=
 
     Size: ``size_m`` (a size of the run), else the ``size_percentile``-th
     percentile of the run's sizes (NumPy's "inverted_cdf": one of them), else the
-    largest. Volume: ``volume_m3``, else the CRSP sphere pi D^3 / 6 (a fixed size of
-    another CRSP shape, ``block_shape``: that shape's volume) or the DEM
+    largest. Volume: ``volume_m3``, else the CRSP block's pi D^3 / 6 (D the diameter of
+    the sphere of its volume, in every shape: ``calib.model.entries``) or the DEM
     square's D^2 times ``thickness_m`` (required for the DEM: its energies are per
     metre of width). Density: ``density_kg_m3``, else the file's
     ``rock_density_kg_m3`` (the calibration's, the site's), else 2350 kg/m^3 with a
@@ -119,20 +118,16 @@ def design_block(ds, path: str, *, size_m=None, size_percentile=None, volume_m3=
         raise DesignError(f"--dem-thickness-m: {path} is a {model.upper()} run, not a DEM one")
     shape = (str(ds["block_shape"].sel(block_size_m=d).item()) if "block_shape" in ds
              else "sphere")
-    # the simulated block's volume: a fixed size D is the diameter of its CRSP shape;
-    # a volume class's D is the diameter of the sphere of its volume, whatever its shape
-    shaped = shape != "sphere" and "class_volume_m3" not in ds
-    if shaped:
-        sim_vol = float(make_block(0.5 * d, shape, density_kg_m3=1.0).mass_kg)
-    else:
-        sim_vol = d**3 if model == "dem" else math.pi * d**3 / 6.0
+    # the simulated block's volume: D is the diameter of the sphere of its volume, in
+    # every CRSP shape (calib.model.entries)
+    sim_vol = d**3 if model == "dem" else math.pi * d**3 / 6.0
     if volume_m3 is not None:
         vol, vol_src = float(volume_m3), "--design-volume-m3"
     elif model == "dem":
         vol, vol_src = d * d * thickness_m, f"D^2 x --dem-thickness-m {thickness_m:g} m"
-    elif shaped:
-        vol, vol_src = sim_vol, (f"CRSP {shape} of diameter D (solvers.crsp.make_block: "
-                                 + ("length D)" if shape == "cylinder" else "thickness D / 4)"))
+    elif shape != "sphere":
+        vol, vol_src = sim_vol, (f"CRSP {shape} of the volume of the sphere of diameter D, "
+                                 "pi D^3 / 6 (calib.model.entries)")
     else:
         vol, vol_src = math.pi * d**3 / 6.0, "sphere of diameter D, pi D^3 / 6"
     if density_kg_m3 is not None:

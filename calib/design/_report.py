@@ -22,8 +22,9 @@ LIMITS = (
     "The kits are generic energy classes (data/barrier_kits.csv), not products: replace "
     "them by the certified values (European Technical Assessment) of the kit chosen.",
     "Blocks are CRSP shape classes (spheres unless the hazard run gave --block-shape: "
-    "cylinders, discs) or squares (DEM) of the run's size classes; the design block's "
-    "volume and density enter through its mass only.",
+    "cylinders, discs, each of the volume of the sphere of diameter D) or squares (DEM) "
+    "of the run's size classes; the design block's volume and density enter through its "
+    "mass only.",
     "Passing height is the height of the block's top above the ground (clearance + D), "
     "vertical; a design on the trajectory of the block's centre would be lower by D/2.",
     "Impacts and probabilities count the blocks as they pass the barrier's station in a "

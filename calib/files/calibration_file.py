@@ -24,8 +24,12 @@ the notebooks), never by re-parsing the JSON with its own names. Schema
   the square side in m; or ``form`` "constant" with ``alpha``; every model runs
   it clipped to [0, 0.95], ``calib.model.alpha_law``) and ``posterior_csv`` (columns
   ``a,b`` or ``alpha``; may be null);
-* ``block_size_mapping``: a block of average diameter D is a CRSP sphere of
-  radius D/2 and a DEM square of side D.
+* ``block_size_mapping``: a block of average diameter D is a CRSP block of
+  mass rho pi D^3 / 6 (a sphere of radius D/2, or the group's shape class of
+  that volume: ``release_groups.groups[*].shape``, absent in older files, which
+  simulated spheres) and a DEM square of side D.
+* ``row_shapes``: true where CRSP simulated each row in its ``shape`` column's
+  class (``calib.fit --row-shapes``); false or absent: spheres.
 * ``release_height_sd_m``, ``release_speed_sd_m_s`` (with their
   ``*_source`` texts): the errors of the tracked release heights and speeds
   with which the CRSP fit drew its blocks' releases (the site's,
@@ -64,7 +68,8 @@ from solvers.dem import check_run_numerics
 from solvers.material import ROCK_DENSITY_KG_M3
 
 __all__ = ["SCHEMA", "Calibration", "CalibrationError", "CalibrationFile", "Draws",
-           "ModelSummary", "ParameterSummary", "draw_parameters", "fitted_block_sizes_m",
+           "ModelSummary", "ParameterSummary", "draw_parameters", "fitted_block_shapes",
+           "fitted_block_sizes_m",
            "load_calibration", "posterior_csv_text"]
 
 SCHEMA = "rockfall-calibration/1"
@@ -122,6 +127,9 @@ class Calibration(NamedTuple):
             (``effect_columns``); () without any, and for the DEM.
         rolling_threshold_m_s: CRSP's rolling threshold the fit ran with, m/s
             (key of the same name; older files: the solver's default).
+        row_shapes: CRSP simulated each row in its ``shape`` column's class (key
+            ``row_shapes``, ``calib.fit --row-shapes``); False (and absent):
+            spheres.
     """
 
     path: str
@@ -142,6 +150,7 @@ class Calibration(NamedTuple):
     release_speed_sd_m_s: float = 0.0
     effects: tuple[str, ...] = ()
     rolling_threshold_m_s: float = ROLLING_THRESHOLD_M_S
+    row_shapes: bool = False
 
     @property
     def base_names(self) -> tuple[str, ...]:
@@ -359,6 +368,7 @@ def _model_from_doc(path: str, doc: dict, model: str | None) -> Calibration:
                        release_heights=(model == "crsp" and _with_heights(doc))
                        or model in _grouped(doc, "speed_and_height_models"),
                        rock_density_kg_m3=rho, effects=effects,
+                       row_shapes=model == "crsp" and doc.get("row_shapes") is True,
                        rolling_threshold_m_s=_number(
                            path, "rolling_threshold_m_s",
                            doc.get("rolling_threshold_m_s", ROLLING_THRESHOLD_M_S),
@@ -409,6 +419,18 @@ def fitted_block_sizes_m(cal: Calibration) -> tuple[np.ndarray, str] | None:
         return None
     sizes = [v for v in sizes if math.isfinite(v) and v > 0]
     return (np.asarray(sizes), f"{cal.data_csv}: column block_size_m") if sizes else None
+
+
+def fitted_block_shapes(cal: Calibration) -> tuple[str, ...]:
+    """The CRSP shape classes a calibration simulated its rows as, sorted:
+    ``release_groups.groups[*].shape``; ("sphere",) where the file records no
+    shape (a fit of one release per size, and files written before the fit
+    simulated the rows' shapes: both ran spheres)."""
+    groups = _read_doc(cal.path).get("release_groups")
+    rows = groups.get("groups") if isinstance(groups, dict) else None
+    shapes = {g.get("shape") or "sphere" for g in rows if isinstance(g, dict)} if isinstance(
+        rows, list) else set()
+    return tuple(sorted(str(f) for f in shapes)) or ("sphere",)
 
 
 def _with_heights(doc: dict) -> bool:

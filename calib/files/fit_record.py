@@ -34,6 +34,8 @@ class FitOptions:
         grouped: True where each row was released from its own point (the
             ``release_groups`` record is written).
         tolerance_m: the grouping tolerance, m.
+        row_shapes: CRSP simulated each row in its ``shape`` column's class
+            (``calib.model.entries``); False: spheres.
     """
 
     provenance: dict
@@ -42,6 +44,7 @@ class FitOptions:
     methods: tuple[str, ...]
     grouped: bool
     tolerance_m: float
+    row_shapes: bool = False
 
 
 def summary_stats(values: np.ndarray | None, point: float) -> dict:
@@ -112,7 +115,9 @@ def model_section(name: str, fit, forward, law_form: str | None = None) -> dict:
 
 ALPHA_AT_L = (0.2, 0.9, 1.8)  # DEM square sides at which alpha(L) is reported by default, m
 
-BLOCK_SIZE_MAPPING = {"crsp_radius_m": "block_size_m / 2", "dem_side_m": "block_size_m",
+BLOCK_SIZE_MAPPING = {"crsp_radius_m": "s * block_size_m / 2 (s: the group's shape's radius "
+                                       "scale, solvers.crsp.shape_constants; a sphere's s = 1)",
+                      "dem_side_m": "block_size_m",
                       "crsp_mass_kg": "rock_density_kg_m3 * pi * block_size_m**3 / 6",
                       "dem_mass_kg_per_m": "rock_density_kg_m3 * block_size_m**2"}
 
@@ -173,7 +178,7 @@ def fit_document(options: FitOptions, inputs, entries, fits: dict,
            "release_speed_source": inputs.site.release_speed_source or None,
            "rolling_threshold_m_s": inputs.site.rolling_threshold_m_s,
            "rolling_threshold_source": inputs.site.rolling_threshold_source,
-           "block_size_mapping": BLOCK_SIZE_MAPPING,
+           "block_size_mapping": BLOCK_SIZE_MAPPING, "row_shapes": options.row_shapes,
            "likelihood": "point: (1/n) sum_j N(y; r_j, sd^2 + v_j); interval: (1/n) sum_j "
                          "[Phi((b-r_j)/w_j) - Phi((a-r_j)/w_j)] (calib/inference/likelihood.py)",
            "n_observations": inputs.obs.n_obs,

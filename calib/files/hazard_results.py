@@ -31,7 +31,9 @@ runs with release conditions: ``release_json``, ``fitted_block_size_min_m`` /
 barrier: ``barrier_x_m``, ``barrier_height_m``, ``barrier_capacity_kJ``; CRSP runs:
 ``crsp_max_events``, the event budget per block, an integer or ``"profile"`` for the
 solver's size- and profile-derived budget, ``crsp_event_budget`` reads it, and
-``rolling_threshold_m_s``, the calibration's rolling threshold it ran with),
+``rolling_threshold_m_s``, the calibration's rolling threshold it ran with; runs
+given CRSP shape classes: ``fitted_block_shapes``, the shape classes the
+calibration's fit simulated, comma separated),
 what its numbers mean (``energy_basis``, ``height_convention``), and where it
 came from (``provenance_json``: command, seed, SHA-256 of the inputs, package
 versions, ``calib.files.provenance``; ``adequacy_json``: the calibration's own
@@ -116,8 +118,9 @@ OPTIONAL_VARIABLES: dict[str, tuple[tuple[str, ...], str, str]] = {
                                        "size lies outside the sizes the calibration was "
                                        "fitted on; NaN: not known"),
     "block_shape": (_T, "", "CRSP shape class of the blocks (solvers.crsp.make_block: "
-                            "sphere, cylinder of length 2 r, disc of thickness r / 2); a "
-                            "fixed size is the shape's diameter 2 r; absent: spheres"),
+                            "sphere, cylinder of length 2 r, disc of thickness r / 2) of "
+                            "the volume of the sphere of diameter D (calib.model.entries); "
+                            "absent: spheres"),
 }
 
 # attributes every file has
@@ -170,7 +173,8 @@ def hazard_results(data: dict, coords: dict, attrs: dict, bins: dict):
                              per_decade=int(b.per_decade))
         ds[name] = var
     ds["block_size_m"].attrs.update(units="m", long_name="block size: average diameter D "
-                                    "(CRSP sphere of radius D/2, DEM square of side D)")
+                                    "(CRSP sphere of radius D/2 or its volume in another "
+                                    "shape, DEM square of side D)")
     ds["x_m"].attrs.update(units="m", long_name="station abscissa, horizontal downslope")
     ds["percentile"].attrs.update(units="%")
     for key, value in attrs.items():

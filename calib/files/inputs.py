@@ -98,9 +98,10 @@ class Inputs:
         """True where the rows give their own release points or profiles."""
         return bool(np.any(np.isfinite(self.obs.release_x_m)) or any(self.obs.profile))
 
-    def entries(self, tol_m: float | None):
+    def entries(self, tol_m: float | None, row_shapes: bool = False):
         """What the rows make the solvers simulate (``calib.model.entries``), at the
-        site's rock density: with ``tol_m`` (m) and rows that give their own
+        site's rock density, CRSP blocks in the rows' shape classes with
+        ``row_shapes`` (else spheres): with ``tol_m`` (m) and rows that give their own
         releases, one entry per (profile, size, release) group within
         ``tol_m`` (``Entries.from_rows``, rows without a release at the
         profile's first vertex), with the site's release errors on the rows'
@@ -113,7 +114,8 @@ class Inputs:
         if tol_m is None or not self.own_releases:
             return Entries.one_per_size(self.obs, self.release_x_m, density_kg_m3=rho)
         return Entries.from_rows(self.obs, float(self.profile.x_m[0]), tol_m,
-                                 profile_of=own_profile, density_kg_m3=rho).with_release_errors(
+                                 profile_of=own_profile, density_kg_m3=rho,
+                                 row_shapes=row_shapes).with_release_errors(
             self.site.release_height_sd_m, self.site.release_speed_sd_m_s)
 
 
@@ -122,7 +124,8 @@ class Inputs:
         (``Inputs.entries(tol_m)``), in lines for a command to print: the number
         of simulated releases and the largest shift of a row's release point,
         speed and height to its group's; the rows on their own profiles; the
-        site's release errors."""
+        CRSP shape classes, where some row is not a sphere; the site's release
+        errors."""
         obs, x0 = self.obs, float(self.profile.x_m[0])
         rel = np.asarray(obs.release_x_m, float)
         err = np.abs(entries.release_x_m[entries.index] - np.where(np.isfinite(rel), rel, x0))
@@ -134,6 +137,19 @@ class Inputs:
             lines.append("rows on their own profiles: " + "; ".join(
                 f"{int(np.sum(obs.profile == p))} on {p}" for p in own)
                 + f"; {int(np.sum(obs.profile == ''))} on {self.profile_path}")
+        shapes = entries.shapes[entries.index]
+        given = (np.asarray(["sphere" if not f else str(f) for f in obs.shape], dtype=object)
+                 if getattr(obs, "shape", None) is not None else shapes)
+        if np.any(shapes != "sphere"):
+            lines.append("CRSP simulates each row's block in its shape class, of the volume of "
+                         "the sphere of its block_size_m: " + ", ".join(
+                             f"{int(np.sum(shapes == f))} rows {f}" for f in dict.fromkeys(shapes))
+                         + " (the DEM: squares)")
+        elif np.any(given != "sphere"):
+            lines.append("the rows' shape column gives " + ", ".join(
+                f"{int(np.sum(given == f))} {f}" for f in dict.fromkeys(given))
+                + "; every row is simulated as a sphere of its block_size_m (--row-shapes "
+                "simulates each in its CRSP class)")
         speed, height = (np.asarray(v, float) for v in (obs.release_speed_m_s,
                                                          obs.release_height_m))
         gspeed, gheight = (v[entries.index] for v in (entries.release_speed_m_s,

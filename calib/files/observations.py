@@ -25,7 +25,10 @@ NaN or empty text, and files without them behave exactly as before):
   on the ground); empty: released on the ground;
 * ``run_id``: the run's identifier in its source;
 * ``shape``: CRSP shape class ``sphere``, ``cylinder`` or ``disc`` (empty:
-  unknown), from the block's dimensions (rule in ``calib.files.field_runs``);
+  unknown, simulated as a sphere), from the block's dimensions (rule in
+  ``calib.files.field_runs``); CRSP simulates the row's block in that class,
+  of the volume of the sphere of diameter ``block_size_m``
+  (``calib.model.entries``);
 * ``profile``: the profile CSV this row's ``release_x_m`` and ``runout_m`` are
   measured along, relative to the observation file's folder (empty: the
   command's profile). Runs released from spots far apart follow different fall

@@ -66,9 +66,10 @@ def build_parser() -> OneLineParser:
                    help="CRSP shape class of the blocks (solvers.crsp.make_block, CRSP 4.0): "
                         "sphere, cylinder (length 2 r, rolling on its curved face) or disc "
                         "(thickness r / 2, rolling on its rim); one for every size or volume "
-                        "class, or one per size (class), comma-separated. A size is the "
-                        "shape's diameter 2 r; a class's volume sets its radius (default "
-                        "sphere; CRSP only)")
+                        "class, or one per size (class), comma-separated. A size d is the "
+                        "diameter of the sphere of the block's volume, as the fit reads a "
+                        "row's size: the shape's radius is s d / 2, s = 0.874 (cylinder), "
+                        "1.387 (disc) (default sphere; CRSP only)")
     p.add_argument("--n-blocks", type=int, help="blocks per draw and size (or volume class) "
                    f"(default {DEFAULTS['crsp'][0]} CRSP, {DEFAULTS['dem'][0]} DEM)")
     p.add_argument("--n-posterior", type=int, help="posterior draws; 1 = the point "
@@ -423,6 +424,10 @@ def _outputs(prog: str, args, run: _Run, counts) -> tuple[str, dict]:
     rate = args.release_rate_per_year
     record = calibration_record(prog, args.seed, cal, args.calibration)
     record.update(cond.record)
+    if cond.shapes is not None:  # the shapes the fit simulated, for the summary to compare
+        from calib.files.calibration_file import fitted_block_shapes
+
+        record["fitted_block_shapes"] = ", ".join(fitted_block_shapes(cal))
     results = hazard_dataset(counts, profile, seed=args.seed, road_x_m=road_x, road_label=label,
                              release_rate_per_year=rate, record=record,
                              fitted=cond.fitted)

@@ -15,7 +15,8 @@ __all__ = ["ENERGY_BASIS", "HEIGHT_CONVENTION", "as_results", "calibration_recor
            "hazard_dataset"]
 
 ENERGY_BASIS = {
-    "crsp": "kJ per block: the CRSP sphere of diameter D (block_mass_kg)",
+    "crsp": "kJ per block: the CRSP block of the volume of the sphere of diameter D "
+            "(block_mass_kg)",
     "dem": "kJ per block taken as a cube of side D: the 2D DEM's energy per metre of width "
            "times D (calib.hazard._units; an assumption, the 2D runs have no thickness)",
 }

@@ -50,7 +50,7 @@ from calib.hazard._units import crsp_chunk, dem_chunk, draw_key, seeded_chunk
 from calib.model.alpha_law import alpha_of, check_law
 from calib.model.dem_run import DEM_RUN, DemRun
 from calib.model.effects import draw_overrides
-from calib.model.entries import Entries, dem_side_m
+from calib.model.entries import Entries, crsp_radius_m, dem_side_m
 from calib.model.forward import stack_trees
 from calib.model.release import Seeder
 from solvers import crsp, dem
@@ -228,8 +228,9 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
         fragments: a ``_fragment_options.Fragmentation``: every block broken and every
             fragment run as its own block (None: unbroken blocks).
         shapes: (T,) the CRSP shape class of each size's blocks
-            (``solvers.crsp.make_block``: a size is the diameter 2 r of its shape),
-            or None: spheres. With ``release``, its ``shapes`` (pass None).
+            (a size is the diameter of the sphere of the block's volume, radius s d
+            / 2: ``calib.model.entries``), or None: spheres. With ``release``, its
+            ``shapes`` (pass None).
 
     Returns:
         ``HazardCounts``.
@@ -271,9 +272,7 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
                         energy_p95_per_draw_kJ=tally.e95,
                         percentiles={q: tuple(v) for q, v in tally.pct.items()},
                         pooled_percentiles=pooled, draw_hist=tally.kept,
-                        block_mass_kg=_block_mass_kg(cal.model, entries, forms,
-                                                     release is not None
-                                                     and release.law is not None),
+                        block_mass_kg=_block_mass_kg(cal.model, entries, forms),
                         release=release, barrier=barrier, fragments=frag,
                         crsp_settings=settings if cal.model == "crsp" else None,
                         shapes=None if shapes is None else tuple(forms), **tally.acc)
@@ -367,19 +366,18 @@ def _draw_done(d: int, dh: dict, e95: np.ndarray, pct: dict, kept: dict) -> None
             kept[q][d] = rebin(counts, DRAW_SUB)
 
 
-def _block_mass_kg(model: str, entries: Entries, shapes, classes: bool) -> np.ndarray:
+def _block_mass_kg(model: str, entries: Entries, shapes) -> np.ndarray:
     """(T,) mass of the simulated block of each size, kg: the CRSP block of its
-    shape (``shapes``) that ``_crsp_units`` simulates, a size being its diameter,
-    or over volume ``classes`` the block of the class's representative volume (the
-    sphere of diameter D, radius s D / 2 in another shape:
-    ``solvers.crsp.shape_constants``); the DEM square's mass per metre times its
-    side (the cube whose energy ``_units`` reports)."""
+    shape (``shapes``) that ``_crsp_units`` simulates, or over volume classes the
+    block of the class's representative volume: in both, the sphere of diameter D
+    or the block of its volume in another shape, radius s D / 2
+    (``calib.model.entries.crsp_radius_m``); the DEM square's mass per metre times
+    its side (the cube whose energy ``_units`` reports)."""
     if model == "crsp":
         rho = entries.density_kg_m3
-        return np.array([float(crsp.make_block(
-            float(r) * (crsp.shape_constants(f)[0] if classes else 1.0), f,
-            density_kg_m3=rho).mass_kg) for r, f in zip(entries.crsp_radius_m, shapes,
-                                                         strict=True)])
+        return np.array([float(crsp.make_block(float(r), f, density_kg_m3=rho).mass_kg)
+                         for r, f in zip(crsp_radius_m(entries.sizes_m, shapes), shapes,
+                                         strict=True)])
     return float(entries.density_kg_m3) * np.asarray(entries.dem_side_m, np.float64) ** 3
 
 
@@ -393,7 +391,8 @@ def _crsp_units(draws, profile, entries: Entries, stations, n_blocks, seed, chun
     n_sizes, release_x = entries.n, float(entries.release_x_m[0])
     forms = shapes or ("sphere",) * n_sizes
     blocks = stack_trees([crsp.make_block(float(r), f, density_kg_m3=entries.density_kg_m3)
-                          for r, f in zip(entries.crsp_radius_m, forms, strict=True)])
+                          for r, f in zip(crsp_radius_m(entries.sizes_m, forms), forms,
+                                          strict=True)])
     fn = functools.partial(crsp_chunk, n_chunk=chunk, pool=pool, settings=settings)
     for d, values in enumerate(draws.values):
         # the fitted model: the baseline's parameters and the effects' (Calibration.effects)

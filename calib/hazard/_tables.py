@@ -108,6 +108,9 @@ class _Run:
         self.release = json_attr(ds, "release_json")
         self.shapes = ([str(v) for v in ds["block_shape"].values] if "block_shape" in ds
                        else None)
+        fitted_shapes = optional_attr(ds, "fitted_block_shapes")
+        self.fitted_shapes = (None if fitted_shapes is None
+                              else [f.strip() for f in str(fitted_shapes).split(",")])
         self.design_block = json_attr(ds, "design_block_json")
         self.fitted = (None if optional_attr(ds, "fitted_block_size_min_m") is None else
                        (float(ds.attrs["fitted_block_size_min_m"]),
@@ -311,8 +314,7 @@ def summary_text(results, table: pd.DataFrame, road_x_m: float,
         lines.append("  blocks: CRSP shape classes " + ", ".join(
             f"{f} (D = {d:.3g} m)" for f, d in zip(c.shapes, c.sizes_m, strict=True))
             + "; a cylinder is 2 r long and rolls on its curved face, a disc is r / 2 "
-            "thick and rolls on its rim (solvers.crsp.make_block); the fit simulates "
-            "spheres: another shape extrapolates the calibration")
+            "thick and rolls on its rim (solvers.crsp.make_block); " + _shape_text(c))
     if c.barrier is not None:
         x, h, e = c.barrier
         lines.append(f"  barrier at x = {x:g} m, height {_limit(h, 'm')}, capacity "
@@ -359,6 +361,20 @@ def summary_text(results, table: pd.DataFrame, road_x_m: float,
     if warning:
         lines.append(warning + " (column few_blocks of hazard_table.csv)")
     return "\n".join(lines)
+
+
+def _shape_text(c: _Run) -> str:
+    """Whether the run's shape classes are among those the calibration's fit
+    simulated (``fitted_block_shapes``): another shape extrapolates it."""
+    if c.fitted_shapes is None:
+        return ("the shapes the calibration was fitted on are not known: a shape it did "
+                "not simulate extrapolates it")
+    fitted = ", ".join(c.fitted_shapes)
+    other = sorted(set(c.shapes) - set(c.fitted_shapes))
+    if not other:
+        return f"the fit simulated {fitted}: every shape here was fitted"
+    return (f"the fit simulated {fitted} only: {', '.join(other)} extrapolates the "
+            "calibration")
 
 
 def _limit(v: float, unit: str) -> str:

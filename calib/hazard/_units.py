@@ -193,9 +193,9 @@ def seeded_tasks(params, seeds: SeedArrays, density_kg_m3, key, offset, *, n_chu
     fold_in(key, offset + j) (``calib.model.release.sample_release``); its task is
     ``params`` with that release (a NaN height or speed keeps ``params``' own, the
     solver's release state; no abscissa spread) and its block the class's CRSP
-    shape (``SeedArrays.shape``) of mass rho V: radius d / 2 for a fixed size (its
-    diameter), s d / 2 for a volume drawn from a law (d the volume's sphere
-    diameter, s the shape's radius scale: a sphere's s is 1).
+    shape (``SeedArrays.shape``) of mass rho V and radius s d / 2, d the diameter of
+    the sphere of volume V (a fixed size, or a volume drawn from a law) and s the
+    shape's radius scale (a sphere's s is 1: ``calib.model.entries``).
 
     Returns:
         (tasks, blocks): CRSP ``Params`` and ``Block`` with a leading axis
@@ -210,7 +210,7 @@ def seeded_tasks(params, seeds: SeedArrays, density_kg_m3, key, offset, *, n_chu
         release_height_m=jnp.where(jnp.isnan(h), params.release_height_m, h),
         release_vx_m_s=jnp.where(jnp.isnan(v), params.release_vx_m_s, v))
     scale, inertia_ratio = seeds.shape[0], seeds.shape[1]
-    radius = 0.5 * diameter if kinds[0] == "fixed" else 0.5 * diameter * scale
+    radius = 0.5 * diameter * scale
     blocks = Block(radius_m=radius, mass_kg=density_kg_m3 * volume,
                    inertia_ratio=jnp.broadcast_to(inertia_ratio, (n_chunk,)))
     return tasks, blocks

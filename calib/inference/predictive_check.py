@@ -294,7 +294,8 @@ def stall_message(stalls: dict) -> str | None:
 def heldout_entries(cal, heldout: Observations, profile):
     """The simulated entries of held-out rows (``Entries.from_rows``), each
     from its own release by the fit's rules, at the calibration's rock density
-    and release errors (``cal.release_height_sd_m``, ``release_speed_sd_m_s``)."""
+    and release errors (``cal.release_height_sd_m``, ``release_speed_sd_m_s``),
+    in the rows' shape classes where the fit simulated its own rows' (``cal.row_shapes``)."""
     from calib.files.inputs import own_profile
     from calib.model.entries import Entries
 
@@ -305,7 +306,8 @@ def heldout_entries(cal, heldout: Observations, profile):
     # the calibration's one release
     default = start if cal.own_releases else common
     return Entries.from_rows(heldout, default, profile_of=own_profile,
-                             density_kg_m3=cal.rock_density_kg_m3).with_release_errors(
+                             density_kg_m3=cal.rock_density_kg_m3,
+                             row_shapes=cal.row_shapes).with_release_errors(
         cal.release_height_sd_m, cal.release_speed_sd_m_s)
 
 

@@ -11,7 +11,17 @@ Block-size rule (one place, used by every solver run):
 
 * the block size d is the average block diameter, m (the paper's wording,
   Sect. 4.1; ``block_size_m`` of every input and output);
-* CRSP: a sphere of radius r = d / 2 and mass rho pi d^3 / 6;
+* CRSP: a block of mass rho pi d^3 / 6 (the volume of the sphere of diameter
+  d) in the entry's CRSP shape class (``solvers.crsp.make_block``): a sphere of
+  radius r = d / 2, or the cylinder or disc of that volume, radius s d / 2 with
+  s the shape's radius scale (``solvers.crsp.shape_constants``: cylinder 0.874,
+  disc 1.387). ``Entries.from_rows(..., row_shapes=True)`` gives each entry
+  its rows' ``shape`` (``calib.files.observations``; empty: sphere; the fit's
+  ``--row-shapes``), else every observed row is a sphere: a field run's d is
+  the volume-equivalent diameter of its mass (``calib.files.field_runs``), so
+  the simulated block has the rock's mass whatever its shape (our choice: the
+  shape changes the radius the block rolls on and its moment of inertia, not
+  its mass);
 * DEM: a square of side L = d, mass rho L^2 per metre of width. The paper's
   UDEC squares were meant to match the CRSP masses, but its Table 1 sides
   (0.2, 0.9, 1.8 m) do not follow from its radii (``data/README.md``); we take
@@ -37,9 +47,10 @@ from collections.abc import Callable
 
 import numpy as np
 
+from solvers.crsp import SHAPES, shape_constants
 from solvers.material import ROCK_DENSITY_KG_M3, check_density
 
-__all__ = ["Entries", "crsp_radius_m", "dem_side_m", "sphere_diameter_m"]
+__all__ = ["Entries", "crsp_radius_m", "dem_side_m", "entry_shapes", "sphere_diameter_m"]
 
 
 def sphere_diameter_m(mass_kg, density_kg_m3: float) -> np.ndarray:
@@ -54,9 +65,35 @@ def sphere_diameter_m(mass_kg, density_kg_m3: float) -> np.ndarray:
     return np.cbrt(6.0 * np.asarray(mass_kg, float) / (np.pi * density_kg_m3))
 
 
-def crsp_radius_m(block_size_m):
-    """CRSP sphere radius for an average block diameter d: r = d / 2."""
-    return 0.5 * np.asarray(block_size_m, dtype=float)
+def crsp_radius_m(block_size_m, shapes=None):
+    """CRSP radius for an average block diameter d: r = s d / 2, s the radius
+    scale of each block's shape class (``solvers.crsp.shape_constants``; None,
+    or a sphere: s = 1, r = d / 2), so that the block has the sphere's volume."""
+    d = np.asarray(block_size_m, dtype=float)
+    if shapes is None:
+        return 0.5 * d
+    scale = np.array([shape_constants(f)[0] for f in np.broadcast_to(
+        np.asarray(shapes, dtype=object), d.shape).reshape(-1)]).reshape(d.shape)
+    return np.where(np.asarray(shapes, dtype=object) == "sphere", 0.5 * d, 0.5 * d * scale)
+
+
+def entry_shapes(shapes, n: int) -> np.ndarray:
+    """(n,) CRSP shape classes from None (all spheres) or one per entry; an empty
+    one (a row that gives none) is a sphere.
+
+    Raises:
+        ValueError: a count other than n, or a name not in ``solvers.crsp.SHAPES``.
+    """
+    if shapes is None:
+        return np.full(n, "sphere", dtype=object)
+    out = np.array(["sphere" if not str(f) else str(f) for f in np.ravel(
+        np.asarray(shapes, dtype=object))], dtype=object)
+    if out.shape != (n,):
+        raise ValueError(f"{out.size} shapes for {n} entries (one per entry)")
+    bad = [f for f in out if f not in SHAPES]
+    if bad:
+        raise ValueError(f"unknown block shape {bad[0]!r}; expected one of {', '.join(SHAPES)}")
+    return out
 
 
 def dem_side_m(block_size_m):
@@ -96,6 +133,8 @@ class Entries:
             exact, and where the entry has no height).
         release_speed_sd_m_s: (E,) sd of the release speed's error, m/s (0:
             exact, and where the entry has no speed).
+        shapes: (E,) CRSP shape class of each entry's blocks (None: spheres;
+            module docstring). The DEM's blocks are squares whatever it says.
     """
 
     sizes_m: np.ndarray
@@ -108,6 +147,7 @@ class Entries:
     density_kg_m3: float = ROCK_DENSITY_KG_M3
     release_height_sd_m: np.ndarray | float = 0.0
     release_speed_sd_m_s: np.ndarray | float = 0.0
+    shapes: np.ndarray | None = None
 
     def __post_init__(self):
         n = np.asarray(self.sizes_m).shape[0]
@@ -132,6 +172,10 @@ class Entries:
             if np.any(~(np.isfinite(sd) & (sd >= 0))):
                 raise ValueError(f"{name}: expected finite sds >= 0, got {sd}")
             object.__setattr__(self, name, sd)
+        try:
+            object.__setattr__(self, "shapes", entry_shapes(self.shapes, n))
+        except ValueError as e:
+            raise ValueError(f"shapes: {e}") from None
 
     @classmethod
     def at_sizes(cls, sizes_m, release_x_m: float, *, density_kg_m3: float = ROCK_DENSITY_KG_M3,
@@ -148,16 +192,17 @@ class Entries:
         """The entries of a fit that releases every block from one point (the DEM
         fit, a CRSP fit of rows without ``release_x_m``): one per distinct size
         of the rows (``obs.sizes_m``), released at ``release_x_m`` at the
-        solver's default speed, on the ground, on the command's profile,
-        whatever the rows' own releases say."""
+        solver's default speed, on the ground, on the command's profile, as
+        spheres, whatever the rows' own releases and shapes say."""
         e = cls.at_sizes(obs.sizes_m, release_x_m, density_kg_m3=density_kg_m3)
         return dataclasses.replace(e, index=np.asarray(obs.size_index))
 
     @classmethod
     def from_rows(cls, obs, default_release_x_m: float, tol_m: float = 0.0, *,
                   profile_of: Callable[[str], object] | None = None,
-                  density_kg_m3: float = ROCK_DENSITY_KG_M3) -> Entries:
-        """Group the rows by (profile, block size, release point).
+                  density_kg_m3: float = ROCK_DENSITY_KG_M3,
+                  row_shapes: bool = False) -> Entries:
+        """Group the rows by (profile, block size, shape class, release point).
 
         Rows of one profile and one size whose release abscissae AND release
         heights lie within ``tol_m`` of those of the first (lowest) release of
@@ -167,7 +212,9 @@ class Entries:
         releases. Rows without a height match only each other. A row without
         ``release_x_m`` (NaN) is released at ``default_release_x_m``. An
         entry's release speed and height are the means of its rows'
-        ``release_speed_m_s`` and ``release_height_m`` where given: of the
+        ``release_speed_m_s`` and ``release_height_m`` where given, its shape
+        the rows' ``shape`` with ``row_shapes`` (empty or no column: sphere;
+        without ``row_shapes`` every entry is a sphere): of the
         heights as measured, negative ones included (the mean of the rows'
         measurements, each the true height plus an error of one sd; a group
         that mixes heights below and above a raster's ground is released at
@@ -183,6 +230,7 @@ class Entries:
             profile_of: the ``Profile`` of a row's own profile file
                 (``Observations.profile``); needed only where rows name one.
             density_kg_m3: the site's rock density.
+            row_shapes: simulate each row in its ``shape`` column's CRSP class.
         """
         if not tol_m >= 0:
             raise ValueError(f"release grouping tolerance must be >= 0 m, got {tol_m!r}")
@@ -195,15 +243,18 @@ class Entries:
                          for name in ("release_speed_m_s", "release_height_m"))
         prof = getattr(obs, "profile", None)
         prof = np.full(n_obs, "", dtype=object) if prof is None else np.asarray(prof, object)
-        sizes, releases, speeds, heights, csv = [], [], [], [], []
+        form = entry_shapes(getattr(obs, "shape", None) if row_shapes else None, n_obs)
+        sizes, releases, speeds, heights, csv, shapes = [], [], [], [], [], []
         index = np.empty(n_obs, int)
-        for pf, d in sorted({(pf, d) for pf, d in zip(prof, size)}, key=lambda k: (k[1], k[0])):
-            rows = np.flatnonzero((size == d) & (prof == pf))
+        for pf, d, f in sorted({(pf, d, f) for pf, d, f in zip(prof, size, form)},
+                               key=lambda k: (k[1], k[0], k[2])):
+            rows = np.flatnonzero((size == d) & (prof == pf) & (form == f))
             rows = rows[np.argsort(rel[rows], kind="stable")]
             for m in _greedy_groups(rows, rel, height, tol_m):
                 index[m] = len(sizes)
                 sizes.append(d)
                 csv.append(pf)
+                shapes.append(f)
                 releases.append(float(np.mean(rel[m])))
                 for values, out in ((speed, speeds), (height, heights)):
                     known = values[m][np.isfinite(values[m])]
@@ -212,7 +263,8 @@ class Entries:
             raise ValueError("rows name their own profiles: give profile_of")
         profiles = tuple(profile_of(p) if p else None for p in csv)
         return cls(np.asarray(sizes, float), np.asarray(releases, float), speeds, heights,
-                   profiles, np.asarray(csv, dtype=object), index, density_kg_m3)
+                   profiles, np.asarray(csv, dtype=object), index, density_kg_m3,
+                   shapes=np.asarray(shapes, dtype=object))
 
     @property
     def n(self) -> int:
@@ -221,8 +273,8 @@ class Entries:
 
     @property
     def crsp_radius_m(self) -> np.ndarray:
-        """(E,) CRSP sphere radii d / 2, m."""
-        return crsp_radius_m(self.sizes_m)
+        """(E,) CRSP radii s d / 2 of each entry's shape (a sphere's d / 2), m."""
+        return crsp_radius_m(self.sizes_m, self.shapes)
 
     @property
     def dem_side_m(self) -> np.ndarray:
@@ -231,7 +283,7 @@ class Entries:
 
     @property
     def mass_kg(self) -> np.ndarray:
-        """(E,) CRSP sphere mass rho pi d^3 / 6, kg."""
+        """(E,) CRSP mass rho pi d^3 / 6 (every shape class), kg."""
         return self.density_kg_m3 * np.pi * self.sizes_m**3 / 6.0
 
     @property
@@ -251,7 +303,8 @@ class Entries:
         return Entries(self.sizes_m[idx], self.release_x_m[idx], self.release_speed_m_s[idx],
                        self.release_height_m[idx], tuple(self.profiles[i] for i in idx),
                        self.profile_csv[idx], None, self.density_kg_m3,
-                       self.release_height_sd_m[idx], self.release_speed_sd_m_s[idx])
+                       self.release_height_sd_m[idx], self.release_speed_sd_m_s[idx],
+                       self.shapes[idx])
 
     def with_speed_entries(self, sizes_m) -> tuple[Entries, np.ndarray]:
         """These entries followed by one per distinct size of ``sizes_m``, where
@@ -279,7 +332,8 @@ class Entries:
                        self.profiles + other.profiles,
                        cat([self.profile_csv, other.profile_csv]), None, self.density_kg_m3,
                        cat([self.release_height_sd_m, other.release_height_sd_m]),
-                       cat([self.release_speed_sd_m_s, other.release_speed_sd_m_s]))
+                       cat([self.release_speed_sd_m_s, other.release_speed_sd_m_s]),
+                       cat([self.shapes, other.shapes]))
 
     def with_release_state(self, release_speed_m_s=None, release_height_m=None) -> Entries:
         """The same entries at other release speeds and heights (None: NaN)."""
@@ -300,8 +354,10 @@ class Entries:
                                           float(speed_sd_m_s), 0.0))
 
     def same_as(self, other: Entries) -> bool:
-        """Same sizes, releases, release states and errors, profiles and density."""
+        """Same sizes, shapes, releases, release states and errors, profiles and
+        density."""
         return (self.n == other.n and np.array_equal(self.sizes_m, other.sizes_m)
+                and np.array_equal(self.shapes, other.shapes)
                 and np.array_equal(self.release_x_m, other.release_x_m)
                 and np.array_equal(self.release_speed_m_s, other.release_speed_m_s,
                                    equal_nan=True)
@@ -336,12 +392,12 @@ class Entries:
 
         counts = (np.bincount(self.index, minlength=self.n) if self.index is not None
                   else np.zeros(self.n, int))
-        return [{"block_size_m": float(d), "release_x_m": float(x),
+        return [{"block_size_m": float(d), "shape": str(f), "release_x_m": float(x),
                  "release_speed_m_s": num(v), "release_height_m": num(h),
                  "release_speed_sd_m_s": float(sv), "release_height_sd_m": float(sh),
                  "profile_csv": pf or command_profile_csv, "n_rows": int(k)}
-                for d, x, v, h, sv, sh, pf, k in zip(
-                    self.sizes_m, self.release_x_m, self.release_speed_m_s,
+                for d, f, x, v, h, sv, sh, pf, k in zip(
+                    self.sizes_m, self.shapes, self.release_x_m, self.release_speed_m_s,
                     self.release_height_m, self.release_speed_sd_m_s, self.release_height_sd_m,
                     self.profile_csv, counts, strict=True)]
 

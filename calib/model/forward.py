@@ -12,7 +12,8 @@ sets at one theta, to measure the Monte Carlo error itself.
 * ``CrspForward``: theta = (Kn, Kt, roughness_m), one set for the whole slope
   (with ``box=CRSP_ROLLING_BOX`` also the rolling resistance angle, with
   ``zoned_rolling_box`` one angle per material zone);
-  sphere radius d / 2 (``calib.model.entries``). One lane pool runs all
+  block of size d is a sphere of radius d / 2, or the entry's shape class of
+  the sphere's volume (``calib.model.entries``). One lane pool runs all
   (theta, size) tasks (``solvers.crsp.simulate_tasks``).
 * ``DemForward``: theta = the damping law's parameters; a block of size d is a
   single square of side L = d with alpha(L) (``calib.model.alpha_law``, clipped as
@@ -254,7 +255,7 @@ class CrspForward:
     Attributes:
         profile: slope (its materials give the fixed parameters, e.g. rolling friction).
         entries: what is simulated (``calib.model.entries.Entries``: per entry a
-            block size d, sphere radius d / 2, a release abscissa, speed and
+            block size d and CRSP shape class, a release abscissa, speed and
             height, a profile, and the rock density that sets the mass), or an
             array of block sizes (m), one entry each released at the
             profile's first vertex. Entries need not have distinct sizes: an
@@ -383,16 +384,16 @@ class CrspForward:
             return self._simulate_parts(theta)
         e = self.entries
         rep = np.repeat(theta, n_s, axis=0)  # task = (t, s)
-        radius, release, speed, height, height_sd, speed_sd = (np.tile(v, n_t) for v in (
+        radius, release, speed, height, height_sd, speed_sd, shape = (np.tile(v, n_t) for v in (
             e.crsp_radius_m, e.release_x_m, e.release_speed_m_s, e.release_height_m,
-            e.release_height_sd_m, e.release_speed_sd_m_s))
+            e.release_height_sd_m, e.release_speed_sd_m_s, e.shapes))
         n_tasks = rep.shape[0]
         chunk = max(1, -(-self.task_chunk // default_workers()))
         pad = (-n_tasks) % chunk
         rep = np.concatenate([rep, np.repeat(rep[-1:], pad, axis=0)])
-        radius, release, speed, height, height_sd, speed_sd = (
+        radius, release, speed, height, height_sd, speed_sd, shape = (
             np.concatenate([v, np.repeat(v[-1:], pad)])
-            for v in (radius, release, speed, height, height_sd, speed_sd))
+            for v in (radius, release, speed, height, height_sd, speed_sd, shape))
         stations = jnp.asarray(np.asarray(self.stations_x_m, float).reshape(-1), jnp.float64)
 
         def one_chunk(c0: int):
@@ -408,8 +409,9 @@ class CrspForward:
                     jnp.float64),
                 release_height_sd_m=jnp.asarray(height_sd[c0:c0 + chunk], jnp.float64),
                 release_speed_sd_m_s=jnp.asarray(speed_sd[c0:c0 + chunk], jnp.float64))
-            blocks = stack_trees([crsp.make_block(float(r), density_kg_m3=e.density_kg_m3)
-                                  for r in radius[c0:c0 + chunk]])
+            blocks = stack_trees([crsp.make_block(float(r), f, density_kg_m3=e.density_kg_m3)
+                                  for r, f in zip(radius[c0:c0 + chunk], shape[c0:c0 + chunk],
+                                                  strict=True)])
             res = crsp.simulate_tasks(params, blocks, self.key, self.profile, stations,
                                       n_per_task=self.n_blocks,
                                       pool=self.pool, settings=self.settings)

@@ -76,7 +76,7 @@ from jax.scipy.special import ndtri
 from scipy.special import ndtr
 from scipy.special import ndtri as np_ndtri
 
-from calib.model.entries import sphere_diameter_m
+from calib.model.entries import crsp_radius_m, sphere_diameter_m
 from solvers.truncated_normal import nonnegative_normal
 
 __all__ = ["DEFAULT_CLASS_QUANTILES", "SEED_STREAM", "ReleaseState", "ReleaseZone",
@@ -454,15 +454,17 @@ class Seeder:
     def fixed_sizes(cls, sizes_m, zone: ReleaseZone, state: ReleaseState = ReleaseState(),
                     shapes: tuple[str, ...] | None = None) -> Seeder:
         """Blocks of the given sizes d (m), one class each, released by ``zone`` and
-        ``state``; a size is the diameter 2 r of its shape (``shapes``, None:
-        spheres)."""
+        ``state``; a size is the diameter of the sphere of the block's volume, in
+        every shape (``shapes``, None: spheres; ``calib.model.entries``: radius s d
+        / 2)."""
         from solvers.crsp import make_block
 
-        # the volume as solvers.crsp.make_block computes it (a sphere's 4/3 pi r^3): the
-        # block weighs, to the bit, what a run without release conditions simulates
+        # the volume as solvers.crsp.make_block computes it for the radius
+        # calib.model.entries gives the shape: the block weighs, to the bit, what a run
+        # without release conditions simulates
         forms = shapes or ("sphere",) * len(sizes_m)
-        vols = [float(make_block(0.5 * float(d), f, density_kg_m3=1.0).mass_kg)
-                for d, f in zip(sizes_m, forms, strict=True)]
+        vols = [float(make_block(float(crsp_radius_m(float(d), f)), f, density_kg_m3=1.0)
+                      .mass_kg) for d, f in zip(sizes_m, forms, strict=True)]
         classes = tuple(VolumeClass(0.0, 1.0, v, v, v, float(d), f"D = {d:g} m")
                         for d, v in zip(sizes_m, vols, strict=True))
         return cls(None, classes, zone, state, shapes)
