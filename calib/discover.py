@@ -54,6 +54,7 @@ import jax
 import numpy as np
 
 from calib.files.provenance import command_args, command_line, versions
+from calib.model.dem_run import DEM_RUN
 from solvers.cli import CliError, OneLineParser, Progress, json_ready, run_guarded, write_outputs
 
 __all__ = ["main"]
@@ -219,7 +220,7 @@ def _checked_inputs(args):
     try:
         cands, combine = candidate_set(args.model, args.effects, inputs.profile,
                                        args.rolling_resistance,
-                                       inputs.site.rolling_threshold_m_s)
+                                       inputs.site.rolling_threshold_m_s, _dem_run(inputs.site))
     except ValueError as e:
         raise CliError(str(e)) from None
     if args.max_steps is not None and args.max_steps < 1:
@@ -234,6 +235,16 @@ def _checked_inputs(args):
         except ValueError as e:
             raise CliError(f"--design-scale: {e}") from None
     return inputs, velocities, cands, combine, budget
+
+
+def _dem_run(site):
+    """The DEM numerics of the site's candidates: the site file's simulated time
+    (``calib.files.site``), or None for the toolkit's ``DEM_RUN``."""
+    import dataclasses
+
+    if site.dem_max_time_s is None:
+        return None
+    return dataclasses.replace(DEM_RUN, max_time_s=float(site.dem_max_time_s))
 
 
 def _result(args, inputs, velocities, combine, budget, d, t0: float) -> dict:
@@ -256,6 +267,8 @@ def _result(args, inputs, velocities, combine, budget, d, t0: float) -> dict:
         "release_speed_sd_m_s": inputs.site.release_speed_sd_m_s,
         "rolling_threshold_m_s": (inputs.site.rolling_threshold_m_s if args.model == "crsp"
                                   else None),
+        "dem_max_time_s": ((inputs.site.dem_max_time_s or DEM_RUN.max_time_s)
+                           if args.model == "dem" else None),
         "velocities_csv": args.velocities,
         "n_velocity_observations": 0 if velocities is None else velocities.n_obs,
         "velocity_stations_m": ([] if velocities is None

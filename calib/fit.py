@@ -122,12 +122,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "also under --holdout-fraction. Default: none")
     p.add_argument("--alpha-law", choices=["power", "constant"], default="power",
                    help="DEM damping law: power alpha = a L^-b (default) or constant alpha")
-    p.add_argument("--dem-max-time-s", type=float, default=DEM_RUN.max_time_s,
+    p.add_argument("--dem-max-time-s", type=float, default=None,
                    help="DEM only: simulated time every block gets, s; a block still moving "
                         "then is unfinished and left out of the fit (the fit's summary "
                         "counts them). calibration.json records it (dem.run.max_time_s), "
-                        "and calib.validate and calib.hazard run with it "
-                        f"(default {DEM_RUN.max_time_s:g}, calib/model/dem_run.py)")
+                        "and calib.validate and calib.hazard run with it (default: the "
+                        "site file's dem_max_time_s, else "
+                        f"{DEM_RUN.max_time_s:g}, calib/model/dem_run.py)")
     p.add_argument("--row-shapes", action="store_true",
                    help="CRSP only: simulate each row's block in its shape column's CRSP class "
                         "(sphere, cylinder, disc; empty: sphere) of the volume of the sphere "
@@ -188,7 +189,7 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
             effects: tuple[str, ...] = (), alpha_law: str = "power", seed: int = 0,
             quick: bool = False, holdout_fraction: float = 0.0,
             release_tolerance_m: float = 1.0, velocities: str | None = None,
-            dem_max_time_s: float = DEM_RUN.max_time_s, row_shapes: bool = False,
+            dem_max_time_s: float | None = None, row_shapes: bool = False,
             progress: bool = False, report=None) -> FitRun:
     """Calibrate ``models`` on the rows of ``data`` and write every output into
     ``out`` (the files of the module docstring; the rows files of the split),
@@ -244,17 +245,26 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
                        "give --model crsp or both")
     if not release_tolerance_m >= 0:
         raise CliError(f"--release-tolerance-m must be >= 0, got {release_tolerance_m:g}")
-    try:  # the DEM numerics' one check
-        check_run_numerics(max_time_s=float(dem_max_time_s),
-                           names={"max_time_s": "--dem-max-time-s"})
-    except ValueError as e:
-        raise CliError(str(e)) from None
-    dem_run = dataclasses.replace(DEM_RUN, max_time_s=float(dem_max_time_s))
+    if dem_max_time_s is not None:
+        _dem_run(dem_max_time_s, "--dem-max-time-s")
     methods = _check_velocities(velocities, models, methods, say)
     try:
         inputs = load_inputs(data, profile, out, velocities)
     except InputError as e:
         raise CliError(str(e)) from None
+    site = inputs.site
+    if dem_max_time_s is None and site.dem_max_time_s is not None:
+        dem_run = _dem_run(site.dem_max_time_s, f"{site.path}: key 'dem_max_time_s'")
+        dem_time_source = f"{site.path}: {site.dem_max_time_source}"
+        if "dem" in models:
+            say(f"DEM simulated time: {site.dem_max_time_s:g} s per block, the site's "
+                f"({site.path}; default {DEM_RUN.max_time_s:g} s; calibration.json: "
+                "dem_max_time_source)")
+    else:
+        dem_run = _dem_run(DEM_RUN.max_time_s if dem_max_time_s is None else dem_max_time_s,
+                           "--dem-max-time-s")
+        dem_time_source = ("--dem-max-time-s" if dem_max_time_s is not None
+                           else "default (calib/model/dem_run.py)")
     files, data_csv = {}, data
     if holdout_fraction:
         try:
@@ -296,7 +306,7 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
                                                  **({"velocities": velocities}
                                                     if velocities else {})}, argv),
                          data_csv, bool(quick), methods, grouped, release_tolerance_m,
-                         bool(row_shapes))
+                         bool(row_shapes), dem_time_source if "dem" in models else None)
     cal = fit_document(options, inputs, entries, fits, time.perf_counter() - t_start)
     files["calibration.json"] = cal.to_json()
     texts, writers = posterior_files(fits, inputs.obs)
@@ -309,16 +319,27 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
                   os.path.join(out, "heldout_rows.csv") if holdout_fraction else None)
 
 
+def _dem_run(max_time_s: float, name: str):
+    """The DEM numerics with ``max_time_s`` (``DEM_RUN``'s otherwise), checked by the
+    DEM's one rule (``CliError`` naming ``name``, the option or the site key)."""
+    try:
+        check_run_numerics(max_time_s=float(max_time_s), names={"max_time_s": name})
+    except ValueError as e:
+        raise CliError(str(e)) from None
+    return dataclasses.replace(DEM_RUN, max_time_s=float(max_time_s))
+
+
 def fit_argv(data: str, out: str | None, *, profile: str | None = None,
              models: tuple[str, ...] = ("crsp", "dem"),
              methods: tuple[str, ...] = ("gradient", "bayes"), rolling_resistance: str = "fit",
              effects: tuple[str, ...] = (), alpha_law: str = "power", seed: int = 0,
              quick: bool = False, holdout_fraction: float = 0.0,
              release_tolerance_m: float = 1.0, velocities: str | None = None,
-             dem_max_time_s: float = DEM_RUN.max_time_s, row_shapes: bool = False) -> list[str]:
+             dem_max_time_s: float | None = None, row_shapes: bool = False) -> list[str]:
     """The arguments of ``python -m calib.fit`` that run ``run_fit`` with these
     options (its keywords less ``progress`` and ``report``), every option
-    explicit (``--dem-max-time-s`` where the DEM is fitted): the command a
+    explicit (``--dem-max-time-s`` where the DEM is fitted and it was given; without
+    it the site file's or the default, as the command does): the command a
     library call of ``run_fit`` records, and (``out`` None: the command's
     default folder) the one ``calib.discover`` prints to refit with the
     effects it named."""
@@ -332,7 +353,8 @@ def fit_argv(data: str, out: str | None, *, profile: str | None = None,
     argv += ["--alpha-law", alpha_law, "--seed", str(seed)] + (["--quick"] if quick else [])
     argv += ["--holdout-fraction", repr(float(holdout_fraction)),
              "--release-tolerance-m", repr(float(release_tolerance_m))]
-    argv += ["--dem-max-time-s", repr(float(dem_max_time_s))] if "dem" in models else []
+    argv += (["--dem-max-time-s", repr(float(dem_max_time_s))]
+             if "dem" in models and dem_max_time_s is not None else [])
     argv += ["--row-shapes"] if row_shapes else []
     return argv + (["--velocities", velocities] if velocities else [])
 

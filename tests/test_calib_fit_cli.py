@@ -316,6 +316,41 @@ def test_a_dem_time_that_is_not_a_positive_time_is_refused(tmp_path, capsys, val
     assert not out.exists()
 
 
+def _dem_run_of_fit(argv, monkeypatch):
+    """The ``DemRun`` of the DEM forward model ``calib.fit argv`` makes (the fit is
+    stopped once it is made)."""
+    import calib.inference.calibrate as calibrate
+    from calib.fit import build_parser, run_fit, run_options
+
+    class Made(Exception):
+        pass
+
+    def made(forward, *args, **kwargs):
+        raise Made(forward.run)
+
+    monkeypatch.setattr(calibrate, "calibrate", made)
+    with pytest.raises(Made) as exc:
+        run_fit(**run_options(build_parser().parse_args(argv)))
+    return exc.value.args[0]
+
+
+def test_the_dem_runs_the_sites_simulated_time(tmp_path, monkeypatch):
+    """Without --dem-max-time-s the DEM runs the site file's dem_max_time_s
+    (Postignano's 200 s); the option overrides it; a profile whose site file gives
+    none runs the default 150 s."""
+    import shutil
+
+    assert _dem_run_of_fit([DATA, "--model", "dem", "--out", str(tmp_path / "a")],
+                           monkeypatch).max_time_s == 200.0
+    assert _dem_run_of_fit([DATA, "--model", "dem", "--dem-max-time-s", "170", "--out",
+                            str(tmp_path / "b")], monkeypatch).max_time_s == 170.0
+    shutil.copy(DATA, tmp_path / "rows.csv")
+    shutil.copy("data/postignano_profile.csv", tmp_path / "rows_profile.csv")
+    shutil.copy("data/postignano_materials.csv", tmp_path / "rows_materials.csv")
+    assert _dem_run_of_fit([str(tmp_path / "rows.csv"), "--model", "dem", "--out",
+                            str(tmp_path / "c")], monkeypatch).max_time_s == 150.0
+
+
 def test_the_dem_is_fitted_with_the_simulated_time_it_is_given(tmp_path, monkeypatch):
     """--dem-max-time-s reaches the DEM forward model the fit runs (whose ``run``
     calibration.json records as dem.run, read back by calib.validate and

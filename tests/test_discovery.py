@@ -671,3 +671,23 @@ def test_the_step_table_names_the_folds_scored_on_fresh_draws(capsys):
     st["candidates"] = [row("fragmentation", [], []), row("none", [], [])]
     _print_step(st, 0, True)
     assert "fresh draws" not in capsys.readouterr().out
+
+
+def test_dem_candidates_run_the_sites_simulated_time():
+    """``calib.discover --model dem`` runs its candidates with the site file's DEM
+    simulated time (Postignano's 200 s), as ``calib.fit`` does; without one, the
+    toolkit's ``DEM_RUN``."""
+    from calib.discover import _dem_run
+    from calib.discovery.candidates import candidate_set
+    from calib.files.site import load_site
+    from calib.model.dem_run import DEM_RUN
+
+    site = load_site(PROFILE_CSV)
+    run = _dem_run(site)
+    assert run == dataclasses.replace(DEM_RUN, max_time_s=200.0)
+    assert _dem_run(dataclasses.replace(site, dem_max_time_s=None)) is None
+    for given, want in ((run, run), (None, DEM_RUN)):
+        cands, _ = candidate_set("dem", "size_dissipation", PROFILE, dem_run=given)
+        for c in cands:
+            fw = c.forward(np.array([0.5]), 2, jax.random.key(0))
+            assert fw.run == want, c.effect

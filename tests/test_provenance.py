@@ -58,9 +58,10 @@ def test_a_library_fit_records_the_command_that_repeats_it():
                   methods=("bayes",), rolling_resistance="zones",
                   effects=("fragmentation", "vegetation_belt"), alpha_law="constant",
                   seed=7, quick=True, holdout_fraction=0.3, release_tolerance_m=0.25,
-                  velocities="v.csv", dem_max_time_s=150.0,  # CRSP alone: the DEM's default
+                  velocities="v.csv", dem_max_time_s=None,  # CRSP alone: no DEM time
                   row_shapes=True),
-             dict(default, data="d.csv", out="o", models=("dem",), methods=("gradient",))]
+             dict(default, data="d.csv", out="o", models=("dem",), methods=("gradient",)),
+             dict(default, data="d.csv", out="o", models=("dem",), dem_max_time_s=175.0)]
     for call in calls:
         argv = fit_argv(**call)
         assert run_options(build_parser().parse_args(argv)) == call, argv

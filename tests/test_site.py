@@ -27,8 +27,10 @@ def test_shipped_sites():
     post = load_site("data/postignano_profile.csv")
     assert (post.station_x_m, post.station_label) == (230.0, "road")
     assert dict(post.alpha_reference) == {0.2: 0.90, 0.9: 0.43, 1.8: 0.30}
+    assert post.dem_max_time_s == 200.0 and "98-164 s" in post.dem_max_time_source
     tsch = load_site("data/tschamut2014/profile.csv")
     assert tsch.station_x_m is None and tsch.alpha_reference == () and tsch.name
+    assert tsch.dem_max_time_s is None and tsch.dem_max_time_source == ""
 
 
 def test_no_site_file_is_an_empty_site(tmp_path):
@@ -42,6 +44,10 @@ def test_no_site_file_is_an_empty_site(tmp_path):
     ('{"station_of_interest": {"x_m": "far"}}', "station_of_interest.x_m"),
     ('{"alpha_reference": {"L_m": [0.2], "alpha": [1.5]}}', "alpha_reference.alpha"),
     ('{"alpha_reference": {"L_m": [0.2, 0.9], "alpha": [0.5]}}', "one length"),
+    ('{"dem_max_time_s": 200}', "'dem_max_time_source': expected text saying where"),
+    ('{"dem_max_time_source": "measured"}', "'dem_max_time_source': given without"),
+    ('{"dem_max_time_s": 0, "dem_max_time_source": "x"}', "'dem_max_time_s': expected a "
+                                                          "finite number in [1, 100000]"),
 ])
 def test_bad_site_files_name_file_and_key(tmp_path, doc, needle):
     (tmp_path / "profile_site.json").write_text(doc)

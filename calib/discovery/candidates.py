@@ -72,7 +72,7 @@ def crsp_candidates(profile, effects=CRSP_EFFECTS, base: Box = CRSP_BOX,
 
 
 def candidate_set(model: str, effects=None, profile=None, rolling: str = "profile",
-                  rolling_threshold_m_s: float = ROLLING_THRESHOLD_M_S):
+                  rolling_threshold_m_s: float = ROLLING_THRESHOLD_M_S, dem_run=None):
     """The candidates of one discovery run and how later steps combine effects.
 
     Args:
@@ -86,6 +86,8 @@ def candidate_set(model: str, effects=None, profile=None, rolling: str = "profil
             then part of the baseline and left out).
         rolling_threshold_m_s: CRSP's rolling threshold, m/s (the site's,
             ``calib.files.site``); the DEM has none.
+        dem_run: the DEM's numerics (``calib.model.dem_run.DemRun``; None:
+            ``DEM_RUN``), e.g. with the site's simulated time.
 
     Returns:
         (candidates, baseline first, as ``calib.discovery.discrepancy.discover``
@@ -125,4 +127,5 @@ def candidate_set(model: str, effects=None, profile=None, rolling: str = "profil
                          "parameter; the DEM candidates have none")
     from calib.discovery.dem_candidates import dem_candidates
 
-    return dem_candidates(profile, chosen), None
+    return (dem_candidates(profile, chosen) if dem_run is None
+            else dem_candidates(profile, chosen, dem_run)), None

@@ -129,17 +129,19 @@ def _grid(box, shape) -> np.ndarray:
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(shape))
 
 
-def _forward(profile, effect, entries, n_blocks, key):
-    return DemEffectForward(profile, entries, n_blocks, key, effect=effect)
+def _forward(profile, effect, run, entries, n_blocks, key):
+    return DemEffectForward(profile, entries, n_blocks, key, effect=effect, run=run)
 
 
-def dem_candidates(profile, effects=DEM_EFFECTS) -> list[Candidate]:
-    """Baseline (one alpha) first, then size-dependent damping and fragmentation."""
+def dem_candidates(profile, effects=DEM_EFFECTS, run: DemRun = DEM_RUN) -> list[Candidate]:
+    """Baseline (one alpha) first, then size-dependent damping and fragmentation,
+    each run with the DEM numerics ``run`` (the site's simulated time,
+    ``calib.files.site``)."""
     names = ["none"] + [e for e in effects if e != "none"]
     out = []
     for e in names:
         box = effect_box(e, profile, "dem")
-        out.append(Candidate(e, box, functools.partial(_forward, profile, e),
+        out.append(Candidate(e, box, functools.partial(_forward, profile, e, run),
                              design=functools.partial(_grid, box, EFFECTS[e].dem_grid),
                              n_blocks=FRAG_BLOCKS if e == "fragmentation" else None))
     return out

@@ -30,6 +30,9 @@ the notebooks), never by re-parsing the JSON with its own names. Schema
   simulated spheres) and a DEM square of side D.
 * ``row_shapes``: true where CRSP simulated each row in its ``shape`` column's
   class (``calib.fit --row-shapes``); false or absent: spheres.
+* ``dem_max_time_source`` (fits of the DEM): where ``dem.run.max_time_s``
+  came from: the site file's ``dem_max_time_source``, ``--dem-max-time-s``, or
+  the default.
 * ``release_height_sd_m``, ``release_speed_sd_m_s`` (with their
   ``*_source`` texts): the errors of the tracked release heights and speeds
   with which the CRSP fit drew its blocks' releases (the site's,

@@ -36,6 +36,9 @@ class FitOptions:
         tolerance_m: the grouping tolerance, m.
         row_shapes: CRSP simulated each row in its ``shape`` column's class
             (``calib.model.entries``); False: spheres.
+        dem_time_source: where the DEM's simulated time came from (the site
+            file's ``dem_max_time_source``, the option, or the default); None
+            where the DEM was not fitted.
     """
 
     provenance: dict
@@ -45,6 +48,7 @@ class FitOptions:
     grouped: bool
     tolerance_m: float
     row_shapes: bool = False
+    dem_time_source: str | None = None
 
 
 def summary_stats(values: np.ndarray | None, point: float) -> dict:
@@ -179,6 +183,8 @@ def fit_document(options: FitOptions, inputs, entries, fits: dict,
            "rolling_threshold_m_s": inputs.site.rolling_threshold_m_s,
            "rolling_threshold_source": inputs.site.rolling_threshold_source,
            "block_size_mapping": BLOCK_SIZE_MAPPING, "row_shapes": options.row_shapes,
+           **({"dem_max_time_source": options.dem_time_source}
+              if options.dem_time_source is not None else {}),
            "likelihood": "point: (1/n) sum_j N(y; r_j, sd^2 + v_j); interval: (1/n) sum_j "
                          "[Phi((b-r_j)/w_j) - Phi((a-r_j)/w_j)] (calib/inference/likelihood.py)",
            "n_observations": inputs.obs.n_obs,

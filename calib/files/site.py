@@ -18,6 +18,7 @@ comes from)::
      "release_height_sd_m": 0.6, "release_height_source": "...",
      "release_speed_sd_m_s": 0.3, "release_speed_source": "...",
      "rolling_threshold_m_s": 0.05, "rolling_threshold_source": "...",
+     "dem_max_time_s": 200, "dem_max_time_source": "...",
      "station_of_interest": {"x_m": 230.0, "label": "road", "source": "..."},
      "alpha_reference": {"label": "paper, Table 1", "L_m": [0.2, 0.9, 1.8],
                          "alpha": [0.90, 0.43, 0.30], "source": "..."}}
@@ -48,6 +49,13 @@ from which its releases' runouts no longer change when it is lowered
 ``rolling_threshold_source``. The fit records it in ``calibration.json`` and
 the predictive check, the discrepancy workflow, the hazard run and the design
 run the calibration's value.
+``dem_max_time_s`` is the simulated time every DEM block of the site gets
+(``calib.model.dem_run.DEM_RUN``'s 150 s where the site gives none): a block
+still moving then is unfinished and has no runout, so a site whose slowest
+blocks (small ones at the damping law's clip) need longer says so, with its
+``dem_max_time_source``. ``calib.fit`` takes it as ``--dem-max-time-s``'s
+default and records it in ``calibration.json`` (which ``calib.validate`` and
+``calib.hazard`` then run), and ``calib.discover --model dem`` runs it.
 ``station_of_interest`` is where ``calib.hazard`` reports the reach probability
 and design values (``--road-x-m`` overrides it); ``alpha_reference`` is drawn
 on the DEM damping-law figure and reported next to the fitted alpha(L). A
@@ -95,6 +103,9 @@ class Site:
         rolling_threshold_m_s: the CRSP rolling threshold of the site's
             simulations, m/s (the solver's default where the site gives none).
         rolling_threshold_source: where it comes from ("default" without one).
+        dem_max_time_s: the DEM's simulated time per block, s, or None: the
+            toolkit's default (``calib.model.dem_run.DEM_RUN``).
+        dem_max_time_source: where it comes from ("" without one).
     """
 
     name: str = ""
@@ -111,6 +122,8 @@ class Site:
     release_speed_source: str = ""
     rolling_threshold_m_s: float = ROLLING_THRESHOLD_M_S
     rolling_threshold_source: str = "default (solvers.crsp.ROLLING_THRESHOLD_M_S)"
+    dem_max_time_s: float | None = None
+    dem_max_time_source: str = ""
 
 
 def site_path(profile_path: str) -> str:
@@ -184,8 +197,12 @@ def load_site(profile_path: str) -> Site:
         threshold = _sourced_number(path, doc, "rolling_threshold_m_s",
                                    "rolling_threshold_source",
                                    *ROLLING_THRESHOLD_RANGE_M_S)
+    dem_time = (None, "")
+    if "dem_max_time_s" in doc or "dem_max_time_source" in doc:
+        dem_time = _sourced_number(path, doc, "dem_max_time_s", "dem_max_time_source",
+                                   1.0, 1.0e5)
     return Site(name, x, label, ref, ref_label, path, rho, rho_source,
-                *errors[0], *errors[1], *threshold)
+                *errors[0], *errors[1], *threshold, *dem_time)
 
 
 def _sourced_number(path: str, doc: dict, key: str, source_key: str, lo: float = 0.0,
