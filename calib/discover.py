@@ -54,7 +54,7 @@ import jax
 import numpy as np
 
 from calib.files.provenance import command_args, command_line, versions
-from calib.model.dem_run import DEM_RUN
+from calib.model.dem_run import DEM_RUN, with_max_time
 from solvers.cli import CliError, OneLineParser, Progress, json_ready, run_guarded, write_outputs
 
 __all__ = ["main"]
@@ -240,11 +240,9 @@ def _checked_inputs(args):
 def _dem_run(site):
     """The DEM numerics of the site's candidates: the site file's simulated time
     (``calib.files.site``), or None for the toolkit's ``DEM_RUN``."""
-    import dataclasses
-
     if site.dem_max_time_s is None:
         return None
-    return dataclasses.replace(DEM_RUN, max_time_s=float(site.dem_max_time_s))
+    return with_max_time(site.dem_max_time_s, f"{site.path}: key 'dem_max_time_s'")
 
 
 def _result(args, inputs, velocities, combine, budget, d, t0: float) -> dict:

@@ -54,7 +54,7 @@ import warnings
 import jax
 
 from calib.files.provenance import command_args, command_running
-from calib.model.dem_run import DEM_RUN
+from calib.model.dem_run import DEM_RUN, with_max_time
 from calib.model.effects import CRSP_EFFECTS
 from calib.model.priors import CRSP_ROLLING_BOX, ROLLING, NoRestError
 from calib.model.unfinished import UnfinishedBlocksWarning
@@ -68,7 +68,6 @@ from solvers.cli import (
     run_guarded,
     write_outputs,
 )
-from solvers.dem import check_run_numerics
 from solvers.percentiles import few_blocks_warning
 
 __all__ = ["POINT_ESTIMATE_BLOCKS", "FitRun", "fit_argv", "main", "run_fit", "run_options",
@@ -320,13 +319,11 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
 
 
 def _dem_run(max_time_s: float, name: str):
-    """The DEM numerics with ``max_time_s`` (``DEM_RUN``'s otherwise), checked by the
-    DEM's one rule (``CliError`` naming ``name``, the option or the site key)."""
+    """``calib.model.dem_run.with_max_time`` as a ``CliError`` naming ``name``."""
     try:
-        check_run_numerics(max_time_s=float(max_time_s), names={"max_time_s": name})
+        return with_max_time(max_time_s, name)
     except ValueError as e:
         raise CliError(str(e)) from None
-    return dataclasses.replace(DEM_RUN, max_time_s=float(max_time_s))
 
 
 def fit_argv(data: str, out: str | None, *, profile: str | None = None,

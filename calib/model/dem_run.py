@@ -14,7 +14,7 @@ import numpy as np
 from solvers.dem import RUN_STIFFNESS_SCALE, check_run_numerics
 from solvers.profile import Profile
 
-__all__ = ["DEM_RUN", "DemRun"]
+__all__ = ["DEM_RUN", "DemRun", "with_max_time"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,3 +82,15 @@ class DemRun:
 
 
 DEM_RUN = DemRun()
+
+
+def with_max_time(max_time_s: float, name: str = "max_time_s") -> DemRun:
+    """``DEM_RUN`` with ``max_time_s`` of simulated time (a site's, or an option's),
+    checked by the DEM's one rule (``solvers.dem.check_run_numerics``).
+
+    Raises:
+        ValueError: not a positive time; the message names ``name`` (the option
+            or the site file's key).
+    """
+    check_run_numerics(max_time_s=float(max_time_s), names={"max_time_s": name})
+    return dataclasses.replace(DEM_RUN, max_time_s=float(max_time_s))
