@@ -476,23 +476,35 @@ _SIXTEEN_SHORT = pytest.mark.xfail(
     "block-by-block run of tests/test_dem_paper.py (107.9-123.8 m, p10-p90 108.4-119.9 m)")
 
 
+_SIXTY_FOUR_MOVING = pytest.mark.xfail(
+    strict=True, reason="measured 2026-12-07 (python -m calib.hazard on a calibration of a = "
+    "0.40, b = 0.5 with --fragments 64 --n-blocks 1 --n-posterior 1 --block-sizes-m 1.8 "
+    "--dem-max-time-s 400 --stations-m 1:300:1 --seed 0; 2698 s on 2 cores shared with other "
+    "runs): the block broke, all 64 fragments still moving at 400 s (none at rest), lying "
+    "between the stations at 100 and 112 m: 60 of 64 passed 101 m, 4 passed 111 m, none "
+    "112 m (first station passed by fewer than 90 % of them 102 m, by fewer than 10 % 111 "
+    "m). The paper's 40-110 m: its lower end not reached, every fragment past 100 m")
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("n_fragments", [pytest.param(16, marks=_SIXTEEN_SHORT), 64])
-def test_fragment_runouts_of_a_1_8_m_block_against_the_paper(tmp_path, n_fragments):
+@pytest.mark.parametrize("n_fragments, n_blocks", [
+    pytest.param(16, 4, marks=_SIXTEEN_SHORT), pytest.param(64, 1, marks=_SIXTY_FOUR_MOVING)])
+def test_fragment_runouts_of_a_1_8_m_block_against_the_paper(tmp_path, n_fragments, n_blocks):
     """Paper Sect. 4.2 (Figs. 5-6): the 1.8 m block in 16 fragments stops between 110
     and 160 m, in 64 fragments between 40 and 110 m. Here through the hazard run:
     ``--model dem --fragments N`` on Postignano, released at the profile's first
     vertex, the Table 1 trend alpha = 0.40 L^-0.5 at each fragment's side (the
     paper assigns alpha by fragment size), the toolkit's stiffness (x 0.01) and
-    at least 400 s of simulated time (as tests/test_dem_paper.py), 4 blocks: every
-    fragment at rest, and the 10th-90th percentiles of the fragments' runouts,
-    read from the 1 m stations, inside the paper's range."""
+    at least 400 s of simulated time (as tests/test_dem_paper.py), 4 blocks of 16
+    fragments, one block of 64 (as the paper's one block; four took over 100 min on 2
+    cores): every fragment at rest, and the 10th-90th percentiles of the fragments'
+    runouts, read from the 1 m stations, inside the paper's range."""
     path = write_calibration(tmp_path, crsp=None, dem=(0.40, 0.5))
     cal = load_calibration(path, "dem")
     draws = draw_parameters(cal, 1, 0)
     stations = np.arange(1.0, 300.0, 1.0)
     spec = opts.Fragmentation("dem", n_fragments, description="paper")
-    c = run_hazard(cal, draws, PROFILE, np.array([1.8]), stations, 4, 0,
+    c = run_hazard(cal, draws, PROFILE, np.array([1.8]), stations, n_blocks, 0,
                    dem_run=dataclasses.replace(DEM_RUN, max_time_s=400.0), fragments=spec)
     f = c.fragments.counts
     n = int(f["frag_n_fragments"][0, 0])
