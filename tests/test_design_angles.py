@@ -65,6 +65,37 @@ def test_crossings_are_the_hazard_runs_passers(run):
         impact_angles(cal, draws.values, draws.names, profile, 0.0, SIZE_M, N, SEED, 0.0)
 
 
+def test_the_angles_follow_the_hazard_runs_shape(run, tmp_path):
+    """A hazard run of discs: the impact-angle run crosses a barrier at 120 m (just
+    below the talus, where a few blocks of each draw pass) with the hazard run's disc
+    passers (per draw), not the spheres' (which pass less often there), and the design
+    command reads the shape from the file."""
+    cal, profile, draws, _, _ = run
+    x_m = 120.0
+    counts = run_hazard(cal, draws, profile, [SIZE_M], [50.0, X_M, x_m, ROAD_M], N, SEED,
+                        shapes=("disc",))
+    ds = hazard_dataset(counts, profile, seed=SEED, road_x_m=ROAD_M, road_label="road",
+                        record={"rock_density_kg_m3": 2350.0})
+    reach = ds["n_reach"].sel(block_size_m=SIZE_M, x_m=x_m).values
+    release = float(ds.attrs["release_x_m"])
+    disc = impact_angles(cal, draws.values, draws.names, profile, x_m, SIZE_M, N, SEED,
+                         release, shape="disc")
+    sphere = impact_angles(cal, draws.values, draws.names, profile, x_m, SIZE_M, N, SEED,
+                           release)
+    print("disc passers per draw", reach, "sphere crossings",
+          np.bincount(sphere.draw, minlength=2))
+    assert reach.sum() > 0
+    np.testing.assert_array_equal(np.bincount(disc.draw, minlength=2), reach)
+    assert not np.array_equal(np.bincount(sphere.draw, minlength=2), reach)
+    path = str(tmp_path / "hazard.nc")
+    write_hazard_results(ds, path)
+    out = tmp_path / "design"
+    assert main([path, "--barrier-x-m", str(x_m), "--out", str(out), "--calibration",
+                 cal.path, "--angle-blocks", str(N)]) == 0
+    rec = json.loads((out / "design.json").read_text())
+    assert rec["impact_angle"]["n_crossings"] == int(reach.sum())
+
+
 def test_library_design_of_a_run_in_memory(run):
     """The typed path a notebook takes: a run's Dataset, the design block, the design
     and a scan, no file in between."""

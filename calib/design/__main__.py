@@ -280,10 +280,8 @@ def _impact_angle(ds, args, x_m: float, size_m: float) -> tuple[dict, list[str]]
     if "fragmentation" in ds.attrs:
         warnings.append("warning: the hazard run broke its blocks; the impact-angle run "
                         "follows unbroken blocks")
-    if "block_shape" in ds:
-        warnings.append("warning: the hazard run's blocks were CRSP "
-                        f"{', '.join(sorted(set(map(str, ds['block_shape'].values))))}; the "
-                        "impact-angle run follows spheres")
+    shape = (str(ds["block_shape"].sel(block_size_m=size_m).item()) if "block_shape" in ds
+             else "sphere")
     if "release_json" in ds.attrs:
         warnings.append("warning: the hazard run had release conditions; the impact-angle run "
                         f"releases blocks of D = {size_m:g} m at x = "
@@ -297,7 +295,7 @@ def _impact_angle(ds, args, x_m: float, size_m: float) -> tuple[dict, list[str]]
     a = impact_angles(cal, ds["parameter_value"].values, names, load_profile(cal.profile_csv),
                       x_m, size_m, args.angle_blocks, int(ds.attrs["seed"]),
                       float(ds.attrs["release_x_m"]),
-                      dataclasses.replace(HAZARD_SETTINGS, max_events=max_events))
+                      dataclasses.replace(HAZARD_SETTINGS, max_events=max_events), shape)
     return a.record(), warnings
 
 

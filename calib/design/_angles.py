@@ -101,7 +101,7 @@ def _ground_slope_deg(profile, x_m: float) -> float:
 
 def impact_angles(cal, values: np.ndarray, names, profile, x_m: float, size_m: float,
                   n_blocks: int, seed: int, release_x_m: float,
-                  settings=None) -> ImpactAngles:
+                  settings=None, shape: str = "sphere") -> ImpactAngles:
     """Impact angles at ``x_m`` of blocks of size ``size_m`` (module docstring).
 
     Args:
@@ -118,12 +118,16 @@ def impact_angles(cal, values: np.ndarray, names, profile, x_m: float, size_m: f
         release_x_m: where the blocks are released, m.
         settings: the hazard run's CRSP settings (``solvers.crsp.Settings``; its
             event budget); None: ``calib.hazard.HAZARD_SETTINGS``.
+        shape: the hazard run's CRSP shape class of the blocks (the block of that
+            shape with the volume of the sphere of diameter D, as the hazard run
+            makes it: ``calib.model.entries.crsp_radius_m``).
 
     Raises:
         ValueError: not a CRSP calibration, or the barrier at or above the release.
     """
     from calib.hazard import HAZARD_SETTINGS
     from calib.model.effects import draw_overrides
+    from calib.model.entries import crsp_radius_m
     from solvers import crsp
 
     if cal.model != "crsp":
@@ -132,7 +136,8 @@ def impact_angles(cal, values: np.ndarray, names, profile, x_m: float, size_m: f
         raise ValueError(f"barrier at x = {x_m:g} m: at or above the release at "
                          f"x = {release_x_m:g} m")
     settings = HAZARD_SETTINGS if settings is None else settings
-    block = crsp.make_block(0.5 * float(size_m), density_kg_m3=cal.rock_density_kg_m3)
+    radius = float(crsp_radius_m(float(size_m), shape))
+    block = crsp.make_block(radius, shape, density_kg_m3=cal.rock_density_kg_m3)
     angles, draws = [], []
     values = np.atleast_2d(np.asarray(values, np.float64))
     for d, row in enumerate(values):
