@@ -87,12 +87,7 @@ def test_the_angles_follow_the_hazard_runs_shape(run, tmp_path):
     assert reach.sum() > 0
     np.testing.assert_array_equal(np.bincount(disc.draw, minlength=2), reach)
     assert not np.array_equal(np.bincount(sphere.draw, minlength=2), reach)
-    path = str(tmp_path / "hazard.nc")
-    write_hazard_results(ds, path)
-    out = tmp_path / "design"
-    assert main([path, "--barrier-x-m", str(x_m), "--out", str(out), "--calibration",
-                 cal.path, "--angle-blocks", str(N)]) == 0
-    rec = json.loads((out / "design.json").read_text())
+    rec, _, _ = _sheet_with_angles(ds, tmp_path, x_m, cal.path)
     assert rec["impact_angle"]["n_crossings"] == int(reach.sum())
 
 
@@ -111,14 +106,21 @@ def test_library_design_of_a_run_in_memory(run):
     assert rows[1]["E_sd_kJ"] == d.values.design["E_sd_kJ"]
 
 
-def test_command_puts_the_impact_angle_on_the_sheet(run, capsys):
-    cal, _, _, ds, folder = run
+def _sheet_with_angles(ds, folder, x_m: float, cal_path: str):
+    """``calib.design`` of ``ds`` (written to ``folder``) with a barrier at ``x_m`` and
+    the impact angle from ``cal_path``: (design.json's record, the sheet's folder, the
+    hazard file)."""
     path = str(folder / "hazard.nc")
     write_hazard_results(ds, path)
     out = folder / "design"
-    assert main([path, "--barrier-x-m", str(X_M), "--out", str(out), "--calibration",
-                 cal.path, "--angle-blocks", str(N)]) == 0
-    rec = json.loads((out / "design.json").read_text())
+    assert main([path, "--barrier-x-m", str(x_m), "--out", str(out), "--calibration",
+                 cal_path, "--angle-blocks", str(N)]) == 0
+    return json.loads((out / "design.json").read_text()), out, path
+
+
+def test_command_puts_the_impact_angle_on_the_sheet(run, capsys):
+    cal, _, _, ds, folder = run
+    rec, out, path = _sheet_with_angles(ds, folder, X_M, cal.path)
     assert rec["impact_angle"]["n_crossings"] == int(ds["n_reach"].sel(x_m=X_M).sum())
     # the hazard file records the event budget its blocks ran with; the angles use it
     assert ds.attrs["crsp_max_events"] == HAZARD_SETTINGS.max_events
