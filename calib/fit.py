@@ -251,19 +251,8 @@ def run_fit(data: str, out: str, *, profile: str | None = None,
         inputs = load_inputs(data, profile, out, velocities)
     except InputError as e:
         raise CliError(str(e)) from None
-    site = inputs.site
-    if dem_max_time_s is None and site.dem_max_time_s is not None:
-        dem_run = _dem_run(site.dem_max_time_s, f"{site.path}: key 'dem_max_time_s'")
-        dem_time_source = f"{site.path}: {site.dem_max_time_source}"
-        if "dem" in models:
-            say(f"DEM simulated time: {site.dem_max_time_s:g} s per block, the site's "
-                f"({site.path}; default {DEM_RUN.max_time_s:g} s; calibration.json: "
-                "dem_max_time_source)")
-    else:
-        dem_run = _dem_run(DEM_RUN.max_time_s if dem_max_time_s is None else dem_max_time_s,
-                           "--dem-max-time-s")
-        dem_time_source = ("--dem-max-time-s" if dem_max_time_s is not None
-                           else "default (calib/model/dem_run.py)")
+    dem_run, dem_time_source = _dem_time(dem_max_time_s, inputs.site,
+                                         say if "dem" in models else None)
     files, data_csv = {}, data
     if holdout_fraction:
         try:
@@ -324,6 +313,22 @@ def _dem_run(max_time_s: float, name: str):
         return with_max_time(max_time_s, name)
     except ValueError as e:
         raise CliError(str(e)) from None
+
+
+def _dem_time(max_time_s: float | None, site, say=None):
+    """The DEM numerics of the fit and where their simulated time came from:
+    ``--dem-max-time-s`` where given, else the site file's ``dem_max_time_s``
+    (``say`` told so), else ``DEM_RUN``'s."""
+    if max_time_s is None and site.dem_max_time_s is not None:
+        if say is not None:
+            say(f"DEM simulated time: {site.dem_max_time_s:g} s per block, the site's "
+                f"({site.path}; default {DEM_RUN.max_time_s:g} s; calibration.json: "
+                "dem_max_time_source)")
+        return (_dem_run(site.dem_max_time_s, f"{site.path}: key 'dem_max_time_s'"),
+                f"{site.path}: {site.dem_max_time_source}")
+    if max_time_s is None:
+        return _dem_run(DEM_RUN.max_time_s, "--dem-max-time-s"), "default (calib/model/dem_run.py)"
+    return _dem_run(max_time_s, "--dem-max-time-s"), "--dem-max-time-s"
 
 
 def fit_argv(data: str, out: str | None, *, profile: str | None = None,
