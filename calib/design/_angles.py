@@ -127,7 +127,7 @@ def impact_angles(cal, values: np.ndarray, names, profile, x_m: float, size_m: f
     """
     from calib.hazard import HAZARD_SETTINGS
     from calib.model.effects import draw_overrides
-    from calib.model.entries import crsp_radius_m
+    from calib.model.entries import Entries
     from solvers import crsp
 
     if cal.model != "crsp":
@@ -136,8 +136,8 @@ def impact_angles(cal, values: np.ndarray, names, profile, x_m: float, size_m: f
         raise ValueError(f"barrier at x = {x_m:g} m: at or above the release at "
                          f"x = {release_x_m:g} m")
     settings = HAZARD_SETTINGS if settings is None else settings
-    radius = float(crsp_radius_m(float(size_m), shape))
-    block = crsp.make_block(radius, shape, density_kg_m3=cal.rock_density_kg_m3)
+    block = Entries.at_sizes([float(size_m)], float(release_x_m), shapes=[shape],
+                             density_kg_m3=cal.rock_density_kg_m3).crsp_blocks()[0]
     angles, draws = [], []
     values = np.atleast_2d(np.asarray(values, np.float64))
     for d, row in enumerate(values):

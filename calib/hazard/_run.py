@@ -50,7 +50,7 @@ from calib.hazard._units import crsp_chunk, dem_chunk, draw_key, seeded_chunk
 from calib.model.alpha_law import alpha_of, check_law
 from calib.model.dem_run import DEM_RUN, DemRun
 from calib.model.effects import draw_overrides
-from calib.model.entries import Entries, crsp_radius_m, dem_side_m
+from calib.model.entries import Entries, dem_side_m
 from calib.model.forward import stack_trees
 from calib.model.release import Seeder
 from solvers import crsp, dem
@@ -251,13 +251,12 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
         release_x = release.zone.span_m[1]
     tally = _Tally(len(draws.values), len(sizes_m), len(stations), n_blocks, progress)
 
-    # what is simulated: each size at the release, at the calibration's rock density
-    entries = Entries.at_sizes(sizes_m, release_x, density_kg_m3=cal.rock_density_kg_m3)
-    forms = shapes or ("sphere",) * len(sizes_m)
-    if len(forms) != len(sizes_m):
-        raise ValueError(f"{len(forms)} shapes for {len(sizes_m)} sizes")
+    # what is simulated: each size at the release, in its shape, at the calibration's
+    # rock density
+    entries = Entries.at_sizes(sizes_m, release_x, density_kg_m3=cal.rock_density_kg_m3,
+                               shapes=shapes)
     units = _work_units(cal, draws, profile, entries, release, barrier, sizes_m, stations,
-                        n_blocks, seed, chunk, offsets, pool, settings, dem_run, forms)
+                        n_blocks, seed, chunk, offsets, pool, settings, dem_run)
     on_result, frag = tally.on_result, None
     if fragments is not None:  # every fragment its own block (_fragments)
         units, on_result, frag = fragments.plan(units, on_result, cal, draws, sizes_m,
@@ -272,10 +271,10 @@ def run_hazard(cal: Calibration, draws: Draws, profile: Profile, sizes_m, statio
                         energy_p95_per_draw_kJ=tally.e95,
                         percentiles={q: tuple(v) for q, v in tally.pct.items()},
                         pooled_percentiles=pooled, draw_hist=tally.kept,
-                        block_mass_kg=_block_mass_kg(cal.model, entries, forms),
+                        block_mass_kg=_block_mass_kg(cal.model, entries),
                         release=release, barrier=barrier, fragments=frag,
                         crsp_settings=settings if cal.model == "crsp" else None,
-                        shapes=None if shapes is None else tuple(forms), **tally.acc)
+                        shapes=None if shapes is None else tuple(entries.shapes), **tally.acc)
 
 
 def _check_options(cal: Calibration, release, barrier, shapes) -> None:
@@ -291,7 +290,7 @@ def _check_options(cal: Calibration, release, barrier, shapes) -> None:
 
 
 def _work_units(cal, draws, profile, entries: Entries, release, barrier, sizes_m, stations,
-                n_blocks, seed, chunk, offsets, pool, settings, dem_run, shapes=None):
+                n_blocks, seed, chunk, offsets, pool, settings, dem_run):
     """The run's work units: seeded CRSP units with release conditions, else
     CRSP units of the sizes, else DEM units (after checking the DEM draws; with
     release conditions, each block's drawn in its unit);
@@ -305,7 +304,7 @@ def _work_units(cal, draws, profile, entries: Entries, release, barrier, sizes_m
                              seed, chunk, offsets, pool, settings, extra, cal.effects)
     if cal.model == "crsp":
         return _crsp_units(draws, profile, entries, st_dev, n_blocks, seed, chunk, offsets,
-                           pool, settings, extra, cal.effects, shapes)
+                           pool, settings, extra, cal.effects)
     check_dem_draws(cal, draws, sizes_m)
     return _dem_units(cal, draws, profile, entries, stations, n_blocks, seed, chunk,
                       offsets, dem_run, release)
@@ -366,33 +365,26 @@ def _draw_done(d: int, dh: dict, e95: np.ndarray, pct: dict, kept: dict) -> None
             kept[q][d] = rebin(counts, DRAW_SUB)
 
 
-def _block_mass_kg(model: str, entries: Entries, shapes) -> np.ndarray:
-    """(T,) mass of the simulated block of each size, kg: the CRSP block of its
-    shape (``shapes``) that ``_crsp_units`` simulates, or over volume classes the
-    block of the class's representative volume: in both, the sphere of diameter D
-    or the block of its volume in another shape, radius s D / 2
-    (``calib.model.entries.crsp_radius_m``); the DEM square's mass per metre times
-    its side (the cube whose energy ``_units`` reports)."""
+def _block_mass_kg(model: str, entries: Entries) -> np.ndarray:
+    """(T,) mass of the simulated block of each size, kg: the CRSP block of the
+    entry's shape that ``_crsp_units`` simulates (``Entries.crsp_blocks``; over
+    volume classes, the block of the class's representative volume); the DEM
+    square's mass per metre times its side (the cube whose energy ``_units``
+    reports)."""
     if model == "crsp":
-        rho = entries.density_kg_m3
-        return np.array([float(crsp.make_block(float(r), f, density_kg_m3=rho).mass_kg)
-                         for r, f in zip(crsp_radius_m(entries.sizes_m, shapes), shapes,
-                                         strict=True)])
+        return np.array([float(b.mass_kg) for b in entries.crsp_blocks()])
     return float(entries.density_kg_m3) * np.asarray(entries.dem_side_m, np.float64) ** 3
 
 
 def _crsp_units(draws, profile, entries: Entries, stations, n_blocks, seed, chunk, offsets,
-                pool, settings, extra=None, effects=(), shapes=None):
-    """Per draw, the chunks of ``_units.crsp_chunk`` for every size at once;
-    ``extra``: more solver parameters (a barrier's), ``effects``: the fitted
-    model's effects (``Calibration.effects``), ``shapes``: each size's CRSP shape
-    (None: spheres)."""
+                pool, settings, extra=None, effects=()):
+    """Per draw, the chunks of ``_units.crsp_chunk`` for every size at once, each
+    size's block its entry's (``Entries.crsp_blocks``: its shape); ``extra``: more
+    solver parameters (a barrier's), ``effects``: the fitted model's effects
+    (``Calibration.effects``)."""
     extra = {} if extra is None else extra
     n_sizes, release_x = entries.n, float(entries.release_x_m[0])
-    forms = shapes or ("sphere",) * n_sizes
-    blocks = stack_trees([crsp.make_block(float(r), f, density_kg_m3=entries.density_kg_m3)
-                          for r, f in zip(crsp_radius_m(entries.sizes_m, forms), forms,
-                                          strict=True)])
+    blocks = stack_trees(entries.crsp_blocks())
     fn = functools.partial(crsp_chunk, n_chunk=chunk, pool=pool, settings=settings)
     for d, values in enumerate(draws.values):
         # the fitted model: the baseline's parameters and the effects' (Calibration.effects)

@@ -47,7 +47,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from solvers.crsp import SHAPES, shape_constants
+from solvers.crsp import SHAPES, make_block, shape_constants
 from solvers.material import ROCK_DENSITY_KG_M3, check_density
 
 __all__ = ["Entries", "crsp_radius_m", "dem_side_m", "entry_shapes", "sphere_diameter_m"]
@@ -179,12 +179,13 @@ class Entries:
 
     @classmethod
     def at_sizes(cls, sizes_m, release_x_m: float, *, density_kg_m3: float = ROCK_DENSITY_KG_M3,
-                 release_speed_m_s=None, release_height_m=None) -> Entries:
+                 release_speed_m_s=None, release_height_m=None, shapes=None) -> Entries:
         """One entry per size of ``sizes_m``, all released at ``release_x_m`` (m;
-        or one per size) on the forward model's profile."""
+        or one per size) on the forward model's profile, in CRSP shape classes
+        ``shapes`` (one per size; None: spheres)."""
         sizes = np.atleast_1d(np.asarray(sizes_m, float))
         return cls(sizes, release_x_m, release_speed_m_s, release_height_m, None, None,
-                   density_kg_m3=density_kg_m3)
+                   density_kg_m3=density_kg_m3, shapes=shapes)
 
     @classmethod
     def one_per_size(cls, obs, release_x_m: float, *,
@@ -275,6 +276,15 @@ class Entries:
     def crsp_radius_m(self) -> np.ndarray:
         """(E,) CRSP radii s d / 2 of each entry's shape (a sphere's d / 2), m."""
         return crsp_radius_m(self.sizes_m, self.shapes)
+
+    def crsp_blocks(self, idx=None) -> list:
+        """The CRSP ``Block`` of each entry (of ``idx``: entry indices, repeats
+        allowed): its shape class, radius ``crsp_radius_m`` and the site's density
+        (``solvers.crsp.make_block``), as every CRSP run of entries makes it."""
+        idx = range(self.n) if idx is None else np.asarray(idx, int)
+        radius = self.crsp_radius_m
+        return [make_block(float(radius[i]), self.shapes[i], density_kg_m3=self.density_kg_m3)
+                for i in idx]
 
     @property
     def dem_side_m(self) -> np.ndarray:

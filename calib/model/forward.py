@@ -384,16 +384,16 @@ class CrspForward:
             return self._simulate_parts(theta)
         e = self.entries
         rep = np.repeat(theta, n_s, axis=0)  # task = (t, s)
-        radius, release, speed, height, height_sd, speed_sd, shape = (np.tile(v, n_t) for v in (
-            e.crsp_radius_m, e.release_x_m, e.release_speed_m_s, e.release_height_m,
-            e.release_height_sd_m, e.release_speed_sd_m_s, e.shapes))
+        entry, release, speed, height, height_sd, speed_sd = (np.tile(v, n_t) for v in (
+            np.arange(e.n), e.release_x_m, e.release_speed_m_s, e.release_height_m,
+            e.release_height_sd_m, e.release_speed_sd_m_s))
         n_tasks = rep.shape[0]
         chunk = max(1, -(-self.task_chunk // default_workers()))
         pad = (-n_tasks) % chunk
         rep = np.concatenate([rep, np.repeat(rep[-1:], pad, axis=0)])
-        radius, release, speed, height, height_sd, speed_sd, shape = (
+        entry, release, speed, height, height_sd, speed_sd = (
             np.concatenate([v, np.repeat(v[-1:], pad)])
-            for v in (radius, release, speed, height, height_sd, speed_sd, shape))
+            for v in (entry, release, speed, height, height_sd, speed_sd))
         stations = jnp.asarray(np.asarray(self.stations_x_m, float).reshape(-1), jnp.float64)
 
         def one_chunk(c0: int):
@@ -409,9 +409,7 @@ class CrspForward:
                     jnp.float64),
                 release_height_sd_m=jnp.asarray(height_sd[c0:c0 + chunk], jnp.float64),
                 release_speed_sd_m_s=jnp.asarray(speed_sd[c0:c0 + chunk], jnp.float64))
-            blocks = stack_trees([crsp.make_block(float(r), f, density_kg_m3=e.density_kg_m3)
-                                  for r, f in zip(radius[c0:c0 + chunk], shape[c0:c0 + chunk],
-                                                  strict=True)])
+            blocks = stack_trees(e.crsp_blocks(entry[c0:c0 + chunk]))
             res = crsp.simulate_tasks(params, blocks, self.key, self.profile, stations,
                                       n_per_task=self.n_blocks,
                                       pool=self.pool, settings=self.settings)
