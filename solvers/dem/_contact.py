@@ -1,4 +1,4 @@
-"""Contact laws: block-wall corners, fragment-fragment corners, bonded joints.
+"""Contact laws: block-wall corners, fragment-fragment faces, bonded joints.
 
 All forces are per metre of thickness (N/m); a contact of length l_c = s/2
 (see ``_params``) turns the joint stiffness kn (Pa/m) into a spring kn l_c.
@@ -21,7 +21,7 @@ c = 2 zeta sqrt(m_eff kn l_c) with zeta from the target restitution
 (``_params.contact_damping_ratio``). Our choice of m_eff per contact point:
 m/2 at a wall corner (two corners carry a face, so a flat face-down impact of
 a fragment of mass m has exactly the target e), m/4 at a fragment-fragment
-corner and at a joint point (reduced mass m/2 of two equal fragments, two
+contact point and at a joint point (reduced mass m/2 of two equal fragments, two
 points per face). A single-corner impact has another true effective mass,
 1 / (1/m + (r x n)^2 / I), from 0.4 m (lever arm along the wall) to m (corner
 straight down), so its restitution differs from the target: measured 0.61
@@ -124,77 +124,6 @@ def wall_forces(p, vp, fs_old, seg, kn_c, ks_c, dt, width, smooth: bool, cn=0.0,
     return WallContact(force, fs, delta, fn, touching, slipped, near_limit)
 
 
-def pair_forces(pos, cs, sn, vel, omega, r_corner, nbr, bonded, active, h, kn_c,
-                tan_phi, eps, width, smooth: bool, cn=0.0, margin=0.05, info: bool = False):
-    """Corner-to-face contacts between fragments (squares of half side h).
-
-    Each fragment i tests its 4 corners against the K fragments ``nbr[i]``.
-    j's face that faces i's centre gives the normal n; a corner of i within
-    that face's extent and behind it by delta > 0 gets F_n = kn l_c delta.
-    Friction is regularised Coulomb, F_t = -tan(phi) F_n tanh(v_t / eps)
-    (no shear-spring history for these transient contacts: a documented
-    simplification). The reaction -F acts on j at the same point, so linear
-    momentum is conserved exactly. With a dashpot, F_n = kn l_c delta -
-    cn v_n (v_n: relative normal velocity, < 0 when approaching).
-
-    Args:
-        pos (N,2), cs/sn (N,) cos/sin of rotation, vel (N,2), omega (N,),
-        r_corner (N,4,2) world lever arms of the corners, nbr (N,K) int,
-        bonded (N,N) bool (intact joint: no corner contact), active (N,) bool,
-        cn: dashpot coefficient, N s/m per m; margin: Coulomb-cone margin.
-        info: also return the per-fragment contact flags.
-
-    Returns:
-        force (N,2) and torque (N,) on every fragment; with ``info`` also
-        touching (N,) and near_limit (N,) bool (any contact of the fragment
-        with |F_t| > (1 - margin) tan(phi) max(F_n, 0)).
-    """
-    n_frag, k_nb = nbr.shape
-    p = pos[:, None, None, :] + r_corner[:, None, :, :]            # (N,1,4,2)
-    cj, sj = cs[nbr][:, :, None], sn[nbr][:, :, None]                # (N,K,1)
-    d = p - pos[nbr][:, :, None, :]                                  # (N,K,4,2)
-    q = rotate(d, cj, -sj)                                           # into j's frame
-    # The face of j that is pushed through is the one facing i's centre
-    # (chosen per pair, not per corner): a per-corner "nearest face" rule fails
-    # for aligned face-to-face overlaps, whose corners sit on j's corners.
-    c_rel = rotate(pos[:, None, :] - pos[nbr], cj[..., 0], -sj[..., 0])      # (N,K,2)
-    use_x = (jnp.abs(c_rel[..., 0]) >= jnp.abs(c_rel[..., 1]))[..., None]    # (N,K,1)
-    ax, az = jnp.abs(q[..., 0]), jnp.abs(q[..., 1])
-    delta = jnp.where(use_x, h - ax, h - az)
-    within = jnp.where(use_x, az, ax) <= h
-    sgn = jnp.where(use_x, jnp.sign(c_rel[..., 0:1]), jnp.sign(c_rel[..., 1:2]))
-    n_loc = jnp.stack([jnp.where(use_x, sgn, 0.0), jnp.where(use_x, 0.0, sgn)], axis=-1)
-    n_w = rotate(n_loc, cj, sj)
-    ok = (~bonded[jnp.arange(n_frag)[:, None], nbr] & active[:, None] & active[nbr]
-          & (nbr != jnp.arange(n_frag)[:, None]))[:, :, None]
-    ok = ok & within & (delta > (-20.0 * width if smooth else 0.0))
-    # relative velocity of the corner w.r.t. the material point of j
-    v_i = vel[:, None, None, :] + omega[:, None, None, None] * jnp.stack(
-        [-r_corner[..., 1], r_corner[..., 0]], axis=-1)[:, None]
-    v_j = vel[nbr][:, :, None, :] + omega[nbr][:, :, None, None] * jnp.stack(
-        [-d[..., 1], d[..., 0]], axis=-1)
-    vn = jnp.sum((v_i - v_j) * n_w, axis=-1)
-    fn = jnp.where(ok, penetration_force(delta, kn_c, width, smooth) - cn * vn, 0.0)
-    t_w = jnp.stack([-n_w[..., 1], n_w[..., 0]], axis=-1)
-    vt = jnp.sum((v_i - v_j) * t_w, axis=-1)
-    ft = -tan_phi * jnp.maximum(fn, 0.0) * jnp.tanh(vt / eps)
-    f = fn[..., None] * n_w + ft[..., None] * t_w                     # on i, (N,K,4,2)
-    f_i = ordered_sum(f, (1, 2))
-    t_i = ordered_sum(cross2(r_corner[:, None], f), (1, 2))
-    f_j = jax.ops.segment_sum(-ordered_sum(f, 2).reshape(-1, 2), nbr.reshape(-1),
-                              num_segments=n_frag)
-    t_j = jax.ops.segment_sum(ordered_sum(cross2(d, -f), 2).reshape(-1), nbr.reshape(-1),
-                              num_segments=n_frag)
-    if not info:
-        return f_i + f_j, t_i + t_j
-    near = ok & (jnp.abs(ft) > (1.0 - margin) * tan_phi * jnp.maximum(fn, 0.0))
-    flags = jnp.stack([jnp.any(ok, axis=(2,)), jnp.any(near, axis=(2,))], -1)     # (N,K,2)
-    mine = jnp.any(flags, axis=1)
-    theirs = jax.ops.segment_max(flags.reshape(-1, 2).astype(jnp.int32), nbr.reshape(-1),
-                                 num_segments=n_frag) > 0
-    both = mine | theirs
-    return f_i + f_j, t_i + t_j, both[:, 0], both[:, 1]
-
 
 def joint_forces(pos, cs, sn, joints: Joints, intact, h, kn_c, ks_c, c_c, t_c, tan_phi,
                  vel=None, omega=None, cj=0.0):
@@ -242,134 +171,169 @@ def joint_forces(pos, cs, sn, joints: Joints, intact, h, kn_c, ks_c, c_c, t_c, t
     return force, torque, intact_new
 
 
-def _corners_into(xa, za, ca, sa, vxa, vza, wa, xb, zb, cb, sb, vxb, vzb, wb, ok, h,
-                  kn_c, tan_phi, eps, width, smooth: bool, all_corners: bool = False,
-                  cn=0.0, margin=0.05):
-    """Corners of square a pushed into square b (one direction of a pair list).
 
-    Inputs are (P,) component arrays of the two squares of each pair. b's face
-    that faces a's centre gives the normal n (as in ``pair_forces``). Only the
-    two corners of a's edge that faces b (the edge whose outward normal is
-    closest to -n) are tested: the other two lie at or behind a's centre
-    along n and reach into b only through overlaps deeper than ~0.45 h
-    (measured over random poses; tests/test_dem.py checks equality below
-    0.4 h), far beyond the penetrations of these stiffnesses (~0.1 h at
-    15 m/s with stiffness_scale 0.01). ``all_corners`` tests all four.
-    Arrays carry the corner axis first, (C, P), so loops run over pairs.
+def _pair_contact(xa, za, ca, sa, vxa, vza, wa, xb, zb, cb, sb, vxb, vzb, wb, ok, h,
+                  kn_c, tan_phi, eps, width, smooth: bool, cn=0.0, margin=0.05):
+    """Contact of two squares a and b of half side h, for P pairs at once.
+
+    Reference face (separating-axis rule): of the four face axes u (a's two,
+    b's two) the one of largest |d.u|, d the vector between the centres, is
+    the axis of least overlap (the overlap on every axis is h + E - |d.u|,
+    with E = h (|cos(theta)| + |sin(theta)|) the same on all four for two
+    equal squares at relative rotation theta). Its square is the reference
+    square R, its face towards the other square I the reference face (outward
+    normal n, tangent t). I's incident edge is its face whose outward normal
+    is most anti-parallel to n; the edge is clipped to the reference face's
+    extent |tau| <= h along t, and each clipped end point p below the face by
+    delta = h - (p - x_R).n > 0 carries F_n = kn l_c delta - c_n v_n along n
+    and the regularised Coulomb friction F_t = -tan(phi) max(F_n, 0)
+    tanh(v_t / eps) along t (v: velocity of I's material point at p relative
+    to R's); R takes the reaction at the same point.
+
+    Sources: the least-overlap axis is the separating-axis test of oriented
+    boxes (Gottschalk, Lin & Manocha 1996, OBBTree); the reference face,
+    incident edge and clipping are the contact manifold of box-box collision
+    in rigid-body engines (Catto, Box2D, GDC 2007 talk "Contact Manifolds";
+    recalled, not checked against the text). Our choices: penalty springs at
+    the clipped points (the UDEC law of the module docstring) in place of the
+    engines' impulses, and no bias between nearly equal axes. Why this rule:
+    the penetration of the least-overlap axis is continuous in the poses (the
+    minimum of continuous overlaps), and at a switch between a's and b's axes
+    the two contact sets are mirror images, so the spring energy does not
+    jump when the reference face changes; clipping moves a contact point
+    continuously to the face's end where a corner test would drop it.
+
+    Inputs are (P,) component arrays of the two squares of each pair (centre,
+    cos/sin of rotation, velocity, spin); ``ok`` (P,) bool marks live pairs.
 
     Returns:
-        fx, fz (P,) total force on a, ta (P,) torque on a, tb (P,) torque on b
-        (the force on b is -(fx, fz)); touching (P,) and near_limit (P,) as
-        0/1 floats (any corner in contact / with |F_t| > (1 - margin)
-        tan(phi) max(F_n, 0)).
+        fx, fz (P,) force on a (b takes -(fx, fz)), ta, tb (P,) torques on a
+        and b, touching (P,) and near_limit (P,) bool, energy (P,) spring
+        energy kn l_c max(delta, 0)^2 / 2 summed over the points, J/m (linear
+        law; for diagnostics, dropped by XLA in the step).
     """
-    dcx, dcz = xa - xb, za - zb
-    crx = cb * dcx + sb * dcz                   # a's centre in b's frame
-    crz = -sb * dcx + cb * dcz
-    use_x = jnp.abs(crx) >= jnp.abs(crz)
-    sgn = jnp.where(use_x, jnp.sign(crx), jnp.sign(crz))
-    nlx = jnp.where(use_x, sgn, 0.0)            # b's face normal, b's frame
-    nlz = jnp.where(use_x, 0.0, sgn)
-    nx = cb * nlx - sb * nlz                    # world
-    nz = sb * nlx + cb * nlz
-    if all_corners:
-        ux = jnp.asarray([-1.0, 1.0, 1.0, -1.0])[:, None] * h + 0.0 * xa   # (4,P)
-        uz = jnp.asarray([-1.0, -1.0, 1.0, 1.0])[:, None] * h + 0.0 * xa
-    else:
-        nax = ca * nx + sa * nz                 # n in a's frame
-        naz = -sa * nx + ca * nz
-        a_x = jnp.abs(nax) >= jnp.abs(naz)      # a's edge facing b is an x-face
-        side = -jnp.where(a_x, jnp.sign(nax), jnp.sign(naz)) * h
-        other = jnp.stack([-h + 0.0 * side, h + 0.0 * side])            # (2,P)
-        ux = jnp.where(a_x, side, other)
-        uz = jnp.where(a_x, other, side)
-    # corner axis first, (C,P): the loops then run over pairs, contiguous
-    rx = ca * ux - sa * uz                      # lever arms of a's corners
-    rz = sa * ux + ca * uz
-    dx, dz = dcx + rx, dcz + rz                 # corners relative to b's centre
-    qx = cb * dx + sb * dz                      # in b's frame
-    qz = -sb * dx + cb * dz
-    ax, az = jnp.abs(qx), jnp.abs(qz)
-    delta = h - jnp.where(use_x, ax, az)
-    within = jnp.where(use_x, az, ax) <= h
-    touch = ok & within & (delta > (-20.0 * width if smooth else 0.0))
-    # relative velocity of a's corner w.r.t. the material point of b
-    vrx = (vxa - vxb) - wa * rz + wb * dz
-    vrz = (vza - vzb) + wa * rx - wb * dx
-    vn = vrx * nx + vrz * nz                    # < 0 when approaching
+    dx, dz = xa - xb, za - zb
+    proj = jnp.stack([jnp.abs(cb * dx + sb * dz), jnp.abs(-sb * dx + cb * dz),
+                      jnp.abs(ca * dx + sa * dz), jnp.abs(-sa * dx + ca * dz)])
+    k = jnp.argmax(proj, axis=0)                # ties: b before a, x before z
+    ref_b, use_x = k < 2, (k % 2) == 0
+
+    def pick(b_val, a_val):                     # (reference, incident)
+        return jnp.where(ref_b, b_val, a_val), jnp.where(ref_b, a_val, b_val)
+
+    (xr, xi), (zr, zi) = pick(xb, xa), pick(zb, za)
+    (cr, ci), (sr, si) = pick(cb, ca), pick(sb, sa)
+    (vxr, vxi), (vzr, vzi), (wr, wi) = pick(vxb, vxa), pick(vzb, vza), pick(wb, wa)
+    ux, uz = jnp.where(use_x, cr, -sr), jnp.where(use_x, sr, cr)
+    ex, ez = xi - xr, zi - zr
+    sgn = jnp.where(ex * ux + ez * uz >= 0.0, 1.0, -1.0)
+    nx, nz = sgn * ux, sgn * uz                 # reference face's outward normal
+    tx, tz = -nz, nx
+    # I's incident edge: its face whose outward normal is most anti-parallel to n
+    nix, niz = ci * nx + si * nz, -si * nx + ci * nz
+    i_x = jnp.abs(nix) >= jnp.abs(niz)
+    side = -jnp.where(i_x, jnp.sign(nix), jnp.sign(niz)) * h
+    other = jnp.stack([-h + 0.0 * side, h + 0.0 * side])                # (2,P)
+    lx, lz = jnp.where(i_x, side, other), jnp.where(i_x, other, side)
+    vx_, vz_ = ex + ci * lx - si * lz, ez + si * lx + ci * lz           # from R's centre
+    tau, nu = vx_ * tx + vz_ * tz, vx_ * nx + vz_ * nz                  # (2,P)
+    # the edge runs within 45 deg of t, so |tau[1] - tau[0]| >= sqrt(2) h
+    tau_c = jnp.clip(tau, -h, h)
+    nu_c = nu[0] + (tau_c - tau[0]) / (tau[1] - tau[0]) * (nu[1] - nu[0])
+    delta = h - nu_c
+    reach = (jnp.max(tau, axis=0) >= -h) & (jnp.min(tau, axis=0) <= h)
+    touch = ok & reach & (delta > (-20.0 * width if smooth else 0.0))
+    px, pz = tau_c * tx + nu_c * nx, tau_c * tz + nu_c * nz             # from R's centre
+    rix, riz = px - ex, pz - ez                                         # from I's centre
+    vrx = (vxi - wi * riz) - (vxr - wr * pz)
+    vrz = (vzi + wi * rix) - (vzr + wr * px)
+    vn, vt = vrx * nx + vrz * nz, vrx * tx + vrz * tz                   # vn < 0: closing
     fn = jnp.where(touch, penetration_force(delta, kn_c, width, smooth) - cn * vn, 0.0)
-    vt = -vrx * nz + vrz * nx
     f_lim = tan_phi * jnp.maximum(fn, 0.0)
     ft = -f_lim * jnp.tanh(vt / eps)
-    fx = fn * nx - ft * nz
-    fz = fn * nz + ft * nx
+    fx, fz = fn * nx + ft * tx, fn * nz + ft * tz                       # on I
     near = touch & (jnp.abs(ft) > (1.0 - margin) * f_lim)
-    # materialise the per-corner results once: without the barrier XLA's CPU
-    # fusion recomputes the whole per-corner chain inside each of the four
-    # reductions below (measured ~3x slower)
-    out = lax.optimization_barrier(jnp.stack([fx, fz, rx * fz - rz * fx, dz * fx - dx * fz,
-                                              touch.astype(fx.dtype), near.astype(fx.dtype)]))
-    # elastic energy of the normal springs (J/m; linear law only), for diagnostics:
-    # unused by the step, so XLA drops it there
+    # materialise the per-point results once (XLA's CPU fusion otherwise
+    # recomputes the chain inside each reduction below)
+    out = lax.optimization_barrier(jnp.stack([fx, fz, rix * fz - riz * fx, pz * fx - px * fz]))
+    fix, fiz, ti, tr = (ordered_sum(out[j], 0) for j in range(4))
     energy = jnp.sum(jnp.where(touch, 0.5 * kn_c * jnp.maximum(delta, 0.0) ** 2, 0.0), axis=0)
-    return (*(ordered_sum(out[k], 0) for k in range(4)),
-            *(jnp.max(out[k], axis=0) for k in (4, 5)), energy)
+    sign_a = jnp.where(ref_b, 1.0, -1.0)
+    return (sign_a * fix, sign_a * fiz, jnp.where(ref_b, ti, tr), jnp.where(ref_b, tr, ti),
+            jnp.any(touch, axis=0), jnp.any(near, axis=0), energy)
+
+
+def _pair_args(pos, cs, sn, vel, omega, pi, pj):
+    return (pos[pi, 0], pos[pi, 1], cs[pi], sn[pi], vel[pi, 0], vel[pi, 1], omega[pi],
+            pos[pj, 0], pos[pj, 1], cs[pj], sn[pj], vel[pj, 0], vel[pj, 1], omega[pj])
+
+
+def _gather(n_frag, pi, pj, fx, fz, ti, tj, touch, near, weight=1.0, info=False):
+    """Scatter pair forces to fragments: (fx, fz) and ti on i, -(fx, fz) and tj on j."""
+    idx = jnp.concatenate([pi, pj])
+    rows = weight * jnp.stack([jnp.concatenate([fx, -fx]), jnp.concatenate([fz, -fz]),
+                               jnp.concatenate([ti, tj])], -1)
+    acc = jax.ops.segment_sum(rows, idx, num_segments=n_frag)
+    if not info:
+        return acc[:, :2], acc[:, 2]
+    flags = jnp.stack([touch, near], -1).astype(jnp.int32)
+    flags = jax.ops.segment_max(jnp.concatenate([flags, flags]), idx,
+                                num_segments=n_frag) > 0
+    return acc[:, :2], acc[:, 2], flags[:, 0], flags[:, 1]
 
 
 def pair_list_forces(pos, cs, sn, vel, omega, pi, pj, ok, h, kn_c, tan_phi, eps, width,
-                     smooth: bool, all_corners: bool = False, cn=0.0, margin=0.05,
-                     info: bool = False):
-    """Fragment-fragment contacts over a list of unordered pairs (i < j).
-
-    For each pair both directions are tested (corners of i against the face
-    of j that faces i's centre, and corners of j against i), with the law of
-    ``pair_forces``. Every pair force enters i and j with opposite signs, so
-    linear momentum is conserved exactly whatever the list holds. Compared
-    with the K-nearest list of ``pair_forces`` a pair is never seen from one
-    side only, and the forces are gathered back with one scatter.
+                     smooth: bool, cn=0.0, margin=0.05, info: bool = False):
+    """Fragment-fragment contacts over a list of unordered pairs (i < j), each
+    by the reference-face rule of ``_pair_contact``. Every pair force enters i
+    and j with opposite signs, so linear momentum is conserved exactly
+    whatever the list holds.
 
     Args:
         pos (N,2), cs/sn (N,), vel (N,2), omega (N,); pi, pj (P,) int pair
         indices; ok (P,) bool (pair active: both fragments present, no intact
-        joint between them); cn: dashpot coefficient, N s/m per m; margin:
-        Coulomb-cone margin; info: also return the contact flags.
+        joint between them); cn: dashpot coefficient, N s/m per m (P,) or
+        scalar; margin: Coulomb-cone margin; info: also return the flags.
 
     Returns:
         force (N,2) and torque (N,) on every fragment; with ``info`` also
-        touching (N,) and near_limit (N,) bool, as in ``pair_forces``.
+        touching (N,) and near_limit (N,) bool (any contact of the fragment /
+        any with |F_t| > (1 - margin) tan(phi) max(F_n, 0)).
     """
-    n_frag = pos.shape[0]
-    xi, zi, xj, zj = pos[pi, 0], pos[pi, 1], pos[pj, 0], pos[pj, 1]
-    ci, si, cj, sj = cs[pi], sn[pi], cs[pj], sn[pj]
-    vxi, vzi, vxj, vzj = vel[pi, 0], vel[pi, 1], vel[pj, 0], vel[pj, 1]
-    wi, wj = omega[pi], omega[pj]
-    args = (h, kn_c, tan_phi, eps, width, smooth, all_corners, cn, margin)
-    fx0, fz0, ti0, tj0, to0, nl0, _ = _corners_into(xi, zi, ci, si, vxi, vzi, wi,
-                                                    xj, zj, cj, sj, vxj, vzj, wj, ok, *args)
-    fx1, fz1, tj1, ti1, to1, nl1, _ = _corners_into(xj, zj, cj, sj, vxj, vzj, wj,
-                                                    xi, zi, ci, si, vxi, vzi, wi, ok, *args)
-    fx, fz = fx0 - fx1, fz0 - fz1                       # on i; -(fx, fz) on j
-    idx = jnp.concatenate([pi, pj])
-    rows = jnp.concatenate([jnp.stack([fx, fz, ti0 + ti1], -1),
-                            jnp.stack([-fx, -fz, tj0 + tj1], -1)])
-    acc = jax.ops.segment_sum(rows, idx, num_segments=n_frag)
-    if not info:
-        return acc[:, :2], acc[:, 2]
-    flags = jnp.stack([jnp.maximum(to0, to1), jnp.maximum(nl0, nl1)], -1)
-    flags = jax.ops.segment_max(jnp.concatenate([flags, flags]), idx, num_segments=n_frag)
-    return acc[:, :2], acc[:, 2], flags[:, 0] > 0.5, flags[:, 1] > 0.5
+    fx, fz, ti, tj, touch, near, _ = _pair_contact(
+        *_pair_args(pos, cs, sn, vel, omega, pi, pj), ok, h, kn_c, tan_phi, eps, width,
+        smooth, cn, margin)
+    return _gather(pos.shape[0], pi, pj, fx, fz, ti, tj, touch, near, info=info)
+
+
+def pair_forces(pos, cs, sn, vel, omega, nbr, bonded, active, h, kn_c, tan_phi, eps, width,
+                smooth: bool, cn=0.0, margin=0.05, info: bool = False):
+    """The contacts of ``pair_list_forces`` over K-nearest lists: fragment i
+    meets the K fragments ``nbr[i]`` (the earlier pair search, kept for
+    benchmarks). A pair listed from both sides enters each time with weight
+    1/2, so every pair counts once.
+
+    Args:
+        as ``pair_list_forces``, with nbr (N,K) int, bonded (N,N) bool (intact
+        joint: no contact), active (N,) bool and cn (N,K) or scalar.
+    """
+    n_frag, k_nb = nbr.shape
+    pi = jnp.repeat(jnp.arange(n_frag), k_nb)
+    pj = nbr.reshape(-1)
+    mutual = jnp.any(nbr[pj] == pi[:, None], axis=-1)
+    ok = ~bonded[pi, pj] & active[pi] & active[pj] & (pi != pj)
+    fx, fz, ti, tj, touch, near, _ = _pair_contact(
+        *_pair_args(pos, cs, sn, vel, omega, pi, pj), ok, h, kn_c, tan_phi, eps, width,
+        smooth, jnp.broadcast_to(cn, nbr.shape).reshape(-1), margin)
+    weight = jnp.where(mutual, 0.5, 1.0)
+    return _gather(n_frag, pi, pj, fx, fz, ti, tj, touch, near,
+                   jnp.concatenate([weight, weight])[:, None], info)
 
 
 def pair_list_energy(pos, cs, sn, pi, pj, ok, h, kn_c) -> jax.Array:
     """Elastic energy of the fragment-fragment normal springs, J/m (scalar):
-    sum of kn l_c delta^2 / 2 over the corners of the pairs (pi, pj) where ``ok``
-    (both directions, as ``pair_list_forces`` tests them; linear law)."""
-    zero = jnp.zeros_like(pos[pi, 0])
-    args = (ok, h, kn_c, 0.0, 1.0, 1.0, False)
-    xi, zi, xj, zj = pos[pi, 0], pos[pi, 1], pos[pj, 0], pos[pj, 1]
-    ci, si, cj, sj = cs[pi], sn[pi], cs[pj], sn[pj]
-    e0 = _corners_into(xi, zi, ci, si, zero, zero, zero, xj, zj, cj, sj, zero, zero, zero,
-                       *args)[-1]
-    e1 = _corners_into(xj, zj, cj, sj, zero, zero, zero, xi, zi, ci, si, zero, zero, zero,
-                       *args)[-1]
-    return jnp.sum(e0 + e1)
+    kn l_c delta^2 / 2 summed over the contact points of the pairs (pi, pj)
+    where ``ok``, as ``pair_list_forces`` finds them (linear law)."""
+    zero = jnp.zeros_like(pos[:, 0])
+    args = _pair_args(pos, cs, sn, jnp.stack([zero, zero], -1), zero, pi, pj)
+    return jnp.sum(_pair_contact(*args, ok, h, kn_c, 0.0, 1.0, 1.0, False)[-1])

@@ -277,9 +277,9 @@ def _forces(st: State, params: Params, c: Consts, nbr, options: Options, n_side:
             n_frag = n_side * n_side
             bonded = (jnp.zeros((n_frag, n_frag), bool).at[joints.a, joints.b].set(intact)
                       .at[joints.b, joints.a].set(intact))
-            cn = (0.5 * (c.cn_pair[:, None] + c.cn_pair[nbr]))[..., None]
+            cn = 0.5 * (c.cn_pair[:, None] + c.cn_pair[nbr])
             fp, tp, p_touch, p_near = pair_forces(
-                st.pos, cs, sn, st.vel, st.omega, r, nbr, bonded, ~st.exited, c.half, c.kn_c,
+                st.pos, cs, sn, st.vel, st.omega, nbr, bonded, ~st.exited, c.half, c.kn_c,
                 tan_j, params.sign_eps_m_s * 10.0, c.width, options.smooth, cn=cn,
                 margin=margin, info=True)
         elif nbr[0].shape[0] == 0:  # no pair near enough to touch in this chunk
