@@ -115,11 +115,11 @@ def test_runout_decreases_from_16_to_64_fragments():
 
 
 @pytest.mark.xfail(strict=True, reason="measured (key 0, scale 0.01, the rest test and "
-                   "strength scaling): the 16 fragments are at rest between 107.9 and 123.8 m "
-                   "(median 110.8, p10-p90 108.4-119.9 m); the lowest is 2.1 m short of the "
-                   "paper's 110 m and the upper part of 110-160 m is not reached (another "
-                   "compilation of the same run, scripts/dem_reproduce.py --sections deposits: "
-                   "108.3-144.5 m; the runs are chaotic)")
+                   "strength scaling, the least-overlap pair contact): the 16 fragments are at "
+                   "rest between 108.1 and 126.3 m (median 110.8, p10-p90 108.6-121.6 m; with "
+                   "the earlier corner contact 107.9-123.8 m); the lowest is 1.9 m short of the "
+                   "paper's 110 m and the upper part of 110-160 m is not reached (the runs are "
+                   "chaotic: another compilation of the earlier run gave 108.3-144.5 m)")
 def test_sixteen_fragments_in_paper_range():
     """Paper Fig. 5: the 16 fragments stop between 110 and 160 m (all at rest)."""
     r, stopped = fragments(16)
