@@ -101,12 +101,14 @@ def test_runout_decreases_with_fragment_count():
     assert np.median(r4) > np.median(r16), (float(np.median(r4)), float(np.median(r16)))
 
 
-@pytest.mark.xfail(strict=True, reason="measured (key 0, scale 0.01): the 64 fragments are "
-                   "still moving at 400 s (status budget, 0/64 at rest), crawling on the 40 deg "
-                   "talus at 100.1-111.3 m (median 105.5 m) against a median of 110.8 m for the "
-                   "16 fragments (at rest); with damping off they slide 2.6-2.7 m in 5 s "
-                   "(scripts/dem_reproduce.py --sections deposits): the pile is held by local "
-                   "damping, not at rest, so it has no runout to compare")
+@pytest.mark.xfail(strict=True, reason="measured (key 0, scale 0.01, the least-overlap pair "
+                   "contact): the 64 fragments are still moving at 400 s (status budget, 0/64 at "
+                   "rest), crawling on the 40 deg talus at 100.4-111.9 m (median 105.9 m; "
+                   "100.1-111.3 m with the earlier corner contact) against a median of 110.8 m "
+                   "for the 16 fragments (at rest); with the earlier contact and damping off "
+                   "they slid 2.6-2.7 m in 5 s (scripts/dem_reproduce.py --sections deposits): "
+                   "the pile is held by local damping, not at rest, so it has no runout to "
+                   "compare")
 def test_runout_decreases_from_16_to_64_fragments():
     """Median fragment runout: 16 > 64 fragments, both at rest (paper Sect. 4.2)."""
     (r16, s16), (r64, s64) = fragments(16), fragments(64)
@@ -127,10 +129,13 @@ def test_sixteen_fragments_in_paper_range():
     assert r.min() >= 110.0 and r.max() <= 160.0, (float(r.min()), float(r.max()))
 
 
-@pytest.mark.xfail(strict=True, reason="measured (key 0, scale 0.01): 0/64 at rest at 400 s "
-                   "(status budget); positions p10-p90 101.2-109.9 m (min-max 100.1-111.3) on "
+@pytest.mark.xfail(strict=True, reason="measured (key 0, scale 0.01, the least-overlap pair "
+                   "contact): 0/64 at rest at 400 s (status budget); positions p10-p90 "
+                   "101.5-110.3 m (min-max 100.4-111.9; 101.2-109.9 m with the earlier corner "
+                   "contact) on "
                    "the 40 deg talus, where a lone fragment cannot rest by friction (phi 30); "
-                   "with every damping off they slide 2.6-2.7 m in 5 s (deposit check, "
+                   "with every damping off they slid 2.6-2.7 m in 5 s (earlier contact; "
+                   "deposit check, "
                    "scripts/dem_reproduce.py --sections deposits): held by local damping. "
                    "A rest test on speed alone (< 0.05 m/s for 1 s) declared this pile at rest")
 def test_sixty_four_fragments_in_paper_range():
@@ -142,12 +147,12 @@ def test_sixty_four_fragments_in_paper_range():
     assert p10 >= 40.0 and p90 <= 110.0, (float(p10), float(p90))
 
 
-@pytest.mark.xfail(strict=True, reason="measured (key 0, scale 0.01; deposit check by scripts/"
-                   "dem_reproduce.py --sections deposits): the 64 fragments are not at rest at "
-                   "400 s, p10-p90 101.2-109.9 m (width 8.7 m), a queue held by local damping "
-                   "at the foot of the talus, narrower than the 16-fragment deposit (p10-p90 "
-                   "108.4-119.9 m, width 11.5 m); the paper's 64 fragments spread over "
-                   "40-110 m")
+@pytest.mark.xfail(strict=True, reason="measured (key 0, scale 0.01, the least-overlap pair "
+                   "contact): the 64 fragments are not at rest at 400 s, p10-p90 101.5-110.3 m "
+                   "(width 8.8 m), a queue held by local damping at the foot of the talus, "
+                   "narrower than the 16-fragment deposit (p10-p90 108.6-121.6 m, width 13.1 m; "
+                   "with the earlier corner contact 8.7 m against 11.5 m); the paper's 64 "
+                   "fragments spread over 40-110 m")
 def test_sixty_four_fragments_spread_wider_than_sixteen():
     """Paper Sect. 4.2: the smallest fragments 'spread over a larger area' (40-110 m)
     than the 16 fragments (110-160 m): p10-p90 width of 64 > that of 16, and the

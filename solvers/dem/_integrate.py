@@ -163,7 +163,7 @@ class Result(NamedTuple):
 
 def consts(params: Params, block: Block) -> Consts:
     """Per-block constants. Dashpots (``_contact``): c = 2 zeta sqrt(m_eff kn l_c)
-    with m_eff = m/2 at a wall corner and m/4 at a fragment-fragment corner or
+    with m_eff = m/2 at a wall corner and m/4 at a fragment-fragment contact point or
     joint point; zeta from ``params.restitution`` (or each fragment's alpha)."""
     n = block.n_side
     s = block.size_m / n
