@@ -59,16 +59,21 @@ def test_pair_forces_conserve_momentum_and_both_searches_agree():
     pos = pos + rng.normal(0.0, 0.002, pos.shape)
     vel, om = rng.normal(0, 1, (300, 2, 2)), rng.normal(0, 1, (300, 2))
 
-    def both(p, t, v, w):
-        cs, sn = jnp.cos(t), jnp.sin(t)
-        f, tq = pair_list_forces(p, cs, sn, v, w, jnp.array([0]), jnp.array([1]),
-                                 jnp.ones(1, bool), h, 5e6, 0.577, 1e-2, 1e-4, False)
-        fk, tk = pair_forces(p, cs, sn, v, w, jnp.array([[1], [0]]), jnp.zeros((2, 2), bool),
-                             jnp.ones(2, bool), h, 5e6, 0.577, 1e-2, 1e-4, False)
-        return f, tq, fk, tk
+    # shear springs carried from a last step, up to about the normal force
+    springs = np.zeros((300, 2, 2, 2))
+    springs[:, 0, 1] = rng.normal(0.0, 2e4, (300, 2))
 
-    f, tq, fk, tk = (np.asarray(a) for a in jax.jit(jax.vmap(both))(
-        jnp.asarray(pos), jnp.asarray(th), jnp.asarray(vel), jnp.asarray(om)))
+    def both(p, t, v, w, fs):
+        cs, sn = jnp.cos(t), jnp.sin(t)
+        pl = pair_list_forces(p, cs, sn, v, w, jnp.array([0]), jnp.array([1]), jnp.ones(1, bool),
+                              fs, h, 5e6, 5e6, 0.577, 1e-5, 1e-4, False)
+        pk = pair_forces(p, cs, sn, v, w, jnp.array([[1], [0]]), jnp.zeros((2, 2), bool),
+                         jnp.ones(2, bool), fs, h, 5e6, 5e6, 0.577, 1e-5, 1e-4, False)
+        return pl.force, pl.torque, pk.force, pk.torque, pl.fs, pk.fs
+
+    f, tq, fk, tk, sl, sk = (np.asarray(a) for a in jax.jit(jax.vmap(both))(
+        jnp.asarray(pos), jnp.asarray(th), jnp.asarray(vel), jnp.asarray(om),
+        jnp.asarray(springs)))
     scale = np.abs(f).max()
     assert scale > 0 and np.all(np.abs(f).max((1, 2)) > 0)    # every pose touches
     np.testing.assert_allclose(f.sum(1), 0.0, atol=1e-9 * scale)
@@ -76,3 +81,5 @@ def test_pair_forces_conserve_momentum_and_both_searches_agree():
     np.testing.assert_allclose(moment, 0.0, atol=1e-9 * scale)
     np.testing.assert_allclose(fk, f, rtol=1e-12, atol=1e-9 * scale)
     np.testing.assert_allclose(tk, tq, rtol=1e-12, atol=1e-9 * scale)
+    np.testing.assert_allclose(sk, sl, rtol=1e-12, atol=1e-9 * scale)
+    assert np.abs(sl[:, 0, 1]).max() > 0 and np.all(sl[:, 1, 0] == 0)

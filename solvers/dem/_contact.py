@@ -30,8 +30,9 @@ force is not clipped at zero (see ``contact_damping_ratio``); the Coulomb
 limit uses max(F_n, 0).
 
 Each contact function also reports, per fragment, whether it touches
-something and whether one of its contacts is near the Coulomb limit (the rest
-test in ``_integrate``).
+something, whether one of its contacts is near the Coulomb limit and (wall and
+fragment contacts) whether one slid in the step (the rest test in
+``_integrate``).
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ from jax import lax
 from solvers.dem._geometry import Joints, cross2, rotate
 from solvers.dem._sums import ordered_sum
 
-__all__ = ["WallContact", "joint_forces", "pair_forces", "pair_list_forces",
+__all__ = ["PairContacts", "WallContact", "joint_forces", "pair_forces", "pair_list_forces",
            "penetration_force", "wall_forces"]
 
 _TINY = 1e-30
@@ -172,8 +173,9 @@ def joint_forces(pos, cs, sn, joints: Joints, intact, h, kn_c, ks_c, c_c, t_c, t
 
 
 
-def _pair_contact(xa, za, ca, sa, vxa, vza, wa, xb, zb, cb, sb, vxb, vzb, wb, ok, h,
-                  kn_c, tan_phi, eps, width, smooth: bool, cn=0.0, margin=0.05):
+def _pair_contact(xa, za, ca, sa, vxa, vza, wa, xb, zb, cb, sb, vxb, vzb, wb, ok, fs_a, h,
+                  kn_c, ks_c, tan_phi, dt, width, smooth: bool, cn=0.0, margin=0.05,
+                  slip_tol=0.0):
     """Contact of two squares a and b of half side h, for P pairs at once.
 
     Reference face (separating-axis rule): of the four face axes u (a's two,
@@ -186,9 +188,22 @@ def _pair_contact(xa, za, ca, sa, vxa, vza, wa, xb, zb, cb, sb, vxb, vzb, wb, ok
     is most anti-parallel to n; the edge is clipped to the reference face's
     extent |tau| <= h along t, and each clipped end point p below the face by
     delta = h - (p - x_R).n > 0 carries F_n = kn l_c delta - c_n v_n along n
-    and the regularised Coulomb friction F_t = -tan(phi) max(F_n, 0)
-    tanh(v_t / eps) along t (v: velocity of I's material point at p relative
-    to R's); R takes the reaction at the same point.
+    (v: velocity of I's material point at p relative to R's); R takes the
+    reaction at the same point.
+
+    Friction: UDEC's incremental shear spring (eq. 2 of the module docstring),
+    one per pair: F_s <- F_s - k_s v_t dt, clipped to |F_s| <= tan(phi)
+    sum max(F_n, 0), with v_t the relative tangential speed at the points
+    weighted by their normal forces (equal weights when no point carries a
+    compressive force), and F_s shared among the points with the same
+    weights. The spring holds a static load (a fragment resting on another on
+    a slope below phi stays put) and slides at the Coulomb limit. Our choices:
+    one spring per pair, not per point (the points' identity changes when the
+    reference face changes; the pair's force does not), of fixed stiffness
+    k_s = 2 ks l_c (a face contact's two points), carried between steps as
+    the world-frame force on a and projected on the current tangent (a
+    rotation of the contact only shortens it), and reset to zero when the
+    pair stops touching (its energy is then lost, as at a wall corner).
 
     Sources: the least-overlap axis is the separating-axis test of oriented
     boxes (Gottschalk, Lin & Manocha 1996, OBBTree); the reference face,
@@ -204,13 +219,17 @@ def _pair_contact(xa, za, ca, sa, vxa, vza, wa, xb, zb, cb, sb, vxb, vzb, wb, ok
     continuously to the face's end where a corner test would drop it.
 
     Inputs are (P,) component arrays of the two squares of each pair (centre,
-    cos/sin of rotation, velocity, spin); ``ok`` (P,) bool marks live pairs.
+    cos/sin of rotation, velocity, spin); ``ok`` (P,) bool marks live pairs;
+    ``fs_a`` (P,2) the shear spring's force on a from the last step (world
+    frame, N/m); ks_c the shear spring of one point, N/m per m; dt the step,
+    s; ``slip_tol`` as in ``wall_forces``.
 
     Returns:
         fx, fz (P,) force on a (b takes -(fx, fz)), ta, tb (P,) torques on a
-        and b, touching (P,) and near_limit (P,) bool, energy (P,) spring
-        energy kn l_c max(delta, 0)^2 / 2 summed over the points, J/m (linear
-        law; for diagnostics, dropped by XLA in the step).
+        and b, touching (P,), near_limit (P,) and slipped (P,) bool, fs_a (P,2)
+        the new shear force on a, energy (P,) normal spring energy kn l_c
+        max(delta, 0)^2 / 2 summed over the points, J/m (linear law; for
+        diagnostics, dropped by XLA in the step).
     """
     dx, dz = xa - xb, za - zb
     proj = jnp.stack([jnp.abs(cb * dx + sb * dz), jnp.abs(-sb * dx + cb * dz),
@@ -249,18 +268,30 @@ def _pair_contact(xa, za, ca, sa, vxa, vza, wa, xb, zb, cb, sb, vxb, vzb, wb, ok
     vrz = (vzi + wi * rix) - (vzr + wr * px)
     vn, vt = vrx * nx + vrz * nz, vrx * tx + vrz * tz                   # vn < 0: closing
     fn = jnp.where(touch, penetration_force(delta, kn_c, width, smooth) - cn * vn, 0.0)
-    f_lim = tan_phi * jnp.maximum(fn, 0.0)
-    ft = -f_lim * jnp.tanh(vt / eps)
+    # one shear spring per pair, shared among the points by their normal forces
+    press = jnp.where(touch, jnp.maximum(fn, 0.0), 0.0)                 # (2,P)
+    total = jnp.sum(press, axis=0)
+    n_touch = jnp.sum(touch, axis=0)
+    w = jnp.where(total > 0.0, press / jnp.where(total > 0.0, total, 1.0),
+                  touch / jnp.maximum(n_touch, 1))
+    any_touch = n_touch > 0
+    on_i = jnp.where(ref_b, 1.0, -1.0)          # I is a when b is the reference
+    fs_old = on_i * (fs_a[:, 0] * tx + fs_a[:, 1] * tz)
+    fs_trial = jnp.where(any_touch, fs_old - 2.0 * ks_c * jnp.sum(w * vt, axis=0) * dt, 0.0)
+    f_lim = tan_phi * total
+    fs = _clip_shear(fs_trial, f_lim, smooth)
+    slipped = any_touch & (jnp.abs(fs_trial) - f_lim > slip_tol)
+    near = any_touch & (jnp.abs(fs) > (1.0 - margin) * f_lim)
+    ft = w * fs                                                         # (2,P) on I
     fx, fz = fn * nx + ft * tx, fn * nz + ft * tz                       # on I
-    near = touch & (jnp.abs(ft) > (1.0 - margin) * f_lim)
     # materialise the per-point results once (XLA's CPU fusion otherwise
     # recomputes the chain inside each reduction below)
     out = lax.optimization_barrier(jnp.stack([fx, fz, rix * fz - riz * fx, pz * fx - px * fz]))
     fix, fiz, ti, tr = (ordered_sum(out[j], 0) for j in range(4))
     energy = jnp.sum(jnp.where(touch, 0.5 * kn_c * jnp.maximum(delta, 0.0) ** 2, 0.0), axis=0)
-    sign_a = jnp.where(ref_b, 1.0, -1.0)
-    return (sign_a * fix, sign_a * fiz, jnp.where(ref_b, ti, tr), jnp.where(ref_b, tr, ti),
-            jnp.any(touch, axis=0), jnp.any(near, axis=0), energy)
+    fs_a_new = jnp.stack([on_i * fs * tx, on_i * fs * tz], -1)
+    return (on_i * fix, on_i * fiz, jnp.where(ref_b, ti, tr), jnp.where(ref_b, tr, ti),
+            any_touch, near, slipped, fs_a_new, energy)
 
 
 def _pair_args(pos, cs, sn, vel, omega, pi, pj):
@@ -268,22 +299,51 @@ def _pair_args(pos, cs, sn, vel, omega, pi, pj):
             pos[pj, 0], pos[pj, 1], cs[pj], sn[pj], vel[pj, 0], vel[pj, 1], omega[pj])
 
 
-def _gather(n_frag, pi, pj, fx, fz, ti, tj, touch, near, weight=1.0, info=False):
-    """Scatter pair forces to fragments: (fx, fz) and ti on i, -(fx, fz) and tj on j."""
+def _gather(n_frag, pi, pj, fx, fz, ti, tj, flags, weight=1.0):
+    """Scatter pair forces to fragments: (fx, fz) and ti on i, -(fx, fz) and tj
+    on j; ``flags`` (F,P) bool per pair become (F,N): any pair of the fragment."""
     idx = jnp.concatenate([pi, pj])
     rows = weight * jnp.stack([jnp.concatenate([fx, -fx]), jnp.concatenate([fz, -fz]),
                                jnp.concatenate([ti, tj])], -1)
     acc = jax.ops.segment_sum(rows, idx, num_segments=n_frag)
-    if not info:
-        return acc[:, :2], acc[:, 2]
-    flags = jnp.stack([touch, near], -1).astype(jnp.int32)
-    flags = jax.ops.segment_max(jnp.concatenate([flags, flags]), idx,
-                                num_segments=n_frag) > 0
-    return acc[:, :2], acc[:, 2], flags[:, 0], flags[:, 1]
+    f = jnp.concatenate([flags, flags], axis=1).T.astype(jnp.int32)
+    per_frag = jax.ops.segment_max(f, idx, num_segments=n_frag) > 0
+    return acc[:, :2], acc[:, 2], per_frag.T
 
 
-def pair_list_forces(pos, cs, sn, vel, omega, pi, pj, ok, h, kn_c, tan_phi, eps, width,
-                     smooth: bool, cn=0.0, margin=0.05, info: bool = False):
+class PairContacts(NamedTuple):
+    """Fragment-fragment contacts of one step.
+
+    force (N,2) N/m and torque (N,) N m/m on every fragment; fs (N,N,2) the
+    pairs' shear springs, N/m (entry [i, j], i < j: world-frame force on i;
+    zero for pairs not touching); touching, near_limit, slipped (N,) bool:
+    any pair contact of the fragment touches / has |F_s| > (1 - margin)
+    tan(phi) sum max(F_n, 0) / slid this step (as ``WallContact``).
+    """
+
+    force: jax.Array
+    torque: jax.Array
+    fs: jax.Array
+    touching: jax.Array
+    near_limit: jax.Array
+    slipped: jax.Array
+
+
+def _spring_of(fs_pair, pi, pj):
+    """The shear force on pi of each listed pair, from the (i < j) table."""
+    lo, hi = jnp.minimum(pi, pj), jnp.maximum(pi, pj)
+    return jnp.where((pi < pj)[:, None], 1.0, -1.0) * fs_pair[lo, hi]
+
+
+def _springs_table(n_frag, pi, pj, fs_i, live):
+    """The (i < j) table of the listed pairs' new shear forces (zero elsewhere)."""
+    lo, hi = jnp.minimum(pi, pj), jnp.maximum(pi, pj)
+    val = jnp.where(live[:, None], jnp.where((pi < pj)[:, None], 1.0, -1.0) * fs_i, 0.0)
+    return jnp.zeros((n_frag, n_frag, 2), fs_i.dtype).at[lo, hi].set(val)
+
+
+def pair_list_forces(pos, cs, sn, vel, omega, pi, pj, ok, fs_pair, h, kn_c, ks_c, tan_phi, dt,
+                     width, smooth: bool, cn=0.0, margin=0.05, slip_tol=0.0) -> PairContacts:
     """Fragment-fragment contacts over a list of unordered pairs (i < j), each
     by the reference-face rule of ``_pair_contact``. Every pair force enters i
     and j with opposite signs, so linear momentum is conserved exactly
@@ -292,26 +352,30 @@ def pair_list_forces(pos, cs, sn, vel, omega, pi, pj, ok, h, kn_c, tan_phi, eps,
     Args:
         pos (N,2), cs/sn (N,), vel (N,2), omega (N,); pi, pj (P,) int pair
         indices; ok (P,) bool (pair active: both fragments present, no intact
-        joint between them); cn: dashpot coefficient, N s/m per m (P,) or
-        scalar; margin: Coulomb-cone margin; info: also return the flags.
+        joint between them); fs_pair (N,N,2) the shear springs of the last
+        step (``PairContacts.fs``); kn_c, ks_c: springs of one point, N/m per
+        m; dt: step, s; cn: dashpot coefficient, N s/m per m (P,) or scalar;
+        margin: Coulomb-cone margin; slip_tol: as in ``wall_forces``.
 
     Returns:
-        force (N,2) and torque (N,) on every fragment; with ``info`` also
-        touching (N,) and near_limit (N,) bool (any contact of the fragment /
-        any with |F_t| > (1 - margin) tan(phi) max(F_n, 0)).
+        ``PairContacts``.
     """
-    fx, fz, ti, tj, touch, near, _ = _pair_contact(
-        *_pair_args(pos, cs, sn, vel, omega, pi, pj), ok, h, kn_c, tan_phi, eps, width,
-        smooth, cn, margin)
-    return _gather(pos.shape[0], pi, pj, fx, fz, ti, tj, touch, near, info=info)
+    n_frag = pos.shape[0]
+    fx, fz, ti, tj, touch, near, slip, fs_i, _ = _pair_contact(
+        *_pair_args(pos, cs, sn, vel, omega, pi, pj), ok, _spring_of(fs_pair, pi, pj), h,
+        kn_c, ks_c, tan_phi, dt, width, smooth, cn, margin, slip_tol)
+    force, torque, flags = _gather(n_frag, pi, pj, fx, fz, ti, tj,
+                                   jnp.stack([touch, near, slip]))
+    return PairContacts(force, torque, _springs_table(n_frag, pi, pj, fs_i, touch), *flags)
 
 
-def pair_forces(pos, cs, sn, vel, omega, nbr, bonded, active, h, kn_c, tan_phi, eps, width,
-                smooth: bool, cn=0.0, margin=0.05, info: bool = False):
+def pair_forces(pos, cs, sn, vel, omega, nbr, bonded, active, fs_pair, h, kn_c, ks_c, tan_phi,
+                dt, width, smooth: bool, cn=0.0, margin=0.05, slip_tol=0.0) -> PairContacts:
     """The contacts of ``pair_list_forces`` over K-nearest lists: fragment i
     meets the K fragments ``nbr[i]`` (the earlier pair search, kept for
     benchmarks). A pair listed from both sides enters each time with weight
-    1/2, so every pair counts once.
+    1/2, so every pair counts once (both entries read and write the same
+    shear spring).
 
     Args:
         as ``pair_list_forces``, with nbr (N,K) int, bonded (N,N) bool (intact
@@ -322,18 +386,23 @@ def pair_forces(pos, cs, sn, vel, omega, nbr, bonded, active, h, kn_c, tan_phi, 
     pj = nbr.reshape(-1)
     mutual = jnp.any(nbr[pj] == pi[:, None], axis=-1)
     ok = ~bonded[pi, pj] & active[pi] & active[pj] & (pi != pj)
-    fx, fz, ti, tj, touch, near, _ = _pair_contact(
-        *_pair_args(pos, cs, sn, vel, omega, pi, pj), ok, h, kn_c, tan_phi, eps, width,
-        smooth, jnp.broadcast_to(cn, nbr.shape).reshape(-1), margin)
+    fx, fz, ti, tj, touch, near, slip, fs_i, _ = _pair_contact(
+        *_pair_args(pos, cs, sn, vel, omega, pi, pj), ok, _spring_of(fs_pair, pi, pj), h,
+        kn_c, ks_c, tan_phi, dt, width, smooth, jnp.broadcast_to(cn, nbr.shape).reshape(-1),
+        margin, slip_tol)
     weight = jnp.where(mutual, 0.5, 1.0)
-    return _gather(n_frag, pi, pj, fx, fz, ti, tj, touch, near,
-                   jnp.concatenate([weight, weight])[:, None], info)
+    force, torque, flags = _gather(n_frag, pi, pj, fx, fz, ti, tj,
+                                   jnp.stack([touch, near, slip]),
+                                   jnp.concatenate([weight, weight])[:, None])
+    return PairContacts(force, torque, _springs_table(n_frag, pi, pj, fs_i, touch), *flags)
 
 
 def pair_list_energy(pos, cs, sn, pi, pj, ok, h, kn_c) -> jax.Array:
     """Elastic energy of the fragment-fragment normal springs, J/m (scalar):
     kn l_c delta^2 / 2 summed over the contact points of the pairs (pi, pj)
-    where ``ok``, as ``pair_list_forces`` finds them (linear law)."""
+    where ``ok``, as ``pair_list_forces`` finds them (linear law). The shear
+    springs' energy is |F_s|^2 / (4 ks l_c) per pair (``PairContacts.fs``)."""
     zero = jnp.zeros_like(pos[:, 0])
     args = _pair_args(pos, cs, sn, jnp.stack([zero, zero], -1), zero, pi, pj)
-    return jnp.sum(_pair_contact(*args, ok, h, kn_c, 0.0, 1.0, 1.0, False)[-1])
+    fs0 = jnp.zeros((pi.shape[0], 2), pos.dtype)
+    return jnp.sum(_pair_contact(*args, ok, fs0, h, kn_c, 1.0, 0.0, 0.0, 1.0, False)[-1])

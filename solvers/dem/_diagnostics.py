@@ -4,7 +4,8 @@ Energy (per metre of thickness, J/m) of a state at time t: kinetic
 (translation and rotation), potential m g z, and the elastic energy stored in
 the linear contact springs: wall normal kn l_c delta^2 / 2 and shear
 F_s^2 / (2 ks l_c) per corner, intact-joint (kn l_c u_n^2 + ks l_c u_s^2) / 2
-per point, fragment-fragment kn l_c delta^2 / 2 per corner. Damping, friction
+per point, fragment-fragment kn l_c delta^2 / 2 per contact point and
+F_s^2 / (4 ks l_c) per pair (its shear spring, ``_contact``). Damping, friction
 slip, a joint that breaks (its stored energy is lost) and a contact that
 opens while its shear spring is loaded all remove energy; nothing in the
 model adds any, so E(t) must not increase beyond the integrator's error.
@@ -63,8 +64,8 @@ def mechanical_energy(params: Params, c: Consts, st: State, st_next: State,
     Args:
         params, c: parameters and the block's constants (``init``).
         st: state at t (positions at t, velocities at t - dt/2).
-        st_next: ``step(st)`` (velocities at t + dt/2, the wall shear forces
-            and joint flags computed at t).
+        st_next: ``step(st)`` (velocities at t + dt/2, the wall and
+            fragment shear forces and joint flags computed at t).
         n_side: fragments per side (static).
 
     Returns:
@@ -101,6 +102,7 @@ def mechanical_energy(params: Params, c: Consts, st: State, st_next: State,
         ok = free & keep[iu] & keep[ju]
         elastic = elastic + pair_list_energy(st.pos, cs, sn, jnp.asarray(iu), jnp.asarray(ju),
                                              ok, c.half, c.kn_c)
+        elastic = elastic + jnp.sum(st_next.fs_pair ** 2) / (4.0 * c.ks_c)
     return Energy(kinetic, potential, elastic)
 
 

@@ -19,7 +19,7 @@ alpha = 0.9 falls at 0.1 g and rises against 1.9 g. The "viscous" mode turns
 local damping off and puts dashpots at the contacts instead (``_contact``).
 
 Rest (our rule, see ``Params``): a fragment is held while it is slow, none of
-its wall contacts slips (faster than ``rest_slip_m_s``), and its contacts lie
+its wall or fragment contacts slips (faster than ``rest_slip_m_s``), and its contacts lie
 inside the Coulomb cone with a margin or it has moved less than
 ``rest_disp_m`` since the hold began; it is at rest after ``stop_hold_s`` of
 being held. Status codes are
@@ -116,7 +116,9 @@ class State(NamedTuple):
     """Dynamic state of one block's fragments (N fragments, J joints, S stations).
 
     pos (N,2) float64 m at t; theta (N,) rad; vel (N,2) and omega (N,) at
-    t - dt/2; fs (N,4) wall shear force per corner (N/m); intact (J,) joints;
+    t - dt/2; fs (N,4) wall shear force per corner (N/m); fs_pair (N,N,2)
+    fragment-fragment shear springs (``_contact.PairContacts.fs``, N/m);
+    intact (J,) joints;
     slow_s (N,) time held by the rest test (s; the name predates the test);
     anchor (N,3) pose (x, z, theta) at the start of the hold; exited (N,) left
     the profile end; rec StationRecord with (N,S) fields; n_steps, status
@@ -128,6 +130,7 @@ class State(NamedTuple):
     vel: jax.Array
     omega: jax.Array
     fs: jax.Array
+    fs_pair: jax.Array
     intact: jax.Array
     slow_s: jax.Array
     anchor: jax.Array
@@ -234,7 +237,8 @@ class ContactInfo(NamedTuple):
 
     touching: in contact with the wall or a free fragment (intact joints do not
     count); near_limit: one of those contacts has |F_s| > (1 - margin)
-    tan(phi) max(F_n, 0); slipped: one of its wall contacts slid this step.
+    tan(phi) max(F_n, 0); slipped: one of its wall or fragment contacts slid
+    this step.
     """
 
     touching: jax.Array
@@ -243,7 +247,8 @@ class ContactInfo(NamedTuple):
 
 
 def _forces(st: State, params: Params, c: Consts, nbr, options: Options, n_side: int):
-    """Contact forces (N,2), torques (N,), new wall shear, new joint flags, ContactInfo."""
+    """Contact forces (N,2), torques (N,), new wall shear, new fragment shear
+    springs, new joint flags, ContactInfo."""
     cs, sn = jnp.cos(st.theta), jnp.sin(st.theta)
     r = rotate(corner_offsets(c.half)[None], cs[:, None], sn[:, None])      # (N,4,2)
     p = st.pos[:, None, :] + r
@@ -273,31 +278,36 @@ def _forces(st: State, params: Params, c: Consts, nbr, options: Options, n_side:
                                           c.ks_c, c.c_c, c.t_c, tan_j, st.vel, st.omega, cj)
         else:  # every joint already broken (chunk-level switch in ``simulate``)
             fj, tj = jnp.zeros_like(force), jnp.zeros_like(torque)
+        slip_tol = 2.0 * c.ks_c * params.rest_slip_m_s * c.dt   # a pair's spring is 2 ks l_c
         if options.pair_search == "knn":
             n_frag = n_side * n_side
             bonded = (jnp.zeros((n_frag, n_frag), bool).at[joints.a, joints.b].set(intact)
                       .at[joints.b, joints.a].set(intact))
             cn = 0.5 * (c.cn_pair[:, None] + c.cn_pair[nbr])
-            fp, tp, p_touch, p_near = pair_forces(
-                st.pos, cs, sn, st.vel, st.omega, nbr, bonded, ~st.exited, c.half, c.kn_c,
-                tan_j, params.sign_eps_m_s * 10.0, c.width, options.smooth, cn=cn,
-                margin=margin, info=True)
+            pc = pair_forces(st.pos, cs, sn, st.vel, st.omega, nbr, bonded, ~st.exited,
+                             st.fs_pair, c.half, c.kn_c, c.ks_c, tan_j, c.dt, c.width,
+                             options.smooth, cn=cn, margin=margin, slip_tol=slip_tol)
         elif nbr[0].shape[0] == 0:  # no pair near enough to touch in this chunk
-            fp, tp = jnp.zeros_like(force), jnp.zeros_like(torque)
-            p_touch = p_near = jnp.zeros_like(touching)
+            pc = None
         else:
             pi, pj, jid = nbr[:3]
             free = jnp.concatenate([~intact, jnp.ones((1,), bool)])[jid]
             ok = free & ~st.exited[pi] & ~st.exited[pj]
-            fp, tp, p_touch, p_near = pair_list_forces(
-                st.pos, cs, sn, st.vel, st.omega, pi, pj, ok, c.half, c.kn_c, tan_j,
-                params.sign_eps_m_s * 10.0, c.width, options.smooth,
-                cn=0.5 * (c.cn_pair[pi] + c.cn_pair[pj]), margin=margin, info=True)
-        force = force + fj + fp
-        torque = torque + tj + tp
-        touching = touching | p_touch
-        near = near | p_near
-    return force, torque, fs, intact, ContactInfo(touching, near, slipped)
+            pc = pair_list_forces(st.pos, cs, sn, st.vel, st.omega, pi, pj, ok, st.fs_pair,
+                                  c.half, c.kn_c, c.ks_c, tan_j, c.dt, c.width, options.smooth,
+                                  cn=0.5 * (c.cn_pair[pi] + c.cn_pair[pj]), margin=margin,
+                                  slip_tol=slip_tol)
+        force = force + fj
+        torque = torque + tj
+        if pc is None:
+            fs_pair = jnp.zeros_like(st.fs_pair)
+        else:
+            force, torque, fs_pair = force + pc.force, torque + pc.torque, pc.fs
+            touching, near = touching | pc.touching, near | pc.near_limit
+            slipped = slipped | pc.slipped
+    else:
+        fs_pair = st.fs_pair
+    return force, torque, fs, fs_pair, intact, ContactInfo(touching, near, slipped)
 
 
 def _lookup_all(table: SegmentTable, p, params: Params):
@@ -396,7 +406,8 @@ def init(params: Params, block: Block, key: jax.Array, options: Options = Option
     n_frag, n_joint = n * n, len(joints_of(n).a)
     st = State(pos=jnp.asarray(pose.pos, jnp.float64), theta=jnp.asarray(pose.theta),
                vel=jnp.asarray(pose.vel), omega=jnp.asarray(pose.omega),
-               fs=jnp.zeros((n_frag, 4)), intact=jnp.ones((n_joint,), bool),
+               fs=jnp.zeros((n_frag, 4)), fs_pair=jnp.zeros((n_frag, n_frag, 2)),
+               intact=jnp.ones((n_joint,), bool),
                slow_s=jnp.zeros((n_frag,)),
                anchor=jnp.concatenate([jnp.asarray(pose.pos, jnp.float64),
                                        jnp.asarray(pose.theta)[:, None]], axis=-1),
@@ -407,7 +418,7 @@ def init(params: Params, block: Block, key: jax.Array, options: Options = Option
     nbr = neighbours(st, min(options.n_neighbors, n_frag - 1), options) if n > 1 else None
     if nbr is not None and options.pair_search != "knn":
         nbr = (*nbr[:3], True)
-    force, torque, _, _, _ = _forces(st, params, c, nbr, options, n)
+    force, torque, _, _, _, _ = _forces(st, params, c, nbr, options, n)
     acc = force / c.mass + jnp.array([0.0, -1.0]) * params.gravity
     st = st._replace(vel=st.vel - 0.5 * c.dt * acc,
                      omega=st.omega - 0.5 * c.dt * torque / c.inertia)
@@ -421,7 +432,7 @@ def step(st: State, params: Params, c: Consts, nbr, options: Options, n_side: in
     (contacts inside the Coulomb cone with margin, or moved < rest_disp_m
     since the hold began)) and sets the status (``solvers.status`` codes).
     """
-    force, torque, fs, intact, info = _forces(st, params, c, nbr, options, n_side)
+    force, torque, fs, fs_pair, intact, info = _forces(st, params, c, nbr, options, n_side)
     g = jnp.array([0.0, -1.0]) * (c.mass * params.gravity)
     f_unbal = force + g
     f_base = force + params.damp_gravity * g
@@ -445,6 +456,7 @@ def step(st: State, params: Params, c: Consts, nbr, options: Options, n_side: in
     vel = jnp.where(move[:, None], vel, st.vel)
     omega = jnp.where(move, omega, st.omega)
     fs = jnp.where(move[:, None], fs, st.fs)
+    fs_pair = jnp.where(running, fs_pair, st.fs_pair)
     intact = jnp.where(running, intact, st.intact)
 
     rec = st.rec  # stations are recorded by step_with_stations
@@ -473,7 +485,7 @@ def step(st: State, params: Params, c: Consts, nbr, options: Options, n_side: in
                                      jnp.where(n_steps >= options.max_steps, BUDGET,
                                                RUNNING)))
     status = jnp.where(running, new_status, st.status).astype(jnp.int32)
-    return State(pos, theta, vel, omega, fs, intact, slow_s, anchor, exited, rec, n_steps,
+    return State(pos, theta, vel, omega, fs, fs_pair, intact, slow_s, anchor, exited, rec, n_steps,
                  status)
 
 

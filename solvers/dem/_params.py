@@ -115,12 +115,12 @@ class Params(NamedTuple):
         smooth_width: softplus width of the smooth contact law as a fraction
             of the static penetration m g / (kn l_c) (``Options.smooth``).
         sign_eps_m_s: velocity scale of tanh(v / eps) replacing sign(v) in the
-            smooth mode and in fragment-fragment friction.
+            smooth mode's local damping.
         stop_speed_m_s, stop_hold_s, rest_cone_margin, rest_disp_m,
             rest_slip_m_s: the rest test (our rule, not UDEC's). A fragment is
             *held* in a step when
             (1) it is slow, sqrt(v^2 + (omega R)^2) < stop_speed_m_s;
-            (2) none of its wall contacts slid in that step: the trial shear
+            (2) none of its wall or fragment contacts slid in that step: the trial shear
                 force did not exceed the Coulomb limit by more than
                 ks l_c rest_slip_m_s dt (a slip rate of rest_slip_m_s; the
                 tolerance keeps rounding from flagging as sliding a contact
