@@ -47,7 +47,7 @@ from solvers.dem._geometry import Joints, cross2, rotate
 from solvers.dem._sums import ordered_sum
 
 __all__ = ["PairContacts", "WallContact", "joint_forces", "pair_forces", "pair_list_forces",
-           "penetration_force", "wall_forces"]
+           "pair_shear_stiffness", "penetration_force", "wall_forces"]
 
 _TINY = 1e-30
 
@@ -277,7 +277,8 @@ def _pair_contact(xa, za, ca, sa, vxa, vza, wa, xb, zb, cb, sb, vxb, vzb, wb, ok
     any_touch = n_touch > 0
     on_i = jnp.where(ref_b, 1.0, -1.0)          # I is a when b is the reference
     fs_old = on_i * (fs_a[:, 0] * tx + fs_a[:, 1] * tz)
-    fs_trial = jnp.where(any_touch, fs_old - 2.0 * ks_c * jnp.sum(w * vt, axis=0) * dt, 0.0)
+    fs_trial = jnp.where(any_touch, fs_old - pair_shear_stiffness(ks_c) * jnp.sum(w * vt, axis=0)
+                         * dt, 0.0)
     f_lim = tan_phi * total
     fs = _clip_shear(fs_trial, f_lim, smooth)
     slipped = any_touch & (jnp.abs(fs_trial) - f_lim > slip_tol)
@@ -329,16 +330,23 @@ class PairContacts(NamedTuple):
     slipped: jax.Array
 
 
-def _spring_of(fs_pair, pi, pj):
-    """The shear force on pi of each listed pair, from the (i < j) table."""
-    lo, hi = jnp.minimum(pi, pj), jnp.maximum(pi, pj)
-    return jnp.where((pi < pj)[:, None], 1.0, -1.0) * fs_pair[lo, hi]
+def pair_shear_stiffness(ks_c):
+    """The shear spring of one fragment pair, 2 ks l_c (a face contact's two
+    points; our choice, see ``_pair_contact``), N/m per m."""
+    return 2.0 * ks_c
 
 
-def _springs_table(n_frag, pi, pj, fs_i, live):
+def _slots(pi, pj):
+    """Each listed pair's entry [lo, hi] (lo < hi) of the springs' table, and
+    the sign that turns the force stored there (on lo) into the force on pi."""
+    return (jnp.minimum(pi, pj), jnp.maximum(pi, pj),
+            jnp.where(pi < pj, 1.0, -1.0)[:, None])
+
+
+def _springs_table(n_frag, slots, fs_i, live):
     """The (i < j) table of the listed pairs' new shear forces (zero elsewhere)."""
-    lo, hi = jnp.minimum(pi, pj), jnp.maximum(pi, pj)
-    val = jnp.where(live[:, None], jnp.where((pi < pj)[:, None], 1.0, -1.0) * fs_i, 0.0)
+    lo, hi, sign = slots
+    val = jnp.where(live[:, None], sign * fs_i, 0.0)
     return jnp.zeros((n_frag, n_frag, 2), fs_i.dtype).at[lo, hi].set(val)
 
 
@@ -361,12 +369,13 @@ def pair_list_forces(pos, cs, sn, vel, omega, pi, pj, ok, fs_pair, h, kn_c, ks_c
         ``PairContacts``.
     """
     n_frag = pos.shape[0]
+    slots = _slots(pi, pj)
     fx, fz, ti, tj, touch, near, slip, fs_i, _ = _pair_contact(
-        *_pair_args(pos, cs, sn, vel, omega, pi, pj), ok, _spring_of(fs_pair, pi, pj), h,
+        *_pair_args(pos, cs, sn, vel, omega, pi, pj), ok, slots[2] * fs_pair[slots[:2]], h,
         kn_c, ks_c, tan_phi, dt, width, smooth, cn, margin, slip_tol)
     force, torque, flags = _gather(n_frag, pi, pj, fx, fz, ti, tj,
                                    jnp.stack([touch, near, slip]))
-    return PairContacts(force, torque, _springs_table(n_frag, pi, pj, fs_i, touch), *flags)
+    return PairContacts(force, torque, _springs_table(n_frag, slots, fs_i, touch), *flags)
 
 
 def pair_forces(pos, cs, sn, vel, omega, nbr, bonded, active, fs_pair, h, kn_c, ks_c, tan_phi,
@@ -386,22 +395,24 @@ def pair_forces(pos, cs, sn, vel, omega, nbr, bonded, active, fs_pair, h, kn_c, 
     pj = nbr.reshape(-1)
     mutual = jnp.any(nbr[pj] == pi[:, None], axis=-1)
     ok = ~bonded[pi, pj] & active[pi] & active[pj] & (pi != pj)
+    slots = _slots(pi, pj)
     fx, fz, ti, tj, touch, near, slip, fs_i, _ = _pair_contact(
-        *_pair_args(pos, cs, sn, vel, omega, pi, pj), ok, _spring_of(fs_pair, pi, pj), h,
+        *_pair_args(pos, cs, sn, vel, omega, pi, pj), ok, slots[2] * fs_pair[slots[:2]], h,
         kn_c, ks_c, tan_phi, dt, width, smooth, jnp.broadcast_to(cn, nbr.shape).reshape(-1),
         margin, slip_tol)
     weight = jnp.where(mutual, 0.5, 1.0)
     force, torque, flags = _gather(n_frag, pi, pj, fx, fz, ti, tj,
                                    jnp.stack([touch, near, slip]),
                                    jnp.concatenate([weight, weight])[:, None])
-    return PairContacts(force, torque, _springs_table(n_frag, pi, pj, fs_i, touch), *flags)
+    return PairContacts(force, torque, _springs_table(n_frag, slots, fs_i, touch), *flags)
 
 
 def pair_list_energy(pos, cs, sn, pi, pj, ok, h, kn_c) -> jax.Array:
     """Elastic energy of the fragment-fragment normal springs, J/m (scalar):
     kn l_c delta^2 / 2 summed over the contact points of the pairs (pi, pj)
     where ``ok``, as ``pair_list_forces`` finds them (linear law). The shear
-    springs' energy is |F_s|^2 / (4 ks l_c) per pair (``PairContacts.fs``)."""
+    springs' energy is |F_s|^2 / (2 pair_shear_stiffness) per pair
+    (``PairContacts.fs``)."""
     zero = jnp.zeros_like(pos[:, 0])
     args = _pair_args(pos, cs, sn, jnp.stack([zero, zero], -1), zero, pi, pj)
     fs0 = jnp.zeros((pi.shape[0], 2), pos.dtype)

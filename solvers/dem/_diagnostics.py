@@ -5,7 +5,7 @@ Energy (per metre of thickness, J/m) of a state at time t: kinetic
 the linear contact springs: wall normal kn l_c delta^2 / 2 and shear
 F_s^2 / (2 ks l_c) per corner, intact-joint (kn l_c u_n^2 + ks l_c u_s^2) / 2
 per point, fragment-fragment kn l_c delta^2 / 2 per contact point and
-F_s^2 / (4 ks l_c) per pair (its shear spring, ``_contact``). Damping, friction
+F_s^2 / (4 ks l_c) per pair (its shear spring of 2 ks l_c, ``_contact``). Damping, friction
 slip, a joint that breaks (its stored energy is lost) and a contact that
 opens while its shear spring is loaded all remove energy; nothing in the
 model adds any, so E(t) must not increase beyond the integrator's error.
@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from solvers.dem._contact import pair_list_energy
+from solvers.dem._contact import pair_list_energy, pair_shear_stiffness
 from solvers.dem._geometry import corner_offsets, joints_of, rotate, segment_lookup
 from solvers.dem._integrate import Consts, State, consts, neighbours, step_with_stations
 from solvers.dem._params import Block, Options, Params
@@ -102,7 +102,7 @@ def mechanical_energy(params: Params, c: Consts, st: State, st_next: State,
         ok = free & keep[iu] & keep[ju]
         elastic = elastic + pair_list_energy(st.pos, cs, sn, jnp.asarray(iu), jnp.asarray(ju),
                                              ok, c.half, c.kn_c)
-        elastic = elastic + jnp.sum(st_next.fs_pair ** 2) / (4.0 * c.ks_c)
+        elastic = elastic + jnp.sum(st_next.fs_pair ** 2) / (2.0 * pair_shear_stiffness(c.ks_c))
     return Energy(kinetic, potential, elastic)
 
 

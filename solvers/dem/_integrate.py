@@ -51,7 +51,13 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from solvers.dem._contact import joint_forces, pair_forces, pair_list_forces, wall_forces
+from solvers.dem._contact import (
+    joint_forces,
+    pair_forces,
+    pair_list_forces,
+    pair_shear_stiffness,
+    wall_forces,
+)
 from solvers.dem._geometry import (
     SegmentTable,
     corner_offsets,
@@ -278,7 +284,7 @@ def _forces(st: State, params: Params, c: Consts, nbr, options: Options, n_side:
                                           c.ks_c, c.c_c, c.t_c, tan_j, st.vel, st.omega, cj)
         else:  # every joint already broken (chunk-level switch in ``simulate``)
             fj, tj = jnp.zeros_like(force), jnp.zeros_like(torque)
-        slip_tol = 2.0 * c.ks_c * params.rest_slip_m_s * c.dt   # a pair's spring is 2 ks l_c
+        slip_tol = pair_shear_stiffness(c.ks_c) * params.rest_slip_m_s * c.dt
         if options.pair_search == "knn":
             n_frag = n_side * n_side
             bonded = (jnp.zeros((n_frag, n_frag), bool).at[joints.a, joints.b].set(intact)
