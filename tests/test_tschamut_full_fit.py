@@ -8,7 +8,7 @@ ESS >= ``ESS_MIN``), at least 4 chains and every one kept by the chain
 screening, the log-likelihood GP's realisation check, and no parameter with
 more than ``calib.inference.adequacy.BOUND_FLAG`` of its posterior within
 ``BOUND_BAND`` of a prior bound (``bayes.ok`` and the adequacy record of
-``calibration.json``). Each fit took 10-15 minutes on 2 cores: ``-m slow``.
+``calibration.json``). Each fit took 5-15 minutes on 2 cores, by the machine: ``-m slow``.
 """
 
 from __future__ import annotations
@@ -17,46 +17,56 @@ import json
 
 import pytest
 
-from calib.inference.adequacy import BOUND_FLAG
+from calib.inference.adequacy import BOUND_BAND, BOUND_FLAG
 
 DATA = "data/tschamut2014/observations.csv"
 
-# What each seed's fit measured (2026-12-06, 2 cores, one fit at a time, the same call as
-# ``python -m calib.fit DATA --model crsp --seed S``, at the site file's rolling threshold
-# 0.05 m/s, jax 0.10.2 and numpyro 0.22.0): every sampler diagnostic and the GP realisation
-# check pass for all three, seed 1 after its careful run; seeds 1 and 2 pile mass on Kt's
-# bound, the end of a ridge the runouts leave open. docs/studies.md, "Divergences repaired
-# with a smaller step" and "Where Kt's bound comes from".
-_MEASURED = {
-    1: "measured 2026-12-06 (805 s): R-hat <= 1.002, bulk ESS >= 1,760, tail ESS >= 2,261, "
-       "4 of 4 chains kept, the GP realisation check passed after 3 waves, a careful run after "
-       "4 divergences; 29 % of Kt within 2 % of its upper bound 0.98 (90 % interval "
-       "0.944-0.978)",
-    2: "measured 2026-12-06 (600 s): R-hat <= 1.002, bulk ESS >= 2,574, tail ESS >= 2,092, "
-       "4 of 4 chains kept, the GP realisation check passed after 2 waves; 12 % of Kt within "
-       "2 % of its upper bound 0.98 (90 % interval 0.932-0.977)",
-    3: None,  # measured 2026-12-06 (878 s): every check passed; Kt 9 % near its bound
-}
+# What the three fits measured, on two machines. Each fit is deterministic on one machine
+# and installation, but XLA compiles for the host's processor, so the last digits of a
+# simulation, and from them a fit's path, differ between machines: the seed that passes
+# moves, while on every machine measured at least one seed piles Kt on its bound, the end
+# of a ridge the runouts leave open (docs/studies.md, "Where Kt's bound comes from" and
+# "The three seeds on a faster machine"). The requirement is all three seeds, so the test
+# asks for all three and reports each.
+_MEASURED = (
+    "measured 2026-12-08 (2 cores, 169,717 CRSP blocks/s of 1 m in `python -m solvers.bench "
+    "--no-dem`, jax 0.10.2, numpyro 0.22.0): every sampler diagnostic and the GP realisation "
+    "check pass for all three seeds (R-hat <= 1.002, bulk ESS >= 1,831, 4 of 4 chains kept, no "
+    "divergences), in 316, 357 and 362 s; Kt's mass within 2 % of its upper bound 0.98 is "
+    "27 % (seed 1, flagged), 9 % (seed 2) and 11 % (seed 3, flagged). On 2026-12-06 on a "
+    "machine half as fast (85,514 blocks/s): 29 % and 12 % (flagged), 9 % (seed 3), in 805, "
+    "600 and 878 s")
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [
-    pytest.param(s, marks=() if _MEASURED[s] is None else
-                 pytest.mark.xfail(strict=True, reason=_MEASURED[s])) for s in (1, 2, 3)])
-def test_the_main_job_passes_every_check_on_all_tschamut_runs(seed, tmp_path):
+@pytest.mark.xfail(strict=True, reason=_MEASURED)
+def test_the_main_job_passes_every_check_on_all_tschamut_runs_for_three_seeds(tmp_path):
     from calib.fit import main
 
-    assert main([DATA, "--model", "crsp", "--seed", str(seed), "--out", str(tmp_path),
-                 "--no-progress"]) == 0
-    crsp = json.loads((tmp_path / "calibration.json").read_text())["crsp"]
+    failed = {}
+    for seed in (1, 2, 3):
+        out = tmp_path / f"seed-{seed}"
+        assert main([DATA, "--model", "crsp", "--seed", str(seed), "--out", str(out),
+                     "--no-progress"]) == 0
+        problems = _problems(json.loads((out / "calibration.json").read_text())["crsp"])
+        if problems:
+            failed[seed] = problems
+    assert not failed, failed
+
+
+def _problems(crsp: dict) -> list[str]:
+    """What keeps one fit from passing every check (empty when it passes)."""
     bayes, adequacy = crsp["bayes"], crsp["adequacy"]
     screen = bayes.get("chain_screen") or {}
     kept = screen.get("kept", [])
     piled = {n: max(b["lower"], b["upper"]) for n, b in adequacy["bounds"].items()}
     summary = {n: {k: round(float(v), 3) for k, v in s.items() if k in
                    ("rhat", "ess_bulk", "ess_tail")} for n, s in bayes["summary"].items()}
-    measured = (f"problems: {bayes['problems']}; chains kept {sum(kept)} of {len(kept)}; "
-                f"mass at a bound {piled}; diagnostics {summary}")
-    assert len(kept) >= 4 and all(kept), measured
-    assert max(piled.values()) <= BOUND_FLAG, measured
-    assert bayes["ok"], measured
+    out = []
+    if len(kept) < 4 or not all(kept):
+        out.append(f"chains kept {sum(kept)} of {len(kept)}")
+    out += [f"{n}: {m:.1%} within {BOUND_BAND:.0%} of a bound" for n, m in piled.items()
+            if m > BOUND_FLAG]
+    if not bayes["ok"]:
+        out.append(f"posterior problems {bayes['problems']}; diagnostics {summary}")
+    return out
