@@ -79,6 +79,25 @@ def test_a_model_that_stops_too_early_is_flagged(tmp_path):
     assert not rec["ok"] and "Kt" in rec["message"] and "90%" in rec["message"]
 
 
+def test_mass_on_a_bound_is_not_answered_by_widening_the_box(tmp_path):
+    """The prior boxes are set from published ranges before fitting; where mass piles
+    on a bound, the message points to what can settle it (a measurement that separates
+    the parameters, a source, the missing physics), not to a wider box. Without mass
+    on a bound the remedy is the physics or the data."""
+    rng = np.random.default_rng(3)
+    sim = 80.0 + 5.0 * rng.standard_normal((1, 4000))
+    obs = _obs(tmp_path, np.full(18, 0.4), 80.0 + 5.0 * rng.standard_normal(18), sd=1.0)
+    piled = CRSP_BOX.from_unit(rng.random((1000, 3)))
+    piled[:, 1] = CRSP_BOX.hi[1]
+    rec = adequacy_record(piled, CRSP_BOX, obs, sim, "test")
+    assert not rec["ok"] and "Kt" in rec["message"]
+    assert "widen the prior" not in rec["message"].lower()
+    assert "calib/model/priors.py" in rec["message"] and "--velocities" in rec["message"]
+    early = adequacy_record(None, CRSP_BOX, obs, sim + 60.0, "test")
+    assert not early["ok"] and "90%" in early["message"]
+    assert "missing physics" in early["message"] and "priors.py" not in early["message"]
+
+
 def test_interval_rows_are_covered_when_they_overlap_the_band(tmp_path):
     path = tmp_path / "obs.csv"
     path.write_text("block_size_m,runout_min_m,runout_max_m\n1.0,90,95\n1.0,200,210\n")

@@ -252,6 +252,21 @@ def stalled_releases(obs: Observations, runouts: np.ndarray, index=None,
             "flagged": [x for x in entries if x["flagged"]]}
 
 
+def _remedy(bound_flagged: bool) -> str:
+    """What a user can do about the problems found. Where posterior mass piles on a
+    bound of a box set from published ranges before fitting (``calib.model.priors``),
+    widening the box only moves the cut: the remedy is a source for another range, a
+    measurement that separates the parameters the runouts leave free together (passage
+    speeds, ``calib.fit --velocities``), or the physics the model misses."""
+    if not bound_flagged:
+        return "Add the missing physics or check the data before using this calibration"
+    return ("The prior boxes are set before fitting (their sources and assumptions: "
+            "calib/model/priors.py), and widening one until the mass leaves its bound only "
+            "moves the cut: a measurement that separates the parameters (passage speeds, "
+            "calib.fit --velocities), a source for another range, the missing physics or a "
+            "check of the data is what settles it, before this calibration is used")
+
+
 def _stall_problem(stalls: dict) -> str | None:
     bad = stalls["flagged"]
     if not bad:
@@ -506,8 +521,7 @@ def adequacy_record(samples: np.ndarray | None, box: Box, obs: Observations,
     message = None
     if problems:
         message = ("the model may not be able to fit these data: " + "; ".join(problems)
-                   + ". Widen the prior, add the missing physics or check the data before "
-                   "using this calibration")
+                   + ". " + _remedy(any(b["flagged"] for b in (bounds or {}).values())))
     return {"bound_band_fraction": BOUND_BAND, "bound_flag_fraction": BOUND_FLAG,
             "bounds": bounds, "coverage": cov, "stalls": stalls, "stalled_rows": stalled,
             "predictive": source,
