@@ -522,6 +522,31 @@ def _print_parameters(result: dict, models) -> None:
                   f"at {c['posterior_mode']['loglik']:.1f} nats against "
                   f"{_fmt(c['gradient']['loglik'], 1)} at the gradient stage's end point "
                   f"(margin {c['margin_nats']:.1f}; calibration.json: {model}.estimate_choice)")
+        outside = _outside_interval(result[model], model)
+        if c and c["chosen"] == "gradient" and outside:
+            g, m = c["gradient"]["loglik"], c["posterior_mode"]["loglik"]
+            gap = None if g is None or m is None else g - m
+            what = ("the rows fit about as well at both, a sign that they leave a combination "
+                    "of the parameters free. The posterior's draws, not this point, carry that"
+                    if gap is not None and abs(gap) <= c["margin_nats"] else
+                    "the simulator scores the point higher than the posterior's mode by more "
+                    "than the margin: the posterior may have missed the best region")
+            print(f"{model.upper()} estimate: the gradient stage's end point, outside the 90 % "
+                  f"interval of {', '.join(outside)}; the simulator scores it at "
+                  f"{_fmt(g, 1)} nats and the posterior's mode at {_fmt(m, 1)} (margin "
+                  f"{_fmt(c['margin_nats'], 1)}): {what} (calib.hazard and calib.validate "
+                  f"use the draws; calibration.json: {model}.estimate_choice)")
+
+
+def _outside_interval(sec: dict, model: str) -> list[str]:
+    """The parameters whose point estimate lies outside their posterior 90 % interval."""
+    params = sec["alpha_law"] if model == "dem" else sec
+    out = []
+    for name in sec["parameters"]:
+        s = params[name]
+        if s.get("q05") is not None and not s["q05"] <= s["map"] <= s["q95"]:
+            out.append(name)
+    return out
 
 
 def _print_rows(result: dict, models) -> None:

@@ -91,3 +91,39 @@ def test_a_mode_with_no_finished_block_never_wins(monkeypatch, bad):
     _, source, choice = point_estimate(fw, rows, SimpleNamespace(theta=FAST),
                                        SimpleNamespace(map=PAPER))
     assert source == "gradient" and choice["posterior_mode"]["loglik"] is None
+
+
+def _summary(kn_map: float, chosen: str) -> dict:
+    def p(m, q05, q95):
+        return {"map": m, "mean": 0.5 * (q05 + q95), "q05": q05, "q95": q95}
+    return {"crsp": {"parameters": ["Kn", "Kt"], "Kn": p(kn_map, 0.396, 0.569),
+                     "Kt": p(0.966, 0.940, 0.976), "prior": {},
+                     "estimate_choice": {"chosen": chosen, "margin_nats": 4.9,
+                                         "gradient": {"loglik": -294.6},
+                                         "posterior_mode": {"loglik": -295.5}}}}
+
+
+def test_the_summary_says_why_a_kept_gradient_point_lies_outside_an_interval(capsys):
+    """Tschamut, seed 3: the gradient point (Kn 0.576) lies outside Kn's 90 % interval
+    (0.396-0.569) and the simulator scores it as well as the posterior's mode. The
+    summary says so, and that the posterior's draws carry the free combination; inside
+    every interval it adds nothing."""
+    from calib.fit import _print_parameters
+
+    _print_parameters(_summary(0.576, "gradient"), ["crsp"])
+    out = capsys.readouterr().out
+    assert "outside the 90 % interval of Kn;" in out and "-294.6" in out and "-295.5" in out
+    assert "posterior's draws" in out
+    _print_parameters(_summary(0.480, "gradient"), ["crsp"])
+    assert "outside the 90 % interval" not in capsys.readouterr().out
+
+
+def test_the_summary_says_when_a_kept_gradient_point_beats_the_mode(capsys):
+    from calib.fit import _print_parameters
+
+    r = _summary(0.576, "gradient")
+    r["crsp"]["estimate_choice"]["posterior_mode"]["loglik"] = -320.0
+    _print_parameters(r, ["crsp"])
+    out = capsys.readouterr().out
+    assert "outside the 90 % interval of Kn;" in out and "may have missed the best region" in out
+    assert "about as well" not in out
