@@ -503,7 +503,7 @@ def _print_parameters(result: dict, models) -> None:
     print(f"{'model':5} {'parameter':{w}} {'estimate':>9} {'mean':>8} {'90% interval':>19}")
     for model in models:
         sec = result[model]
-        params = sec["alpha_law"] if model == "dem" else sec
+        params = _summaries(sec, model)
         for name in sec["parameters"]:
             s = params[name]
             iv = "-" if s["q05"] is None else f"[{s['q05']:.3f}, {s['q95']:.3f}]"
@@ -538,9 +538,15 @@ def _print_parameters(result: dict, models) -> None:
                   f"use the draws; calibration.json: {model}.estimate_choice)")
 
 
+def _summaries(sec: dict, model: str) -> dict:
+    """Where a model's parameter summaries live in ``calibration.json`` (name -> map,
+    mean, q05, q95): the DEM's under ``alpha_law``, CRSP's in its section."""
+    return sec["alpha_law"] if model == "dem" else sec
+
+
 def _outside_interval(sec: dict, model: str) -> list[str]:
     """The parameters whose point estimate lies outside their posterior 90 % interval."""
-    params = sec["alpha_law"] if model == "dem" else sec
+    params = _summaries(sec, model)
     out = []
     for name in sec["parameters"]:
         s = params[name]
